@@ -1,0 +1,1 @@
+"""The per-drone agent: consensus estimator of the swarm descriptors and cooperative controller."""

@@ -1,0 +1,1 @@
+"""Ground station, operator CLI, in-process reference flight, logs, metrics and plots."""
