@@ -51,13 +51,14 @@ def align_axes(sigma: FloatArray, desired_axes: FloatArray) -> tuple[FloatArray,
     Equal eigenvalues give a valid (if arbitrary within the tie) frame, never NaN.
     """
     sym = 0.5 * (sigma + sigma.T)
-    evals, evecs = np.linalg.eigh(sym)
+    _, evecs = np.linalg.eigh(sym)
     overlap = np.abs(desired_axes.T @ evecs)  # [desired k, eigen j]
     order = [-1, -1]
     free = [0, 1, 2]
     # Assign the most confident pair first, then the next among what is left.
     for _ in range(2):
-        best = max(((k, j) for k in (0, 1) if order[k] < 0 for j in free), key=lambda kj: overlap[kj])
+        pairs = [(k, j) for k in (0, 1) if order[k] < 0 for j in free]
+        best = max(pairs, key=lambda kj: overlap[kj])
         order[best[0]] = best[1]
         free.remove(best[1])
     r1 = evecs[:, order[0]] * np.sign(desired_axes[:, 0] @ evecs[:, order[0]] or 1.0)

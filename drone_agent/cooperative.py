@@ -1,0 +1,174 @@
+"""The cooperative motion controller: each drone's own block of the pseudo-inverse.
+
+ALGORITHM.md §4.
+
+The rows of the descriptor Jacobian are mutually orthogonal, so ``beta# = beta^T (beta beta^T)^-1``
+splits per drone, and drone i's virtual acceleration is an affine field of its own offset
+``p_i = x_i - mu`` from the (estimated) centre::
+
+    v_i = w_mu + R A R^T p_i  (+ flat-axis PD, + null-space damping)
+
+with A symmetric in the swarm frame: ``A_kk = w_sk / (2 s_k)`` and, for the pair (j, k) rotating
+about the third axis m, ``A_jk = [(s_k - s_j) Omega_jk - kd_m (Sigma'_dot_jk - (s_k - s_j) W_jk)]
+/ (s_j + s_k)`` where ``Omega = skew(alpha)`` is the commanded angular acceleration of the swarm
+frame, ``W = skew(omega_d)`` its desired angular rate and ``Sigma'_dot = R^T Sigma_dot R``. It uses
+only the drone's own state and the estimated descriptors: it does not depend on N.
+
+Pure and I/O-free.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from drone_agent.moments import SwarmMoments
+from protocols.descriptor_vector import CENTRE, ORIENTATION, SHAPE
+from protocols.descriptors import align_axes, desired_axes
+from protocols.frames import FloatArray
+
+PAPER_KP = (0.5, 0.5, 1.75, 0.15, 0.15, 0.15, 0.5, 0.5, 0.5)
+#: Off-diagonal pairs (j, k) of the swarm frame and the axis m each pair rotates about.
+_PAIRS = ((1, 2, 0), (0, 2, 1), (0, 1, 2))
+
+
+@dataclass(frozen=True)
+class CooperativeGains:
+    """Outer-loop gains, descriptor order (mu_x, mu_y, mu_z, roll, pitch, yaw, s1, s2, s3).
+
+    ``kd`` defaults to 1.8 sqrt(kp) (ALGORITHM.md §6). ``flat_kp``/``flat_kd``: local PD that holds
+    a drone on a commanded-flat axis (1/s^2, 1/s); ``null_damping_per_s``: null-space damping;
+    ``min_variance_m2``: guard below which a commanded variance counts as flat.
+    """
+
+    kp: tuple[float, ...] = PAPER_KP
+    kd: tuple[float, ...] = tuple(1.8 * np.sqrt(k) for k in PAPER_KP)
+    flat_kp: float = 1.75
+    flat_kd: float = 1.75
+    null_damping_per_s: float = 1.0
+    min_variance_m2: float = 0.05
+
+
+def skew(a: FloatArray) -> FloatArray:
+    """Skew-symmetric matrix (3, 3) of a vector (3,): ``skew(a) @ b == cross(a, b)``."""
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def euler_rate_matrix(roll: float, pitch: float) -> FloatArray:
+    """E (3, 3) mapping ZYX Euler-angle rates (roll, pitch, yaw) to body rates (p, q, r)."""
+    sr, cr = np.sin(roll), np.cos(roll)
+    sp, cp = np.sin(pitch), np.cos(pitch)
+    return np.array([[1.0, 0.0, -sp], [0.0, cr, sr * cp], [0.0, -sr, cr * cp]])
+
+
+def shape_matrix(
+    variances_m2: FloatArray,
+    w_shape: FloatArray,
+    alpha: FloatArray,
+    damping: FloatArray | None = None,
+    min_variance_m2: float = 0.0,
+    flat: tuple[bool, bool, bool] = (False, False, False),
+) -> FloatArray:
+    """The symmetric matrix A (3, 3) of the affine field, in the swarm frame.
+
+    ``w_shape`` (3,): commanded variance accelerations (m^2/s^2); ``alpha`` (3,): commanded angular
+    acceleration of the swarm frame about its own axes (rad/s^2); ``damping`` (3,): the rotation
+    damping numerators per axis m (``-kd_m (Sigma'_dot_jk - ...)``), default 0. Flat axes get no
+    variance row (``A_kk = 0``).
+    """
+    s = np.asarray(variances_m2, dtype=float)
+    sg = np.maximum(s, min_variance_m2)
+    a = np.zeros((3, 3))
+    for k in range(3):
+        if not flat[k]:
+            a[k, k] = w_shape[k] / (2.0 * sg[k])
+    omega = skew(alpha)
+    for j, k, m in _PAIRS:
+        num = (s[k] - s[j]) * omega[j, k] + (0.0 if damping is None else damping[m])
+        a[j, k] = a[k, j] = num / (sg[j] + sg[k])
+    return a
+
+
+def pinv_block(offset_m: FloatArray, axes: FloatArray, variances_m2: FloatArray) -> FloatArray:
+    """Drone i's block (3, 9) of beta#: maps w = [w_mu (3), alpha (3), w_s (3)] to v_i.
+
+    ``alpha`` is the angular acceleration of the swarm frame about its own axes. ``offset_m`` is
+    p_i = x_i - mu (3,), ``axes`` R (3, 3), ``variances_m2`` s (3,), all distinct.
+    """
+    block = np.zeros((3, 9))
+    block[:, 0:3] = np.eye(3)
+    p_swarm = axes.T @ offset_m
+    for col in range(6):
+        w = np.zeros(6)
+        w[col] = 1.0
+        a = shape_matrix(variances_m2, w[3:6], w[0:3])
+        block[:, 3 + col] = axes @ (a @ p_swarm)
+    return block
+
+
+def pinv_block_zyx(offset_m: FloatArray, axes: FloatArray, variances_m2: FloatArray) -> FloatArray:
+    """As :func:`pinv_block`, for the descriptor vector with ZYX angles (roll, pitch, yaw) rows."""
+    from protocols.frames import zyx_from_rot
+
+    _, pitch, roll = zyx_from_rot(axes)
+    block = pinv_block(offset_m, axes, variances_m2)
+    block[:, 3:6] = block[:, 3:6] @ euler_rate_matrix(roll, pitch)
+    return block
+
+
+def rotation_error(axes: FloatArray, axes_desired: FloatArray) -> FloatArray:
+    """Rotation error (3,) about the swarm axes: ``vee((R_d^T R - R^T R_d) / 2)`` (rad, small)."""
+    m = 0.5 * (axes_desired.T @ axes - axes.T @ axes_desired)
+    return np.array([m[2, 1], m[0, 2], m[1, 0]])
+
+
+def virtual_acceleration(
+    position_ned_m: FloatArray,
+    velocity_ned_m_s: FloatArray,
+    swarm: SwarmMoments,
+    reference: tuple[FloatArray, FloatArray, FloatArray],
+    gains: CooperativeGains,
+) -> FloatArray:
+    """Drone i's commanded acceleration v_i (3,) NED m/s^2 (gravity not included).
+
+    ``swarm``: the estimated moments; ``reference``: a_d, a_d_dot, a_d_ddot (9,) each.
+    """
+    a_d, ad_dot, ad_ddot = reference
+    kp, kd = np.asarray(gains.kp), np.asarray(gains.kd)
+    s_min = gains.min_variance_m2
+    r_d = desired_axes(a_d)
+    axes, s = align_axes(swarm.sigma_m2, r_d)
+    sigma_rate = axes.T @ swarm.sigma_rate_m2_s @ axes
+
+    w_mu = (
+        ad_ddot[CENTRE]
+        - kd[CENTRE] * (swarm.centre_rate_ned_m_s - ad_dot[CENTRE])
+        - kp[CENTRE] * (swarm.centre_ned_m - a_d[CENTRE])
+    )
+    s_d, s_d_dot, s_d_ddot = a_d[SHAPE], ad_dot[SHAPE], ad_ddot[SHAPE]
+    w_s = s_d_ddot - kd[SHAPE] * (np.diag(sigma_rate) - s_d_dot) - kp[SHAPE] * (s - s_d)
+    flat = (bool(s_d[0] < s_min), bool(s_d[1] < s_min), bool(s_d[2] < s_min))
+
+    roll_d, pitch_d = float(a_d[3]), float(a_d[4])
+    e_d = euler_rate_matrix(roll_d, pitch_d)
+    to_swarm = axes.T @ r_d
+    omega_d = to_swarm @ (e_d @ ad_dot[ORIENTATION])
+    alpha = to_swarm @ (e_d @ ad_ddot[ORIENTATION]) - kp[ORIENTATION] * rotation_error(axes, r_d)
+    w_rate = skew(omega_d)
+    damping = np.empty(3)
+    for j, k, m in _PAIRS:
+        damping[m] = -kd[3 + m] * (sigma_rate[j, k] - (s[k] - s[j]) * w_rate[j, k])
+    a = shape_matrix(s, w_s, alpha, damping, s_min, flat)
+
+    p = np.asarray(position_ned_m, dtype=float) - swarm.centre_ned_m
+    p_dot = np.asarray(velocity_ned_m_s, dtype=float) - swarm.centre_rate_ned_m_s
+    p_swarm, p_dot_swarm = axes.T @ p, axes.T @ p_dot
+    v_swarm = a @ p_swarm
+    for k in range(3):
+        if flat[k]:
+            v_swarm[k] -= gains.flat_kp * p_swarm[k] + gains.flat_kd * p_dot_swarm[k]
+    sg = np.maximum(s, s_min)
+    b = sigma_rate / (sg[:, None] + sg[None, :])
+    v_swarm -= gains.null_damping_per_s * (p_dot_swarm - b @ p_swarm)
+    return w_mu + axes @ v_swarm

@@ -1,0 +1,109 @@
+"""The consensus channels of one drone and the swarm statistics recovered from their averages.
+
+ALGORITHM.md §3: every drone knows the shared reference centre mu_d(t) and its rate. With
+``y = x_i - mu_d`` and ``y_dot = v_i - mu_d_dot`` each drone contributes 18 channels::
+
+    zeta_i = [ y (3), sym6(y y^T) (6), y_dot (3), sym6(y_dot y^T + y y_dot^T) (6) ]
+
+whose swarm averages m1, M2, m3, M4 give ``mu = mu_d + m1``, ``Sigma = M2 - m1 m1^T``,
+``mu_dot = mu_d_dot + m3``, ``Sigma_dot = M4 - m3 m1^T - m1 m3^T``. Centring on the shared reference
+avoids the cancellation of raw moments far from the origin. Pure and I/O-free.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from protocols.frames import FloatArray
+
+N_CHANNELS = 18
+#: Order of the 6 entries of a symmetric 3x3 matrix: xx, yy, zz, xy, xz, yz.
+_SYM_I = np.array([0, 1, 2, 0, 0, 1])
+_SYM_J = np.array([0, 1, 2, 1, 2, 2])
+
+
+def sym6(m: FloatArray) -> FloatArray:
+    """The 6 independent entries (xx, yy, zz, xy, xz, yz) of a symmetric matrix (3, 3)."""
+    return m[_SYM_I, _SYM_J]
+
+
+def unsym6(v: FloatArray) -> FloatArray:
+    """Symmetric matrix (3, 3) from its 6 entries (xx, yy, zz, xy, xz, yz)."""
+    m = np.empty((3, 3))
+    m[_SYM_I, _SYM_J] = v
+    m[_SYM_J, _SYM_I] = v
+    return m
+
+
+def channels(
+    position_ned_m: FloatArray,
+    velocity_ned_m_s: FloatArray,
+    ref_centre_ned_m: FloatArray,
+    ref_centre_rate_ned_m_s: FloatArray,
+) -> FloatArray:
+    """The 18 consensus channels zeta_i of one drone (see module docstring)."""
+    y = np.asarray(position_ned_m, dtype=float) - ref_centre_ned_m
+    yd = np.asarray(velocity_ned_m_s, dtype=float) - ref_centre_rate_ned_m_s
+    out = np.empty(N_CHANNELS)
+    out[0:3] = y
+    out[3:9] = y[_SYM_I] * y[_SYM_J]
+    out[9:12] = yd
+    out[12:18] = yd[_SYM_I] * y[_SYM_J] + y[_SYM_I] * yd[_SYM_J]
+    return out
+
+
+def channels_batch(
+    positions_ned_m: FloatArray,
+    velocities_ned_m_s: FloatArray,
+    ref_centre_ned_m: FloatArray,
+    ref_centre_rate_ned_m_s: FloatArray,
+) -> FloatArray:
+    """Channels (N, 18) of N drones at once (positions and velocities (N, 3))."""
+    y = np.asarray(positions_ned_m, dtype=float) - ref_centre_ned_m
+    yd = np.asarray(velocities_ned_m_s, dtype=float) - ref_centre_rate_ned_m_s
+    out = np.empty((y.shape[0], N_CHANNELS))
+    out[:, 0:3] = y
+    out[:, 3:9] = y[:, _SYM_I] * y[:, _SYM_J]
+    out[:, 9:12] = yd
+    out[:, 12:18] = yd[:, _SYM_I] * y[:, _SYM_J] + y[:, _SYM_I] * yd[:, _SYM_J]
+    return out
+
+
+@dataclass(frozen=True)
+class SwarmMoments:
+    """Centre, covariance and their rates, NED: mu (3,) m, sigma (3, 3) m^2, rates per second."""
+
+    centre_ned_m: FloatArray
+    centre_rate_ned_m_s: FloatArray
+    sigma_m2: FloatArray
+    sigma_rate_m2_s: FloatArray
+
+
+def moments_from_averages(
+    averages: FloatArray, ref_centre_ned_m: FloatArray, ref_centre_rate_ned_m_s: FloatArray
+) -> SwarmMoments:
+    """Swarm moments from the (estimated) averages of the 18 channels."""
+    m1 = averages[0:3]
+    m2 = unsym6(averages[3:9])
+    m3 = averages[9:12]
+    m4 = unsym6(averages[12:18])
+    sigma = m2 - np.outer(m1, m1)
+    sigma_rate = m4 - np.outer(m3, m1) - np.outer(m1, m3)
+    return SwarmMoments(
+        centre_ned_m=np.asarray(ref_centre_ned_m, dtype=float) + m1,
+        centre_rate_ned_m_s=np.asarray(ref_centre_rate_ned_m_s, dtype=float) + m3,
+        sigma_m2=sigma,
+        sigma_rate_m2_s=sigma_rate,
+    )
+
+
+def true_moments(positions_ned_m: FloatArray, velocities_ned_m_s: FloatArray) -> SwarmMoments:
+    """The exact moments of positions and velocities (N, 3): what a perfect estimator returns."""
+    x = np.asarray(positions_ned_m, dtype=float)
+    v = np.asarray(velocities_ned_m_s, dtype=float)
+    mu, mu_dot = x.mean(axis=0), v.mean(axis=0)
+    p, pd = x - mu, v - mu_dot
+    n = x.shape[0]
+    return SwarmMoments(mu, mu_dot, (p.T @ p) / n, (pd.T @ p + p.T @ pd) / n)
