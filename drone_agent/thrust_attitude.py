@@ -2,7 +2,7 @@
 
 ALGORITHM.md §1 eq. 35 as corrected, and the limits of §4. Pure and I/O-free.
 
-With ``a = g e3 - v`` the specific force the rotors must produce (NED, so ``a_z > 0`` is up-thrust)::
+With ``a = g e3 - v`` the specific force the rotors must produce (NED; ``a_z > 0`` lifts)::
 
     T = m |a|,   pitch = atan2(-(v_x cos(yaw) + v_y sin(yaw)), g - v_z),
     roll = asin(m (v_y cos(yaw) - v_x sin(yaw)) / T)
