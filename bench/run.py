@@ -1,0 +1,81 @@
+"""Run the registered benchmarks and write one JSON object: ``python -m bench.run --out FILE``.
+
+To add a benchmark, put a callable returning a JSON-able dict into ``BENCHMARKS``. A result with a
+``"rows"`` list of flat dicts is also printed as a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.physics import physics_step
+
+Benchmark = Callable[[], dict[str, Any]]
+
+BENCHMARKS: dict[str, Benchmark] = {
+    "physics_step": physics_step,
+}
+
+
+def machine_info() -> dict[str, Any]:
+    """Where the numbers were measured."""
+    affinity = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    return {
+        "platform": platform.platform(),
+        "machine": platform.machine(),
+        "processor": platform.processor(),
+        "cpu_count": os.cpu_count(),
+        "usable_cpus": len(affinity) if affinity is not None else None,
+        "python": sys.version.split()[0],
+        "numpy": np.__version__,
+        "utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+    }
+
+
+def format_rows(name: str, rows: Sequence[dict[str, Any]]) -> str:
+    """A plain-text table of flat dicts, one line per row."""
+    columns = list(rows[0])
+    cells = [[_cell(row.get(c)) for c in columns] for row in rows]
+    widths = [max(len(c), *(len(r[i]) for r in cells)) for i, c in enumerate(columns)]
+    lines = [name, "  ".join(c.rjust(w) for c, w in zip(columns, widths, strict=True))]
+    lines += ["  ".join(v.rjust(w) for v, w in zip(r, widths, strict=True)) for r in cells]
+    return "\n".join(lines)
+
+
+def _cell(value: Any) -> str:
+    return f"{value:,}" if isinstance(value, int) and not isinstance(value, bool) else str(value)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """CLI entry point: run the benchmarks, print tables, write the JSON file."""
+    parser = argparse.ArgumentParser(prog="python -m bench.run", description=__doc__)
+    parser.add_argument("--out", type=Path, default=Path("bench/results.json"))
+    parser.add_argument("--only", action="append", choices=sorted(BENCHMARKS), default=None)
+    args = parser.parse_args(argv)
+    results: dict[str, Any] = {}
+    for name in args.only or BENCHMARKS:
+        result = BENCHMARKS[name]()
+        results[name] = result
+        if result.get("rows"):
+            print(format_rows(name, result["rows"]))
+        if "target_met" in result:
+            print(f"{name}: target {result.get('target')} met: {result['target_met']}")
+    results["machine"] = machine_info()
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(results, indent=2) + "\n")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

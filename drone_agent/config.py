@@ -1,0 +1,42 @@
+"""An agent's configuration from a scenario's [gains], [consensus] and [rates] sections."""
+
+from __future__ import annotations
+
+import math
+
+from drone_agent.agent_core import AgentConfig
+from drone_agent.consensus import ConsensusParams
+from drone_agent.cooperative import CooperativeGains
+from drone_agent.thrust_attitude import ThrustLimits
+from protocols.frames import G_M_S2
+from protocols.scenario import Scenario
+
+
+def agent_config(scenario: Scenario) -> AgentConfig:
+    """Gains, limits and consensus parameters every agent of the scenario uses."""
+    g, c, v = scenario.gains, scenario.consensus, scenario.vehicle
+    consensus = ConsensusParams(
+        rho=c.rho,
+        c=c.c,
+        f=c.f,
+        dt_s=scenario.rates.dt_control_s,
+        degree_normalised=c.degree_normalised,
+        heard_timeout_ticks=c.heard_timeout_ticks,
+        history_ticks=max(25, c.heard_timeout_ticks + c.delay_ticks + 5),
+    )
+    gains = CooperativeGains(
+        kp=tuple(g.kp),
+        kd=tuple(g.kd),
+        flat_kp=g.flat_kp,
+        flat_kd=g.flat_kd,
+        null_damping_per_s=g.null_damping_per_s,
+        min_variance_m2=g.min_variance_m2,
+    )
+    limits = ThrustLimits(
+        mass_kg=v.mass_kg,
+        max_thrust_n=v.thrust_to_weight * v.mass_kg * G_M_S2,
+        min_thrust_ratio=g.min_thrust_ratio,
+        max_thrust_ratio=g.max_thrust_ratio,
+        max_tilt_rad=math.radians(g.max_tilt_deg),
+    )
+    return AgentConfig(consensus=consensus, gains=gains, limits=limits, warmup_s=c.warmup_s)

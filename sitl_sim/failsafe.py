@@ -1,0 +1,47 @@
+"""The vehicle's offboard-loss failsafe, pure: level hold, then descend and disarm on touchdown.
+
+When a vehicle armed in offboard mode receives no valid setpoint for ``offboard_timeout_s`` it
+levels (roll = pitch = 0, yaw held), holds altitude for ``hold_s``, then descends at
+``descent_rate_m_s`` with a vertical-speed loop on collective thrust, and disarms once it rests on
+the ground.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from protocols.frames import G_M_S2, FloatArray
+
+
+@dataclass(frozen=True)
+class FailsafeConfig:
+    """Timings (s), the descent rate (m/s) and the vertical-speed loop gain (1/s)."""
+
+    offboard_timeout_s: float = 0.5
+    hold_s: float = 1.0
+    descent_rate_m_s: float = 0.7
+    vertical_speed_gain_per_s: float = 2.0
+
+
+def failsafe_command(
+    velocity_down_m_s: FloatArray,
+    yaw_rad: FloatArray,
+    time_in_failsafe_s: FloatArray,
+    hover_thrust_normalised: float,
+    config: FailsafeConfig,
+) -> tuple[FloatArray, FloatArray]:
+    """Attitude (3, N) ZYX rad and normalised thrust (N,) for vehicles in failsafe.
+
+    ``velocity_down_m_s`` (N,): NED vertical speed (positive down); ``time_in_failsafe_s`` (N,):
+    time since the failsafe started. Levels, holds (zero vertical speed), then descends.
+    """
+    vz = np.asarray(velocity_down_m_s, dtype=float)
+    target = np.where(np.asarray(time_in_failsafe_s) < config.hold_s, 0.0, config.descent_rate_m_s)
+    # NED: positive vz is down; more thrust when sinking faster than the target.
+    accel_up = config.vertical_speed_gain_per_s * (vz - target)
+    thrust = hover_thrust_normalised * (1.0 + accel_up / G_M_S2)
+    attitude = np.zeros((3, vz.shape[0]))
+    attitude[2] = yaw_rad
+    return attitude, np.clip(thrust, 0.0, 1.0)
