@@ -22,7 +22,7 @@ demo: $(STAMP)
 	$(BIN)/swarm simulate scenarios/paper.toml --report report
 
 lint: $(STAMP)
-	$(BIN)/ruff check gcs drone_agent sitl_sim protocols tests bench
+	$(BIN)/ruff check gcs drone_agent sitl_sim protocols tests bench scripts
 
 typecheck: $(STAMP)
 	$(BIN)/mypy

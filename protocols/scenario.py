@@ -1,0 +1,483 @@
+"""Scenario files: typed, validated, versioned (SPEC.md "Scenarios"). Pure apart from reading.
+
+A scenario is a TOML file with ``version = 1``: the drones' initial positions, vehicle parameters,
+rates, gains, consensus settings, communication range, the descriptor trajectory as waypoints, and
+a timeline of faults. Defaults are ALGORITHM.md §6. :func:`load_scenario` raises ScenarioError
+(a ValueError) with a one-line message ``<file>: <field path>: <what>`` for every mistake. Angles
+are degrees in the file and radians in the trajectory; shape is a spread (RMS distance from the
+centre, m) or a variance (m²) per swarm axis in the file, always a variance in the trajectory.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from protocols.frames import FloatArray
+from protocols.scenario_schema import ScenarioError, Table
+from protocols.trajectory import DescriptorTrajectory, Waypoint
+
+SUPPORTED_VERSIONS = (1,)
+MIN_DRONES, MAX_DRONES = 2, 1000
+MIN_SEPARATION_M = 0.5
+PAPER_KP = (0.5, 0.5, 1.75, 0.15, 0.15, 0.15, 0.5, 0.5, 0.5)
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    """[vehicle]: mass (kg), principal inertia (kg m²), arm (m), thrust-to-weight, top rotor speed
+    (rad/s), reaction yaw moment per newton of thrust (m). Defaults: paper Table II."""
+
+    mass_kg: float = 0.34
+    ixx: float = 3.22e-4
+    iyy: float = 3.06e-4
+    izz: float = 5.78e-4
+    arm_m: float = 0.089
+    thrust_to_weight: float = 2.0
+    rotor_speed_max_rad_s: float = 1000.0
+    yaw_moment_per_thrust_m: float = 0.016
+
+
+@dataclass(frozen=True)
+class RatesConfig:
+    """[rates]: physics and control rates (Hz); physics_hz is an integer multiple of control_hz."""
+
+    physics_hz: int = 500
+    control_hz: int = 50
+
+    @property
+    def physics_steps_per_control(self) -> int:
+        """Physics steps per control tick."""
+        return self.physics_hz // self.control_hz
+
+    @property
+    def dt_control_s(self) -> float:
+        """Control period (s)."""
+        return 1.0 / self.control_hz
+
+
+@dataclass(frozen=True)
+class GainsConfig:
+    """[gains]: outer-loop kp, kd (9,) in descriptor order (1/s², 1/s); attitude PD (roll, pitch,
+    yaw); flat-axis PD; null-space damping (1/s); limits: tilt (deg), thrust as a fraction of the
+    weight (min) and of the maximum thrust (max), smallest variance used in the inversion (m²)."""
+
+    kp: tuple[float, ...] = PAPER_KP
+    kd: tuple[float, ...] = tuple(1.8 * math.sqrt(k) for k in PAPER_KP)
+    attitude_kp: Vec3 = (324.0, 324.0, 144.0)
+    attitude_kd: Vec3 = (34.2, 34.2, 22.8)
+    flat_kp: float = 1.75
+    flat_kd: float = 1.75
+    null_damping_per_s: float = 1.0
+    max_tilt_deg: float = 35.0
+    min_thrust_ratio: float = 0.2
+    max_thrust_ratio: float = 0.85
+    min_variance_m2: float = 0.05
+
+
+@dataclass(frozen=True)
+class ConsensusConfig:
+    """[consensus]: gain rho, tanh slope c, coupling f (ALGORITHM.md §3); degree-normalised rho;
+    heard-set timeout (control ticks); partner-dead timeout (s); ground warm-up before arming (s);
+    message delay (control ticks)."""
+
+    rho: float = 2.0
+    c: float = 1.0
+    f: float = 2.0
+    degree_normalised: bool = False
+    heard_timeout_ticks: int = 5
+    dead_timeout_s: float = 0.5
+    warmup_s: float = 3.0
+    delay_ticks: int = 1
+
+
+@dataclass(frozen=True)
+class CommsConfig:
+    """[comms]: radio range (m): drones farther apart do not hear each other."""
+
+    range_m: float = 10.0
+
+
+@dataclass(frozen=True)
+class DroneConfig:
+    """One [[drones]] entry: initial position (NED, m; z <= 0) and heading (deg)."""
+
+    position_ned_m: Vec3
+    yaw_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class DescriptorDerivative:
+    """A waypoint's ``rate`` (per s) or ``accel`` (per s²) table: centre (m), angles (deg),
+    variances (m²), each per s or s². Keys left out are 0."""
+
+    centre_ned_m: Vec3 = (0.0, 0.0, 0.0)
+    roll_deg: float = 0.0
+    pitch_deg: float = 0.0
+    yaw_deg: float = 0.0
+    variance_m2: Vec3 = (0.0, 0.0, 0.0)
+
+    def vector(self) -> FloatArray:
+        """As a descriptor-vector derivative (9,), angles in radians."""
+        angles = np.radians([self.roll_deg, self.pitch_deg, self.yaw_deg])
+        return np.concatenate([self.centre_ned_m, angles, self.variance_m2])
+
+
+@dataclass(frozen=True)
+class WaypointConfig:
+    """One [[trajectory.waypoints]] entry: time (s), centre (NED, m), orientation (deg), variances
+    (m², converted from spread_m when the file gave spreads), optional rate and accel."""
+
+    t_s: float
+    centre_ned_m: Vec3
+    variance_m2: Vec3
+    roll_deg: float = 0.0
+    pitch_deg: float = 0.0
+    yaw_deg: float = 0.0
+    rate: DescriptorDerivative | None = None
+    accel: DescriptorDerivative | None = None
+
+    def waypoint(self) -> Waypoint:
+        """As a trajectory Waypoint (descriptor vector order, radians)."""
+        value = DescriptorDerivative(
+            self.centre_ned_m, self.roll_deg, self.pitch_deg, self.yaw_deg, self.variance_m2
+        ).vector()
+        rate = None if self.rate is None else self.rate.vector()
+        accel = None if self.accel is None else self.accel.vector()
+        return Waypoint(self.t_s, value, rate, accel)
+
+
+@dataclass(frozen=True)
+class Dropout:
+    """Drone ``drone``'s agent dies at ``t_s`` (s), e.g. its process is killed."""
+
+    kind: ClassVar[str] = "dropout"
+    t_s: float
+    drone: int
+
+
+@dataclass(frozen=True)
+class Crash:
+    """Drone ``drone``'s motors stop at ``t_s`` (s)."""
+
+    kind: ClassVar[str] = "crash"
+    t_s: float
+    drone: int
+
+
+@dataclass(frozen=True)
+class LinkCut:
+    """The link between ``drones`` (i, j) is cut from ``t_s`` for ``duration_s`` (None: to the
+    end); ``one_way``: only messages i -> j are cut."""
+
+    kind: ClassVar[str] = "link_cut"
+    t_s: float
+    drones: tuple[int, int]
+    duration_s: float | None = None
+    one_way: bool = False
+
+
+@dataclass(frozen=True)
+class PacketLoss:
+    """Messages are lost with ``probability`` from ``t_s`` for ``duration_s`` (None: to the end),
+    on the link ``drones`` (i, j) both ways, or on every link when None."""
+
+    kind: ClassVar[str] = "loss"
+    t_s: float
+    probability: float
+    duration_s: float | None = None
+    drones: tuple[int, int] | None = None
+
+
+@dataclass(frozen=True)
+class LinkDelay:
+    """Messages are delayed by ``delay_ms`` (ms) from ``t_s`` for ``duration_s`` (None: to the
+    end), on the link ``drones`` (i, j) both ways, or on every link when None."""
+
+    kind: ClassVar[str] = "delay"
+    t_s: float
+    delay_ms: float
+    duration_s: float | None = None
+    drones: tuple[int, int] | None = None
+
+
+@dataclass(frozen=True)
+class Partition:
+    """From ``t_s`` for ``duration_s`` (None: to the end) only drones of one group hear each
+    other; drones listed in no group form one more group."""
+
+    kind: ClassVar[str] = "partition"
+    t_s: float
+    groups: tuple[tuple[int, ...], ...]
+    duration_s: float | None = None
+
+    def group_ids(self, n_drones: int) -> tuple[int, ...]:
+        """The group of each drone 0..n_drones-1 (unlisted drones: ``len(groups)``)."""
+        ids = [len(self.groups)] * n_drones
+        for g, members in enumerate(self.groups):
+            for i in members:
+                ids[i] = g
+        return tuple(ids)
+
+
+Fault = Dropout | Crash | LinkCut | PacketLoss | LinkDelay | Partition
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A whole scenario. Drone i (0-based, file order) has MAVLink system id i + 1.
+
+    ``duration_s`` (s) defaults to the last waypoint's time; metrics ignore tracking error before
+    ``settle_s`` (s). ``seed`` seeds every random generator of a run.
+    """
+
+    source: str
+    name: str
+    duration_s: float
+    drones: tuple[DroneConfig, ...]
+    waypoints: tuple[WaypointConfig, ...]
+    seed: int = 0
+    settle_s: float = 20.0
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
+    rates: RatesConfig = field(default_factory=RatesConfig)
+    gains: GainsConfig = field(default_factory=GainsConfig)
+    consensus: ConsensusConfig = field(default_factory=ConsensusConfig)
+    comms: CommsConfig = field(default_factory=CommsConfig)
+    faults: tuple[Fault, ...] = ()
+    version: int = 1
+
+    @property
+    def n_drones(self) -> int:
+        """Number of drones N."""
+        return len(self.drones)
+
+    def positions_ned_m(self) -> FloatArray:
+        """Initial positions (N, 3), NED, m."""
+        return np.array([d.position_ned_m for d in self.drones], dtype=float)
+
+    def trajectory(self) -> DescriptorTrajectory:
+        """The descriptor trajectory a_d(t) (seq 0) through the waypoints, angles in radians."""
+        return DescriptorTrajectory.from_waypoints([w.waypoint() for w in self.waypoints], seq=0)
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate the scenario file at ``path``.
+
+    Raises:
+        ScenarioError: missing/unreadable file, invalid TOML (with line and column), or any field
+            that is missing, unknown, of the wrong type, not finite or out of range.
+    """
+    source = str(path)
+    try:
+        text = Path(path).read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise ScenarioError(f"{source}: no such file") from None
+    except UnicodeDecodeError as e:
+        raise ScenarioError(f"{source}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    except OSError as e:
+        raise ScenarioError(f"{source}: cannot read: {e.strerror or e}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ScenarioError(f"{source}: invalid TOML: {e}") from None
+    return parse_scenario(data, source)
+
+
+def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
+    """Validate already-parsed TOML ``data``; ``source`` names it in error messages."""
+    top = Table(data, source, "")
+    if not top.has("version"):
+        raise top.error(f"missing (required; supported: {_supported()})", "version")
+    version = top.integer("version")
+    if version not in SUPPORTED_VERSIONS:
+        raise top.error(f"{version} is not supported (supported: {_supported()})", "version")
+    top.allow(
+        ("version", "name", "duration_s", "seed", "settle_s", "vehicle", "rates", "gains",
+         "consensus", "comms", "drones", "trajectory", "faults")
+    )  # fmt: skip
+    drones = _drones(top)
+    waypoints = _waypoints(top.table("trajectory", ("waypoints",)))
+    if top.has("duration_s"):
+        duration_s = top.number("duration_s", gt=0)
+    elif waypoints[-1].t_s > 0:
+        duration_s = waypoints[-1].t_s
+    else:
+        raise top.error("missing (required when the last waypoint is at t = 0)", "duration_s")
+    return Scenario(
+        source=source,
+        name=top.string("name", Path(source).stem),
+        duration_s=duration_s,
+        drones=drones,
+        waypoints=waypoints,
+        seed=top.integer("seed", 0, ge=0),
+        settle_s=top.number("settle_s", 20.0, ge=0),
+        vehicle=_vehicle(top.table("vehicle")),
+        rates=_rates(top.table("rates")),
+        gains=_gains(top.table("gains")),
+        consensus=top.table("consensus").section(ConsensusConfig, _CONSENSUS_BOUNDS),
+        comms=top.table("comms").section(CommsConfig, {"range_m": {"gt": 0}}),
+        faults=tuple(_fault(t, len(drones), duration_s) for t in top.tables("faults")),
+        version=version,
+    )
+
+
+def _supported() -> str:
+    return ", ".join(str(v) for v in SUPPORTED_VERSIONS)
+
+
+_VEHICLE_BOUNDS = {name: {"gt": 0.0} for name in VehicleConfig.__dataclass_fields__}
+_GAINS_BOUNDS: dict[str, dict[str, float]] = {
+    "attitude_kp": {"gt": 0},
+    "max_tilt_deg": {"gt": 0, "lt": 90},
+    "min_thrust_ratio": {"ge": 0, "lt": 1},
+    "max_thrust_ratio": {"gt": 0, "le": 1},
+    "min_variance_m2": {"gt": 0},
+}
+_CONSENSUS_BOUNDS = {
+    "rho": {"gt": 0},
+    "c": {"gt": 0},
+    "f": {"gt": 0},
+    "heard_timeout_ticks": {"ge": 1},
+    "dead_timeout_s": {"gt": 0},
+    "warmup_s": {"ge": 0},
+    "delay_ticks": {"ge": 0},
+}
+
+
+def _vehicle(t: Table) -> VehicleConfig:
+    vehicle: VehicleConfig = t.section(VehicleConfig, _VEHICLE_BOUNDS)
+    if vehicle.thrust_to_weight <= 1.0:
+        raise t.error("must be > 1 (the vehicle must lift itself)", "thrust_to_weight")
+    return vehicle
+
+
+def _rates(t: Table) -> RatesConfig:
+    rates: RatesConfig = t.section(RatesConfig, {"physics_hz": {"ge": 1}, "control_hz": {"ge": 1}})
+    if rates.physics_hz % rates.control_hz:
+        raise t.error(
+            f"{rates.physics_hz} is not an integer multiple of control_hz = {rates.control_hz}",
+            "physics_hz",
+        )
+    return rates
+
+
+def _gains(t: Table) -> GainsConfig:
+    kp = t.numbers("kp", 9, PAPER_KP, ge=0)
+    kd = t.numbers("kd", 9, tuple(1.8 * math.sqrt(k) for k in kp), ge=0)
+    bounds = {"ge": 0.0}  # every gain not in _GAINS_BOUNDS
+    names = GainsConfig.__dataclass_fields__
+    return t.section(GainsConfig, {n: _GAINS_BOUNDS.get(n, bounds) for n in names}, kp=kp, kd=kd)
+
+
+def _drones(top: Table) -> tuple[DroneConfig, ...]:
+    if not top.has("drones"):
+        raise top.error("missing (required: [[drones]] tables with position_ned_m)", "drones")
+    tables = top.tables("drones", ("position_ned_m", "yaw_deg"))
+    if not MIN_DRONES <= len(tables) <= MAX_DRONES:
+        raise top.error(f"need {MIN_DRONES}..{MAX_DRONES} drones, got {len(tables)}", "drones")
+    drones = []
+    for t in tables:
+        pos = t.vec3("position_ned_m")
+        if pos[2] > 0:
+            raise t.error(
+                f"z must be <= 0 (on or above the ground), got {pos[2]}", "position_ned_m"
+            )
+        drones.append(DroneConfig(pos, t.number("yaw_deg", 0.0)))
+    x = np.array([d.position_ned_m for d in drones])
+    close = [
+        (i, j) for i, j in cKDTree(x).query_pairs(MIN_SEPARATION_M)
+        if np.linalg.norm(x[i] - x[j]) < MIN_SEPARATION_M
+    ]  # fmt: skip
+    if close:
+        i, j = min(close)
+        raise tables[j].error(
+            f"{np.linalg.norm(x[i] - x[j]):.3g} m from drones[{i}] (minimum {MIN_SEPARATION_M} m)",
+            "position_ned_m",
+        )
+    return tuple(drones)
+
+
+_DERIVATIVE_KEYS = ("centre_ned_m", "roll_deg", "pitch_deg", "yaw_deg", "variance_m2")
+
+
+def _waypoints(t: Table) -> tuple[WaypointConfig, ...]:
+    if not t.has("waypoints"):
+        raise t.error("missing (required: at least one [[trajectory.waypoints]])", "waypoints")
+    tables = t.tables("waypoints", ("t_s", "spread_m", "rate", "accel", *_DERIVATIVE_KEYS))
+    if not tables:
+        raise t.error("needs at least one waypoint", "waypoints")
+    out: list[WaypointConfig] = []
+    for k, w in enumerate(tables):
+        t_s = w.number("t_s", ge=0)
+        if out and not t_s > out[-1].t_s:
+            raise w.error(f"{t_s:g} is not after waypoints[{k - 1}].t_s = {out[-1].t_s:g}", "t_s")
+        if w.has("spread_m") == w.has("variance_m2"):
+            raise w.error("give the shape as exactly one of spread_m or variance_m2", here=True)
+        if w.has("spread_m"):
+            sx, sy, sz = w.vec3("spread_m", ge=0)
+            variance = (sx * sx, sy * sy, sz * sz)
+        else:
+            variance = w.vec3("variance_m2", ge=0)
+        out.append(
+            WaypointConfig(
+                t_s=t_s,
+                centre_ned_m=w.vec3("centre_ned_m"),
+                variance_m2=variance,
+                roll_deg=w.number("roll_deg", 0.0, gt=-90, lt=90),
+                pitch_deg=w.number("pitch_deg", 0.0, gt=-90, lt=90),
+                yaw_deg=w.number("yaw_deg", 0.0),
+                rate=_derivative(w, "rate"),
+                accel=_derivative(w, "accel"),
+            )
+        )
+    return tuple(out)
+
+
+def _derivative(w: Table, key: str) -> DescriptorDerivative | None:
+    if not w.has(key):
+        return None
+    t = w.table(key)
+    if t.has("spread_m"):
+        raise t.error("not allowed: the descriptor is the variance; give variance_m2", "spread_m")
+    return t.section(DescriptorDerivative)
+
+
+_FAULT_KEYS = {
+    "dropout": ("drone",),
+    "crash": ("drone",),
+    "link_cut": ("drones", "duration_s", "one_way"),
+    "loss": ("probability", "duration_s", "drones"),
+    "delay": ("delay_ms", "duration_s", "drones"),
+    "partition": ("groups", "duration_s"),
+}
+
+
+def _fault(t: Table, n: int, duration_s: float) -> Fault:
+    kind = t.string("kind")
+    if kind not in _FAULT_KEYS:
+        raise t.error(f"'{kind}' is not a fault kind (one of: {', '.join(_FAULT_KEYS)})", "kind")
+    t.allow(("t_s", "kind", *_FAULT_KEYS[kind]))
+    t_s = t.number("t_s", ge=0)
+    if t_s > duration_s:
+        raise t.error(
+            f"{t_s:g} is after the end of the scenario (duration_s = {duration_s:g})", "t_s"
+        )
+    dur = t.optional_number("duration_s", gt=0)
+    if kind in ("dropout", "crash"):
+        drone = t.index("drone", n)
+        return Dropout(t_s, drone) if kind == "dropout" else Crash(t_s, drone)
+    if kind == "link_cut":
+        return LinkCut(t_s, t.pair("drones", n), dur, t.boolean("one_way", False))
+    pair = t.pair("drones", n) if t.has("drones") else None
+    if kind == "loss":
+        return PacketLoss(t_s, t.number("probability", ge=0, lt=1), dur, pair)
+    if kind == "delay":
+        return LinkDelay(t_s, t.number("delay_ms", ge=0), dur, pair)
+    return Partition(t_s, t.groups("groups", n), dur)
