@@ -40,6 +40,7 @@ class FlightRecord:
     - ``member`` (T, N): the drone counts as part of the swarm (its agent alive, vehicle not lost).
     - ``airborne`` (T, N): the vehicle is off the ground.
     - ``neighbours`` (T, N): number of neighbours each agent integrates with.
+    - ``armed`` (T, N): the vehicle is armed; ``body_rates_rad_s`` (T, N, 3): p, q, r.
     """
 
     t_s: FloatArray
@@ -55,6 +56,8 @@ class FlightRecord:
     neighbours: npt.NDArray[np.int_]
     link_faults: list[LinkFault] = field(default_factory=list)
     lost_at_s: dict[int, float] = field(default_factory=dict)
+    armed: BoolArray | None = None
+    body_rates_rad_s: FloatArray | None = None
 
     @property
     def n_drones(self) -> int:

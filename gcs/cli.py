@@ -1,0 +1,131 @@
+"""The ``swarm`` command line. User mistakes end with a one-line error and exit code 2."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("MAVLINK20", "1")  # before anything imports pymavlink
+
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+
+class CliError(Exception):
+    """A user mistake: printed as one line, exit code 2."""
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="swarm",
+        description=(
+            "quadswarm: fly a quadcopter swarm as one body. Each drone estimates the swarm's "
+            "centre, orientation and shape from its neighbours (consensus) and steers itself so "
+            "the whole swarm follows one shared descriptor trajectory."
+        ),
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sim = sub.add_parser(
+        "simulate",
+        help="fly a scenario in one process (no network) and write a report",
+        description=(
+            "Fly a scenario with every vehicle, agent and radio link in one process, through the "
+            "same estimator and controllers as the distributed system, with the scenario's faults "
+            "(drop-outs, crashes, link cuts, loss, delay). Writes flight.tlog (MAVLink 2), "
+            "events.jsonl, metrics.json, trajectory.json and PNG plots into the report folder."
+        ),
+    )
+    sim.add_argument("scenario", type=Path, help="scenario file (TOML), e.g. scenarios/paper.toml")
+    sim.add_argument("--report", type=Path, default=Path("report"), metavar="DIR",
+                     help="report folder, created if missing (default: ./report)")
+    sim.add_argument("--duration-s", type=float, metavar="S",
+                     help="fly only the first S seconds of the scenario")
+    sim.add_argument("--seed", type=int, help="override the scenario's random seed")
+    sim.add_argument("--tlog-hz", type=float, default=25.0, metavar="HZ",
+                     help="telemetry rate written to flight.tlog (default 25, at least 10)")
+    sim.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    sim.add_argument("--progress", choices=("auto", "on", "off"), default="auto",
+                     help="progress bar on stderr (auto: only on a terminal)")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``swarm`` console command."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return EXIT_USAGE
+    try:
+        if args.command == "simulate":
+            return _simulate(args)
+    except CliError as exc:
+        print(f"swarm: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("swarm: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    parser.print_help()
+    return EXIT_USAGE
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from gcs.simulate import simulate
+    from gcs.summary import summary_lines
+    from protocols.scenario import ScenarioError, load_scenario
+
+    try:
+        scenario = load_scenario(args.scenario)
+    except ScenarioError as exc:
+        raise CliError(str(exc)) from None
+    if args.duration_s is not None:
+        if not 0 < args.duration_s <= scenario.duration_s:
+            raise CliError(f"--duration-s must be in (0, {scenario.duration_s:g}]")
+        scenario = dataclasses.replace(scenario, duration_s=args.duration_s)
+    if args.seed is not None:
+        scenario = dataclasses.replace(scenario, seed=args.seed)
+    if not 10.0 <= args.tlog_hz <= scenario.rates.control_hz:
+        raise CliError(f"--tlog-hz must be between 10 and the control rate "
+                       f"({scenario.rates.control_hz} Hz)")
+    _check_writable(args.report)
+    show = args.progress == "on" or (args.progress == "auto" and sys.stderr.isatty())
+    bar: Any = None
+    if show:
+        from tqdm import tqdm
+
+        bar = tqdm(total=round(scenario.duration_s), unit="sim s", desc=scenario.name,
+                   file=sys.stderr, bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/"
+                   "{total:.0f} sim s [{elapsed}<{remaining}, {rate_fmt}]")
+
+    def progress(t_s: float) -> None:
+        if bar is not None and t_s - bar.n >= 1.0:
+            bar.update(int(t_s - bar.n))
+
+    try:
+        result = simulate(scenario, args.report, progress, tlog_hz=args.tlog_hz,
+                          plots=not args.no_plots)
+    finally:
+        if bar is not None:
+            bar.close()
+    for line in summary_lines(result.metrics, result.files):
+        print(line)
+    return 0
+
+
+def _check_writable(report: Path) -> None:
+    try:
+        report.mkdir(parents=True, exist_ok=True)
+        probe = report / ".write-test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise CliError(f"cannot write the report folder {report}: {exc.strerror or exc}") from None
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,222 @@
+"""The whole swarm in one process (``swarm simulate``): vehicles, agents and radio, no network.
+
+Every drone runs the same :class:`~drone_agent.agent_core.AgentCore` as the distributed agents,
+the vehicles run the same dynamics and inner loop as the SITL simulator, and consensus messages
+pass through an in-memory radio with the scenario's faults. It is the reference the distributed
+system is measured against, and a fast tuning tool. Deterministic for a given seed; no I/O.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from drone_agent.agent_core import AgentCore
+from drone_agent.config import agent_config
+from gcs.fault_timeline import TimedAction, link_faults, timeline
+from gcs.flight_record import FlightRecord
+from gcs.inprocess_network import InProcessNetwork, LinkConditions
+from protocols.frames import FloatArray
+from protocols.scenario import Scenario
+from sitl_sim.attitude_control import euler_from_quat_batch
+from sitl_sim.config import attitude_gains, vehicle_params
+from sitl_sim.dynamics import POS, QUAT, RATES, VEL, initial_state, step_with_contact
+from sitl_sim.dynamics import wrench_from_rotor_speeds
+from sitl_sim.failsafe import FailsafeConfig, failsafe_command
+from sitl_sim.inner_loop import inner_loop
+
+AIRBORNE_ALTITUDE_M = 0.1
+HARD_LANDING_M_S = 2.0
+#: An agent notices its vehicle is gone (telemetry silent) after this long, then leaves the swarm.
+VEHICLE_LOST_TIMEOUT_S = 0.5
+
+
+@dataclass(frozen=True)
+class FlightEvent:
+    """Something that happened at simulated time ``t_s``: ``kind`` and details."""
+
+    t_s: float
+    kind: str
+    fields: dict[str, Any] = field(default_factory=dict)
+
+
+class _Recorder:
+    """Collects the per-tick samples of a flight into arrays."""
+
+    def __init__(self, n_ticks: int, n: int) -> None:
+        self.t = np.zeros(n_ticks)
+        self.pos = np.zeros((n_ticks, n, 3))
+        self.vel = np.zeros((n_ticks, n, 3))
+        self.euler = np.zeros((n_ticks, n, 3))
+        self.rates = np.zeros((n_ticks, n, 3))
+        self.thrust = np.zeros((n_ticks, n))
+        self.moments = np.zeros((n_ticks, n, 3))
+        self.desired = np.zeros((n_ticks, 9))
+        self.estimate = np.full((n_ticks, n, 9), np.nan)
+        self.member = np.zeros((n_ticks, n), dtype=bool)
+        self.airborne = np.zeros((n_ticks, n), dtype=bool)
+        self.armed = np.zeros((n_ticks, n), dtype=bool)
+        self.neighbours = np.zeros((n_ticks, n), dtype=int)
+
+
+class ReferenceFlight:
+    """One flight of a scenario. :meth:`run` flies it and returns the record and the events."""
+
+    def __init__(self, scenario: Scenario, rng: np.random.Generator | None = None) -> None:
+        self.scenario = scenario
+        self.n = scenario.n_drones
+        self.params = vehicle_params(scenario)
+        self.att_gains = attitude_gains(scenario)
+        self.config = agent_config(scenario)
+        self.plan = scenario.trajectory()
+        self.dt = scenario.rates.dt_control_s
+        self.substeps = scenario.rates.physics_steps_per_control
+        self.rng = rng if rng is not None else np.random.default_rng(scenario.seed)
+        yaw0 = np.radians([d.yaw_deg for d in scenario.drones])
+        self.state = initial_state(scenario.positions_ned_m(), yaw0)
+        self.agents: dict[int, AgentCore] = {i: AgentCore(i, self.config) for i in range(self.n)}
+        delay = max(1, scenario.consensus.delay_ticks)
+        self.network = InProcessNetwork(self.n, scenario.comms.range_m, self.rng, delay)
+        self.failsafe = FailsafeConfig()
+        self.armed = np.zeros(self.n, dtype=bool)
+        self.crashed = np.zeros(self.n, dtype=bool)
+        self.member = np.ones(self.n, dtype=bool)
+        self.attitude_sp = np.zeros((3, self.n))
+        self.attitude_sp[2] = yaw0
+        self.thrust_sp = np.zeros(self.n)
+        self.last_setpoint_s = np.full(self.n, -np.inf)
+        self.in_failsafe = np.zeros(self.n, dtype=bool)
+        self.rotor_speed = np.zeros((4, self.n))
+        self.leave_at: dict[int, float] = {}
+        self.lost_at: dict[int, float] = {}
+        self.events: list[FlightEvent] = []
+        self._actions: list[TimedAction] = timeline(scenario)
+        self.t_s = 0.0
+
+    # -- FaultTarget ---------------------------------------------------------------------------
+    @property
+    def conditions(self) -> LinkConditions:
+        return self.network.conditions
+
+    def kill_agent(self, drone: int) -> None:
+        """The agent's process dies: it stops at once; its vehicle will failsafe."""
+        self.agents.pop(drone, None)
+        self._lose(drone)
+
+    def crash_vehicle(self, drone: int) -> None:
+        """Motors off: the vehicle falls. Its agent notices and leaves after a timeout."""
+        self.crashed[drone] = True
+        self.armed[drone] = False
+        self.leave_at[drone] = self.t_s + VEHICLE_LOST_TIMEOUT_S
+        self._lose(drone)
+
+    def _lose(self, drone: int) -> None:
+        if self.member[drone]:
+            self.member[drone] = False
+            self.lost_at[drone] = self.t_s
+
+    # -- the loop ------------------------------------------------------------------------------
+    def run(self, progress: Callable[[float], None] | None = None) -> FlightRecord:
+        """Fly the whole scenario; ``progress`` is called with the simulated time every tick."""
+        n_ticks = int(round(self.scenario.duration_s / self.dt)) + 1
+        rec = _Recorder(n_ticks, self.n)
+        self._event("run_start", drones=self.n, duration_s=self.scenario.duration_s)
+        for k in range(n_ticks):
+            self.t_s = k * self.dt
+            self._apply_faults()
+            self._control_tick(k, rec)
+            if progress is not None:
+                progress(self.t_s)
+            if k < n_ticks - 1:
+                for sub in range(self.substeps):
+                    self._physics_step(self.t_s + sub * self.dt / self.substeps)
+        self._event("run_end", lost=sorted(self.lost_at))
+        return FlightRecord(
+            t_s=rec.t, position_ned_m=rec.pos, velocity_ned_m_s=rec.vel, euler_rad=rec.euler,
+            thrust_n=rec.thrust, moments_nm=rec.moments, desired=rec.desired,
+            estimate=rec.estimate, member=rec.member, airborne=rec.airborne,
+            neighbours=rec.neighbours, link_faults=link_faults(self.scenario),
+            lost_at_s=dict(self.lost_at), armed=rec.armed, body_rates_rad_s=rec.rates,
+        )
+
+    def _event(self, kind: str, **fields: Any) -> None:
+        self.events.append(FlightEvent(round(self.t_s, 6), kind, fields))
+
+    def _apply_faults(self) -> None:
+        while self._actions and self._actions[0].t_s <= self.t_s + 1e-9:
+            action = self._actions.pop(0)
+            action.apply(self)
+            self._event("fault" if action.starts else "fault_end", fault=action.fault_kind,
+                        description=action.description)
+        for drone, t_leave in list(self.leave_at.items()):
+            if self.t_s >= t_leave:
+                del self.leave_at[drone]
+                if self.agents.pop(drone, None) is not None:
+                    self._event("agent_left", drone=drone, reason="vehicle lost")
+
+    def _control_tick(self, k: int, rec: _Recorder) -> None:
+        pos, vel = self.state[POS].T, self.state[VEL].T
+        members = frozenset(self.agents)
+        inboxes = self.network.receive(k)
+        messages = []
+        for i, agent in self.agents.items():
+            out = agent.tick(k, self.t_s, pos[i], vel[i], self.plan, inboxes[i], members)
+            messages.append(out.message)
+            rec.estimate[k, i] = out.estimate
+            rec.neighbours[k, i] = len(out.active_neighbours)
+            sp = out.setpoint
+            if sp is None or self.crashed[i]:
+                continue
+            if not self.armed[i] and not self.in_failsafe[i]:
+                self.armed[i] = True
+                self._event("armed", drone=i)
+            self.attitude_sp[:, i] = (sp.roll_rad, sp.pitch_rad, sp.yaw_rad)
+            self.thrust_sp[i] = sp.thrust_normalised
+            self.last_setpoint_s[i] = self.t_s
+        self.network.send(k, messages, self.network.in_range(pos))
+        thrust, moments = wrench_from_rotor_speeds(self.rotor_speed, self.params)
+        rec.t[k] = self.t_s
+        rec.pos[k], rec.vel[k] = pos, vel
+        rec.euler[k] = euler_from_quat_batch(self.state[QUAT]).T
+        rec.rates[k] = self.state[RATES].T
+        rec.thrust[k], rec.moments[k] = thrust, moments.T
+        rec.desired[k] = self.plan.evaluate(self.t_s)[0]
+        rec.member[k] = self.member
+        rec.airborne[k] = -pos[:, 2] > AIRBORNE_ALTITUDE_M
+        rec.armed[k] = self.armed
+
+    def _physics_step(self, t_s: float) -> None:
+        attitude, thrust = self.attitude_sp, self.thrust_sp
+        stale = self.armed & (t_s - self.last_setpoint_s > self.failsafe.offboard_timeout_s)
+        if np.any(stale):
+            attitude, thrust = attitude.copy(), thrust.copy()
+            for i in np.flatnonzero(stale & ~self.in_failsafe):
+                self.in_failsafe[i] = True
+                self._event("failsafe", drone=int(i), reason="no setpoint for "
+                            f"{self.failsafe.offboard_timeout_s:g} s: level, descend, disarm")
+            since = t_s - self.last_setpoint_s[stale] - self.failsafe.offboard_timeout_s
+            yaw = euler_from_quat_batch(self.state[QUAT][:, stale])[2]
+            att, thr = failsafe_command(self.state[5, stale], yaw, since,
+                                        self.params.hover_thrust_n / self.params.max_thrust_n,
+                                        self.failsafe)
+            attitude[:, stale], thrust[stale] = att, thr
+        self.rotor_speed = inner_loop(self.state, attitude, thrust, self.params, self.att_gains,
+                                      self.armed)
+        result = step_with_contact(self.state, self.rotor_speed, self.params,
+                                   self.dt / self.substeps)
+        self.state = result.state
+        for i in np.flatnonzero(result.impact_speed_m_s > HARD_LANDING_M_S):
+            self._event("hard_landing", drone=int(i),
+                        impact_m_s=round(float(result.impact_speed_m_s[i]), 2))
+        landed = self.in_failsafe & self.armed & (self.state[2] >= -1e-6)
+        for i in np.flatnonzero(landed):
+            self.armed[i] = False
+            self._event("disarmed", drone=int(i), reason="failsafe landing complete")
+
+
+def positions_at(record: FlightRecord, t_s: float) -> FloatArray:
+    """Positions (N, 3) at the sample nearest ``t_s``."""
+    return record.position_ned_m[int(np.argmin(np.abs(record.t_s - t_s)))]

@@ -1,0 +1,312 @@
+"""MAVLink 2 telemetry log (``.tlog``), the format MAVProxy and QGroundControl write.
+
+A tlog is a sequence of records, each an 8-byte big-endian uint64 timestamp in microseconds
+followed by one MAVLink packet. pymavlink's ``mavlogdump.py`` and MAVExplorer read it.
+
+Timestamps: a record's timestamp is the *simulated* time in µs plus a fixed ``epoch_offset_s``
+(default 0: the log starts on 1970-01-01, which mavlogdump reads fine, and two lockstep runs give
+byte-identical logs). As MAVProxy does, the two low bits of the timestamp carry the link number
+(here always 0), so a record time is rounded down to a multiple of 4 µs. Messages that carry
+``time_boot_ms`` (LOCAL_POSITION_NED, ATTITUDE) hold the simulated time in ms; the reader takes
+vehicle time from that field, not from the record timestamp.
+
+pymavlink is used only as a codec, one per system id (component 1, the autopilot), so every
+vehicle's packets carry its own sequence numbers.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ["MAVLINK20"] = "1"  # before any pymavlink import (DEPENDENCIES.md)
+
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any, BinaryIO
+
+import numpy as np
+from pymavlink.dialects.v20 import common
+
+from protocols.frames import FloatArray
+
+_TS = struct.Struct(">Q")
+_AUTOPILOT_COMPONENT = 1
+#: A vehicle whose last sample is older than this is reported NaN by ``TlogTrack.resample``.
+MAX_SAMPLE_AGE_S = 0.5
+
+
+class TlogWriter:
+    """Writes vehicle telemetry to a ``.tlog`` file; use as a context manager.
+
+    ``epoch_offset_s`` is added to the simulated time to make each record's timestamp.
+    """
+
+    def __init__(self, path: str | Path, epoch_offset_s: float = 0.0) -> None:
+        self.path = Path(path)
+        self.epoch_offset_us = round(epoch_offset_s * 1e6)
+        self._codecs: dict[int, Any] = {}
+        self._file: BinaryIO | None = None
+        self.n_records = 0
+
+    def __enter__(self) -> TlogWriter:
+        self.open()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def open(self) -> None:
+        """Create (truncate) the file; done by ``__enter__``."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = self.path.open("wb")
+
+    def close(self) -> None:
+        """Flush and close the file (idempotent)."""
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def codec(self, sysid: int) -> Any:
+        """The pymavlink MAVLink 2 codec speaking as ``sysid``, component 1."""
+        if not 1 <= sysid <= 255:
+            raise ValueError(f"system id {sysid} outside 1..255")
+        if sysid not in self._codecs:
+            self._codecs[sysid] = common.MAVLink(
+                None, srcSystem=sysid, srcComponent=_AUTOPILOT_COMPONENT
+            )
+        return self._codecs[sysid]
+
+    def write_packet(self, t_s: float, packet: bytes) -> None:
+        """Append one already-encoded MAVLink packet stamped with simulated time ``t_s`` (s)."""
+        if self._file is None:
+            raise RuntimeError("TlogWriter is not open (use it as a context manager)")
+        usec = (round(t_s * 1e6) + self.epoch_offset_us) & ~0x3  # low bits: link 0
+        if usec < 0:
+            raise ValueError(f"record time {t_s} s before the epoch")
+        self._file.write(_TS.pack(usec) + packet)
+        self.n_records += 1
+
+    def write_message(self, t_s: float, sysid: int, msg: Any) -> None:
+        """Encode a pymavlink message object as ``sysid`` and append it."""
+        self.write_packet(t_s, msg.pack(self.codec(sysid)))
+
+    def write_vehicle_sample(
+        self,
+        t_s: float,
+        sysid: int,
+        position_ned_m: FloatArray,
+        velocity_ned_m_s: FloatArray,
+        euler_rad: FloatArray,
+        body_rates_rad_s: FloatArray,
+    ) -> None:
+        """LOCAL_POSITION_NED and ATTITUDE of one vehicle at simulated time ``t_s`` (s).
+
+        ``position_ned_m`` (3,), ``velocity_ned_m_s`` (3,), ``euler_rad`` (3,) roll, pitch, yaw,
+        ``body_rates_rad_s`` (3,) p, q, r. ``time_boot_ms`` is the simulated time in ms.
+        """
+        ms = _time_boot_ms(t_s)
+        x, y, z = (float(v) for v in position_ned_m)
+        vx, vy, vz = (float(v) for v in velocity_ned_m_s)
+        roll, pitch, yaw = (float(v) for v in euler_rad)
+        p, q, r = (float(v) for v in body_rates_rad_s)
+        mav = self.codec(sysid)
+        self.write_packet(t_s, mav.local_position_ned_encode(ms, x, y, z, vx, vy, vz).pack(mav))
+        self.write_packet(t_s, mav.attitude_encode(ms, roll, pitch, yaw, p, q, r).pack(mav))
+
+    def write_heartbeat(
+        self, t_s: float, sysid: int, armed: bool, system_status: int, custom_mode: int = 0
+    ) -> None:
+        """HEARTBEAT of a quadrotor (generic autopilot); ``system_status`` is a MAV_STATE."""
+        base_mode = common.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if armed:
+            base_mode |= common.MAV_MODE_FLAG_SAFETY_ARMED
+        mav = self.codec(sysid)
+        msg = mav.heartbeat_encode(
+            common.MAV_TYPE_QUADROTOR,
+            common.MAV_AUTOPILOT_GENERIC,
+            base_mode,
+            custom_mode,
+            system_status,
+            3,
+        )
+        self.write_packet(t_s, msg.pack(mav))
+
+    def write_statustext(self, t_s: float, sysid: int, severity: int, text: str) -> None:
+        """STATUSTEXT (``severity`` a MAV_SEVERITY); text longer than 50 bytes is chunked."""
+        data = text.encode("utf-8")
+        mav = self.codec(sysid)
+        if len(data) <= 50:
+            self.write_packet(t_s, mav.statustext_encode(severity, data).pack(mav))
+            return
+        # MAVLink 2 long text: a non-zero id, chunks of 50; a short (NUL-padded) chunk ends it.
+        text_id = (self.n_records % 65535) + 1
+        chunks = [data[k : k + 50] for k in range(0, len(data), 50)]
+        if len(chunks[-1]) == 50:
+            chunks.append(b"")
+        for seq, chunk in enumerate(chunks):
+            msg = mav.statustext_encode(severity, chunk, text_id, seq)
+            self.write_packet(t_s, msg.pack(mav))
+
+
+def _time_boot_ms(t_s: float) -> int:
+    ms = round(t_s * 1000.0)
+    if not 0 <= ms < 2**32:
+        raise ValueError(f"simulated time {t_s} s outside the uint32 time_boot_ms range")
+    return ms
+
+
+@dataclass
+class VehicleTrack:
+    """Telemetry of one system id read back from a tlog.
+
+    - ``t_s`` (K,): LOCAL_POSITION_NED time_boot_ms / 1000, s; ``position_ned_m`` (K, 3),
+      ``velocity_ned_m_s`` (K, 3).
+    - ``attitude_t_s`` (L,): ATTITUDE time_boot_ms / 1000, s; ``euler_rad`` (L, 3) roll, pitch, yaw;
+      ``body_rates_rad_s`` (L, 3).
+    Samples are sorted by time.
+    """
+
+    t_s: FloatArray
+    position_ned_m: FloatArray
+    velocity_ned_m_s: FloatArray
+    attitude_t_s: FloatArray
+    euler_rad: FloatArray
+    body_rates_rad_s: FloatArray
+
+
+@dataclass(frozen=True)
+class StatusText:
+    """A STATUSTEXT (long texts reassembled); ``t_s`` is the record time minus the epoch offset."""
+
+    t_s: float
+    sysid: int
+    severity: int
+    text: str
+
+
+@dataclass
+class TlogTrack:
+    """What ``read_tlog`` found: per-system-id tracks, status texts, undecodable record count."""
+
+    vehicles: dict[int, VehicleTrack]
+    statustexts: list[StatusText] = field(default_factory=list)
+    bad_records: int = 0
+
+    def resample(
+        self, t_grid_s: FloatArray, n_drones: int | None = None, max_age_s: float = MAX_SAMPLE_AGE_S
+    ) -> FloatArray:
+        """Positions (T, N, 3), NED m, of vehicles i = sysid - 1 on the time grid (T,), s.
+
+        Sample-and-hold: each grid time takes the vehicle's latest sample at or before it (0.5 ms
+        tolerance for the ms resolution of time_boot_ms). NaN before a vehicle's first sample,
+        where that sample is older than ``max_age_s`` (the vehicle stopped sending), and for
+        system ids without data. N defaults to the largest system id seen.
+        """
+        t_grid = np.asarray(t_grid_s, dtype=float)
+        n = n_drones if n_drones is not None else max(self.vehicles, default=0)
+        out = np.full((t_grid.shape[0], n, 3), np.nan)
+        for sysid, track in self.vehicles.items():
+            if not 1 <= sysid <= n or track.t_s.size == 0:
+                continue
+            k = np.searchsorted(track.t_s, t_grid + 5e-4, side="right") - 1
+            ok = k >= 0
+            kk = np.where(ok, k, 0)
+            ok &= t_grid - track.t_s[kk] <= max_age_s + 5e-4
+            out[ok, sysid - 1] = track.position_ned_m[kk[ok]]
+        return out
+
+
+def read_tlog(path: str | Path, epoch_offset_s: float = 0.0) -> TlogTrack:
+    """Parse a tlog with the pymavlink codec (MAVLink 1 and 2 packets, signed or not).
+
+    Undecodable records (bad CRC, unknown framing) are skipped and counted; a truncated last
+    record is ignored. ``epoch_offset_s`` is subtracted from record times (status texts only).
+    """
+    data = Path(path).read_bytes()
+    codec = common.MAVLink(None)
+    pos: dict[int, list[tuple[float, ...]]] = {}
+    att: dict[int, list[tuple[float, ...]]] = {}
+    texts: list[StatusText] = []
+    chunks: dict[tuple[int, int], list[bytes]] = {}
+    bad, resyncing = 0, False
+    ofs, size = 0, len(data)
+    while ofs + 8 + 8 <= size:
+        length = _packet_length(data, ofs + 8)
+        end = ofs + 8 + (length or 0)
+        if length is not None and end > size:
+            break  # truncated last record
+        try:
+            if length is None:
+                raise common.MAVError("no MAVLink marker")
+            msg = codec.decode(bytearray(data[ofs + 8 : end]))
+        except common.MAVError:
+            bad += 0 if resyncing else 1
+            resyncing = True
+            ofs += 1  # resynchronise byte by byte, as mavlogdump does
+            continue
+        resyncing = False
+        t_rec = _TS.unpack_from(data, ofs)[0] * 1e-6 - epoch_offset_s
+        ofs = end
+        sysid = msg.get_srcSystem()
+        mtype = msg.get_type()
+        if mtype == "LOCAL_POSITION_NED":
+            row = (msg.time_boot_ms, msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
+            pos.setdefault(sysid, []).append(row)
+        elif mtype == "ATTITUDE":
+            rates = (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+            att.setdefault(sysid, []).append(
+                (msg.time_boot_ms, msg.roll, msg.pitch, msg.yaw, *rates)
+            )
+        elif mtype == "STATUSTEXT":
+            text = _statustext(msg, sysid, chunks)
+            if text is not None:
+                texts.append(StatusText(t_rec, sysid, int(msg.severity), text))
+    vehicles = {s: _track(pos.get(s, []), att.get(s, [])) for s in sorted(set(pos) | set(att))}
+    return TlogTrack(vehicles, texts, bad)
+
+
+def _packet_length(data: bytes, ofs: int) -> int | None:
+    """Length of the MAVLink packet starting at ``ofs``, None if no valid marker there."""
+    marker = data[ofs]
+    if marker == common.PROTOCOL_MARKER_V2:
+        signed = data[ofs + 2] & common.MAVLINK_IFLAG_SIGNED
+        return 10 + data[ofs + 1] + 2 + (common.MAVLINK_SIGNATURE_BLOCK_LEN if signed else 0)
+    if marker == common.PROTOCOL_MARKER_V1:
+        return 6 + data[ofs + 1] + 2
+    return None
+
+
+def _statustext(msg: Any, sysid: int, chunks: dict[tuple[int, int], list[bytes]]) -> str | None:
+    raw = getattr(msg, "_text_raw", None)
+    raw = raw.split(b"\x00", 1)[0] if isinstance(raw, bytes) else str(msg.text).encode("utf-8")
+    text_id = int(getattr(msg, "id", 0))
+    if text_id == 0:
+        return raw.decode("utf-8", errors="replace")
+    parts = chunks.setdefault((sysid, text_id), [])
+    parts.append(raw)
+    if len(raw) == 50:
+        return None
+    del chunks[(sysid, text_id)]
+    return b"".join(parts).decode("utf-8", errors="replace")
+
+
+def _track(pos: list[tuple[float, ...]], att: list[tuple[float, ...]]) -> VehicleTrack:
+    p = np.asarray(pos, dtype=float).reshape(-1, 7)
+    a = np.asarray(att, dtype=float).reshape(-1, 7)
+    p = p[np.argsort(p[:, 0], kind="stable")]
+    a = a[np.argsort(a[:, 0], kind="stable")]
+    return VehicleTrack(
+        t_s=p[:, 0] / 1000.0,
+        position_ned_m=p[:, 1:4],
+        velocity_ned_m_s=p[:, 4:7],
+        attitude_t_s=a[:, 0] / 1000.0,
+        euler_rad=a[:, 1:4],
+        body_rates_rad_s=a[:, 4:7],
+    )
