@@ -35,7 +35,7 @@ class AgentConfig:
 
 @dataclass(frozen=True)
 class Setpoint:
-    """Attitude setpoint ZYX (rad) and collective thrust normalised to the vehicle maximum (0..1)."""
+    """Attitude setpoint ZYX (rad); collective thrust normalised to the vehicle maximum (0..1)."""
 
     roll_rad: float
     pitch_rad: float
@@ -100,5 +100,6 @@ class AgentCore:
         if not all(np.isfinite(values)) or not 0.0 <= thrust <= 1.0:
             self.rejected_setpoints += 1
             return None
-        return Setpoint(command.roll_rad, command.pitch_rad, command.yaw_rad, thrust,
-                        command.limited)
+        return Setpoint(
+            command.roll_rad, command.pitch_rad, command.yaw_rad, thrust, command.limited
+        )

@@ -41,16 +41,31 @@ def _parser() -> argparse.ArgumentParser:
         ),
     )
     sim.add_argument("scenario", type=Path, help="scenario file (TOML), e.g. scenarios/paper.toml")
-    sim.add_argument("--report", type=Path, default=Path("report"), metavar="DIR",
-                     help="report folder, created if missing (default: ./report)")
-    sim.add_argument("--duration-s", type=float, metavar="S",
-                     help="fly only the first S seconds of the scenario")
+    sim.add_argument(
+        "--report",
+        type=Path,
+        default=Path("report"),
+        metavar="DIR",
+        help="report folder, created if missing (default: ./report)",
+    )
+    sim.add_argument(
+        "--duration-s", type=float, metavar="S", help="fly only the first S seconds of the scenario"
+    )
     sim.add_argument("--seed", type=int, help="override the scenario's random seed")
-    sim.add_argument("--tlog-hz", type=float, default=25.0, metavar="HZ",
-                     help="telemetry rate written to flight.tlog (default 25, at least 10)")
+    sim.add_argument(
+        "--tlog-hz",
+        type=float,
+        default=25.0,
+        metavar="HZ",
+        help="telemetry rate written to flight.tlog (default 25, at least 10)",
+    )
     sim.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    sim.add_argument("--progress", choices=("auto", "on", "off"), default="auto",
-                     help="progress bar on stderr (auto: only on a terminal)")
+    sim.add_argument(
+        "--progress",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="progress bar on stderr (auto: only on a terminal)",
+    )
     return parser
 
 
@@ -90,25 +105,32 @@ def _simulate(args: argparse.Namespace) -> int:
     if args.seed is not None:
         scenario = dataclasses.replace(scenario, seed=args.seed)
     if not 10.0 <= args.tlog_hz <= scenario.rates.control_hz:
-        raise CliError(f"--tlog-hz must be between 10 and the control rate "
-                       f"({scenario.rates.control_hz} Hz)")
+        raise CliError(
+            f"--tlog-hz must be between 10 and the control rate ({scenario.rates.control_hz} Hz)"
+        )
     _check_writable(args.report)
     show = args.progress == "on" or (args.progress == "auto" and sys.stderr.isatty())
     bar: Any = None
     if show:
         from tqdm import tqdm
 
-        bar = tqdm(total=round(scenario.duration_s), unit="sim s", desc=scenario.name,
-                   file=sys.stderr, bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/"
-                   "{total:.0f} sim s [{elapsed}<{remaining}, {rate_fmt}]")
+        bar = tqdm(
+            total=round(scenario.duration_s),
+            unit="sim s",
+            desc=scenario.name,
+            file=sys.stderr,
+            bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/"
+            "{total:.0f} sim s [{elapsed}<{remaining}, {rate_fmt}]",
+        )
 
     def progress(t_s: float) -> None:
         if bar is not None and t_s - bar.n >= 1.0:
             bar.update(int(t_s - bar.n))
 
     try:
-        result = simulate(scenario, args.report, progress, tlog_hz=args.tlog_hz,
-                          plots=not args.no_plots)
+        result = simulate(
+            scenario, args.report, progress, tlog_hz=args.tlog_hz, plots=not args.no_plots
+        )
     finally:
         if bar is not None:
             bar.close()

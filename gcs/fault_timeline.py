@@ -28,7 +28,8 @@ from protocols.scenario import (
 class FaultTarget(Protocol):
     """What a fault can act on."""
 
-    conditions: LinkConditions
+    @property
+    def conditions(self) -> LinkConditions: ...
 
     def kill_agent(self, drone: int) -> None: ...
 
@@ -53,12 +54,33 @@ def _pairs(drones: tuple[int, int] | None, one_way: bool = False) -> list[tuple[
     return [(i, j)] if one_way else [(i, j), (j, i)]
 
 
-def _window(fault: Fault, duration_s: float | None, start: Callable[[FaultTarget], None],
-            end: Callable[[FaultTarget], None], text: str) -> list[TimedAction]:
+def _window(
+    fault: Fault,
+    duration_s: float | None,
+    start: Callable[[FaultTarget], None],
+    end: Callable[[FaultTarget], None],
+    text: str,
+) -> list[TimedAction]:
     actions = [TimedAction(fault.t_s, text, fault.kind, True, start)]
     if duration_s is not None:
-        actions.append(TimedAction(fault.t_s + duration_s, f"end of {text}", fault.kind, False, end))
+        actions.append(
+            TimedAction(fault.t_s + duration_s, f"end of {text}", fault.kind, False, end)
+        )
     return actions
+
+
+def _killer(drone: int) -> Callable[[FaultTarget], None]:
+    def apply(t: FaultTarget) -> None:
+        t.kill_agent(drone)
+
+    return apply
+
+
+def _crasher(drone: int) -> Callable[[FaultTarget], None]:
+    def apply(t: FaultTarget) -> None:
+        t.crash_vehicle(drone)
+
+    return apply
 
 
 def _link_cut(f: LinkCut) -> list[TimedAction]:
@@ -135,13 +157,11 @@ def timeline(scenario: Scenario) -> list[TimedAction]:
     dt = scenario.rates.dt_control_s
     for f in scenario.faults:
         if isinstance(f, Dropout):
-            drone = f.drone
-            actions.append(TimedAction(f.t_s, f"drone {drone} agent dropped out", f.kind, True,
-                                       lambda t, d=drone: t.kill_agent(d)))
+            text = f"drone {f.drone} agent dropped out"
+            actions.append(TimedAction(f.t_s, text, f.kind, True, _killer(f.drone)))
         elif isinstance(f, Crash):
-            drone = f.drone
-            actions.append(TimedAction(f.t_s, f"drone {drone} vehicle crashed", f.kind, True,
-                                       lambda t, d=drone: t.crash_vehicle(d)))
+            text = f"drone {f.drone} vehicle crashed"
+            actions.append(TimedAction(f.t_s, text, f.kind, True, _crasher(f.drone)))
         elif isinstance(f, LinkCut):
             actions += _link_cut(f)
         elif isinstance(f, PacketLoss):
@@ -156,8 +176,13 @@ def timeline(scenario: Scenario) -> list[TimedAction]:
 def link_faults(scenario: Scenario) -> list[LinkFault]:
     """The link cuts of the scenario, for shading plots."""
     return [
-        LinkFault(f.t_s, f.t_s + (f.duration_s or scenario.duration_s - f.t_s), f.drones[0],
-                  f.drones[1], f.one_way)
+        LinkFault(
+            f.t_s,
+            f.t_s + (f.duration_s or scenario.duration_s - f.t_s),
+            f.drones[0],
+            f.drones[1],
+            f.one_way,
+        )
         for f in scenario.faults
         if isinstance(f, LinkCut)
     ]

@@ -10,6 +10,9 @@ three angle rows wrapped to [−π, π); "RMS" is sqrt(mean(e²)), "max" is max 
 - **tracking**: per descriptor, RMS and max of |a_true − a_d| over samples with t ≥ ``settle_s``
   (faults included); angles also in degrees. ``centroid_m``: the Euclidean norm of the centre
   error; ``shape_m2``: at each sample the RMS over the three variance errors; RMS and max over time.
+- **tracking_steady**: the same, leaving out ``[t_loss, t_loss + 10 s)`` after each drone lost:
+  the steady-state figures (ALGORITHM.md §7 "away from the drop-out"); the transient itself is
+  judged by **reconvergence** below and is included in **tracking**. **consensus_steady** likewise.
 - **consensus**: for each member agent i and sample t ≥ ``settle_s``, |estimate_i − a_true| per
   descriptor (angles wrapped, heading mask as above); RMS and max over agents and samples; per
   agent the RMS and max of the centroid estimate error and the RMS of the variance estimate errors.
@@ -48,6 +51,8 @@ BoolArray = npt.NDArray[np.bool_]
 CENTROID_TOL_M = 0.05
 VARIANCE_TOL_M2 = 0.1
 HOLD_S = 1.0
+#: After a drone is lost, this long is left out of the steady-state figures (s).
+LOSS_WINDOW_S = 10.0
 _ANGLE_ROWS = range(ORIENTATION.start, ORIENTATION.stop)
 
 
@@ -111,16 +116,38 @@ def _centroid_shape(e: FloatArray) -> tuple[FloatArray, FloatArray]:
     return np.linalg.norm(e[..., CENTRE], axis=-1), np.sqrt(np.mean(e[..., SHAPE] ** 2, axis=-1))
 
 
+def outside(t_s: FloatArray, windows: Sequence[tuple[float, float]]) -> BoolArray:
+    """True for samples outside every ``[t0, t1)`` window."""
+    keep = np.ones(t_s.shape, dtype=bool)
+    for t0, t1 in windows:
+        keep &= (t_s < t0) | (t_s >= t1)
+    return keep
+
+
+def loss_windows(
+    record: FlightRecord, window_s: float = LOSS_WINDOW_S
+) -> list[tuple[float, float]]:
+    """``[t_loss, t_loss + window_s)`` for each drone lost: the transient left out of the
+    steady-state figures (and judged by the re-convergence metric instead)."""
+    return [(t, t + window_s) for t in sorted(record.lost_at_s.values())]
+
+
 def tracking_errors(
-    t_s: FloatArray, a_true: FloatArray, desired: FloatArray, settle_s: float
+    t_s: FloatArray,
+    a_true: FloatArray,
+    desired: FloatArray,
+    settle_s: float,
+    exclude: Sequence[tuple[float, float]] = (),
 ) -> dict[str, Any]:
-    """Tracking metrics (see module doc) of true descriptors (T, 9) against ``desired`` (T, 9)."""
-    after = (t_s >= settle_s) & np.all(np.isfinite(a_true), axis=1)
+    """Tracking metrics (see module doc) of true descriptors (T, 9) against ``desired`` (T, 9),
+    over samples after ``settle_s`` and outside the ``exclude`` windows."""
+    after = (t_s >= settle_s) & np.all(np.isfinite(a_true), axis=1) & outside(t_s, exclude)
     e = descriptor_errors(a_true, desired, heading_mask(a_true))[after]
     t = t_s[after]
     centroid, shape = _centroid_shape(e)
     return {
         "settle_s": float(settle_s),
+        "excluded_windows_s": [list(w) for w in exclude],
         "n_samples": int(after.sum()),
         "descriptors": {
             name: _stat(e[:, k], t, deg=k in _ANGLE_ROWS) for k, name in enumerate(NAMES)
@@ -136,16 +163,25 @@ def tracking_from_positions(
     member: BoolArray,
     desired: FloatArray,
     settle_s: float,
+    exclude: Sequence[tuple[float, float]] = (),
 ) -> dict[str, Any]:
     """Tracking metrics from positions (T, N, 3) (e.g. resampled from a tlog), ``member`` (T, N)."""
-    return tracking_errors(t_s, descriptors_of(positions_ned_m, member, desired), desired, settle_s)
+    a_true = descriptors_of(positions_ned_m, member, desired)
+    return tracking_errors(t_s, a_true, desired, settle_s, exclude)
 
 
 def consensus_errors(
-    t_s: FloatArray, a_true: FloatArray, estimate: FloatArray, member: BoolArray, settle_s: float
+    t_s: FloatArray,
+    a_true: FloatArray,
+    estimate: FloatArray,
+    member: BoolArray,
+    settle_s: float,
+    exclude: Sequence[tuple[float, float]] = (),
 ) -> dict[str, Any]:
-    """Consensus metrics (see module doc): ``estimate`` (T, N, 9) against ``a_true`` (T, 9)."""
-    use = member & (t_s >= settle_s)[:, None] & np.all(np.isfinite(a_true), axis=1)[:, None]
+    """Consensus metrics (see module doc): ``estimate`` (T, N, 9) against ``a_true`` (T, 9),
+    after ``settle_s`` and outside the ``exclude`` windows."""
+    when = (t_s >= settle_s) & outside(t_s, exclude) & np.all(np.isfinite(a_true), axis=1)
+    use = member & when[:, None]
     have = np.all(np.isfinite(estimate[..., CENTRE]), axis=-1) & np.all(
         np.isfinite(estimate[..., SHAPE]), axis=-1
     )
@@ -304,7 +340,13 @@ def compute_metrics(
         "n_drones": record.n_drones,
         "duration_s": float(t[-1] - t[0]) if t.size else 0.0,
         "tracking": tracking_errors(t, a_true, record.desired, settle_s),
+        "tracking_steady": tracking_errors(
+            t, a_true, record.desired, settle_s, loss_windows(record)
+        ),
         "consensus": consensus_errors(t, a_true, record.estimate, record.member, settle_s),
+        "consensus_steady": consensus_errors(
+            t, a_true, record.estimate, record.member, settle_s, loss_windows(record)
+        ),
         "reconvergence": reconvergence(
             t, a_true, record.desired, record.estimate, record.member, faults
         ),

@@ -23,8 +23,15 @@ from protocols.frames import FloatArray
 from protocols.scenario import Scenario
 from sitl_sim.attitude_control import euler_from_quat_batch
 from sitl_sim.config import attitude_gains, vehicle_params
-from sitl_sim.dynamics import POS, QUAT, RATES, VEL, initial_state, step_with_contact
-from sitl_sim.dynamics import wrench_from_rotor_speeds
+from sitl_sim.dynamics import (
+    POS,
+    QUAT,
+    RATES,
+    VEL,
+    initial_state,
+    step_with_contact,
+    wrench_from_rotor_speeds,
+)
 from sitl_sim.failsafe import FailsafeConfig, failsafe_command
 from sitl_sim.inner_loop import inner_loop
 
@@ -121,7 +128,7 @@ class ReferenceFlight:
     # -- the loop ------------------------------------------------------------------------------
     def run(self, progress: Callable[[float], None] | None = None) -> FlightRecord:
         """Fly the whole scenario; ``progress`` is called with the simulated time every tick."""
-        n_ticks = int(round(self.scenario.duration_s / self.dt)) + 1
+        n_ticks = round(self.scenario.duration_s / self.dt) + 1
         rec = _Recorder(n_ticks, self.n)
         self._event("run_start", drones=self.n, duration_s=self.scenario.duration_s)
         for k in range(n_ticks):
@@ -135,11 +142,21 @@ class ReferenceFlight:
                     self._physics_step(self.t_s + sub * self.dt / self.substeps)
         self._event("run_end", lost=sorted(self.lost_at))
         return FlightRecord(
-            t_s=rec.t, position_ned_m=rec.pos, velocity_ned_m_s=rec.vel, euler_rad=rec.euler,
-            thrust_n=rec.thrust, moments_nm=rec.moments, desired=rec.desired,
-            estimate=rec.estimate, member=rec.member, airborne=rec.airborne,
-            neighbours=rec.neighbours, link_faults=link_faults(self.scenario),
-            lost_at_s=dict(self.lost_at), armed=rec.armed, body_rates_rad_s=rec.rates,
+            t_s=rec.t,
+            position_ned_m=rec.pos,
+            velocity_ned_m_s=rec.vel,
+            euler_rad=rec.euler,
+            thrust_n=rec.thrust,
+            moments_nm=rec.moments,
+            desired=rec.desired,
+            estimate=rec.estimate,
+            member=rec.member,
+            airborne=rec.airborne,
+            neighbours=rec.neighbours,
+            link_faults=link_faults(self.scenario),
+            lost_at_s=dict(self.lost_at),
+            armed=rec.armed,
+            body_rates_rad_s=rec.rates,
         )
 
     def _event(self, kind: str, **fields: Any) -> None:
@@ -149,8 +166,11 @@ class ReferenceFlight:
         while self._actions and self._actions[0].t_s <= self.t_s + 1e-9:
             action = self._actions.pop(0)
             action.apply(self)
-            self._event("fault" if action.starts else "fault_end", fault=action.fault_kind,
-                        description=action.description)
+            self._event(
+                "fault" if action.starts else "fault_end",
+                fault=action.fault_kind,
+                description=action.description,
+            )
         for drone, t_leave in list(self.leave_at.items()):
             if self.t_s >= t_leave:
                 del self.leave_at[drone]
@@ -195,22 +215,33 @@ class ReferenceFlight:
             attitude, thrust = attitude.copy(), thrust.copy()
             for i in np.flatnonzero(stale & ~self.in_failsafe):
                 self.in_failsafe[i] = True
-                self._event("failsafe", drone=int(i), reason="no setpoint for "
-                            f"{self.failsafe.offboard_timeout_s:g} s: level, descend, disarm")
+                self._event(
+                    "failsafe",
+                    drone=int(i),
+                    reason="no setpoint for "
+                    f"{self.failsafe.offboard_timeout_s:g} s: level, descend, disarm",
+                )
             since = t_s - self.last_setpoint_s[stale] - self.failsafe.offboard_timeout_s
             yaw = euler_from_quat_batch(self.state[QUAT][:, stale])[2]
-            att, thr = failsafe_command(self.state[5, stale], yaw, since,
-                                        self.params.hover_thrust_n / self.params.max_thrust_n,
-                                        self.failsafe)
+            att, thr = failsafe_command(
+                self.state[5, stale],
+                yaw,
+                since,
+                self.params.hover_thrust_n / self.params.max_thrust_n,
+                self.failsafe,
+            )
             attitude[:, stale], thrust[stale] = att, thr
-        self.rotor_speed = inner_loop(self.state, attitude, thrust, self.params, self.att_gains,
-                                      self.armed)
-        result = step_with_contact(self.state, self.rotor_speed, self.params,
-                                   self.dt / self.substeps)
+        self.rotor_speed = inner_loop(
+            self.state, attitude, thrust, self.params, self.att_gains, self.armed
+        )
+        result = step_with_contact(
+            self.state, self.rotor_speed, self.params, self.dt / self.substeps
+        )
         self.state = result.state
         for i in np.flatnonzero(result.impact_speed_m_s > HARD_LANDING_M_S):
-            self._event("hard_landing", drone=int(i),
-                        impact_m_s=round(float(result.impact_speed_m_s[i]), 2))
+            self._event(
+                "hard_landing", drone=int(i), impact_m_s=round(float(result.impact_speed_m_s[i]), 2)
+            )
         landed = self.in_failsafe & self.armed & (self.state[2] >= -1e-6)
         for i in np.flatnonzero(landed):
             self.armed[i] = False

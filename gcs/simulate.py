@@ -62,13 +62,17 @@ def simulate(
     record = flight.run(progress)
     wall = time.perf_counter() - wall0
     files = [
-        _write_tlog(record, flight.events, report_dir / "flight.tlog", tlog_hz,
-                    _silent_from(flight)),
+        _write_tlog(
+            record, flight.events, report_dir / "flight.tlog", tlog_hz, _silent_from(flight)
+        ),
         _write_events(flight.events, report_dir / "events.jsonl"),
         _write_trajectory(flight.plan, report_dir / "trajectory.json"),
     ]
-    faults = [(e.t_s, str(e.fields.get("description", e.kind)))
-              for e in flight.events if e.kind == "fault"]
+    faults = [
+        (e.t_s, str(e.fields.get("description", e.kind)))
+        for e in flight.events
+        if e.kind == "fault"
+    ]
     metrics = compute_metrics(
         record,
         settle_s=scenario.settle_s,
@@ -108,13 +112,18 @@ def _silent_from(flight: ReferenceFlight) -> dict[int, float]:
     return out
 
 
-def _write_tlog(record: FlightRecord, events: list[FlightEvent], path: Path, hz: float,
-                silent_from: dict[int, float]) -> Path:
+def _write_tlog(
+    record: FlightRecord,
+    events: list[FlightEvent],
+    path: Path,
+    hz: float,
+    silent_from: dict[int, float],
+) -> Path:
     """Telemetry of every vehicle at ``hz`` (system id = index + 1), heartbeats at 1 Hz, and a
     STATUSTEXT for each event about a drone. Vehicles in ``silent_from`` stop after that time."""
     t = record.t_s
-    stride = max(1, int(round(1.0 / (hz * (t[1] - t[0]))))) if t.size > 1 else 1
-    hb_stride = max(1, int(round(1.0 / (t[1] - t[0])))) if t.size > 1 else 1
+    stride = max(1, round(1.0 / (hz * (t[1] - t[0])))) if t.size > 1 else 1
+    hb_stride = max(1, round(1.0 / (t[1] - t[0]))) if t.size > 1 else 1
     rates = record.body_rates_rad_s
     armed = record.armed
     pending = sorted(events, key=lambda e: e.t_s)
@@ -133,14 +142,24 @@ def _write_tlog(record: FlightRecord, events: list[FlightEvent], path: Path, hz:
                     continue
                 if k % hb_stride == 0:
                     is_armed = bool(armed[k, i]) if armed is not None else True
-                    state = (MAV_STATE_EMERGENCY if not record.member[k, i]
-                             else MAV_STATE_ACTIVE if is_armed else MAV_STATE_STANDBY)
+                    state = (
+                        MAV_STATE_EMERGENCY
+                        if not record.member[k, i]
+                        else MAV_STATE_ACTIVE
+                        if is_armed
+                        else MAV_STATE_STANDBY
+                    )
                     log.write_heartbeat(float(t[k]), i + 1, is_armed, state)
                 if k % stride == 0:
                     body = rates[k, i] if rates is not None else np.zeros(3)
-                    log.write_vehicle_sample(float(t[k]), i + 1, record.position_ned_m[k, i],
-                                             record.velocity_ned_m_s[k, i], record.euler_rad[k, i],
-                                             body)
+                    log.write_vehicle_sample(
+                        float(t[k]),
+                        i + 1,
+                        record.position_ned_m[k, i],
+                        record.velocity_ned_m_s[k, i],
+                        record.euler_rad[k, i],
+                        body,
+                    )
     return path
 
 
@@ -152,10 +171,15 @@ def _write_events(events: list[FlightEvent], path: Path) -> Path:
 
 
 def _write_trajectory(plan: DescriptorTrajectory, path: Path) -> Path:
-    path.write_text(json.dumps({
-        "seq": plan.seq,
-        "descriptor_order": "mu_x mu_y mu_z roll pitch yaw s1 s2 s3 (NED m, rad, m^2)",
-        "t_knots_s": plan.t_knots_s.tolist(),
-        "coeffs_ascending_powers": plan.coeffs.tolist(),
-    }) + "\n")
+    path.write_text(
+        json.dumps(
+            {
+                "seq": plan.seq,
+                "descriptor_order": "mu_x mu_y mu_z roll pitch yaw s1 s2 s3 (NED m, rad, m^2)",
+                "t_knots_s": plan.t_knots_s.tolist(),
+                "coeffs_ascending_powers": plan.coeffs.tolist(),
+            }
+        )
+        + "\n"
+    )
     return path

@@ -47,8 +47,9 @@ class Harness:
         self.round += 1
         return {i: o.estimate for i, o in outs.items()}
 
-    def run(self, signal: Signal, rounds: int, members: frozenset[int] | None = None
-            ) -> dict[int, FloatArray]:
+    def run(
+        self, signal: Signal, rounds: int, members: frozenset[int] | None = None
+    ) -> dict[int, FloatArray]:
         est: dict[int, FloatArray] = {}
         for _ in range(rounds):
             est = self.step(signal(self.round), members)
@@ -89,10 +90,15 @@ def test_sum_is_conserved_on_every_tick(adj: FloatArray, seed: int) -> None:
 
 
 @settings(max_examples=25, deadline=None)
-@given(adj=_connected_graphs(), seed=st.integers(0, 10_000),
-       loss=st.floats(0.0, 0.5), delay=st.integers(0, 3))
-def test_no_lasting_bias_after_loss_and_delay(adj: FloatArray, seed: int, loss: float,
-                                              delay: int) -> None:
+@given(
+    adj=_connected_graphs(),
+    seed=st.integers(0, 10_000),
+    loss=st.floats(0.0, 0.5),
+    delay=st.integers(0, 3),
+)
+def test_no_lasting_bias_after_loss_and_delay(
+    adj: FloatArray, seed: int, loss: float, delay: int
+) -> None:
     """Whatever is lost or delayed, once the radio is clean again the estimates converge to the
     exact average: loss costs only in-flight mass, never accumulated bias."""
     n = adj.shape[0]

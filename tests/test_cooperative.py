@@ -69,8 +69,9 @@ def test_pinv_block_zyx_matches_numerical_pseudo_inverse(n: int, seed: int) -> N
     axes, s = align_axes(sigma, rot_zyx(0.7, -0.2, 0.3))
     pinv = _numerical_pinv(_zyx_map, x, axes)
     for i in range(n):
-        np.testing.assert_allclose(pinv_block_zyx(x[i] - mu, axes, s), pinv[3 * i : 3 * i + 3],
-                                   atol=1e-6)
+        np.testing.assert_allclose(
+            pinv_block_zyx(x[i] - mu, axes, s), pinv[3 * i : 3 * i + 3], atol=1e-6
+        )
 
 
 def test_block_does_not_depend_on_n() -> None:
