@@ -1,0 +1,93 @@
+"""MAVLink conventions shared by the simulator, the agents and the ground station.
+
+Identities (SPEC.md "Conventions"): vehicle index i = 0..N-1 is MAVLink system id ``i + 1``,
+component 1 (autopilot). Its agent speaks as the same system id with component 191 (onboard
+computer). The ground station is system 255, component 190.
+
+Ports (PX4 SITL habit): vehicle i serves its agent on UDP ``base_port + i`` (default 14540) and the
+simulator sends the telemetry of every vehicle to the GCS at UDP 14550. The simulator *listens* on
+the agent ports and answers the address a packet last came from; it *sends* to the GCS address and
+answers GCS commands arriving on that same socket.
+
+Modes use PX4's custom-mode encoding so GCS tools (MAVProxy, QGroundControl) name them:
+``custom_mode = main_mode << 16 | sub_mode << 24``, HEARTBEAT autopilot MAV_AUTOPILOT_PX4.
+
+Units on the wire: SET_ATTITUDE_TARGET carries a quaternion (w, x, y, z) body FRD -> world NED and a
+*normalised* collective thrust 0..1 of the vehicle's maximum (PX4 offboard convention).
+
+Lockstep handshake (needs nothing beyond standard MAVLink; SPEC.md "Time"):
+1. The simulator sends the state of control tick k to each agent: ATTITUDE and
+   LOCAL_POSITION_NED with ``time_boot_ms = k * control_period_ms``.
+2. The agent answers with SET_ATTITUDE_TARGET whose own ``time_boot_ms`` echoes that value (also
+   while disarmed on the ground: thrust 0, it still acknowledges the tick).
+3. The simulator advances one control period once it holds tick k's setpoint from every vehicle
+   in the barrier. A vehicle joins the barrier with its agent's first echoed setpoint; an agent
+   silent for the wall-clock timeout leaves it (its vehicle failsafes).
+The agent takes its clock from these time stamps, never from the host.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+GCS_SYSID = 255
+GCS_COMPID = 190
+AUTOPILOT_COMPID = 1
+AGENT_COMPID = 191
+
+DEFAULT_BASE_PORT = 14540
+DEFAULT_GCS_PORT = 14550
+MAX_VEHICLES = 250  # system ids 1..250; 251..255 stay free for ground stations
+
+#: MAVLink 2 signing: link id used by the simulator's outgoing telemetry.
+SIGNING_LINK_ID = 0
+
+
+def sysid_of(index: int) -> int:
+    """MAVLink system id of vehicle ``index`` (0-based)."""
+    return index + 1
+
+
+def index_of(sysid: int) -> int:
+    """Vehicle index (0-based) of a MAVLink system id."""
+    return sysid - 1
+
+
+class Px4MainMode(IntEnum):
+    """PX4 main modes (custom_mode bits 16..23)."""
+
+    MANUAL = 1
+    ALTCTL = 2
+    POSCTL = 3
+    AUTO = 4
+    ACRO = 5
+    OFFBOARD = 6
+    STABILIZED = 7
+
+
+class Px4AutoSubMode(IntEnum):
+    """PX4 sub modes of AUTO (custom_mode bits 24..31)."""
+
+    READY = 1
+    TAKEOFF = 2
+    LOITER = 3
+    MISSION = 4
+    RTL = 5
+    LAND = 6
+
+
+def px4_custom_mode(main: int, sub: int = 0) -> int:
+    """The 32-bit HEARTBEAT custom_mode of a PX4 main/sub mode."""
+    return (int(main) << 16) | (int(sub) << 24)
+
+
+def px4_mode_of(custom_mode: int) -> tuple[int, int]:
+    """(main, sub) of a PX4 custom_mode."""
+    return (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+
+
+#: The modes the simulated autopilot flies.
+MODE_HOLD = px4_custom_mode(Px4MainMode.AUTO, Px4AutoSubMode.LOITER)
+MODE_OFFBOARD = px4_custom_mode(Px4MainMode.OFFBOARD)
+MODE_LAND = px4_custom_mode(Px4MainMode.AUTO, Px4AutoSubMode.LAND)
+MODE_NAMES = {MODE_HOLD: "HOLD", MODE_OFFBOARD: "OFFBOARD", MODE_LAND: "LAND"}
