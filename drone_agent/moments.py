@@ -43,14 +43,10 @@ def channels(
     ref_centre_ned_m: FloatArray,
     ref_centre_rate_ned_m_s: FloatArray,
 ) -> FloatArray:
-    """The 18 consensus channels zeta_i of one drone (see module docstring)."""
-    y = np.asarray(position_ned_m, dtype=float) - ref_centre_ned_m
-    yd = np.asarray(velocity_ned_m_s, dtype=float) - ref_centre_rate_ned_m_s
-    out = np.empty(N_CHANNELS)
-    out[0:3] = y
-    out[3:9] = y[_SYM_I] * y[_SYM_J]
-    out[9:12] = yd
-    out[12:18] = yd[_SYM_I] * y[_SYM_J] + y[_SYM_I] * yd[_SYM_J]
+    """The 18 consensus channels zeta_i (18,) of one drone (see module docstring)."""
+    x = np.asarray(position_ned_m, dtype=float)[None, :]
+    v = np.asarray(velocity_ned_m_s, dtype=float)[None, :]
+    out: FloatArray = channels_batch(x, v, ref_centre_ned_m, ref_centre_rate_ned_m_s)[0]
     return out
 
 
