@@ -1,0 +1,96 @@
+"""Operator commands as trajectory segments: smooth, within the envelope, refused with a reason."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gcs.planner import Envelope, PlanRefused, formation_target, goal_of, hold, plan_to
+from protocols.trajectory import DescriptorTrajectory, Waypoint
+
+ENV = Envelope(fence_north_m=(-50.0, 50.0), fence_east_m=(-50.0, 50.0))
+HOVER = np.array([0.0, 0.0, -5.0, 0.0, 0.0, 0.0, 9.0, 4.0, 0.0])
+
+
+def _hover_plan() -> DescriptorTrajectory:
+    return DescriptorTrajectory.from_waypoints([Waypoint(0.0, HOVER), Waypoint(10.0, HOVER)])
+
+
+def _max_rate(plan: DescriptorTrajectory, t0: float, t1: float, rows: slice) -> tuple[float, float]:
+    t = np.linspace(t0, t1, 2000)
+    _, rate, acc = plan.evaluate_many(t)
+    return (
+        float(np.linalg.norm(rate[:, rows], axis=1).max()),
+        float(np.linalg.norm(acc[:, rows], axis=1).max()),
+    )
+
+
+def test_move_arrives_at_rest_within_limits() -> None:
+    plan = _hover_plan()
+    target = formation_target(plan, 12.0, centre_ned_m=np.array([20.0, -10.0, -8.0]))
+    new = plan_to(plan, 12.0, target, ENV)
+    assert new.seq == plan.seq + 1
+    a, rate, acc = new.evaluate(new.end_s)
+    np.testing.assert_allclose(acc, 0.0, atol=1e-9)
+    np.testing.assert_allclose(a, target, atol=1e-9)
+    np.testing.assert_allclose(rate, 0.0, atol=1e-9)
+    v, accel = _max_rate(new, 12.0, new.end_s, slice(0, 3))
+    assert v <= ENV.max_speed_m_s * 1.001 and accel <= ENV.max_accel_m_s2 * 1.001
+    assert v > 0.9 * ENV.max_speed_m_s  # and not needlessly slow
+    # unchanged before the command
+    np.testing.assert_allclose(new.evaluate(11.0)[0], plan.evaluate(11.0)[0])
+
+
+def test_command_during_a_move_joins_smoothly() -> None:
+    plan = plan_to(_hover_plan(), 12.0, HOVER + np.r_[20.0, 0, 0, 0, 0, 0, 0, 0, 0], ENV)
+    mid = 12.0 + (plan.end_s - 12.0) / 2
+    target = formation_target(plan, mid, heading_deg=90.0)
+    new = plan_to(plan, mid, target, ENV)
+    for k, (x, y) in enumerate(zip(plan.evaluate(mid), new.evaluate(mid + 1e-9), strict=True)):
+        np.testing.assert_allclose(x, y, atol=1e-6, err_msg=f"derivative {k}")
+    assert new.evaluate(new.end_s)[0][0] == pytest.approx(20.0)  # keeps the move's goal
+    assert new.evaluate(new.end_s)[0][5] == pytest.approx(math.pi / 2)
+
+
+def test_heading_turns_the_short_way() -> None:
+    plan = plan_to(
+        _hover_plan(), 12.0, formation_target(_hover_plan(), 12.0, heading_deg=170.0), ENV
+    )
+    new = plan_to(plan, plan.end_s, formation_target(plan, plan.end_s, heading_deg=-170.0), ENV)
+    yaw = new.evaluate(new.end_s)[0][5]
+    assert yaw == pytest.approx(math.radians(190.0))
+
+
+@pytest.mark.parametrize(
+    "kwargs,reason",
+    [
+        ({"centre_ned_m": np.array([48.0, 0.0, -5.0])}, "geofence"),
+        ({"centre_ned_m": np.array([0.0, 0.0, -70.0])}, "altitude"),
+        ({"spread_m": np.array([20.0, 2.0, 0.0])}, "spread"),
+    ],
+)
+def test_outside_the_envelope_is_refused(kwargs: dict[str, np.ndarray], reason: str) -> None:
+    plan = _hover_plan()
+    with pytest.raises(PlanRefused, match=reason):
+        plan_to(plan, 12.0, formation_target(plan, 12.0, **kwargs), ENV)
+    np.testing.assert_allclose(goal_of(plan, 12.0), HOVER)  # nothing changed
+
+
+def test_too_fast_is_refused_with_the_minimum_time() -> None:
+    plan = _hover_plan()
+    target = formation_target(plan, 12.0, centre_ned_m=np.array([30.0, 0.0, -5.0]))
+    with pytest.raises(PlanRefused, match="at least"):
+        plan_to(plan, 12.0, target, ENV, duration_s=3.0)
+    slow = plan_to(plan, 12.0, target, ENV, duration_s=60.0)
+    assert slow.end_s == pytest.approx(72.0)
+
+
+def test_hold_comes_to_rest() -> None:
+    plan = plan_to(_hover_plan(), 12.0, HOVER + np.r_[30.0, 0, 0, 0, 0, 0, 0, 0, 0], ENV)
+    mid = 12.0 + (plan.end_s - 12.0) / 2
+    stopped = hold(plan, mid, ENV)
+    _, rate, _ = stopped.evaluate(stopped.end_s)
+    np.testing.assert_allclose(rate, 0.0, atol=1e-9)
+    assert stopped.evaluate(stopped.end_s)[0][0] < 30.0
