@@ -1,0 +1,241 @@
+"""The agent's MAVLink link to its own vehicle over UDP; pymavlink is used only as a codec.
+
+The agent speaks as its vehicle's system id with component 191 (onboard computer), sends to the
+vehicle's UDP port (``14540 + index`` by default) and receives from it. It builds a
+:class:`VehicleSample` whenever ATTITUDE and LOCAL_POSITION_NED of one ``time_boot_ms`` have both
+arrived: that stamp is the agent's clock and names the control tick (lockstep handshake in
+protocols/mavlink_conventions.py). Malformed datagrams and messages from other systems are counted
+and dropped.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink.dialects.v20 import common
+
+from protocols.frames import FloatArray
+from protocols.mavlink_conventions import (
+    AGENT_COMPID,
+    AUTOPILOT_COMPID,
+    DEFAULT_BASE_PORT,
+    MODE_OFFBOARD,
+    Px4MainMode,
+    sysid_of,
+)
+from protocols.mavlink_signing import setup_signing
+
+_MAX_DATAGRAM = 65535
+#: SET_ATTITUDE_TARGET type_mask: ignore body rates, use attitude and thrust.
+IGNORE_BODY_RATES = 0b0000_0111
+
+
+@dataclass(frozen=True)
+class VehicleSample:
+    """The vehicle's state at ``time_boot_ms`` (simulated ms): NED position (m), velocity (m/s),
+    attitude (roll, pitch, yaw; rad)."""
+
+    time_boot_ms: int
+    position_ned_m: FloatArray
+    velocity_ned_m_s: FloatArray
+    euler_rad: FloatArray
+
+
+@dataclass
+class VehicleStatus:
+    """What the vehicle's heartbeats, acks and texts said last."""
+
+    armed: bool = False
+    custom_mode: int = 0
+    system_status: int = 0
+    heartbeats: int = 0
+    last_ack: dict[int, int] = field(default_factory=dict)
+    texts: list[str] = field(default_factory=list)
+
+
+@dataclass
+class LinkCounters:
+    """Per-link counters: datagrams and messages in/out, what was dropped and why."""
+
+    rx_datagrams: int = 0
+    rx_messages: int = 0
+    rx_bad: int = 0
+    rx_foreign: int = 0
+    tx_messages: int = 0
+    tx_errors: int = 0
+
+
+class VehicleLink:
+    """UDP MAVLink client of vehicle ``index``. Non-blocking: call :meth:`poll` when readable."""
+
+    def __init__(
+        self,
+        index: int,
+        host: str = "127.0.0.1",
+        port: int | None = None,
+        signing_key: bytes | None = None,
+        wall_clock: Callable[[], float] | None = None,
+    ) -> None:
+        self.index = index
+        self.sysid = sysid_of(index)
+        self.address = (host, DEFAULT_BASE_PORT + index if port is None else port)
+        self._mav = common.MAVLink(None, srcSystem=self.sysid, srcComponent=AGENT_COMPID)
+        self._mav.robust_parsing = True
+        if signing_key is not None:
+            setup_signing(self._mav, signing_key, link_id=1, wall_clock=wall_clock)
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock.setblocking(False)
+        self._sock.connect(self.address)
+        self.status = VehicleStatus()
+        self.counters = LinkCounters()
+        self._pos: dict[int, Any] = {}
+        self._att: dict[int, Any] = {}
+
+    def fileno(self) -> int:
+        return self._sock.fileno()
+
+    def close(self) -> None:
+        self._sock.close()
+
+    def __enter__(self) -> VehicleLink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- receive -------------------------------------------------------------------------------
+    def poll(self) -> list[VehicleSample]:
+        """Read every pending datagram; return the complete samples, oldest first."""
+        samples: list[VehicleSample] = []
+        while True:
+            try:
+                data = self._sock.recv(_MAX_DATAGRAM)
+            except (BlockingIOError, InterruptedError):
+                break
+            except ConnectionRefusedError:  # the vehicle is not (yet) listening
+                break
+            self.counters.rx_datagrams += 1
+            try:
+                messages = self._mav.parse_buffer(data) or []
+            except Exception:  # pymavlink raises MAVError and struct errors alike
+                self.counters.rx_bad += 1
+                continue
+            for msg in messages:
+                samples += self._handle(msg)
+        return samples
+
+    def _handle(self, msg: Any) -> list[VehicleSample]:
+        if msg.get_type() == "BAD_DATA":
+            self.counters.rx_bad += 1
+            return []
+        if msg.get_srcSystem() != self.sysid or msg.get_srcComponent() != AUTOPILOT_COMPID:
+            self.counters.rx_foreign += 1
+            return []
+        self.counters.rx_messages += 1
+        kind = msg.get_type()
+        if kind == "HEARTBEAT":
+            self.status.heartbeats += 1
+            self.status.armed = bool(msg.base_mode & common.MAV_MODE_FLAG_SAFETY_ARMED)
+            self.status.custom_mode = int(msg.custom_mode)
+            self.status.system_status = int(msg.system_status)
+        elif kind == "COMMAND_ACK":
+            self.status.last_ack[int(msg.command)] = int(msg.result)
+        elif kind == "STATUSTEXT":
+            self.status.texts.append(str(msg.text))
+            del self.status.texts[:-50]
+        elif kind == "LOCAL_POSITION_NED":
+            self._pos[int(msg.time_boot_ms)] = msg
+            return self._pair(int(msg.time_boot_ms))
+        elif kind == "ATTITUDE":
+            self._att[int(msg.time_boot_ms)] = msg
+            return self._pair(int(msg.time_boot_ms))
+        return []
+
+    def _pair(self, ms: int) -> list[VehicleSample]:
+        pos, att = self._pos.get(ms), self._att.get(ms)
+        if pos is None or att is None:
+            self._prune(ms)
+            return []
+        del self._pos[ms], self._att[ms]
+        self._prune(ms)
+        return [
+            VehicleSample(
+                ms,
+                np.array([pos.x, pos.y, pos.z], dtype=float),
+                np.array([pos.vx, pos.vy, pos.vz], dtype=float),
+                np.array([att.roll, att.pitch, att.yaw], dtype=float),
+            )
+        ]
+
+    def _prune(self, ms: int) -> None:
+        """Forget half-pairs more than a second older than ``ms``."""
+        for store in (self._pos, self._att):
+            for old in [k for k in store if k < ms - 1000]:
+                del store[old]
+
+    # -- send ----------------------------------------------------------------------------------
+    def _send(self, msg: Any) -> None:
+        try:
+            self._sock.send(msg.pack(self._mav))
+            self.counters.tx_messages += 1
+        except OSError:
+            self.counters.tx_errors += 1
+
+    def send_setpoint(self, time_boot_ms: int, quat_wxyz: FloatArray, thrust: float) -> None:
+        """SET_ATTITUDE_TARGET: attitude quaternion (w, x, y, z) body -> NED and normalised
+        thrust 0..1; ``time_boot_ms`` echoes the tick it answers (lockstep handshake)."""
+        q = [float(v) for v in quat_wxyz]
+        self._send(
+            self._mav.set_attitude_target_encode(
+                int(time_boot_ms) & 0xFFFFFFFF,
+                self.sysid,
+                AUTOPILOT_COMPID,
+                IGNORE_BODY_RATES,
+                q,
+                0.0,
+                0.0,
+                0.0,
+                float(thrust),
+            )
+        )
+
+    def send_heartbeat(self) -> None:
+        self._send(
+            self._mav.heartbeat_encode(
+                common.MAV_TYPE_ONBOARD_CONTROLLER,
+                common.MAV_AUTOPILOT_INVALID,
+                0,
+                0,
+                common.MAV_STATE_ACTIVE,
+            )
+        )
+
+    def command(self, command: int, *params: float) -> None:
+        """COMMAND_LONG to the vehicle's autopilot (up to 7 params, the rest 0)."""
+        p = [float(v) for v in params] + [0.0] * (7 - len(params))
+        self._send(self._mav.command_long_encode(self.sysid, AUTOPILOT_COMPID, command, 0, *p))
+
+    def arm(self, arm: bool = True) -> None:
+        self.command(common.MAV_CMD_COMPONENT_ARM_DISARM, 1.0 if arm else 0.0)
+
+    def set_offboard(self) -> None:
+        self.command(
+            common.MAV_CMD_DO_SET_MODE,
+            common.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+            float(Px4MainMode.OFFBOARD),
+        )
+
+    @property
+    def in_offboard(self) -> bool:
+        return self.status.custom_mode == MODE_OFFBOARD
+
+    def request_interval(self, message_id: int, rate_hz: float) -> None:
+        """MAV_CMD_SET_MESSAGE_INTERVAL for one message id at ``rate_hz``."""
+        self.command(common.MAV_CMD_SET_MESSAGE_INTERVAL, float(message_id), 1e6 / rate_hz)
