@@ -19,11 +19,15 @@ from typing import Any
 import numpy as np
 
 from bench.physics import physics_step
+from bench.sitl import sitl_rtf
+from bench.zenoh_latency import zenoh_latency
 
 Benchmark = Callable[[], dict[str, Any]]
 
 BENCHMARKS: dict[str, Benchmark] = {
     "physics_step": physics_step,
+    "zenoh_latency": zenoh_latency,
+    "sitl": sitl_rtf,
 }
 
 

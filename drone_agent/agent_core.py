@@ -55,6 +55,7 @@ class AgentOutput:
     setpoint: Setpoint | None
     active_neighbours: tuple[int, ...]
     ready_to_fly: bool
+    disagreement: float = 0.0
 
 
 class AgentCore:
@@ -91,7 +92,9 @@ class AgentCore:
                 position_ned_m, velocity_ned_m_s, moments, reference, self.config.gains
             )
             setpoint = self._setpoint(attitude_thrust(v, float(a_d[I_YAW]), self.config.limits))
-        return AgentOutput(out.message, estimate, moments, setpoint, out.active_neighbours, ready)
+        return AgentOutput(
+            out.message, estimate, moments, setpoint, out.active_neighbours, ready, out.disagreement
+        )
 
     def _setpoint(self, command: AttitudeThrust) -> Setpoint | None:
         """The checked setpoint: None (and counted) if anything is not finite or out of range."""

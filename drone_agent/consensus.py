@@ -115,12 +115,15 @@ class _Peer:
 
 @dataclass(frozen=True)
 class ConsensusOutput:
-    """Result of one round: the estimate (18,) of the channel averages, the message to send, and
-    the neighbours whose edge integrated in this round (sorted)."""
+    """Result of one round: the estimate (18,) of the channel averages, the message to send, the
+    neighbours whose edge integrated in this round (sorted), and the relative disagreement: the
+    largest ``|gamma_i - gamma_j| / (1 + max(|gamma_i|, |gamma_j|))`` over the channels and the
+    pairs integrated in this round (0 if none), small once the estimator has settled."""
 
     estimate: FloatArray
     message: ConsensusMessage
     active_neighbours: tuple[int, ...]
+    disagreement: float = 0.0
 
 
 class ConsensusEstimator:
@@ -135,6 +138,7 @@ class ConsensusEstimator:
         # round -> (gamma_i, degree_i, heard_i)
         self._history: dict[int, tuple[FloatArray, int, frozenset[int]]] = {}
         self._last_round: int | None = None
+        self._disagreement = 0.0
         self.dropped_messages = 0
 
     @property
@@ -172,6 +176,7 @@ class ConsensusEstimator:
         heard = frozenset(
             j for j, peer in self._peers.items() if peer.latest_round >= round_ - timeout
         )
+        self._disagreement = 0.0
         active = tuple(j for j in sorted(self._peers) if self._integrate(j, round_))
         eta_total = np.zeros(N_CHANNELS)
         for j, edge in self._edges.items():
@@ -190,7 +195,7 @@ class ConsensusEstimator:
             heard=heard,
             degree=len(heard),
         )
-        return ConsensusOutput(gamma, message, active)
+        return ConsensusOutput(gamma, message, active, self._disagreement)
 
     def _receive(self, msg: ConsensusMessage, round_: int) -> None:
         if msg.sender == self.agent_id or msg.round < round_ - self.params.history_ticks:
@@ -224,9 +229,10 @@ class ConsensusEstimator:
             if self.params.degree_normalised:
                 rho = rho / max(degree_i, degree_j, 1)
             rho = rho / max(round_ - q, 1)  # delay-scaled gain (module doc)
-            edge.q_own = edge.q_own - rho * self.params.dt_s * np.tanh(
-                self.params.c * (gamma_i - gamma_j)
-            )
+            diff = gamma_i - gamma_j
+            scale = 1.0 + max(float(np.abs(gamma_i).max()), float(np.abs(gamma_j).max()))
+            self._disagreement = max(self._disagreement, float(np.abs(diff).max()) / scale)
+            edge.q_own = edge.q_own - rho * self.params.dt_s * np.tanh(self.params.c * diff)
             edge.last_round = q
             done = True
         return done

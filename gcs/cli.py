@@ -12,6 +12,9 @@ from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")  # before anything imports pymavlink
 
+from drone_agent.agent_cli import add_parser as add_agent_parser
+from sitl_sim.sim_cli import add_sim_parser
+
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 
@@ -66,6 +69,8 @@ def _parser() -> argparse.ArgumentParser:
         default="auto",
         help="progress bar on stderr (auto: only on a terminal)",
     )
+    add_sim_parser(sub)
+    add_agent_parser(sub)
     return parser
 
 
@@ -79,6 +84,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command == "simulate":
             return _simulate(args)
+        if args.command == "sim":
+            return _sim(args)
+        if args.command == "agent":
+            return _agent(args)
     except CliError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -137,6 +146,25 @@ def _simulate(args: argparse.Namespace) -> int:
     for line in summary_lines(result.metrics, result.files):
         print(line)
     return 0
+
+
+def _sim(args: argparse.Namespace) -> int:
+    from sitl_sim.sim_cli import run_sim
+    from sitl_sim.sim_config import SimConfigError
+
+    try:
+        return run_sim(args)
+    except SimConfigError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _agent(args: argparse.Namespace) -> int:
+    from drone_agent.agent_cli import AgentCliError, run
+
+    try:
+        return run(args)
+    except AgentCliError as exc:
+        raise CliError(str(exc)) from None
 
 
 def _check_writable(report: Path) -> None:

@@ -11,8 +11,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
+from drone_agent.link_faults import LinkFaults
 from gcs.flight_record import LinkFault
-from gcs.inprocess_network import LinkConditions
 from protocols.scenario import (
     Crash,
     Dropout,
@@ -29,7 +29,7 @@ class FaultTarget(Protocol):
     """What a fault can act on."""
 
     @property
-    def conditions(self) -> LinkConditions: ...
+    def conditions(self) -> LinkFaults: ...
 
     def kill_agent(self, drone: int) -> None: ...
 

@@ -8,26 +8,12 @@ from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from drone_agent.consensus import ConsensusMessage
+from drone_agent.link_faults import LinkFaults
 from protocols.frames import FloatArray
-
-
-@dataclass
-class LinkConditions:
-    """What the radio does now. ``cut``: directed pairs (sender, receiver) that deliver nothing;
-    ``loss``: global loss probability; ``link_loss``: per directed pair; ``extra_delay_ticks``
-    global and per directed pair; ``partition``: group id per drone (None: no partition)."""
-
-    cut: set[tuple[int, int]] = field(default_factory=set)
-    loss: float = 0.0
-    link_loss: dict[tuple[int, int], float] = field(default_factory=dict)
-    extra_delay_ticks: int = 0
-    link_delay_ticks: dict[tuple[int, int], int] = field(default_factory=dict)
-    partition: dict[int, int] | None = None
 
 
 class InProcessNetwork:
@@ -42,7 +28,7 @@ class InProcessNetwork:
         self.range_m = range_m
         self.rng = rng
         self.base_delay_ticks = base_delay_ticks
-        self.conditions = LinkConditions()
+        self.conditions = LinkFaults()
         self._in_flight: dict[int, list[tuple[int, ConsensusMessage]]] = defaultdict(list)
         self.sent = 0
         self.delivered = 0
@@ -64,17 +50,14 @@ class InProcessNetwork:
                 if j == i or not in_range[i, j]:
                     continue
                 self.sent += 1
-                pair = (i, j)
-                if pair in c.cut or (
-                    c.partition is not None and c.partition.get(i) != c.partition.get(j)
-                ):
+                if c.blocks(i, j):
                     self.lost += 1
                     continue
-                loss = c.link_loss.get(pair, c.loss)
+                loss = c.loss_for(i, j)
                 if loss > 0.0 and self.rng.random() < loss:
                     self.lost += 1
                     continue
-                delay = self.base_delay_ticks + c.link_delay_ticks.get(pair, c.extra_delay_ticks)
+                delay = self.base_delay_ticks + c.delay_for(i, j)
                 self._in_flight[round_ + delay].append((j, msg))
 
     def receive(self, round_: int) -> list[list[ConsensusMessage]]:

@@ -16,9 +16,10 @@ import numpy as np
 
 from drone_agent.agent_core import AgentCore
 from drone_agent.config import agent_config
+from drone_agent.link_faults import LinkFaults
 from gcs.fault_timeline import TimedAction, link_faults, timeline
 from gcs.flight_record import FlightRecord
-from gcs.inprocess_network import InProcessNetwork, LinkConditions
+from gcs.inprocess_network import InProcessNetwork
 from protocols.frames import FloatArray
 from protocols.scenario import Scenario
 from sitl_sim.attitude_control import euler_from_quat_batch
@@ -105,7 +106,7 @@ class ReferenceFlight:
 
     # -- FaultTarget ---------------------------------------------------------------------------
     @property
-    def conditions(self) -> LinkConditions:
+    def conditions(self) -> LinkFaults:
         return self.network.conditions
 
     def kill_agent(self, drone: int) -> None:

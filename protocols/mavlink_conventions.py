@@ -24,6 +24,22 @@ Lockstep handshake (needs nothing beyond standard MAVLink; SPEC.md "Time"):
    in the barrier. A vehicle joins the barrier with its agent's first echoed setpoint; an agent
    silent for the wall-clock timeout leaves it (its vehicle failsafes).
 The agent takes its clock from these time stamps, never from the host.
+
+Details of the simulator's side (``swarm sim``, sitl_sim/lockstep.py and sitl_sim/server.py):
+- ``time_boot_ms`` of tick k is ``round(k * 1000 / control_hz)``; an echo names tick k only if
+  it equals that value exactly. A join counts with an echo of a tick at most 50 ticks old.
+- A vehicle is awaited at tick k only if tick k's LOCAL_POSITION_NED went to its agent (an agent
+  that asked for a lower rate is awaited at the ticks it sees). The echo counts for the barrier
+  even when the setpoint itself is rejected (NaN, out of range): it is the agent's liveness.
+- While it waits, the simulator re-sends the current tick's ATTITUDE and LOCAL_POSITION_NED
+  every 0.25 s wall time, and at once to a new agent address: an agent may see one tick twice and
+  should answer it again without advancing its own state twice.
+- Tick 0 waits up to ``--join-timeout`` for ``--wait-agents`` agents (so several agents start on
+  the same tick); while nobody holds the barrier, time runs paced at ``--speedup``. A crashed
+  vehicle that went silent leaves the barrier at once.
+- Each vehicle reports its receive counters in SYS_STATUS: errors_comm = every rejected frame,
+  errors_count1 malformed, errors_count2 rejected setpoints, errors_count3 signature failures,
+  errors_count4 wrong target system.
 """
 
 from __future__ import annotations

@@ -39,8 +39,24 @@ def failsafe_command(
     """
     vz = np.asarray(velocity_down_m_s, dtype=float)
     target = np.where(np.asarray(time_in_failsafe_s) < config.hold_s, 0.0, config.descent_rate_m_s)
+    return vertical_speed_hold(
+        vz, yaw_rad, target, hover_thrust_normalised, config.vertical_speed_gain_per_s
+    )
+
+
+def vertical_speed_hold(
+    velocity_down_m_s: FloatArray,
+    yaw_rad: FloatArray,
+    target_down_m_s: FloatArray | float,
+    hover_thrust_normalised: float,
+    gain_per_s: float,
+) -> tuple[FloatArray, FloatArray]:
+    """Level attitude (3, N) ZYX rad at ``yaw_rad`` (N,) and normalised thrust (N,) in 0..1
+    driving the NED vertical speed (N,) m/s (positive down) to ``target_down_m_s`` (N,) or scalar
+    (0: hold altitude; > 0: descend), with a proportional loop of ``gain_per_s`` (1/s)."""
+    vz = np.asarray(velocity_down_m_s, dtype=float)
     # NED: positive vz is down; more thrust when sinking faster than the target.
-    accel_up = config.vertical_speed_gain_per_s * (vz - target)
+    accel_up = gain_per_s * (vz - target_down_m_s)
     thrust = hover_thrust_normalised * (1.0 + accel_up / G_M_S2)
     attitude = np.zeros((3, vz.shape[0]))
     attitude[2] = yaw_rad

@@ -1,0 +1,291 @@
+"""``swarm agent``: run one drone's agent, or several in one process (``--drone-id 0-24``)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import socket
+import sys
+import time
+from pathlib import Path
+from types import FrameType
+
+import numpy as np
+
+from drone_agent.agent_core import AgentConfig
+from drone_agent.config import agent_config
+from drone_agent.host import AgentHost, DroneIdError, parse_drone_ids
+from drone_agent.hosted_agent import RunOptions
+from drone_agent.link_faults import FaultyTransport, LinkFaults
+from drone_agent.transport import AgentTransport, Bus, Position
+from drone_agent.transport_link import AgentLink, LinkSettings
+from drone_agent.vehicle_link import VehicleLink
+from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
+from protocols.mavlink_conventions import DEFAULT_BASE_PORT
+from protocols.mavlink_signing import SigningKeyError, load_signing_key
+from protocols.scenario import Scenario, ScenarioError, load_scenario
+
+RENDEZVOUS_PORT = 7447
+
+
+class AgentCliError(Exception):
+    """A user mistake in the agent's flags: one line, exit code 2."""
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``swarm agent``."""
+    p = sub.add_parser(
+        "agent",
+        help="run drone agents: consensus estimator + cooperative controller of one or more drones",
+        description=(
+            "Run the agent of one drone, or of several drones in one process sharing one Zenoh "
+            "session. Each agent reads its vehicle's state over MAVLink, estimates the swarm's "
+            "descriptors with its neighbours over Zenoh, and streams attitude + thrust setpoints "
+            "to its vehicle. Without Zenoh flags the first agent process on this machine listens "
+            f"on tcp/127.0.0.1:{RENDEZVOUS_PORT} and the others connect to it (peer mode, no "
+            "router, no multicast)."
+        ),
+    )
+    p.add_argument(
+        "--drone-id",
+        required=True,
+        metavar="I",
+        help="0-based drone index (MAVLink system id I+1), a range 0-24 or a list 0,3,5",
+    )
+    p.add_argument(
+        "--vehicle",
+        metavar="udp:HOST:PORT",
+        help="the vehicle's MAVLink endpoint (one drone only; default "
+        f"udp:127.0.0.1:{DEFAULT_BASE_PORT}+I)",
+    )
+    p.add_argument(
+        "--base-port",
+        type=int,
+        default=DEFAULT_BASE_PORT,
+        help="vehicle I listens on BASE+I (default %(default)s)",
+    )
+    p.add_argument("--swarm-id", default="swarm", help="swarm name on Zenoh (default %(default)s)")
+    p.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer")
+    p.add_argument(
+        "--zenoh-connect",
+        nargs="*",
+        default=None,
+        metavar="ENDPOINT",
+        help="Zenoh endpoints to connect to, e.g. tcp/127.0.0.1:7447",
+    )
+    p.add_argument(
+        "--zenoh-listen",
+        nargs="*",
+        default=None,
+        metavar="ENDPOINT",
+        help="Zenoh endpoints to listen on (peer mode)",
+    )
+    p.add_argument(
+        "--signing-key",
+        type=Path,
+        metavar="FILE",
+        help="MAVLink 2 signing key (32 raw bytes or 64 hex characters)",
+    )
+    p.add_argument(
+        "--comm-range-m",
+        type=float,
+        default=None,
+        metavar="M",
+        help="radio range in metres (default: the scenario's, else 10)",
+    )
+    p.add_argument(
+        "--scenario",
+        type=Path,
+        metavar="FILE",
+        help="scenario (TOML): gains, rates, and the plan flown until a ground "
+        "station publishes one; its link faults are applied as drills",
+    )
+    p.add_argument(
+        "--no-arm", action="store_true", help="never arm: run the estimator on the ground only"
+    )
+    p.add_argument("--seed", type=int, default=0, help="random seed of the link-fault drills")
+    p.add_argument("--quiet", action="store_true", help="no status line")
+
+
+def _endpoint(url: str) -> tuple[str, int]:
+    scheme, _, rest = url.partition(":")
+    host, _, port = rest.rpartition(":")
+    if scheme != "udp" or not host or not port.isdigit():
+        raise AgentCliError(f"--vehicle must look like udp:HOST:PORT, got {url!r}")
+    return host, int(port)
+
+
+def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
+    """The session settings: the flags, or the embedded loopback rendezvous by default."""
+    listen, connect = args.zenoh_listen, args.zenoh_connect
+    if listen is None and connect is None:
+        if _port_free(RENDEZVOUS_PORT):
+            listen, connect = [f"tcp/127.0.0.1:{RENDEZVOUS_PORT}"], []
+        else:
+            listen, connect = ["tcp/127.0.0.1:0"], [f"tcp/127.0.0.1:{RENDEZVOUS_PORT}"]
+    try:
+        return ZenohSettings(
+            mode=args.zenoh_mode,
+            listen=tuple(listen or ()) if args.zenoh_mode == "peer" else (),
+            connect=tuple(connect or ()),
+        )
+    except ValueError as exc:
+        raise AgentCliError(str(exc)) from None
+
+
+def _port_free(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def _default_config(control_hz: int = 50) -> AgentConfig:
+    from protocols.scenario import parse_scenario
+
+    stub = parse_scenario(
+        {
+            "version": 1,
+            "drones": [{"position_ned_m": [0, 0, 0]}, {"position_ned_m": [2, 0, 0]}],
+            "rates": {"control_hz": control_hz, "physics_hz": 500},
+            "trajectory": {
+                "waypoints": [{"t_s": 0, "centre_ned_m": [0, 0, 0], "variance_m2": [1, 1, 0]}]
+            },
+        },
+        "defaults",
+    )
+    return agent_config(stub)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the agents until Ctrl-C / SIGTERM or until every one has left."""
+    try:
+        drones = parse_drone_ids(args.drone_id)
+    except DroneIdError as exc:
+        raise AgentCliError(str(exc)) from None
+    scenario: Scenario | None = None
+    if args.scenario is not None:
+        try:
+            scenario = load_scenario(args.scenario)
+        except ScenarioError as exc:
+            raise AgentCliError(str(exc)) from None
+        too_big = [d for d in drones if d >= scenario.n_drones]
+        if too_big:
+            raise AgentCliError(
+                f"drone {too_big[0]} is not in the scenario (0..{scenario.n_drones - 1})"
+            )
+    if args.vehicle is not None and len(drones) != 1:
+        raise AgentCliError("--vehicle names one vehicle: use --base-port with several drones")
+    key = None
+    if args.signing_key is not None:
+        try:
+            key = load_signing_key(args.signing_key)
+        except SigningKeyError as exc:
+            raise AgentCliError(str(exc)) from None
+    comm_range = args.comm_range_m or (scenario.comms.range_m if scenario else 10.0)
+    if not comm_range > 0:
+        raise AgentCliError("--comm-range-m must be positive")
+    config = agent_config(scenario) if scenario else _default_config()
+    plan = scenario.trajectory() if scenario else None
+    settings = LinkSettings(swarm_id=args.swarm_id, comm_range_m=comm_range)
+    faults = LinkFaults()
+    period_ms = round(config.consensus.dt_s * 1000)
+    links = []
+    try:
+        for d in drones:
+            address = _endpoint(args.vehicle) if args.vehicle else ("127.0.0.1", args.base_port + d)
+            links.append(VehicleLink(d, address[0], address[1], signing_key=key))
+    except OSError as exc:
+        raise AgentCliError(f"cannot open the vehicle link: {exc}") from None
+    try:
+        bus: Bus = ZenohBus.open(zenoh_settings(args))
+    except AgentCliError:
+        raise
+    except Exception as exc:  # zenoh raises ZError with the reason
+        raise AgentCliError(f"cannot open the Zenoh session: {exc}") from None
+    hosts: list[AgentHost] = []
+    rng = np.random.default_rng(args.seed)
+
+    def transport(bus_: Bus, drone: int, position: Position) -> AgentTransport:
+        inner = AgentLink(bus_, drone, position, settings)
+        agent_host = hosts[0]
+        return FaultyTransport(inner, faults, rng, lambda: _current_round(agent_host))
+
+    options = RunOptions(control_period_ms=period_ms, arm=not args.no_arm)
+    host = AgentHost(drones, links, bus, transport, config, plan, options)
+    hosts.append(host)
+    drills = _Drills(scenario, faults, host) if scenario else None
+
+    def stop(_sig: int, _frame: FrameType | None) -> None:
+        host.stop()
+
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
+
+    def report(h: AgentHost) -> None:
+        if drills is not None:
+            drills.apply()
+        if not args.quiet:
+            print(_status_line(h), file=sys.stderr, flush=True)
+
+    try:
+        host.run(on_second=report if not args.quiet or drills else None)
+    finally:
+        host.close()
+        bus.close()
+    return 0
+
+
+def _current_round(host: AgentHost) -> int:
+    ticks = [a.last_tick for a in host.agents]
+    return max(ticks) if ticks else 0
+
+
+class _Drills:
+    """Applies the scenario's link faults (cuts, loss, delay, partitions) on the receive side as
+    simulated time passes; drone drop-outs and crashes belong to the supervisor and simulator."""
+
+    def __init__(self, scenario: Scenario, faults: LinkFaults, host: AgentHost) -> None:
+        from gcs.fault_timeline import timeline
+
+        self._actions = [a for a in timeline(scenario) if a.fault_kind not in ("dropout", "crash")]
+        self._target = _FaultsOnly(faults)
+        self._host = host
+        self._period_s = scenario.rates.dt_control_s
+
+    def apply(self) -> None:
+        t_s = _current_round(self._host) * self._period_s
+        while self._actions and self._actions[0].t_s <= t_s:
+            self._actions.pop(0).apply(self._target)
+
+
+class _FaultsOnly:
+    def __init__(self, faults: LinkFaults) -> None:
+        self._faults = faults
+
+    @property
+    def conditions(self) -> LinkFaults:
+        return self._faults
+
+    def kill_agent(self, drone: int) -> None:  # not an agent's job
+        pass
+
+    def crash_vehicle(self, drone: int) -> None:  # the simulator's job
+        pass
+
+
+def _status_line(host: AgentHost) -> str:
+    agents = host.agents
+    modes: dict[str, int] = {}
+    for a in agents:
+        modes[a.mode.name.lower()] = modes.get(a.mode.name.lower(), 0) + 1
+    tick = _current_round(host)
+    mode_text = ", ".join(f"{n} {m}" for m, n in sorted(modes.items())) or "waiting for vehicles"
+    neighbours = [len(a.last_output.active_neighbours) for a in agents if a.last_output]
+    nb = f"{min(neighbours)}-{max(neighbours)}" if neighbours else "-"
+    return (
+        f"agents t={tick * 0.02:7.2f}s  {len(agents)} joined: {mode_text}; neighbours {nb}; "
+        f"{time.strftime('%H:%M:%S')}"
+    )

@@ -1,0 +1,143 @@
+"""Hosting agents: one process runs one or several drones' agents on one event loop.
+
+Each hosted agent keeps its own vehicle link, its own keys, liveliness token and estimator state,
+and reaches its siblings only through the bus, exactly as it reaches remote agents; the agents of
+one process share one Zenoh session (issue 4, "Hosting for scale"). An agent joins the swarm
+(declares its transport and token) once its vehicle has answered, since its position names its
+spatial cell.
+"""
+
+from __future__ import annotations
+
+import selectors
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from drone_agent.agent_core import AgentConfig, AgentCore
+from drone_agent.hosted_agent import HostedAgent, RunOptions
+from drone_agent.transport import AgentTransport, Bus, Position
+from drone_agent.vehicle_link import VehicleLink
+from protocols.trajectory import DescriptorTrajectory
+
+TransportFactory = Callable[[Bus, int, Position], AgentTransport]
+
+
+class DroneIdError(ValueError):
+    """A --drone-id that is not an index, a range ``A-B`` or a comma-separated list."""
+
+
+def parse_drone_ids(text: str, max_drones: int = 250) -> list[int]:
+    """``"3"``, ``"0-24"``, ``"0,2,5-7"`` -> sorted unique 0-based indices."""
+    ids: set[int] = set()
+    for part in text.split(","):
+        part = part.strip()
+        try:
+            if "-" in part:
+                lo_text, hi_text = part.split("-", 1)
+                lo, hi = int(lo_text), int(hi_text)
+                if hi < lo:
+                    raise DroneIdError(f"drone range {part!r} runs backwards")
+                ids.update(range(lo, hi + 1))
+            else:
+                ids.add(int(part))
+        except ValueError as exc:
+            if isinstance(exc, DroneIdError):
+                raise
+            raise DroneIdError(
+                f"drone id {part!r} is not an index, a range like 0-24 or a list like 0,3,5"
+            ) from None
+    bad = [i for i in ids if not 0 <= i < max_drones]
+    if bad:
+        raise DroneIdError(f"drone index {bad[0]} is outside 0..{max_drones - 1}")
+    return sorted(ids)
+
+
+@dataclass
+class _Slot:
+    """A drone this process hosts: its vehicle link, and its agent once it has joined."""
+
+    drone: int
+    link: VehicleLink
+    agent: HostedAgent | None = None
+    greeted_at: float = -1e9
+
+
+class AgentHost:
+    """Runs the agents of ``drones`` until :meth:`stop` or until every agent has left."""
+
+    def __init__(
+        self,
+        drones: Sequence[int],
+        links: Sequence[VehicleLink],
+        bus: Bus,
+        transport_factory: TransportFactory,
+        config: AgentConfig,
+        fallback_plan: DescriptorTrajectory | None,
+        options: RunOptions,
+        wall_clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self._slots = [_Slot(d, link) for d, link in zip(drones, links, strict=True)]
+        self._bus = bus
+        self._factory = transport_factory
+        self._config = config
+        self._plan = fallback_plan
+        self._options = options
+        self._clock = wall_clock
+        self._stop = threading.Event()
+        self._selector = selectors.DefaultSelector()
+        for slot in self._slots:
+            self._selector.register(slot.link, selectors.EVENT_READ, slot)
+
+    @property
+    def agents(self) -> list[HostedAgent]:
+        """The agents that have joined so far."""
+        return [s.agent for s in self._slots if s.agent is not None]
+
+    def stop(self) -> None:
+        """Ask :meth:`run` to return (thread-safe)."""
+        self._stop.set()
+
+    def run(self, on_second: Callable[[AgentHost], None] | None = None) -> None:
+        """Serve every hosted agent until stopped or all have left the swarm."""
+        last_report = self._clock()
+        while not self._stop.is_set():
+            for key, _ in self._selector.select(timeout=0.002):
+                slot: _Slot = key.data
+                for sample in slot.link.poll():
+                    if slot.agent is None:
+                        slot.agent = self._join(slot, sample.position_ned_m)
+                    slot.agent.on_sample(sample)
+            for slot in self._slots:
+                if slot.agent is None:
+                    self._greet(slot)
+                else:
+                    slot.agent.service()
+            if self._slots and all(s.agent is not None and s.agent.left for s in self._slots):
+                break
+            now = self._clock()
+            if on_second is not None and now - last_report >= 1.0:
+                on_second(self)
+                last_report = now
+
+    def _greet(self, slot: _Slot) -> None:
+        """Until the vehicle answers: heartbeat it once a second so it learns our address."""
+        now = self._clock()
+        if now - slot.greeted_at >= 1.0:
+            slot.link.send_heartbeat()
+            slot.greeted_at = now
+
+    def _join(self, slot: _Slot, position: Position) -> HostedAgent:
+        transport = self._factory(self._bus, slot.drone, position)
+        core = AgentCore(slot.drone, self._config)
+        return HostedAgent(core, slot.link, transport, self._plan, self._options, self._clock)
+
+    def close(self) -> None:
+        """Leave the swarm with every agent and close the vehicle links."""
+        for slot in self._slots:
+            if slot.agent is not None:
+                slot.agent.leave()
+            self._selector.unregister(slot.link)
+            slot.link.close()
+        self._selector.close()

@@ -1,0 +1,252 @@
+"""One drone's agent at run time: its vehicle link, its transport and its core, tick by tick.
+
+Each control tick (named by the vehicle's ``time_boot_ms``, protocols/mavlink_conventions.py) the
+agent gathers the consensus messages that arrived, runs :class:`AgentCore`, publishes its message,
+and answers the vehicle with a SET_ATTITUDE_TARGET echoing the tick: the real setpoint while
+flying, a level zero-thrust one before (it still acknowledges the tick for lockstep). For
+reproducible consensus it waits, up to ``neighbour_wait_s`` of wall time, until every neighbour
+heard recently has sent its message of the previous round.
+
+Safety: it arms only once the plan says fly and its estimator has settled; it leaves the swarm
+(drops its liveliness token) when its vehicle falls silent (``vehicle_timeout_s``, longer than the
+simulator's lockstep timeout, during which a stalled barrier legitimately sends nothing) or says
+it is lost (disarmed under us, or in emergency); the core checks every setpoint for NaN and limits
+before it is sent.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from drone_agent.agent_core import AgentCore, AgentOutput
+from drone_agent.consensus import ConsensusMessage
+from drone_agent.transport import AgentTransport
+from drone_agent.vehicle_link import VehicleLink, VehicleSample
+from protocols.frames import quat_from_zyx
+from protocols.trajectory import DescriptorTrajectory
+from protocols.wire_plan import FlightCommand
+from protocols.wire_status import AgentMode, AgentStatus, Health
+
+LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
+#: MAV_STATE values meaning the vehicle is lost (EMERGENCY, FLIGHT_TERMINATION).
+LOST_STATES = frozenset({6, 8})
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """Run-time behaviour of an agent (wall-clock durations in s)."""
+
+    control_period_ms: int = 20
+    arm: bool = True
+    neighbour_wait_s: float = 0.03
+    vehicle_timeout_s: float = 3.0
+    heartbeat_period_s: float = 1.0
+    status_period_s: float = 0.2
+    command_retry_s: float = 0.5
+    settle_ticks: int = 25
+    settle_tolerance: float = 0.02
+
+
+class HostedAgent:
+    """Drone ``core.agent_id``'s agent. Feed it vehicle samples; call :meth:`service` often."""
+
+    def __init__(
+        self,
+        core: AgentCore,
+        link: VehicleLink,
+        transport: AgentTransport,
+        fallback_plan: DescriptorTrajectory | None,
+        options: RunOptions,
+        wall_clock: Callable[[], float],
+    ) -> None:
+        self.core, self.link, self.transport = core, link, transport
+        self.fallback_plan = fallback_plan
+        self.options = options
+        self.clock = wall_clock
+        self.mode = AgentMode.STARTING
+        self.sample: VehicleSample | None = None
+        self.last_tick = -1
+        self.last_output: AgentOutput | None = None
+        self._inbox: list[ConsensusMessage] = []
+        self._last_round_of: dict[int, int] = {}
+        self._pending_since: float | None = None
+        self._last_sample_wall = wall_clock()
+        self._last_heartbeat = -1e9
+        self._last_status = -1e9
+        self._last_command = -1e9
+        self._settled_ticks = 0
+        self.left = False
+
+    @property
+    def drone(self) -> int:
+        return self.core.agent_id
+
+    # -- inputs --------------------------------------------------------------------------------
+    def on_sample(self, sample: VehicleSample) -> None:
+        """A state of the vehicle arrived; the newest one names the tick to compute."""
+        if self.sample is None or sample.time_boot_ms > self.sample.time_boot_ms:
+            self.sample = sample
+        self._last_sample_wall = self.clock()
+
+    def _tick_of(self, sample: VehicleSample) -> int:
+        return round(sample.time_boot_ms / self.options.control_period_ms)
+
+    def _collect(self) -> None:
+        for packet in self.transport.receive():
+            msg = packet.message
+            self._inbox.append(msg)
+            if msg.round > self._last_round_of.get(msg.sender, -1):
+                self._last_round_of[msg.sender] = msg.round
+
+    def _neighbours_ready(self, tick: int) -> bool:
+        """Every drone heard in the last few rounds has sent its round ``tick - 1``."""
+        members = self.transport.members()
+        recent = [
+            r
+            for j, r in self._last_round_of.items()
+            if j in members and r >= tick - 1 - self.core.config.consensus.heard_timeout_ticks
+        ]
+        return all(r >= tick - 1 for r in recent)
+
+    # -- the loop ------------------------------------------------------------------------------
+    def service(self) -> None:
+        """Do what is due now: heartbeat, leaving on vehicle loss, the tick, arming, status."""
+        if self.left:
+            return
+        now = self.clock()
+        if now - self._last_heartbeat >= self.options.heartbeat_period_s:
+            self.link.send_heartbeat()
+            self._last_heartbeat = now
+        if (
+            self.sample is not None
+            and now - self._last_sample_wall > self.options.vehicle_timeout_s
+        ):
+            self.leave()
+            return
+        if self.mode == AgentMode.FLYING and self._vehicle_lost():
+            self.leave()
+            return
+        self._collect()
+        sample = self.sample
+        if sample is None or self._tick_of(sample) <= self.last_tick:
+            return
+        tick = self._tick_of(sample)
+        if self._pending_since is None:
+            self._pending_since = now
+        waited = now - self._pending_since
+        if not self._neighbours_ready(tick) and waited < self.options.neighbour_wait_s:
+            return
+        self._pending_since = None
+        self._compute(tick, sample)
+        if now - self._last_status >= self.options.status_period_s:
+            self._publish_status()
+            self._last_status = now
+
+    def _vehicle_lost(self) -> bool:
+        """The vehicle says it is gone: disarmed while we fly it, or in emergency/termination."""
+        status = self.link.status
+        return not status.armed or status.system_status in LOST_STATES
+
+    def _plan(self) -> tuple[DescriptorTrajectory | None, FlightCommand]:
+        received = self.transport.plan()
+        if received is not None:
+            return received.trajectory, received.command
+        if self.fallback_plan is not None:
+            return self.fallback_plan, FlightCommand.FLY
+        return None, FlightCommand.GROUND
+
+    def _compute(self, tick: int, sample: VehicleSample) -> None:
+        plan, command = self._plan()
+        self.last_tick = tick
+        if plan is None:
+            self.link.send_setpoint(sample.time_boot_ms, LEVEL, 0.0)
+            return
+        t_s = sample.time_boot_ms / 1000.0
+        inbox, self._inbox = self._inbox, []
+        out = self.core.tick(
+            tick,
+            t_s,
+            sample.position_ned_m,
+            sample.velocity_ned_m_s,
+            plan,
+            inbox,
+            self.transport.members(),
+        )
+        self.last_output = out
+        self.transport.publish_consensus(out.message, sample.position_ned_m)
+        self._track_settling(out)
+        fly = command == FlightCommand.FLY and self.options.arm
+        if fly and out.setpoint is not None and self.converged:
+            self._fly(sample, out)
+        else:
+            self.link.send_setpoint(sample.time_boot_ms, LEVEL, 0.0)
+            self.mode = AgentMode.READY if self.converged else AgentMode.WARMUP
+
+    def _track_settling(self, out: AgentOutput) -> None:
+        calm = out.disagreement < self.options.settle_tolerance
+        self._settled_ticks = self._settled_ticks + 1 if calm else 0
+
+    @property
+    def converged(self) -> bool:
+        """Warm-up over and the estimator agreeing with its neighbours (disagreement below
+        ``settle_tolerance``) for ``settle_ticks`` ticks; latched once flying."""
+        return self.mode == AgentMode.FLYING or (
+            self.last_output is not None
+            and self.last_output.ready_to_fly
+            and self._settled_ticks >= self.options.settle_ticks
+        )
+
+    def _fly(self, sample: VehicleSample, out: AgentOutput) -> None:
+        sp = out.setpoint
+        assert sp is not None
+        q = quat_from_zyx(sp.yaw_rad, sp.pitch_rad, sp.roll_rad)
+        self.link.send_setpoint(sample.time_boot_ms, q, sp.thrust_normalised)
+        status = self.link.status
+        if status.armed and self.link.in_offboard:
+            self.mode = AgentMode.FLYING
+            return
+        now = self.clock()
+        if now - self._last_command >= self.options.command_retry_s:
+            if not self.link.in_offboard:
+                self.link.set_offboard()
+            if not status.armed:
+                self.link.arm(True)
+            self._last_command = now
+
+    def _publish_status(self) -> None:
+        out = self.last_output
+        health = Health.NONE
+        if self.clock() - self._last_sample_wall <= self.options.vehicle_timeout_s:
+            health |= Health.VEHICLE_LINK
+        if out is not None and np.all(np.isfinite(out.estimate)):
+            health |= Health.ESTIMATE_FINITE
+        if self.converged:
+            health |= Health.CONVERGED
+        received = self.transport.plan()
+        if received is not None or self.fallback_plan is not None:
+            health |= Health.PLAN
+        estimate = out.estimate if out is not None else np.full(9, np.nan)
+        self.transport.publish_status(
+            AgentStatus(
+                drone=self.drone,
+                round=max(self.last_tick, 0),
+                t_s=max(self.last_tick, 0) * self.options.control_period_ms / 1000.0,
+                mode=self.mode,
+                armed=self.link.status.armed,
+                health=health,
+                estimate=estimate,
+                neighbours=out.active_neighbours if out is not None else (),
+                counters=self.transport.counters().status(self.core.rejected_setpoints),
+                plan_seq=None if received is None else received.seq,
+            )
+        )
+
+    def leave(self) -> None:
+        """Leave the swarm: drop the liveliness token so every peer removes this drone."""
+        if not self.left:
+            self.left = True
+            self.mode = AgentMode.LEAVING
+            self.transport.close()

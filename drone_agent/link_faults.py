@@ -1,0 +1,179 @@
+"""Link faults for drills, applied on the receive side of one agent's transport.
+
+:class:`LinkFaults` says what the radio does now (cut links, also one-way; packet loss; added
+delay; partitions); :class:`FaultyTransport` wraps any
+:class:`~drone_agent.transport.AgentTransport` and applies them to what that agent receives, so
+its estimator sees exactly what a real radio would deliver. Each agent applies the faults of the
+links *into* it: cutting i-j both ways is agent j dropping i's messages and agent i dropping j's.
+
+``LinkFaults`` keeps the fields the scenario fault timeline sets (directed pairs are
+``(sender, receiver)``, delays in control ticks), so one timeline drives the in-process radio and
+the agents' transports alike. Randomness (a ``numpy.random.Generator``) and time (a clock
+returning the current control round) are injected: one seed and one message order give the same
+drops.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from drone_agent.consensus import ConsensusMessage
+from drone_agent.transport import AgentTransport, ClosesOnExit, LinkCounters, Position
+from protocols.wire import ConsensusPacket
+from protocols.wire_plan import PlanMessage
+from protocols.wire_status import AgentStatus
+
+Pair = tuple[int, int]
+
+
+def delay_ticks(delay_ms: float, dt_s: float) -> int:
+    """A delay in ms as a whole number of control ticks of ``dt_s`` s (rounded)."""
+    return round(delay_ms / 1000.0 / dt_s)
+
+
+def _both(i: int, j: int, one_way: bool) -> list[Pair]:
+    return [(i, j)] if one_way else [(i, j), (j, i)]
+
+
+@dataclass
+class LinkFaults:
+    """What the radio does now. ``cut``: directed pairs (sender, receiver) that deliver nothing;
+    ``loss``: loss probability on every link, ``link_loss`` per directed pair (overrides it);
+    ``extra_delay_ticks`` on every link, ``link_delay_ticks`` per directed pair (overrides it);
+    ``partition``: group id per drone, only drones of one group hear each other (drones not
+    listed form one more group); None: no partition."""
+
+    cut: set[Pair] = field(default_factory=set)
+    loss: float = 0.0
+    link_loss: dict[Pair, float] = field(default_factory=dict)
+    extra_delay_ticks: int = 0
+    link_delay_ticks: dict[Pair, int] = field(default_factory=dict)
+    partition: dict[int, int] | None = None
+
+    def cut_link(self, i: int, j: int, *, one_way: bool = False) -> None:
+        """Cut the link i-j (both ways, or only i -> j when ``one_way``)."""
+        self.cut.update(_both(i, j, one_way))
+
+    def restore_link(self, i: int, j: int, *, one_way: bool = False) -> None:
+        """Undo :meth:`cut_link`."""
+        self.cut.difference_update(_both(i, j, one_way))
+
+    def set_loss(self, probability: float, link: Pair | None = None) -> None:
+        """Loss ``probability`` (0..1) on the link ``(i, j)`` both ways, or on every link."""
+        if not 0.0 <= probability <= 1.0:
+            raise ValueError(f"loss probability must be 0..1, got {probability}")
+        if link is None:
+            self.loss = probability
+        else:
+            self.link_loss.update(dict.fromkeys(_both(*link, False), probability))
+
+    def set_delay_ticks(self, ticks: int, link: Pair | None = None) -> None:
+        """Added delay (control ticks >= 0) on the link ``(i, j)`` both ways, or on every link."""
+        if ticks < 0:
+            raise ValueError(f"delay must be >= 0 ticks, got {ticks}")
+        if link is None:
+            self.extra_delay_ticks = ticks
+        else:
+            self.link_delay_ticks.update(dict.fromkeys(_both(*link, False), ticks))
+
+    def set_partition(self, groups: Sequence[Sequence[int]] | None) -> None:
+        """Split the swarm into ``groups`` of drone ids (None: heal the partition)."""
+        self.partition = (
+            None if groups is None else {i: g for g, ids in enumerate(groups) for i in ids}
+        )
+
+    def clear(self) -> None:
+        """No faults any more."""
+        self.cut.clear()
+        self.link_loss.clear()
+        self.link_delay_ticks.clear()
+        self.loss, self.extra_delay_ticks, self.partition = 0.0, 0, None
+
+    def blocks(self, sender: int, receiver: int) -> bool:
+        """Whether a cut or the partition stops every message sender -> receiver."""
+        p = self.partition
+        return (sender, receiver) in self.cut or (
+            p is not None and p.get(sender) != p.get(receiver)
+        )
+
+    def loss_for(self, sender: int, receiver: int) -> float:
+        """Loss probability sender -> receiver."""
+        return self.link_loss.get((sender, receiver), self.loss)
+
+    def delay_for(self, sender: int, receiver: int) -> int:
+        """Added delay sender -> receiver (control ticks)."""
+        return self.link_delay_ticks.get((sender, receiver), self.extra_delay_ticks)
+
+
+class FaultyTransport(ClosesOnExit):
+    """``inner`` as seen through ``faults``: on :meth:`receive`, messages on blocked links are
+    dropped, others lost with their link's probability (drawn from ``rng`` in (sender, round)
+    order) and held back for their link's delay, measured in rounds of ``round_clock()``.
+    Everything else is passed through. Drops are counted in ``counters().faults``."""
+
+    def __init__(
+        self,
+        inner: AgentTransport,
+        faults: LinkFaults,
+        rng: np.random.Generator,
+        round_clock: Callable[[], int],
+    ) -> None:
+        self._inner, self.faults, self._rng, self._clock = inner, faults, rng, round_clock
+        self._held: list[tuple[int, int, ConsensusPacket]] = []
+        self._arrivals = 0
+        self._dropped = 0
+        self._delivered = 0
+
+    @property
+    def drone(self) -> int:
+        """The wrapped agent's drone index."""
+        return self._inner.drone
+
+    def receive(self) -> list[ConsensusPacket]:
+        """What the faulty radio delivers now, sorted by (sender, round)."""
+        now, me, faults = self._clock(), self._inner.drone, self.faults
+        for packet in self._inner.receive():
+            sender = packet.message.sender
+            loss = faults.loss_for(sender, me)
+            if faults.blocks(sender, me) or (loss > 0.0 and self._rng.random() < loss):
+                self._dropped += 1
+                continue
+            self._arrivals += 1
+            release = now + faults.delay_for(sender, me)
+            heapq.heappush(self._held, (release, self._arrivals, packet))
+        out = []
+        while self._held and self._held[0][0] <= now:
+            out.append(heapq.heappop(self._held)[2])
+        out.sort(key=lambda p: (p.message.sender, p.message.round))
+        self._delivered += len(out)
+        return out
+
+    def counters(self) -> LinkCounters:
+        """The inner counters, with this wrapper's drops and deliveries."""
+        inner = self._inner.counters()
+        return replace(inner, faults=inner.faults + self._dropped, delivered=self._delivered)
+
+    def publish_consensus(self, message: ConsensusMessage, position_ned_m: Position) -> None:
+        """Passed through."""
+        self._inner.publish_consensus(message, position_ned_m)
+
+    def members(self) -> frozenset[int]:
+        """Passed through: liveliness does not travel over the faulty radio."""
+        return self._inner.members()
+
+    def publish_status(self, status: AgentStatus) -> None:
+        """Passed through."""
+        self._inner.publish_status(status)
+
+    def plan(self) -> PlanMessage | None:
+        """Passed through."""
+        return self._inner.plan()
+
+    def close(self) -> None:
+        """Close the inner transport; held messages are forgotten."""
+        self._held.clear()
+        self._inner.close()

@@ -1,0 +1,275 @@
+"""Versioned, compact binary wire format of the swarm's Zenoh payloads; the consensus message.
+
+All integers and floats are little-endian, with no padding. Every payload starts with::
+
+    offset  size  field
+    0       1     magic 0x51 ('Q')
+    1       1     schema version (WIRE_VERSION)
+    2       1     message kind (Kind)
+    3       1     swarm id length L (1..32)
+    4       L     swarm id (ASCII, protocols.keys rules)
+
+The consensus body (Kind.CONSENSUS) follows the header::
+
+    u32 round          control-tick number of the vehicles' common simulated time
+    u16 sender         drone index
+    u16 degree         the sender's degree for the degree-normalised gain
+    3 x f32 position   the sender's position, NED, m (receivers apply the radio range)
+    u16 n_heard, u16 n_edges
+    n_heard x u16      heard-set, strictly increasing
+    n_edges x u16      edge neighbours j, strictly increasing
+    18 x f64           gamma: the sender's estimate of the 18 channel averages
+    n_edges x 18 x f64 running sums Q_sender,j of the sender's increments, one per edge neighbour
+                       in the order of the ids above
+
+The (neighbour, edge sum) pairs are stored as columns, ids first, so that all floats form one
+block (one finiteness check, one copy). Gamma and edge sums are float64 because the estimator
+needs them exact: a decoded message equals the sent one bit for bit.
+
+Decoders raise only :class:`WireError`, whose ``reason`` says why (callers count drops by
+reason); encoders raise ValueError for a message that cannot be sent.
+Status and plan messages live in ``protocols.wire_status`` and ``protocols.wire_plan``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import struct
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from enum import IntEnum, StrEnum
+from functools import lru_cache
+
+import numpy as np
+
+from drone_agent.consensus import ConsensusMessage
+from protocols.frames import FloatArray
+from protocols.keys import MAX_DRONE_ID, validate_swarm_id
+
+MAGIC = 0x51
+WIRE_VERSION = 1
+N_GAMMA = 18
+#: Default largest consensus payload accepted (bytes): about 110 edge sums.
+MAX_CONSENSUS_BYTES = 16 * 1024
+MAX_U32 = 0xFFFF_FFFF
+
+_HEAD = struct.Struct("<BBBB")
+_FIXED = struct.Struct("<IHH3fHH")
+_FLOATS = N_GAMMA * 8  # bytes of one (18,) float64 block
+
+
+class Kind(IntEnum):
+    """Message kind byte."""
+
+    CONSENSUS = 1
+    STATUS = 2
+    PLAN = 3
+
+
+class Reason(StrEnum):
+    """Why a payload was rejected."""
+
+    OVERSIZED = "oversized"
+    TRUNCATED = "truncated"
+    TRAILING = "trailing bytes"
+    BAD_MAGIC = "bad magic"
+    BAD_VERSION = "unsupported version"
+    WRONG_KIND = "wrong kind"
+    WRONG_SWARM = "wrong swarm"
+    NOT_FINITE = "not finite"
+    BAD_VALUE = "bad value"
+
+
+class WireError(ValueError):
+    """A payload that does not decode; ``reason`` (:class:`Reason`) says why."""
+
+    def __init__(self, reason: Reason, detail: str) -> None:
+        super().__init__(f"{reason.value}: {detail}")
+        self.reason = reason
+
+
+@dataclass(frozen=True, eq=False)
+class ConsensusPacket:
+    """A decoded consensus payload: the message and the sender's position (3,) NED, m."""
+
+    message: ConsensusMessage
+    position_ned_m: FloatArray
+
+
+@lru_cache(maxsize=64)
+def _sid(swarm_id: str) -> bytes:
+    return validate_swarm_id(swarm_id).encode("ascii")
+
+
+@lru_cache(maxsize=256)
+def encode_header(kind: Kind, swarm_id: str) -> bytes:
+    """The common header of a payload of ``kind`` for swarm ``swarm_id``."""
+    sid = _sid(swarm_id)
+    return _HEAD.pack(MAGIC, WIRE_VERSION, int(kind), len(sid)) + sid
+
+
+def open_payload(data: bytes, kind: Kind, swarm_id: str, max_bytes: int) -> int:
+    """Check the header of ``data`` and return the offset of its body; WireError otherwise."""
+    if len(data) > max_bytes:
+        raise WireError(Reason.OVERSIZED, f"{len(data)} bytes, at most {max_bytes} accepted")
+    header = encode_header(kind, swarm_id)
+    if data[: len(header)] == header:  # the usual case, in one comparison
+        return len(header)
+    if len(data) < _HEAD.size:
+        raise WireError(Reason.TRUNCATED, f"{len(data)} bytes, shorter than the header")
+    magic, version, got_kind, sid_len = _HEAD.unpack_from(data)
+    if magic != MAGIC:
+        raise WireError(Reason.BAD_MAGIC, f"magic 0x{magic:02x}, expected 0x{MAGIC:02x}")
+    if version != WIRE_VERSION:
+        raise WireError(Reason.BAD_VERSION, f"version {version}, this build speaks {WIRE_VERSION}")
+    if got_kind != kind:
+        raise WireError(Reason.WRONG_KIND, f"kind {got_kind}, expected {int(kind)} ({kind.name})")
+    end = _HEAD.size + sid_len
+    if len(data) < end:
+        raise WireError(Reason.TRUNCATED, f"{len(data)} bytes, swarm id needs {end}")
+    if data[_HEAD.size : end] != _sid(swarm_id):
+        other = bytes(data[_HEAD.size : end]).decode("ascii", "replace")
+        raise WireError(Reason.WRONG_SWARM, f"swarm {other!r}, expected {swarm_id!r}")
+    return end
+
+
+def expect_length(data: bytes, expected: int, what: str) -> None:
+    """WireError unless ``data`` is exactly ``expected`` bytes long (as its counts say)."""
+    if len(data) < expected:
+        raise WireError(Reason.TRUNCATED, f"{what}: {len(data)} bytes, counts need {expected}")
+    if len(data) > expected:
+        raise WireError(Reason.TRAILING, f"{what}: {len(data)} bytes, counts need {expected}")
+
+
+def _uint(value: int, limit: int, what: str) -> int:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | np.integer)
+        or not 0 <= value <= limit
+    ):
+        raise ValueError(f"{what} must be an integer 0..{limit}, got {value!r}")
+    return int(value)
+
+
+def uint_ids(ids: Iterable[int], what: str) -> list[int]:
+    """Drone ids sorted for encoding; ValueError unless each is 0..65535 and there are at most
+    65535 (a u16 count)."""
+    out = sorted(_uint(j, MAX_DRONE_ID, what) for j in ids)
+    if len(out) > MAX_DRONE_ID:
+        raise ValueError(f"{len(out)} {what}s do not fit a u16 count")
+    return out
+
+
+def finite_block(values: object, shape: tuple[int, ...], what: str, dtype: str = "<f8") -> bytes:
+    """``values`` as the bytes of a finite array of ``shape`` and ``dtype``; ValueError otherwise
+    (also when a float64 overflows the float32 range)."""
+    arr = np.asarray(values, dtype=np.float64)
+    if arr.shape != shape:
+        raise ValueError(f"{what} must have shape {shape}, got {arr.shape}")
+    with np.errstate(over="ignore"):  # a float32 overflow becomes inf, refused below
+        out = arr.astype(dtype)
+    if not np.isfinite(out).all():
+        raise ValueError(f"{what} must be finite (and in range of {np.dtype(dtype).name})")
+    return out.tobytes()
+
+
+def check_ids(ids: Sequence[int], what: str) -> None:
+    """WireError unless the drone ids are strictly increasing (sorted, no duplicates)."""
+    if any(a >= b for a, b in itertools.pairwise(ids)):
+        raise WireError(Reason.BAD_VALUE, f"{what} ids must be strictly increasing")
+
+
+def encode_consensus(
+    message: ConsensusMessage,
+    position_ned_m: Sequence[float] | FloatArray,
+    swarm_id: str,
+    *,
+    max_bytes: int = MAX_CONSENSUS_BYTES,
+) -> bytes:
+    """The payload of ``message`` sent from ``position_ned_m`` (3,) NED, m (sent as float32).
+
+    ValueError if a field is out of range (ids and degree uint16, round uint32), not finite, or
+    the payload would be larger than ``max_bytes``.
+    """
+    sender = _uint(message.sender, MAX_DRONE_ID, "sender")
+    round_ = _uint(message.round, MAX_U32, "round")
+    degree = _uint(message.degree, MAX_DRONE_ID, "degree")
+    heard = uint_ids(message.heard, "heard id")
+    neighbours = uint_ids(message.edge_sums, "edge neighbour")
+    floats = [message.gamma, *(message.edge_sums[j] for j in neighbours)]
+    ids = heard + neighbours
+    payload = b"".join(
+        (
+            encode_header(Kind.CONSENSUS, swarm_id),
+            _FIXED.pack(
+                round_, sender, degree, *_position(position_ned_m), len(heard), len(neighbours)
+            ),
+            struct.pack(f"<{len(ids)}H", *ids),
+            finite_block(floats, (len(floats), N_GAMMA), "gamma and edge sums"),
+        )
+    )
+    if len(payload) > max_bytes:
+        raise ValueError(f"consensus payload of {len(payload)} bytes exceeds {max_bytes}")
+    return payload
+
+
+def _position(position_ned_m: Sequence[float] | FloatArray) -> tuple[float, float, float]:
+    pos = np.frombuffer(finite_block(position_ned_m, (3,), "position_ned_m", "<f4"), "<f4")
+    return (float(pos[0]), float(pos[1]), float(pos[2]))
+
+
+def _fixed(data: bytes, swarm_id: str, max_bytes: int) -> tuple[int, tuple[int, ...]]:
+    """Offset after the fixed fields and their values, after checking the header."""
+    off = open_payload(data, Kind.CONSENSUS, swarm_id, max_bytes)
+    if len(data) < off + _FIXED.size:
+        raise WireError(Reason.TRUNCATED, f"consensus: {len(data)} bytes, shorter than its fields")
+    return off + _FIXED.size, _FIXED.unpack_from(data, off)
+
+
+def consensus_origin(
+    data: bytes, swarm_id: str, *, max_bytes: int = MAX_CONSENSUS_BYTES
+) -> tuple[int, tuple[float, float, float]]:
+    """The sender and its position (NED, m) from a consensus payload's header and fixed fields,
+    without decoding the rest: lets a receiver apply the radio range before paying for a full
+    :func:`decode_consensus`. WireError if the header or position is bad."""
+    _, (_, sender, _, px, py, pz, _, _) = _fixed(data, swarm_id, max_bytes)
+    if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
+        raise WireError(Reason.NOT_FINITE, "consensus position is NaN or infinite")
+    return sender, (px, py, pz)
+
+
+def decode_consensus(
+    data: bytes, swarm_id: str, *, max_bytes: int = MAX_CONSENSUS_BYTES
+) -> ConsensusPacket:
+    """Decode a consensus payload of swarm ``swarm_id``; WireError for anything malformed.
+
+    The arrays of the returned message are float64 copies, read-only.
+    """
+    off, (round_, sender, degree, px, py, pz, n_heard, n_edges) = _fixed(data, swarm_id, max_bytes)
+    n_ids = n_heard + n_edges
+    expect_length(data, off + 2 * n_ids + _FLOATS * (1 + n_edges), "consensus")
+    ids = struct.unpack_from(f"<{n_ids}H", data, off)
+    heard, neighbours = ids[:n_heard], ids[n_heard:]
+    floats = np.frombuffer(data, "<f8", N_GAMMA * (1 + n_edges), off + 2 * n_ids).reshape(
+        -1, N_GAMMA
+    )
+    if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
+        raise WireError(Reason.NOT_FINITE, "consensus position is NaN or infinite")
+    if not np.isfinite(floats).all():
+        raise WireError(Reason.NOT_FINITE, "consensus gamma or an edge sum is NaN or infinite")
+    check_ids(heard, "heard")
+    check_ids(neighbours, "edge neighbour")
+    floats = floats.astype(np.float64)  # a native, aligned, writable copy ...
+    floats.setflags(write=False)  # ... made read-only
+    position = np.array((px, py, pz))
+    position.setflags(write=False)
+    message = ConsensusMessage(
+        sender=sender,
+        round=round_,
+        gamma=floats[0],
+        edge_sums=dict(zip(neighbours, floats[1:], strict=True)),
+        heard=frozenset(heard),
+        degree=degree,
+    )
+    return ConsensusPacket(message, position)

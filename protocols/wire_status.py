@@ -1,0 +1,186 @@
+"""The agent status message (Kind.STATUS): what each agent tells the ground station.
+
+Body after the common header (``protocols.wire``), little-endian::
+
+    u16 drone            drone index
+    u32 round            control tick of the status
+    f64 t_s              the vehicle's simulated time, s
+    u8  mode             AgentMode
+    u8  armed            0 or 1
+    u8  health           Health flags
+    u32 plan_seq         sequence number of the plan flown; 0xFFFFFFFF: none yet
+    9 x f64 estimate     the agent's estimate of the swarm descriptors (m, rad, m^2); may be
+                         NaN (a diverged estimate is reported as it is)
+    6 x u64 counters     rx, rx_dropped_malformed, rx_dropped_wrong_swarm,
+                         rx_dropped_wrong_version, tx, rejected_setpoints
+    u16 n_neighbours
+    n x u16              the neighbours integrating this round, strictly increasing
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import astuple, dataclass
+from enum import IntEnum, IntFlag
+
+import numpy as np
+
+from protocols.frames import FloatArray
+from protocols.keys import MAX_DRONE_ID
+from protocols.wire import (
+    MAX_U32,
+    Kind,
+    Reason,
+    WireError,
+    check_ids,
+    encode_header,
+    expect_length,
+    open_payload,
+    uint_ids,
+)
+
+MAX_STATUS_BYTES = 8 * 1024
+NO_PLAN = MAX_U32
+N_ESTIMATE = 9
+_MAX_U64 = 2**64 - 1
+_FIXED = struct.Struct("<HIdBBBI9d6QH")
+
+
+class AgentMode(IntEnum):
+    """What an agent is doing."""
+
+    STARTING = 0  #: attached, waiting for its vehicle or the plan
+    WARMUP = 1  #: consensus running on the ground, not armed
+    READY = 2  #: converged; arms when the plan says fly
+    FLYING = 3
+    LANDING = 4
+    HOLDING = 5  #: plan finished or ground station lost: holds its place
+    LEAVING = 6  #: lost its vehicle; leaving the swarm
+
+
+class Health(IntFlag):
+    """Health flags of an agent."""
+
+    NONE = 0
+    VEHICLE_LINK = 1  #: hears its vehicle
+    ESTIMATE_FINITE = 2
+    CONVERGED = 4  #: estimator settled (warm-up done)
+    PLAN = 8  #: holds a plan
+
+
+_MODES = frozenset(int(m) for m in AgentMode)
+_HEALTH_MASK = sum(int(f) for f in Health)
+
+
+@dataclass(frozen=True)
+class StatusCounters:
+    """Cumulative counts since the agent started (messages)."""
+
+    rx: int = 0
+    rx_dropped_malformed: int = 0
+    rx_dropped_wrong_swarm: int = 0
+    rx_dropped_wrong_version: int = 0
+    tx: int = 0
+    rejected_setpoints: int = 0
+
+    def __post_init__(self) -> None:
+        for name, value in zip(self.__dataclass_fields__, astuple(self), strict=True):
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= _MAX_U64:
+                raise ValueError(f"counter {name} must be an integer >= 0, got {value!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class AgentStatus:
+    """One agent's status. ``estimate`` (9,) descriptors (m, rad, m^2), copied read-only;
+    ``neighbours``: sorted ids; ``plan_seq`` None before the agent has a plan."""
+
+    drone: int
+    round: int
+    t_s: float
+    mode: AgentMode
+    armed: bool
+    health: Health
+    estimate: FloatArray
+    neighbours: tuple[int, ...]
+    counters: StatusCounters
+    plan_seq: int | None = None
+
+    def __post_init__(self) -> None:
+        estimate = np.array(self.estimate, dtype=np.float64)
+        if estimate.shape != (N_ESTIMATE,):
+            raise ValueError(f"estimate must have shape (9,), got {estimate.shape}")
+        estimate.setflags(write=False)
+        if not math.isfinite(self.t_s):
+            raise ValueError(f"t_s must be finite, got {self.t_s!r}")
+        if self.plan_seq is not None and not 0 <= self.plan_seq < NO_PLAN:
+            raise ValueError(f"plan_seq must be 0..{NO_PLAN - 1} or None, got {self.plan_seq}")
+        object.__setattr__(self, "estimate", estimate)
+        object.__setattr__(self, "mode", AgentMode(self.mode))
+        object.__setattr__(self, "health", Health(self.health))
+        object.__setattr__(self, "neighbours", tuple(uint_ids(self.neighbours, "neighbour")))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, AgentStatus):
+            return NotImplemented
+        fields = ("drone", "round", "t_s", "mode", "armed", "health", "neighbours", "counters")
+        return all(getattr(self, f) == getattr(other, f) for f in fields) and (
+            self.plan_seq == other.plan_seq
+            and np.array_equal(self.estimate, other.estimate, equal_nan=True)
+        )
+
+
+def encode_status(status: AgentStatus, swarm_id: str) -> bytes:
+    """The payload of ``status`` for swarm ``swarm_id``; ValueError if a field is out of range."""
+    if not 0 <= status.drone <= MAX_DRONE_ID or not 0 <= status.round <= MAX_U32:
+        raise ValueError(f"drone {status.drone} or round {status.round} out of range")
+    plan_seq = NO_PLAN if status.plan_seq is None else status.plan_seq
+    neighbours = status.neighbours
+    return b"".join(
+        (
+            encode_header(Kind.STATUS, swarm_id),
+            _FIXED.pack(
+                status.drone,
+                status.round,
+                status.t_s,
+                int(status.mode),
+                int(status.armed),
+                int(status.health),
+                plan_seq,
+                *status.estimate.tolist(),
+                *astuple(status.counters),
+                len(neighbours),
+            ),
+            struct.pack(f"<{len(neighbours)}H", *neighbours),
+        )
+    )
+
+
+def decode_status(data: bytes, swarm_id: str, *, max_bytes: int = MAX_STATUS_BYTES) -> AgentStatus:
+    """Decode a status payload of swarm ``swarm_id``; WireError for anything malformed."""
+    off = open_payload(data, Kind.STATUS, swarm_id, max_bytes)
+    if len(data) < off + _FIXED.size:
+        raise WireError(Reason.TRUNCATED, f"status: {len(data)} bytes, shorter than its fields")
+    values = _FIXED.unpack_from(data, off)
+    drone, round_, t_s, mode, armed, health, plan_seq = values[:7]
+    estimate, counters, n = values[7:16], values[16:22], values[22]
+    off += _FIXED.size
+    expect_length(data, off + 2 * n, "status")
+    neighbours = struct.unpack_from(f"<{n}H", data, off)
+    check_ids(neighbours, "neighbour")
+    if not math.isfinite(t_s):
+        raise WireError(Reason.NOT_FINITE, f"status time {t_s}")
+    if armed > 1 or mode not in _MODES or health & ~_HEALTH_MASK:
+        raise WireError(Reason.BAD_VALUE, f"status mode {mode}, armed {armed}, health {health}")
+    return AgentStatus(
+        drone=drone,
+        round=round_,
+        t_s=t_s,
+        mode=AgentMode(mode),
+        armed=bool(armed),
+        health=Health(health),
+        estimate=np.array(estimate),
+        neighbours=neighbours,
+        counters=StatusCounters(*counters),
+        plan_seq=None if plan_seq == NO_PLAN else plan_seq,
+    )

@@ -1,0 +1,143 @@
+"""From ``swarm sim`` flags to a configured world, and the lines the command prints.
+
+Every check that can fail on a user's input happens here, before any socket is opened, and
+raises :class:`~sitl_sim.sim_config.SimConfigError` with one line naming the flag or file.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Mapping
+
+import numpy as np
+
+from sitl_sim.attitude_control import AttitudeGains
+from sitl_sim.autopilot import AutopilotConfig
+from sitl_sim.failsafe import FailsafeConfig
+from sitl_sim.server import Status
+from sitl_sim.sim_config import (
+    ClockConfig,
+    NetConfig,
+    SimConfig,
+    SimConfigError,
+    check_count,
+    check_ports,
+    check_positive,
+    check_rates,
+    crash_timeline,
+    grid_positions,
+    parse_gcs_url,
+    parse_sysids,
+    read_signing_key,
+    vehicles_from_scenario,
+)
+from sitl_sim.streams import AGENT_RATES_HZ, ATTITUDE, GCS_RATES_HZ, LOCAL_POSITION_NED
+from sitl_sim.tunables import FleetAttitudeGains, Tunables
+from sitl_sim.vehicle_params import VehicleParams
+from sitl_sim.world import World, WorldConfig
+
+
+def build_config(args: argparse.Namespace) -> SimConfig:
+    """Validate the parsed flags of ``swarm sim``; SimConfigError on the first mistake."""
+    crashes: tuple[tuple[float, int], ...] = ()
+    if args.scenario is not None:
+        params, gains, positions, yaw, physics_hz, control_hz, seed, faults = (
+            vehicles_from_scenario(args.scenario)
+        )
+        crashes = crash_timeline(faults)
+    else:
+        check_count(args.drones)
+        params, gains = VehicleParams(), AttitudeGains()
+        positions, yaw = grid_positions(args.drones), np.zeros(args.drones)
+        physics_hz, control_hz, seed = 500, 50, 0
+    n = len(positions)
+    check_count(n)
+    physics_hz = args.physics_hz if args.physics_hz is not None else physics_hz
+    control_hz = args.control_hz if args.control_hz is not None else control_hz
+    check_rates(physics_hz, control_hz)
+    for flag in ("speedup", "offboard_timeout", "lockstep_timeout", "join_timeout"):
+        check_positive("--" + flag.replace("_", "-"), float(getattr(args, flag)))
+    for flag in ("agent_rate_hz", "gcs_rate_hz"):
+        check_positive("--" + flag.replace("_", "-"), float(getattr(args, flag)))
+    if args.duration_s is not None:
+        check_positive("--duration-s", args.duration_s)
+    if not (np.isfinite(args.position_noise_m) and args.position_noise_m >= 0):
+        raise SimConfigError("--position-noise-m must be a number >= 0")
+    if args.wait_agents < 0:
+        raise SimConfigError("--wait-agents must be >= 0")
+    check_ports(args.base_port, n)
+    autopilot = AutopilotConfig(failsafe=FailsafeConfig(offboard_timeout_s=args.offboard_timeout))
+    world = WorldConfig(physics_hz, control_hz, autopilot, args.position_noise_m, crashes)
+    net = NetConfig(
+        bind_host=args.bind,
+        base_port=args.base_port,
+        gcs=parse_gcs_url(args.gcs),
+        signing_key=read_signing_key(args.signing_key),
+        agent_rates_hz=_rates(AGENT_RATES_HZ, args.agent_rate_hz),
+        gcs_rates_hz=_rates(GCS_RATES_HZ, args.gcs_rate_hz),
+    )
+    clock = ClockConfig(
+        mode=args.clock,
+        speedup=args.speedup,
+        drop_timeout_s=args.lockstep_timeout,
+        join_timeout_s=args.join_timeout,
+        wait_agents=args.wait_agents,
+        duration_s=args.duration_s,
+    )
+    return SimConfig(
+        sysids=parse_sysids(args.sysids, n),
+        params=params,
+        gains=gains,
+        positions_ned_m=positions,
+        yaw_rad=yaw,
+        world=world,
+        net=net,
+        clock=clock,
+        seed=seed if args.seed is None else args.seed,
+    )
+
+
+def _rates(defaults: Mapping[int, float], state_hz: float) -> dict[int, float]:
+    """``defaults`` with ATTITUDE and LOCAL_POSITION_NED at ``state_hz``."""
+    rates = dict(defaults)
+    rates[ATTITUDE] = rates[LOCAL_POSITION_NED] = state_hz
+    return rates
+
+
+def build_world(config: SimConfig) -> tuple[World, Tunables]:
+    """The world of ``config`` (seeded) and its parameter table."""
+    gains = FleetAttitudeGains(config.gains, config.n)
+    world = World(
+        config.params,
+        gains,
+        config.positions_ned_m,
+        config.yaw_rad,
+        config.world,
+        np.random.default_rng(config.seed),
+    )
+    return world, Tunables(world.autopilot, gains, list(config.sysids))
+
+
+def start_line(config: SimConfig) -> str:
+    """What is listening where, printed once at start-up."""
+    net, clock = config.net, config.clock
+    last = net.base_port + config.n - 1
+    ports = f"{net.bind_host}:{net.base_port}" + (f"-{last}" if config.n > 1 else "")
+    gcs = "none" if net.gcs is None else f"udp:{net.gcs[0]}:{net.gcs[1]}"
+    ids = f"{config.sysids[0]}..{config.sysids[-1]}" if config.n > 1 else str(config.sysids[0])
+    signed = ", signed" if net.signing_key is not None else ""
+    return (
+        f"swarm sim: {config.n} vehicles (system ids {ids}) on UDP {ports}, GCS {gcs}{signed}; "
+        f"clock {clock.mode} x{clock.speedup:g}, physics {config.world.physics_hz} Hz, "
+        f"control {config.world.control_hz} Hz"
+    )
+
+
+def status_line(s: Status) -> str:
+    """The one-line status printed every second."""
+    lockstep = "" if s.lockstep_members is None else f" | lockstep {s.lockstep_members} agents"
+    return (
+        f"sim {s.sim_s:9.2f} s | wall {s.wall_s:8.1f} s | rtf {s.rtf:5.2f} | armed {s.armed} "
+        f"flying {s.flying} failsafe {s.failsafe} crashed {s.crashed} | rx {s.rx} tx {s.tx} "
+        f"rejected {s.rejected}{lockstep}"
+    )

@@ -1,0 +1,324 @@
+"""The simulator's event loop: simulated time, telemetry out, MAVLink in, under either clock.
+
+Each control tick ``k``: the world's state at ``k`` goes out as telemetry (each link at its own
+rates, :mod:`sitl_sim.streams`); input is processed while the clock waits; then the world steps
+to ``k + 1`` with the setpoints and commands received so far.
+
+- ``realtime``: tick ``k + 1`` runs at its wall-clock deadline (:class:`sitl_sim.pacing.Pacer`).
+- ``lockstep``: tick ``k + 1`` runs once every agent in the barrier has echoed tick ``k``
+  (:mod:`sitl_sim.lockstep`); tick 0 waits up to the join timeout for the expected agents; while
+  nobody holds the barrier, time runs paced as in realtime. While it waits, the current tick's
+  state is re-sent to the awaited agents every :data:`RESEND_S` seconds (UDP may drop it), and
+  a new agent address gets it at once.
+
+The wall clock is injected (``time.monotonic`` by default) and only decides *when* things happen,
+never *what*: in lockstep the telemetry depends on the seed and the agents' answers alone.
+"""
+
+from __future__ import annotations
+
+import selectors
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from sitl_sim import messages
+from sitl_sim.autopilot import Severity, VehicleEvent
+from sitl_sim.commands import CommandHandler
+from sitl_sim.dispatch import Dispatcher, LinkSide
+from sitl_sim.lockstep import LockstepBarrier
+from sitl_sim.network import Network
+from sitl_sim.pacing import Pacer, RateMeter
+from sitl_sim.sim_config import ClockConfig
+from sitl_sim.streams import (
+    ATTITUDE,
+    ATTITUDE_TARGET,
+    HEARTBEAT,
+    LOCAL_POSITION_NED,
+    SYS_STATUS,
+    StreamTable,
+)
+from sitl_sim.tunables import Tunables
+from sitl_sim.world import Snapshot, World
+
+RESEND_S = 0.25
+_MAX_WAIT_S = 0.05
+_GCS = -1
+
+
+@dataclass(frozen=True)
+class Status:
+    """One status line: simulated and wall time (s), real-time factor over the last interval,
+    vehicles armed / flying / in failsafe / crashed, frames received, sent and rejected."""
+
+    sim_s: float
+    wall_s: float
+    rtf: float
+    armed: int
+    flying: int
+    failsafe: int
+    crashed: int
+    rx: int
+    tx: int
+    rejected: int
+    lockstep_members: int | None
+
+
+class SimServer:
+    """Runs ``world`` behind ``network`` until :meth:`stop` or the clock's duration."""
+
+    def __init__(
+        self,
+        world: World,
+        tunables: Tunables,
+        network: Network,
+        clock: ClockConfig,
+        wall_clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+        on_status: Callable[[Status], None] | None = None,
+        status_interval_s: float = 1.0,
+    ) -> None:
+        self.world, self.net, self.clock = world, network, clock
+        self.wall, self.sleep = wall_clock, sleep
+        self.on_status, self.status_interval_s = on_status, status_interval_s
+        control_hz = world.config.control_hz
+        n = world.n
+        rates = network.config
+        self.agent = LinkSide(
+            network.agent_channels, StreamTable(n, rates.agent_rates_hz, control_hz)
+        )
+        self.gcs = LinkSide(network.gcs_channels, StreamTable(n, rates.gcs_rates_hz, control_hz))
+        lockstep = clock.mode == "lockstep"
+        self.barrier = LockstepBarrier(clock.drop_timeout_s) if lockstep else None
+        self.pacer = Pacer(1.0 / control_hz, clock.speedup)
+        self.commands = CommandHandler(world, network.sysids, self.build)
+        self.dispatch = Dispatcher(
+            world, network.sysids, tunables, self.commands, self.agent, self.gcs,
+            self.barrier, self.report, self._new_peer,
+        )  # fmt: skip
+        self._builders: dict[int, Callable[[int], Any]] = {
+            HEARTBEAT: lambda i: messages.heartbeat(world.autopilot, i),
+            SYS_STATUS: lambda i: messages.sys_status(
+                world.autopilot, i, self.dispatch.counters[i], self._load
+            ),
+            ATTITUDE: lambda i: messages.attitude(self._snapshot, i),
+            LOCAL_POSITION_NED: lambda i: messages.local_position_ned(self._snapshot, i),
+            ATTITUDE_TARGET: lambda i: messages.attitude_target(world, i),
+        }
+        self._snapshot: Snapshot = world.snapshot()
+        self._stopped = False
+        self._load = 0.0
+        self._idle_s = 0.0
+        self._last_status_wall = 0.0
+        self._selector: selectors.BaseSelector | None = None
+
+    # -- public --------------------------------------------------------------------------------
+    def stop(self) -> None:
+        """Ask the loop to end (safe from a signal handler); it returns within ~50 ms."""
+        self._stopped = True
+
+    def build(self, i: int, msg_id: int) -> Any | None:
+        """Streamed message ``msg_id`` of vehicle ``i`` now, None if not streamable."""
+        builder = self._builders.get(msg_id)
+        return None if builder is None else builder(i)
+
+    def report(self, events: list[VehicleEvent]) -> None:
+        """Send each event as a STATUSTEXT on every link of its vehicle."""
+        silent = self.world.autopilot.silent
+        for event in events:
+            if silent[event.vehicle]:
+                continue
+            msg = messages.statustext(int(event.severity), event.text)
+            for side in (self.agent, self.gcs):
+                channel = side.channels[event.vehicle]
+                if channel.active:
+                    channel.send(msg)
+
+    def run(self) -> None:
+        """Run until stopped or ``clock.duration_s`` of simulated time has passed."""
+        with selectors.DefaultSelector() as selector:
+            self._selector = selector
+            for i, endpoint in enumerate(self.net.agent_endpoints):
+                selector.register(endpoint.sock, selectors.EVENT_READ, i)
+            if self.net.gcs_endpoint is not None:
+                selector.register(self.net.gcs_endpoint.sock, selectors.EVENT_READ, _GCS)
+            try:
+                self._loop()
+            finally:
+                self._selector = None
+
+    # -- the loop ------------------------------------------------------------------------------
+    def _loop(self) -> None:
+        start = self.wall()
+        self._last_status_wall = start
+        meter = RateMeter(self.world.t_s, start)
+        next_status = start + self.status_interval_s
+        self.pacer.rebase(self.world.tick, start)
+        self.report(self.world.pending_events)
+        self.world.pending_events = []
+        sent_to = self._emit()
+        join_deadline = start + self.clock.join_timeout_s
+        while not self._stopped and not self._done():
+            if self.barrier is None:
+                self._poll_until(self.pacer.deadline(self.world.tick + 1))
+            else:
+                self.barrier.open_tick(self.world.tick, sent_to, self.wall())
+                self._await_barrier(join_deadline)
+            if self._stopped:
+                break
+            self._step()
+            sent_to = self._emit()
+            now = self.wall()
+            self.pacer.keep_up(self.world.tick, now)
+            if now >= next_status:
+                self._status(meter, now, start)
+                next_status = now + self.status_interval_s
+        self.net.flush()
+
+    def _done(self) -> bool:
+        duration = self.clock.duration_s
+        return duration is not None and self.world.t_s >= duration - 1e-9
+
+    def _step(self) -> None:
+        events = self.world.step()
+        if events:
+            self.report(events)
+        if self.barrier is not None and self.barrier.members:
+            silent = self.world.autopilot.silent
+            for i in [m for m in self.barrier.members if silent[m]]:
+                self.barrier.leave(i)
+
+    def _await_barrier(self, join_deadline: float) -> None:
+        """Process input until the barrier lets tick ``k + 1`` run."""
+        assert self.barrier is not None
+        barrier, tick = self.barrier, self.world.tick
+        next_resend = self.wall() + RESEND_S
+        while not self._stopped:
+            now = self.wall()
+            dropped = barrier.expire(now)
+            if dropped:
+                self._dropped(dropped)
+            joining = tick == 0 and len(barrier.members) < self.clock.wait_agents
+            if joining and now < join_deadline:
+                wait_until = join_deadline
+            elif barrier.members:
+                if barrier.complete:
+                    return
+                wait_until = barrier.deadline_wall_s() or now
+            else:
+                deadline = self.pacer.deadline(tick + 1)
+                if now >= deadline:
+                    return
+                wait_until = deadline
+            if now >= next_resend:
+                self._resend(barrier.awaiting if barrier.members and not joining else None)
+                next_resend = now + RESEND_S
+            self._poll(min(wait_until, next_resend) - now)
+
+    def _dropped(self, vehicles: list[int]) -> None:
+        timeout = self.clock.drop_timeout_s
+        text = f"Lockstep: agent silent {timeout:g} s, left the barrier"
+        self.report([VehicleEvent(i, Severity.WARNING, text) for i in vehicles])
+        self.net.flush()
+
+    def _poll_until(self, deadline: float) -> None:
+        """Realtime: sleep to ``deadline``, then act on everything received meanwhile (the
+        physics only runs at tick boundaries, so reacting earlier would change nothing)."""
+        while not self._stopped:
+            remaining = deadline - self.wall()
+            if remaining <= 0:
+                self._poll(0.0)
+                return
+            t0 = self.wall()
+            self.sleep(min(remaining, _MAX_WAIT_S))
+            self._idle_s += self.wall() - t0
+
+    def _poll(self, timeout: float) -> None:
+        """Wait up to ``timeout`` s for input, act on every pending datagram, send the answers."""
+        assert self._selector is not None
+        t0 = self.wall()
+        ready = self._selector.select(max(0.0, min(timeout, _MAX_WAIT_S)))
+        self._idle_s += self.wall() - t0
+        dispatch = self.dispatch
+        for key, _ in ready:
+            vehicle = key.data
+            if vehicle == _GCS:
+                endpoint = self.net.gcs_endpoint
+                assert endpoint is not None
+                for data, _addr in endpoint.receive():
+                    dispatch.gcs_datagram(data, endpoint.rx_codec)
+            else:
+                for data, addr in self.net.agent_endpoints[vehicle].receive():
+                    dispatch.agent_datagram(vehicle, data, addr)
+        self.net.flush()
+
+    # -- telemetry -----------------------------------------------------------------------------
+    def _emit(self) -> list[int]:
+        """Send the current tick's due telemetry; the vehicles whose agent got the tick's state."""
+        world = self.world
+        tick = world.tick
+        self._snapshot = world.snapshot()
+        silent = world.autopilot.silent
+        build = self._builders
+        self.agent.streams.shared.due(tick)
+        self.gcs.streams.shared.due(tick)
+        sent_to: list[int] = []
+        for side, is_agent in ((self.agent, True), (self.gcs, False)):
+            streams = side.streams
+            for i, channel in enumerate(side.channels):
+                if silent[i] or not channel.active:
+                    continue
+                due = streams.of(i).due(tick)
+                for msg_id in due:
+                    channel.send(build[msg_id](i))
+                if is_agent and LOCAL_POSITION_NED in due:
+                    sent_to.append(i)
+        self.net.flush()
+        return sent_to
+
+    def _new_peer(self, i: int) -> None:
+        """A new agent address: give it the heartbeat and the current tick's state now."""
+        channel = self.agent.channels[i]
+        for msg_id in (HEARTBEAT, ATTITUDE, LOCAL_POSITION_NED):
+            channel.send(self._builders[msg_id](i))
+
+    def _resend(self, vehicles: set[int] | None) -> None:
+        """Re-send the current tick's state to ``vehicles`` (None: every agent we know)."""
+        silent = self.world.autopilot.silent
+        targets = range(self.world.n) if vehicles is None else sorted(vehicles)
+        for i in targets:
+            channel = self.agent.channels[i]
+            if channel.active and not silent[i]:
+                channel.send(self._builders[ATTITUDE](i))
+                channel.send(self._builders[LOCAL_POSITION_NED](i))
+        self.net.flush()
+
+    # -- status --------------------------------------------------------------------------------
+    def _status(self, meter: RateMeter, now: float, start: float) -> None:
+        interval = max(now - self._last_status_wall, 1e-9)
+        self._last_status_wall = now
+        self._load = max(0.0, min(1.0, 1.0 - self._idle_s / interval))
+        self._idle_s = 0.0
+        rtf = meter.sample(self.world.t_s, now)
+        if self.on_status is not None:
+            self.on_status(self.status(rtf, now - start))
+
+    def status(self, rtf: float = 0.0, wall_s: float = 0.0) -> Status:
+        """The counters now."""
+        ap = self.world.autopilot
+        counters = [*self.dispatch.counters, self.dispatch.gcs_counters]
+        tx = sum(c.tx for c in self.agent.channels) + sum(c.tx for c in self.gcs.channels)
+        return Status(
+            sim_s=self.world.t_s,
+            wall_s=wall_s,
+            rtf=rtf,
+            armed=int(ap.armed.sum()),
+            flying=int(ap.flying.sum()),
+            failsafe=int(ap.failsafe.sum()),
+            crashed=int(ap.crashed.sum()),
+            rx=sum(c.rx for c in counters),
+            tx=tx,
+            rejected=sum(c.rejected for c in counters),
+            lockstep_members=None if self.barrier is None else len(self.barrier.members),
+        )

@@ -1,0 +1,197 @@
+"""``swarm sim``: the command-line face of the SITL simulator (registered by ``gcs/cli.py``).
+
+:func:`add_sim_parser` declares the flags (cheap: no numpy or pymavlink import);
+:func:`run_sim` checks them, opens the sockets, prints a start line and one status line per
+second (unless ``--quiet``) and runs until Ctrl-C, SIGTERM or ``--duration-s``; it returns the
+exit code (0). User mistakes raise :class:`~sitl_sim.sim_config.SimConfigError` (one line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, TextIO
+
+from protocols.mavlink_conventions import DEFAULT_BASE_PORT, DEFAULT_GCS_PORT, MAX_VEHICLES
+
+DESCRIPTION = (
+    "Simulate N quadcopters behind real MAVLink 2 UDP endpoints, as PX4 SITL does: vehicle i "
+    "(system id i+1) serves its agent on UDP BASE_PORT+i, answering whoever last sent it a valid "
+    "MAVLink frame (an agent starts with a HEARTBEAT), and every vehicle's telemetry goes to "
+    "the ground station. Each vehicle has the autopilot inner loop (attitude controller + mixer "
+    "at the physics rate), modes HOLD/OFFBOARD/LAND, arming, the offboard-loss failsafe, "
+    "parameters and failure injection. Units: metres, seconds, Hz."
+)
+
+
+def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
+    """Add the ``sim`` subcommand to an argparse ``add_subparsers()`` object."""
+    p = sub.add_parser(
+        "sim", help="run the SITL simulator (N vehicles, MAVLink over UDP)", description=DESCRIPTION
+    )
+    who = p.add_mutually_exclusive_group(required=True)
+    who.add_argument(
+        "--drones",
+        type=int,
+        metavar="N",
+        help=f"N vehicles (1..{MAX_VEHICLES}) on the ground on a 2 m grid",
+    )
+    who.add_argument(
+        "--scenario",
+        type=Path,
+        metavar="FILE",
+        help="scenario file: initial positions, vehicle, gains, rates, seed, crashes",
+    )
+    p.add_argument(
+        "--clock",
+        choices=("realtime", "lockstep"),
+        default="realtime",
+        help="realtime: paced to the wall clock x --speedup; lockstep: time advances "
+        "once every agent echoed the tick (protocols/mavlink_conventions.py)",
+    )
+    p.add_argument(
+        "--speedup",
+        type=float,
+        default=1.0,
+        metavar="X",
+        help="simulated seconds per wall second (realtime; lockstep while no agent "
+        "holds the barrier); default 1",
+    )
+    p.add_argument(
+        "--base-port",
+        type=int,
+        default=DEFAULT_BASE_PORT,
+        metavar="PORT",
+        help=f"vehicle i listens on UDP PORT+i (default {DEFAULT_BASE_PORT})",
+    )
+    p.add_argument(
+        "--bind",
+        default="127.0.0.1",
+        metavar="HOST",
+        help="address the vehicle ports bind to (default 127.0.0.1)",
+    )
+    p.add_argument(
+        "--gcs",
+        default=f"udp:127.0.0.1:{DEFAULT_GCS_PORT}",
+        metavar="URL",
+        help=f"ground station: udp:HOST:PORT, or none (default udp:127.0.0.1:{DEFAULT_GCS_PORT})",
+    )
+    p.add_argument(
+        "--physics-hz",
+        type=int,
+        metavar="HZ",
+        help="physics and inner-loop rate (default 500 or the scenario's)",
+    )
+    p.add_argument(
+        "--control-hz",
+        type=int,
+        metavar="HZ",
+        help="control tick = highest telemetry rate (default 50 or the scenario's)",
+    )
+    p.add_argument(
+        "--agent-rate-hz",
+        type=float,
+        default=50.0,
+        metavar="HZ",
+        help="default ATTITUDE and LOCAL_POSITION_NED rate to agents (default 50)",
+    )
+    p.add_argument(
+        "--gcs-rate-hz",
+        type=float,
+        default=10.0,
+        metavar="HZ",
+        help="default ATTITUDE and LOCAL_POSITION_NED rate to the GCS (default 10)",
+    )
+    p.add_argument(
+        "--signing-key",
+        type=Path,
+        metavar="FILE",
+        help="MAVLink 2 signing key (32 raw bytes or 64 hex characters): telemetry "
+        "signed, unsigned or wrongly signed commands and setpoints rejected",
+    )
+    p.add_argument("--seed", type=int, help="random seed (default: the scenario's, else 0)")
+    p.add_argument(
+        "--position-noise-m",
+        type=float,
+        default=0.0,
+        metavar="M",
+        help="standard deviation of the reported position noise, m (default 0)",
+    )
+    p.add_argument(
+        "--offboard-timeout",
+        type=float,
+        default=0.5,
+        metavar="S",
+        help="no valid setpoint for S seconds in OFFBOARD -> failsafe (default 0.5)",
+    )
+    p.add_argument("--sysids", metavar="LIST", help="system ids, e.g. 1,2,7 (default 1..N)")
+    p.add_argument(
+        "--lockstep-timeout",
+        type=float,
+        default=2.0,
+        metavar="S",
+        help="an agent silent for S wall seconds leaves the barrier (default 2)",
+    )
+    p.add_argument(
+        "--join-timeout",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="lockstep: tick 0 waits up to S wall seconds for agents (default 10)",
+    )
+    p.add_argument(
+        "--wait-agents",
+        type=int,
+        default=1,
+        metavar="K",
+        help="lockstep: tick 0 waits for K agents to join (default 1)",
+    )
+    p.add_argument(
+        "--duration-s",
+        type=float,
+        metavar="S",
+        help="stop after S simulated seconds (default: run until stopped)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no start and status lines")
+    return p
+
+
+def run_sim(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
+    """Run ``swarm sim`` with parsed ``args``; exit code 0 after a clean stop."""
+    from sitl_sim.launch import build_config, build_world, start_line, status_line
+    from sitl_sim.network import Network
+    from sitl_sim.server import SimServer, Status
+
+    config = build_config(args)
+    world, tunables = build_world(config)
+
+    def show(status: Status) -> None:
+        print(status_line(status), file=out, flush=True)
+
+    with Network(config.net, config.sysids) as network:
+        on_status = None if args.quiet else show
+        server = SimServer(world, tunables, network, config.clock, on_status=on_status)
+        if not args.quiet:
+            print(start_line(config), file=out, flush=True)
+        with _stop_on_signals(server.stop):
+            server.run()
+    return 0
+
+
+class _stop_on_signals:
+    """While active, SIGINT and SIGTERM call ``stop`` instead of raising or killing."""
+
+    def __init__(self, stop: Callable[[], None]) -> None:
+        self.stop = stop
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self) -> None:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._old[sig] = signal.signal(sig, lambda _s, _f: self.stop())
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)

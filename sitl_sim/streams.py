@@ -1,0 +1,130 @@
+"""Message-interval bookkeeping: which streamed messages a link is due at each control tick. Pure.
+
+Each link of each vehicle (its agent link and its share of the GCS link) streams HEARTBEAT,
+SYS_STATUS, ATTITUDE, LOCAL_POSITION_NED and ATTITUDE_TARGET at its own rates, changed by
+MAV_CMD_SET_MESSAGE_INTERVAL (interval in µs; 0 = the default rate, -1 = off). Telemetry is sent
+at control ticks, so the highest rate is the control rate: a shorter interval is accepted and
+capped. A rate that does not divide the control rate is met on average (the due time accumulates
+in fractional ticks).
+
+Links that keep the default rates share one :class:`StreamSchedule`; :class:`StreamTable` gives a
+link its own copy on its first change (copy on write), so the common case costs one schedule
+evaluation per tick for all vehicles.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+HEARTBEAT = 0
+SYS_STATUS = 1
+ATTITUDE = 30
+LOCAL_POSITION_NED = 32
+ATTITUDE_TARGET = 83
+
+#: Default rates (Hz) on an agent link (onboard computer) and to the ground station.
+AGENT_RATES_HZ: Mapping[int, float] = {
+    HEARTBEAT: 1.0,
+    SYS_STATUS: 1.0,
+    ATTITUDE: 50.0,
+    LOCAL_POSITION_NED: 50.0,
+    ATTITUDE_TARGET: 10.0,
+}
+GCS_RATES_HZ: Mapping[int, float] = {
+    HEARTBEAT: 1.0,
+    SYS_STATUS: 1.0,
+    ATTITUDE: 10.0,
+    LOCAL_POSITION_NED: 10.0,
+    ATTITUDE_TARGET: 2.0,
+}
+
+
+class StreamSchedule:
+    """Rates and due times of the streamed messages of one link, counted in control ticks."""
+
+    def __init__(self, defaults_hz: Mapping[int, float], control_hz: float) -> None:
+        self.defaults_hz = dict(defaults_hz)
+        self.control_hz = control_hz
+        self._interval_ticks: dict[int, float] = {}
+        self._next_tick: dict[int, float] = {}
+        for msg_id, rate in self.defaults_hz.items():
+            self._set_rate(msg_id, rate)
+        self._due_tick = -1
+        self._due: list[int] = []
+
+    def copy(self) -> StreamSchedule:
+        """An independent schedule with the same rates and phase."""
+        twin = StreamSchedule(self.defaults_hz, self.control_hz)
+        twin._interval_ticks = dict(self._interval_ticks)
+        twin._next_tick = dict(self._next_tick)
+        return twin
+
+    def streams(self, msg_id: int) -> bool:
+        """Whether ``msg_id`` is a streamable message."""
+        return msg_id in self.defaults_hz
+
+    def set_interval_us(self, msg_id: int, interval_us: float) -> bool:
+        """MAV_CMD_SET_MESSAGE_INTERVAL: > 0 µs sets, 0 restores the default, < 0 stops.
+        False if ``msg_id`` is not streamed or the interval is not a number."""
+        if msg_id not in self.defaults_hz or math.isnan(interval_us):
+            return False
+        if interval_us == 0:
+            rate = self.defaults_hz[msg_id]
+        elif interval_us < 0:
+            rate = 0.0
+        else:
+            rate = 1e6 / interval_us
+        self._set_rate(msg_id, rate)
+        return True
+
+    def interval_us(self, msg_id: int) -> int:
+        """The interval (µs) of ``msg_id`` as MESSAGE_INTERVAL reports it: -1 off, 0 unknown."""
+        if msg_id not in self._interval_ticks:
+            return 0
+        ticks = self._interval_ticks[msg_id]
+        return -1 if math.isinf(ticks) else round(ticks / self.control_hz * 1e6)
+
+    def due(self, tick: int) -> list[int]:
+        """The message ids due at control tick ``tick`` (call once per tick, ticks increasing;
+        a repeated call for the same tick returns the same answer)."""
+        if tick == self._due_tick:
+            return self._due
+        due = []
+        for msg_id, next_tick in self._next_tick.items():
+            if tick >= next_tick - 1e-9:
+                interval = self._interval_ticks[msg_id]
+                following = next_tick + interval
+                self._next_tick[msg_id] = following if following > tick else tick + interval
+                due.append(msg_id)
+        self._due_tick, self._due = tick, due
+        return due
+
+    def _set_rate(self, msg_id: int, rate_hz: float) -> None:
+        if rate_hz <= 0.0:
+            self._interval_ticks[msg_id] = math.inf
+            self._next_tick[msg_id] = math.inf
+            return
+        interval = max(1.0, self.control_hz / rate_hz)
+        self._interval_ticks[msg_id] = interval
+        current = self._next_tick.get(msg_id, 0.0)
+        self._next_tick[msg_id] = 0.0 if math.isinf(current) else current
+
+
+class StreamTable:
+    """The schedules of one kind of link for every vehicle, sharing the default one."""
+
+    def __init__(self, n: int, defaults_hz: Mapping[int, float], control_hz: float) -> None:
+        self.shared = StreamSchedule(defaults_hz, control_hz)
+        self._own: dict[int, StreamSchedule] = {}
+        self.n = n
+
+    def of(self, vehicle: int) -> StreamSchedule:
+        """The schedule vehicle ``vehicle`` follows (possibly the shared one: read only)."""
+        return self._own.get(vehicle, self.shared)
+
+    def own(self, vehicle: int) -> StreamSchedule:
+        """Vehicle ``vehicle``'s own schedule, split from the shared one if needed (to change)."""
+        if vehicle not in self._own:
+            self._own[vehicle] = self.shared.copy()
+        return self._own[vehicle]

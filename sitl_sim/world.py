@@ -1,0 +1,150 @@
+"""The simulated world: N vehicles stepped together at the physics rate. Pure (no clock, no I/O).
+
+One :meth:`World.step` advances simulated time by one control period ``1 / control_hz``: at every
+physics step (``physics_hz``) each vehicle's autopilot command (:mod:`sitl_sim.guidance`) goes
+through its inner loop (attitude controller + mixer, :func:`sitl_sim.inner_loop.inner_loop`), dead
+motors are stopped, and the vectorised 6-DOF dynamics with ground contact advance the state
+(:func:`sitl_sim.dynamics.step_with_contact`). Then the autopilots update (failsafes, touchdowns,
+crashes) and scheduled crashes (a scenario's fault timeline) fire.
+
+Time is the control tick ``k``: ``t_s = k / control_hz``. The only randomness is the optional
+position noise of the telemetry, drawn from the injected generator every tick for all vehicles,
+so a seed fixes a run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from protocols.frames import FloatArray
+from sitl_sim.attitude_control import euler_from_quat_batch
+from sitl_sim.autopilot import Autopilot, AutopilotConfig, VehicleEvent
+from sitl_sim.dynamics import POS, QUAT, RATES, VEL, initial_state, step_with_contact
+from sitl_sim.guidance import Guidance
+from sitl_sim.inner_loop import inner_loop
+from sitl_sim.tunables import FleetAttitudeGains
+from sitl_sim.vehicle_params import VehicleParams
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """Rates (Hz; physics a multiple of control), autopilot defaults, telemetry position noise
+    (standard deviation, m) and scheduled crashes ``(t_s, vehicle index)``."""
+
+    physics_hz: int = 500
+    control_hz: int = 50
+    autopilot: AutopilotConfig = field(default_factory=AutopilotConfig)
+    position_noise_m: float = 0.0
+    crashes: tuple[tuple[float, int], ...] = ()
+
+    def validate(self) -> WorldConfig:
+        """Raise ValueError naming the field unless the rates and noise are usable."""
+        if self.control_hz < 1 or self.physics_hz < self.control_hz:
+            raise ValueError("physics_hz must be >= control_hz >= 1")
+        if self.physics_hz % self.control_hz:
+            raise ValueError(
+                f"physics_hz {self.physics_hz} is not a multiple of control_hz {self.control_hz}"
+            )
+        if not (np.isfinite(self.position_noise_m) and self.position_noise_m >= 0.0):
+            raise ValueError("position_noise_m must be finite and >= 0")
+        return self
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """Telemetry of every vehicle at tick ``tick`` as plain lists (one entry per vehicle):
+    position NED (m, with noise), velocity NED (m/s), (roll, pitch, yaw) rad, body rates
+    (p, q, r) rad/s; ``time_boot_ms`` the simulated time in ms."""
+
+    tick: int
+    time_boot_ms: int
+    position_ned_m: list[list[float]]
+    velocity_ned_m_s: list[list[float]]
+    euler_rad: list[list[float]]
+    rates_rad_s: list[list[float]]
+
+
+class World:
+    """N vehicles, their autopilots and simulated time."""
+
+    def __init__(
+        self,
+        params: VehicleParams,
+        gains: FleetAttitudeGains,
+        positions_ned_m: FloatArray,
+        yaw_rad: FloatArray,
+        config: WorldConfig,
+        rng: np.random.Generator,
+    ) -> None:
+        self.config = config.validate()
+        self.params = params
+        self.gains = gains
+        self.rng = rng
+        self.state = initial_state(positions_ned_m, yaw_rad)
+        self.n = self.state.shape[1]
+        self.substeps = config.physics_hz // config.control_hz
+        self.dt_physics_s = 1.0 / config.physics_hz
+        self.autopilot = Autopilot(self.n, config.autopilot, np.asarray(yaw_rad, float))
+        self.guidance = Guidance(self.autopilot, params.hover_thrust_n / params.max_thrust_n)
+        self.tick = 0
+        self._crashes = sorted(config.crashes)
+        self.pending_events: list[VehicleEvent] = self.autopilot.update(
+            0.0, self.state[2], np.zeros(self.n)
+        )
+
+    @property
+    def t_s(self) -> float:
+        """Simulated time (s) of the current tick."""
+        return self.tick / self.config.control_hz
+
+    def time_boot_ms(self, tick: int | None = None) -> int:
+        """``time_boot_ms`` stamped on the telemetry of ``tick`` (default: the current one)."""
+        return round((self.tick if tick is None else tick) * 1000 / self.config.control_hz)
+
+    def tick_of_ms(self, time_boot_ms: int) -> int | None:
+        """The tick whose telemetry carries ``time_boot_ms``, None if no tick does."""
+        tick = round(time_boot_ms * self.config.control_hz / 1000)
+        return tick if self.time_boot_ms(tick) == time_boot_ms else None
+
+    def step(self) -> list[VehicleEvent]:
+        """Advance one control period; the events of the period (plus any pending ones)."""
+        ap, params = self.autopilot, self.params
+        self.guidance.prepare(self.state)
+        impact = np.zeros(self.n)
+        state = self.state
+        for _ in range(self.substeps):
+            euler, thrust = self.guidance.command(state)
+            rotor = inner_loop(state, euler, thrust, params, self.gains, ap.armed)
+            if not ap.motor_ok.all():
+                rotor[~ap.motor_ok] = 0.0
+            result = step_with_contact(state, rotor, params, self.dt_physics_s)
+            state = result.state
+            np.maximum(impact, result.impact_speed_m_s, out=impact)
+        self.state = state
+        self.tick += 1
+        events, self.pending_events = self.pending_events, []
+        events += ap.update(self.t_s, state[2], impact)
+        while self._crashes and self._crashes[0][0] <= self.t_s + 1e-9:
+            _, vehicle = self._crashes.pop(0)
+            events += ap.motor_failure(vehicle, None, off=True)
+        return events
+
+    def snapshot(self) -> Snapshot:
+        """Telemetry of the current tick (draws the position noise, if any)."""
+        pos = self.state[POS]
+        if self.config.position_noise_m > 0.0:
+            pos = pos + self.rng.normal(0.0, self.config.position_noise_m, pos.shape)
+        return Snapshot(
+            tick=self.tick,
+            time_boot_ms=self.time_boot_ms(),
+            position_ned_m=pos.T.tolist(),
+            velocity_ned_m_s=self.state[VEL].T.tolist(),
+            euler_rad=euler_from_quat_batch(self.state[QUAT]).T.tolist(),
+            rates_rad_s=self.state[RATES].T.tolist(),
+        )
+
+    def commanded(self) -> tuple[FloatArray, FloatArray]:
+        """The attitude (3, N) ZYX rad and normalised thrust (N,) last given to the inner loop."""
+        return self.guidance.euler_rad, self.guidance.thrust

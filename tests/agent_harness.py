@@ -1,0 +1,189 @@
+"""Test harness for agents: real ``swarm agent`` processes, a Zenoh observer of their status and
+liveliness, and scenario files written for a test."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from sitl_client import ENV, ROOT, swarm_command
+
+from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
+from protocols.descriptors import descriptors
+from protocols.keys import SwarmKeys
+from protocols.wire_status import AgentStatus, decode_status
+
+SWARM = "test"
+
+
+@dataclass
+class AgentProcess:
+    """A running ``swarm agent`` process."""
+
+    proc: subprocess.Popen[bytes]
+    log: Path
+
+    def kill(self) -> None:
+        """SIGKILL: the process dies at once, as in a drop-out drill."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(5)
+
+    def stop(self) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        return int(self.proc.returncode)
+
+
+@contextlib.contextmanager
+def agent_process(
+    tmp_path: Path, drone_ids: str, base_port: int, zenoh_args: list[str], *args: str
+) -> Iterator[AgentProcess]:
+    """Run ``swarm agent --drone-id IDS``; always stopped on exit."""
+    log = tmp_path / f"agent-{drone_ids.replace(',', '_')}-{time.monotonic_ns()}.log"
+    with log.open("wb") as f:
+        proc = subprocess.Popen(
+            swarm_command(
+                "agent",
+                "--drone-id",
+                drone_ids,
+                "--base-port",
+                str(base_port),
+                "--swarm-id",
+                SWARM,
+                "--quiet",
+                *zenoh_args,
+                *args,
+            ),
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=ENV,
+            cwd=ROOT,
+        )
+    agent = AgentProcess(proc, log)
+    try:
+        yield agent
+    finally:
+        agent.stop()
+
+
+@dataclass
+class Seen:
+    """The newest status of a drone and when (wall, monotonic) it came."""
+
+    status: AgentStatus
+    at: float
+
+
+@dataclass
+class SwarmObserver:
+    """A Zenoh peer that listens on ``endpoint`` (the agents connect to it) and records every
+    agent's status and liveliness."""
+
+    endpoint: str = field(default_factory=free_loopback_endpoint)
+
+    def __post_init__(self) -> None:
+        self._lock = threading.Lock()
+        self.latest: dict[int, Seen] = {}
+        self.alive: dict[int, bool] = {}
+        self.changes: list[tuple[float, int, bool]] = []
+        self.bus = ZenohBus.open(ZenohSettings(listen=(self.endpoint,)))
+        keys = SwarmKeys.for_range(SWARM, 10.0)
+        self._keys = keys
+        self._subs = [
+            self.bus.subscribe_callback(keys.status_all(), self._on_status),
+            self.bus.watch_liveliness(keys.alive_all(), self._on_alive),
+        ]
+
+    @property
+    def zenoh_args(self) -> list[str]:
+        """Agent flags that make it join this observer."""
+        return ["--zenoh-listen", "tcp/127.0.0.1:0", "--zenoh-connect", self.endpoint]
+
+    def _on_status(self, _key: str, payload: bytes) -> None:
+        try:
+            status = decode_status(payload, SWARM)
+        except ValueError:
+            return
+        with self._lock:
+            self.latest[status.drone] = Seen(status, time.monotonic())
+
+    def _on_alive(self, key: str, alive: bool) -> None:
+        drone = int(key.rsplit("/", 1)[1])
+        with self._lock:
+            self.alive[drone] = alive
+            self.changes.append((time.monotonic(), drone, alive))
+
+    def statuses(self) -> dict[int, AgentStatus]:
+        with self._lock:
+            return {d: s.status for d, s in self.latest.items()}
+
+    def wait_until(self, condition: Callable[[], bool], timeout_s: float) -> bool:
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            if condition():
+                return True
+            time.sleep(0.05)
+        return condition()
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.close()
+        self.bus.close()
+
+
+@contextlib.contextmanager
+def observer() -> Iterator[SwarmObserver]:
+    obs = SwarmObserver()
+    try:
+        yield obs
+    finally:
+        obs.close()
+
+
+def write_scenario(
+    path: Path,
+    positions: list[tuple[float, float, float]],
+    *,
+    centre: tuple[float, float, float],
+    spread: tuple[float, float, float],
+    extra: str = "",
+    duration_s: float = 600.0,
+) -> Path:
+    """A scenario holding the swarm at ``centre`` with ``spread``, plus ``extra`` TOML."""
+    drones = "\n".join(f"[[drones]]\nposition_ned_m = {list(p)}\n" for p in positions)
+    path.write_text(
+        f'version = 1\nname = "{path.stem}"\nduration_s = {duration_s}\n\n{drones}\n'
+        f"[[trajectory.waypoints]]\nt_s = 0.0\ncentre_ned_m = {list(centre)}\n"
+        f"spread_m = {list(spread)}\n\n[[trajectory.waypoints]]\nt_s = 10.0\n"
+        f"centre_ned_m = {list(centre)}\nspread_m = {list(spread)}\n\n{extra}\n"
+    )
+    return path
+
+
+GRID = [(float(x), float(y), 0.0) for x in (0.0, 3.0, 6.0) for y in (0.0, 2.0, 4.0)]
+
+
+def truth_of(positions: list[tuple[float, float, float]]) -> np.ndarray:
+    """The true descriptors of drones at rest at ``positions``."""
+    return descriptors(np.array(positions, dtype=float))
+
+
+def within_bound(estimate: np.ndarray, truth: np.ndarray) -> bool:
+    """The agent issue's bound: 2 % of the true value, or 0.05 (m, m^2, rad) near zero."""
+    rows = [0, 1, 2, 5, 6, 7, 8]  # centre, heading, variances (roll/pitch of a flat grid: ~0)
+    err = np.abs(estimate[rows] - truth[rows])
+    bound = np.maximum(0.02 * np.abs(truth[rows]), 0.05)
+    return bool(np.all(err <= bound))

@@ -1,0 +1,196 @@
+"""Agents over real Zenoh with the real simulator, on the ground (not armed): convergence,
+drop-outs, link faults, garbage, start order, hosting (issue 4)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import struct
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from agent_harness import (
+    GRID,
+    SWARM,
+    agent_process,
+    observer,
+    truth_of,
+    within_bound,
+    write_scenario,
+)
+from sitl_client import free_port_block, sim_process
+
+from drone_agent.consensus import ConsensusMessage
+from drone_agent.transport import Congestion
+from protocols.keys import SwarmKeys
+from protocols.wire import encode_consensus
+
+pytestmark = pytest.mark.slow
+TRUTH = truth_of(GRID)
+
+
+def _scenario(tmp_path: Path, extra: str = "") -> Path:
+    return write_scenario(
+        tmp_path / "ground.toml",
+        GRID,
+        centre=(3.0, 2.0, 0.0),
+        spread=(2.45, 1.63, 0.0),
+        extra=extra,
+    )
+
+
+def _all_within(obs, drones: list[int], truth: np.ndarray) -> bool:
+    st = obs.statuses()
+    return all(d in st and within_bound(np.asarray(st[d].estimate), truth) for d in drones)
+
+
+def test_nine_agents_converge_on_the_ground_and_survive_a_sigkill(tmp_path: Path) -> None:
+    scenario = _scenario(tmp_path)
+    base = free_port_block(9)
+    with (
+        observer() as obs,
+        sim_process(
+            tmp_path, "--scenario", str(scenario), "--gcs", "none", "--quiet", base_port=base
+        ),
+        contextlib.ExitStack() as stack,
+    ):
+        procs = {
+            d: stack.enter_context(
+                agent_process(
+                    tmp_path, str(d), base, obs.zenoh_args, "--scenario", str(scenario), "--no-arm"
+                )
+            )
+            for d in range(9)
+        }
+        started = time.monotonic()
+        assert obs.wait_until(lambda: _all_within(obs, list(range(9)), TRUTH), 25.0), {
+            d: np.round(s.estimate, 3) for d, s in obs.statuses().items()
+        }
+        assert time.monotonic() - started < 25.0
+        assert all(s.counters.rx > 0 for s in obs.statuses().values())
+        # SIGKILL drone 4's agent: everyone drops it at once and re-converges on the survivors
+        killed_at = time.monotonic()
+        procs[4].kill()
+        assert obs.wait_until(lambda: obs.alive.get(4) is False, 2.0)
+        dropped_at = next(t for t, d, alive in obs.changes if d == 4 and not alive)
+        assert dropped_at - killed_at < 0.5
+        survivors = [d for d in range(9) if d != 4]
+        truth = truth_of([GRID[d] for d in survivors])
+        assert obs.wait_until(lambda: _all_within(obs, survivors, truth), 10.0), {
+            d: np.round(s.estimate, 3) for d, s in obs.statuses().items()
+        }
+        assert all(4 not in obs.statuses()[d].neighbours for d in survivors)
+
+
+def test_link_cut_loss_and_delay_leave_no_lasting_bias(tmp_path: Path) -> None:
+    faults = (
+        '[[faults]]\nt_s = 0.5\nkind = "link_cut"\ndrones = [0, 4]\n\n'
+        '[[faults]]\nt_s = 0.5\nkind = "loss"\nprobability = 0.05\n\n'
+        '[[faults]]\nt_s = 0.5\nkind = "delay"\ndelay_ms = 20.0\n'
+    )
+    scenario = _scenario(tmp_path, faults)
+    base = free_port_block(9)
+    with (
+        observer() as obs,
+        sim_process(
+            tmp_path, "--scenario", str(scenario), "--gcs", "none", "--quiet", base_port=base
+        ),
+        agent_process(
+            tmp_path, "0-8", base, obs.zenoh_args, "--scenario", str(scenario), "--no-arm"
+        ),
+    ):
+        assert obs.wait_until(lambda: _all_within(obs, list(range(9)), TRUTH), 30.0)
+        # once settled it stays settled: sample for a while
+        worst = 0.0
+        end = time.monotonic() + 6.0
+        while time.monotonic() < end:
+            for s in obs.statuses().values():
+                worst = max(
+                    worst,
+                    float(np.abs(np.asarray(s.estimate)[[0, 1, 6, 7]] - TRUTH[[0, 1, 6, 7]]).max()),
+                )
+            time.sleep(0.1)
+        assert worst < 0.05
+
+
+def test_garbage_on_the_consensus_keys_is_dropped_and_counted(tmp_path: Path) -> None:
+    scenario = _scenario(tmp_path)
+    base = free_port_block(9)
+    with (
+        observer() as obs,
+        sim_process(
+            tmp_path, "--scenario", str(scenario), "--gcs", "none", "--quiet", base_port=base
+        ),
+        agent_process(
+            tmp_path, "0-8", base, obs.zenoh_args, "--scenario", str(scenario), "--no-arm"
+        ) as p,
+    ):
+        assert obs.wait_until(lambda: _all_within(obs, list(range(9)), TRUTH), 30.0)
+        keys = SwarmKeys.for_range(SWARM, 10.0)
+        cell = keys.cell((3.0, 2.0, 0.0))
+        msg = ConsensusMessage(
+            sender=3, round=10**6, gamma=np.full(18, 1e3), edge_sums={}, heard=frozenset(), degree=0
+        )
+        valid = encode_consensus(msg, (3.0, 2.0, 0.0), SWARM)
+        wrong_version = valid[:1] + bytes([99]) + valid[2:]
+        not_a_number = valid[:-8] + struct.pack("<d", float("nan"))
+        other_swarm = encode_consensus(msg, (3.0, 2.0, 0.0), "another")
+        garbage = [os.urandom(n) for n in (1, 7, 64, 500, 3000)]
+        garbage += [wrong_version, not_a_number, other_swarm, valid[:-3]]
+        pub = obs.bus.publisher(keys.consensus(cell, 3), Congestion.BLOCK)
+        for _ in range(20):
+            for payload in garbage:
+                pub.put(payload)
+            time.sleep(0.05)
+        time.sleep(1.0)
+        assert p.proc.poll() is None
+        time.sleep(0.5)
+        statuses = obs.statuses()
+        assert sum(s.counters.rx_dropped_malformed for s in statuses.values()) > 0
+        assert sum(s.counters.rx_dropped_wrong_version for s in statuses.values()) > 0
+        assert sum(s.counters.rx_dropped_wrong_swarm for s in statuses.values()) > 0
+        assert _all_within(obs, list(range(9)), TRUTH)
+
+
+@pytest.mark.parametrize("order", [[8, 0, 4, 2, 6, 1, 7, 3, 5]])
+def test_agents_started_one_by_one_converge_the_same(tmp_path: Path, order: list[int]) -> None:
+    scenario = _scenario(tmp_path)
+    base = free_port_block(9)
+    with (
+        observer() as obs,
+        sim_process(
+            tmp_path, "--scenario", str(scenario), "--gcs", "none", "--quiet", base_port=base
+        ),
+        contextlib.ExitStack() as stack,
+    ):
+        for d in order:
+            stack.enter_context(
+                agent_process(
+                    tmp_path, str(d), base, obs.zenoh_args, "--scenario", str(scenario), "--no-arm"
+                )
+            )
+            time.sleep(0.7)
+        assert obs.wait_until(lambda: _all_within(obs, list(range(9)), TRUTH), 25.0)
+
+
+def test_hosted_in_three_processes_gives_the_same_estimates(tmp_path: Path) -> None:
+    scenario = _scenario(tmp_path)
+    base = free_port_block(9)
+    with (
+        observer() as obs,
+        sim_process(
+            tmp_path, "--scenario", str(scenario), "--gcs", "none", "--quiet", base_port=base
+        ),
+        contextlib.ExitStack() as stack,
+    ):
+        for ids in ("0-2", "3-5", "6-8"):
+            stack.enter_context(
+                agent_process(
+                    tmp_path, ids, base, obs.zenoh_args, "--scenario", str(scenario), "--no-arm"
+                )
+            )
+        assert obs.wait_until(lambda: _all_within(obs, list(range(9)), TRUTH), 25.0)
+        estimates = np.array([np.asarray(s.estimate) for s in obs.statuses().values()])
+        assert np.abs(estimates[:, [0, 1, 6, 7]] - TRUTH[[0, 1, 6, 7]]).max() < 0.01

@@ -1,0 +1,184 @@
+"""Link faults on the receive side: cuts, one-way cuts, loss, delay, partitions; and the estimator
+over the in-memory bus seeing what the faulty radio delivers."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from drone_agent.consensus import ConsensusEstimator, ConsensusMessage, ConsensusParams
+from drone_agent.link_faults import FaultyTransport, LinkFaults, delay_ticks
+from drone_agent.memory_bus import MemoryBus
+from drone_agent.transport import AgentTransport
+from drone_agent.transport_link import AgentLink, LinkSettings
+
+pytestmark = pytest.mark.timeout(60)
+
+SETTINGS = LinkSettings("faults", comm_range_m=10.0)
+
+
+class Swarm:
+    """N agents in range of each other on one memory bus, each behind its own fault wrapper
+    (all sharing one LinkFaults, as the agents of one process would), on a shared round clock."""
+
+    def __init__(self, n: int, seed: int = 0) -> None:
+        self.round = 0
+        self.faults = LinkFaults()
+        self.session = MemoryBus().session()
+        self.positions = [(float(i), 0.0, -1.0) for i in range(n)]
+        self.links: list[AgentTransport] = [  # both sides conform to the interface
+            FaultyTransport(
+                AgentLink(self.session, i, self.positions[i], SETTINGS),
+                self.faults,
+                np.random.default_rng(seed + i),
+                lambda: self.round,
+            )
+            for i in range(n)
+        ]
+
+    def send(self, drone: int, round_: int | None = None) -> None:
+        r = self.round if round_ is None else round_
+        msg = ConsensusMessage(drone, r, np.zeros(18), {}, frozenset(), 0)
+        self.links[drone].publish_consensus(msg, self.positions[drone])
+
+    def exchange(self) -> list[set[int]]:
+        """Everyone sends this round's message; then the senders each agent receives."""
+        for i in range(len(self.links)):
+            self.send(i)
+        return [{p.message.sender for p in link.receive()} for link in self.links]
+
+    def close(self) -> None:
+        for link in self.links:
+            link.close()
+        self.session.close()
+
+
+@pytest.fixture
+def swarm() -> Iterator[Swarm]:
+    s = Swarm(4)
+    yield s
+    s.close()
+
+
+def test_fault_fields_are_those_the_fault_timeline_drives() -> None:
+    """The scenario fault timeline sets these fields (directed pairs, delays in ticks)."""
+    names = [f.name for f in dataclasses.fields(LinkFaults)]
+    assert names == [
+        "cut",
+        "loss",
+        "link_loss",
+        "extra_delay_ticks",
+        "link_delay_ticks",
+        "partition",
+    ]
+
+
+def test_cut_both_ways_and_restore(swarm: Swarm) -> None:
+    swarm.faults.cut_link(0, 1)
+    heard = swarm.exchange()
+    assert heard[0] == {2, 3} and heard[1] == {2, 3} and heard[2] == {0, 1, 3}
+    swarm.faults.restore_link(1, 0)
+    assert swarm.exchange()[0] == {1, 2, 3}
+
+
+def test_one_way_cut(swarm: Swarm) -> None:
+    swarm.faults.cut_link(0, 1, one_way=True)  # 0 -> 1 is cut, 1 -> 0 still works
+    heard = swarm.exchange()
+    assert heard[1] == {2, 3} and heard[0] == {1, 2, 3}
+    assert swarm.faults.blocks(0, 1) and not swarm.faults.blocks(1, 0)
+    assert swarm.links[1].counters().faults == 1
+
+
+def test_partition_and_clear(swarm: Swarm) -> None:
+    swarm.faults.set_partition([[0, 1], [2]])  # 3 is in no group: a group of its own
+    assert swarm.exchange() == [{1}, {0}, set(), set()]
+    swarm.faults.set_partition(None)
+    assert swarm.exchange()[3] == {0, 1, 2}
+    swarm.faults.cut_link(0, 1)
+    swarm.faults.set_loss(1.0)
+    swarm.faults.set_delay_ticks(3)
+    swarm.faults.clear()
+    assert swarm.faults == LinkFaults()
+    assert swarm.exchange()[0] == {1, 2, 3}
+
+
+def test_delay_holds_messages_for_whole_rounds(swarm: Swarm) -> None:
+    swarm.faults.set_delay_ticks(2, link=(0, 1))  # both ways; other links undelayed
+    arrivals: list[tuple[int, int]] = []
+    for r in range(6):
+        swarm.round = r
+        if r == 0:
+            swarm.send(0)
+        arrivals += [(r, p.message.sender) for p in swarm.links[1].receive()]
+    assert arrivals == [(2, 0)]
+    assert swarm.faults.delay_for(1, 0) == 2 and swarm.faults.delay_for(2, 0) == 0
+    assert delay_ticks(20.0, 0.02) == 1 and delay_ticks(60.0, 0.02) == 3
+
+
+def test_delayed_messages_come_out_sorted(swarm: Swarm) -> None:
+    swarm.faults.set_delay_ticks(1)
+    for r in (5, 3, 4):
+        swarm.send(2, round_=r)
+    swarm.send(1, round_=9)
+    assert swarm.links[0].receive() == []
+    swarm.round = 1
+    got = [(p.message.sender, p.message.round) for p in swarm.links[0].receive()]
+    assert got == [(1, 9), (2, 3), (2, 4), (2, 5)]
+
+
+def test_loss_rate_and_determinism() -> None:
+    def run(seed: int) -> list[set[int]]:
+        s = Swarm(3, seed)
+        s.faults.set_loss(0.3)
+        s.faults.set_loss(0.0, link=(1, 2))  # a per-link value overrides the global one
+        out = []
+        for r in range(1000):
+            s.round = r
+            out += s.exchange()
+        lost = s.links[0].counters().faults
+        assert 0.25 < lost / 2000 < 0.35  # drone 0 hears 1 and 2, 1000 rounds
+        assert s.links[2].counters().faults == pytest.approx(300, abs=60)  # only from 0
+        s.close()
+        return out
+
+    assert run(7) == run(7)
+    assert run(7) != run(8)
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda f: f.set_loss(1.5), "probability"),
+        (lambda f: f.set_delay_ticks(-1), "delay"),
+    ],
+)
+def test_bad_fault_values_are_refused(call: object, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        call(LinkFaults())  # type: ignore[operator]
+
+
+def test_estimator_over_the_faulty_bus_converges_without_bias() -> None:
+    """Five agents, one link cut, 5 % loss and one tick of extra delay on every link: every
+    estimate reaches the true average of the channels (ALGORITHM.md §3 rules at work)."""
+    s = Swarm(5)
+    s.faults.cut_link(0, 1)
+    s.faults.set_loss(0.05)
+    s.faults.set_delay_ticks(1)
+    zeta = np.random.default_rng(1).normal(size=(5, 18))
+    estimators = [ConsensusEstimator(i, ConsensusParams()) for i in range(5)]
+    for r in range(300):
+        s.round = r
+        outs = [
+            est.step(r, zeta[i], [p.message for p in link.receive()], link.members())
+            for i, (est, link) in enumerate(zip(estimators, s.links, strict=True))
+        ]
+        for i, out in enumerate(outs):
+            s.links[i].publish_consensus(out.message, s.positions[i])
+    for out in outs:
+        np.testing.assert_allclose(out.estimate, zeta.mean(axis=0), atol=1e-9)
+        assert 0 not in out.active_neighbours or out.message.sender != 1
+    assert 1 not in outs[0].active_neighbours
+    s.close()

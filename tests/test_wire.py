@@ -1,0 +1,485 @@
+"""Wire format: golden bytes, layout by hand, round trips, malformed input and fuzzing."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import struct
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drone_agent.consensus import ConsensusMessage
+from protocols.trajectory import DescriptorTrajectory
+from protocols.wire import (
+    MAX_CONSENSUS_BYTES,
+    WIRE_VERSION,
+    Kind,
+    Reason,
+    WireError,
+    consensus_origin,
+    decode_consensus,
+    encode_consensus,
+)
+from protocols.wire_plan import FlightCommand, PlanMessage, decode_plan, encode_plan
+from protocols.wire_status import (
+    AgentMode,
+    AgentStatus,
+    Health,
+    StatusCounters,
+    decode_status,
+    encode_status,
+)
+
+pytestmark = pytest.mark.timeout(60)
+
+SID = "demo"
+GAMMA = (np.arange(18) * 0.125 - 1.0).astype(np.float64)
+MESSAGE = ConsensusMessage(
+    sender=2,
+    round=1000,
+    gamma=GAMMA,
+    edge_sums={5: (2.0 ** -np.arange(18)).astype(np.float64), 1: -np.arange(18.0)},
+    heard=frozenset({7, 1, 5}),
+    degree=3,
+)
+POSITION = (1.5, -2.25, -10.0)
+CONSENSUS_HEX = (
+    "5101010464656d6fe8030000020003000000c03f000010c0000020c1030002000100050007000100"
+    "0500000000000000f0bf000000000000ecbf000000000000e8bf000000000000e4bf000000000000"
+    "e0bf000000000000d8bf000000000000d0bf000000000000c0bf0000000000000000000000000000"
+    "c03f000000000000d03f000000000000d83f000000000000e03f000000000000e43f000000000000"
+    "e83f000000000000ec3f000000000000f03f000000000000f23f0000000000000080000000000000"
+    "f0bf00000000000000c000000000000008c000000000000010c000000000000014c0000000000000"
+    "18c00000000000001cc000000000000020c000000000000022c000000000000024c0000000000000"
+    "26c000000000000028c00000000000002ac00000000000002cc00000000000002ec0000000000000"
+    "30c000000000000031c0000000000000f03f000000000000e03f000000000000d03f000000000000"
+    "c03f000000000000b03f000000000000a03f000000000000903f000000000000803f000000000000"
+    "703f000000000000603f000000000000503f000000000000403f000000000000303f000000000000"
+    "203f000000000000103f000000000000003f000000000000f03e000000000000e03e"
+)
+STATUS = AgentStatus(
+    drone=2,
+    round=1000,
+    t_s=20.0,
+    mode=AgentMode.FLYING,
+    armed=True,
+    health=Health.VEHICLE_LINK | Health.ESTIMATE_FINITE | Health.CONVERGED | Health.PLAN,
+    estimate=np.array([1, 2, -10, 0, 0, 0.5, 4, 2.25, 1]),
+    neighbours=(1, 5),
+    counters=StatusCounters(100, 1, 2, 3, 50, 0),
+    plan_seq=7,
+)
+STATUS_HEX = (
+    "5101020464656d6f0200e8030000000000000000344003010f07000000000000000000f03f000000"
+    "000000004000000000000024c000000000000000000000000000000000000000000000e03f000000"
+    "00000010400000000000000240000000000000f03f64000000000000000100000000000000020000"
+    "0000000000030000000000000032000000000000000000000000000000020001000500"
+)
+_COEFFS = np.zeros((1, 9, 6))
+_COEFFS[0, :, 0] = [0, 0, -10, 0, 0, 0, 4, 4, 1]
+_COEFFS[0, 0, 1] = 0.5
+PLAN = PlanMessage(DescriptorTrajectory(7, np.array([0.0, 10.0]), _COEFFS), FlightCommand.FLY)
+PLAN_HEX = (  # header, seq 7, FLY, 2 knots, knots 0 and 10 s, then 54 coefficients, mostly 0
+    "5101030464656d6f07000000010200"
+    + "0000000000000000"
+    + "0000000000002440"
+    + "0000000000000000" * 1
+    + "000000000000e03f"  # x: 0 + 0.5 tau
+    + "0000000000000000" * 4
+    + "0000000000000000" * 6  # y
+    + "00000000000024c0"  # z: -10
+    + "0000000000000000" * 5
+    + "0000000000000000" * 18  # roll, pitch, yaw
+    + ("0000000000001040" + "0000000000000000" * 5) * 2  # s1, s2: 4 m^2
+    + "000000000000f03f"  # s3: 1 m^2
+    + "0000000000000000" * 5
+)
+
+
+def same_message(a: ConsensusMessage, b: ConsensusMessage) -> bool:
+    """Field by field, floats bit for bit (so -0.0 differs from 0.0)."""
+    return (
+        (a.sender, a.round, a.heard, a.degree) == (b.sender, b.round, b.heard, b.degree)
+        and np.asarray(a.gamma, dtype=np.float64).tobytes() == b.gamma.tobytes()
+        and sorted(a.edge_sums) == sorted(b.edge_sums)
+        and all(
+            np.asarray(q, dtype=np.float64).tobytes() == b.edge_sums[j].tobytes()
+            for j, q in a.edge_sums.items()
+        )
+    )
+
+
+# --- golden bytes ------------------------------------------------------------------------------
+
+
+def test_consensus_golden_bytes() -> None:
+    data = encode_consensus(MESSAGE, POSITION, SID)
+    assert data.hex() == CONSENSUS_HEX
+    packet = decode_consensus(bytes.fromhex(CONSENSUS_HEX), SID)
+    assert same_message(MESSAGE, packet.message)
+    assert packet.position_ned_m.tolist() == list(POSITION)
+
+
+def test_consensus_layout_by_hand() -> None:
+    """The layout of the module docstring, assembled with struct, is what the encoder writes."""
+    expected = (
+        bytes([0x51, WIRE_VERSION, Kind.CONSENSUS, 4])
+        + b"demo"
+        + struct.pack("<IHH3fHH", 1000, 2, 3, *POSITION, 3, 2)
+        + struct.pack("<3H", 1, 5, 7)
+        + struct.pack("<2H", 1, 5)
+        + struct.pack("<18d", *GAMMA)
+        + struct.pack("<18d", *-np.arange(18.0))
+        + struct.pack("<18d", *2.0 ** -np.arange(18))
+    )
+    assert encode_consensus(MESSAGE, POSITION, SID) == expected
+    assert len(expected) == 474
+
+
+def test_status_golden_bytes() -> None:
+    assert encode_status(STATUS, SID).hex() == STATUS_HEX
+    assert decode_status(bytes.fromhex(STATUS_HEX), SID) == STATUS
+
+
+def test_plan_golden_bytes() -> None:
+    assert encode_plan(PLAN, SID).hex() == PLAN_HEX
+    assert decode_plan(bytes.fromhex(PLAN_HEX), SID) == PLAN
+
+
+def test_eight_neighbour_message_is_compact_and_decodes_read_only() -> None:
+    rng = np.random.default_rng(3)
+    msg = ConsensusMessage(
+        sender=0,
+        round=5,
+        gamma=rng.normal(size=18),
+        edge_sums={j: rng.normal(size=18) for j in range(1, 9)},
+        heard=frozenset(range(1, 9)),
+        degree=8,
+    )
+    data = encode_consensus(msg, (0.0, 0.0, 0.0), SID)
+    assert len(data) == 8 + 24 + 2 * 16 + 8 * 18 * 9  # 1360 bytes
+    packet = decode_consensus(data, SID)
+    assert not packet.message.gamma.flags.writeable
+    assert not packet.message.edge_sums[3].flags.writeable
+    assert consensus_origin(data, SID) == (0, (0.0, 0.0, 0.0))
+
+
+# --- round trips -------------------------------------------------------------------------------
+
+f64 = st.floats(allow_nan=False, allow_infinity=False)
+vec18 = st.lists(f64, min_size=18, max_size=18).map(np.array)
+ids = st.integers(0, 0xFFFF)
+
+
+@st.composite
+def consensus_messages(draw: st.DrawFn) -> ConsensusMessage:
+    return ConsensusMessage(
+        sender=draw(ids),
+        round=draw(st.integers(0, 2**32 - 1)),
+        gamma=draw(vec18),
+        edge_sums=draw(st.dictionaries(ids, vec18, max_size=8)),
+        heard=draw(st.frozensets(ids, max_size=20)),
+        degree=draw(ids),
+    )
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    msg=consensus_messages(),
+    position=st.tuples(*[st.floats(width=32, allow_nan=False, allow_infinity=False)] * 3),
+    sid=st.from_regex(r"[A-Za-z0-9][A-Za-z0-9_-]{0,31}", fullmatch=True),
+)
+def test_consensus_round_trip_is_exact(
+    msg: ConsensusMessage, position: tuple[float, float, float], sid: str
+) -> None:
+    data = encode_consensus(msg, position, sid)
+    packet = decode_consensus(data, sid)
+    assert same_message(msg, packet.message)
+    assert packet.position_ned_m.tolist() == list(position)
+    assert consensus_origin(data, sid) == (msg.sender, position)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    drone=ids,
+    round_=st.integers(0, 2**32 - 1),
+    t_s=f64,
+    mode=st.sampled_from(AgentMode),
+    armed=st.booleans(),
+    health=st.integers(0, 15).map(Health),
+    estimate=st.lists(st.floats(), min_size=9, max_size=9),  # NaN allowed: reported as is
+    neighbours=st.frozensets(ids, max_size=30),
+    counters=st.lists(st.integers(0, 2**64 - 1), min_size=6, max_size=6),
+    plan_seq=st.none() | st.integers(0, 2**32 - 2),
+)
+def test_status_round_trip(
+    drone: int,
+    round_: int,
+    t_s: float,
+    mode: AgentMode,
+    armed: bool,
+    health: Health,
+    estimate: list[float],
+    neighbours: frozenset[int],
+    counters: list[int],
+    plan_seq: int | None,
+) -> None:
+    status = AgentStatus(
+        drone, round_, t_s, mode, armed, health, np.array(estimate), tuple(neighbours),
+        StatusCounters(*counters), plan_seq,
+    )  # fmt: skip
+    assert decode_status(encode_status(status, SID), SID) == status
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    seq=st.integers(0, 2**32 - 1),
+    gaps=st.lists(st.floats(1e-3, 1e3), min_size=1, max_size=5),
+    start=st.floats(-1e4, 1e4),
+    data=st.data(),
+    command=st.sampled_from(FlightCommand),
+)
+def test_plan_round_trip(
+    seq: int, gaps: list[float], start: float, data: st.DataObject, command: FlightCommand
+) -> None:
+    knots = start + np.cumsum([0.0, *gaps])
+    if not np.all(np.diff(knots) > 0):
+        return
+    n = (len(knots) - 1) * 54
+    coeffs = np.array(data.draw(st.lists(f64, min_size=n, max_size=n))).reshape(-1, 9, 6)
+    plan = PlanMessage(DescriptorTrajectory(seq, knots, coeffs), command)
+    assert decode_plan(encode_plan(plan, SID), SID) == plan
+
+
+# --- encoder refusals --------------------------------------------------------------------------
+
+
+def _with(**changes: object) -> ConsensusMessage:
+    fields = {f: getattr(MESSAGE, f) for f in ("sender", "round", "gamma", "edge_sums", "heard")}
+    return ConsensusMessage(**{**fields, "degree": MESSAGE.degree, **changes})
+
+
+@pytest.mark.parametrize(
+    ("message", "position", "match"),
+    [
+        (_with(gamma=np.full(18, math.nan)), POSITION, "finite"),
+        (_with(edge_sums={1: np.full(18, math.inf)}), POSITION, "finite"),
+        (_with(gamma=np.zeros(17)), POSITION, "shape"),
+        (_with(sender=70000), POSITION, "sender"),
+        (_with(round=-1), POSITION, "round"),
+        (_with(heard=frozenset({-3})), POSITION, "heard"),
+        (MESSAGE, (0.0, 0.0, 1e39), "finite"),  # overflows float32
+        (MESSAGE, (0.0, math.nan, 0.0), "finite"),
+    ],
+)
+def test_encoder_refuses_what_cannot_be_sent(
+    message: ConsensusMessage, position: tuple[float, ...], match: str
+) -> None:
+    with pytest.raises(ValueError, match=match):
+        encode_consensus(message, position, SID)
+
+
+def test_encoder_refuses_oversized_messages_and_bad_swarm_ids() -> None:
+    big = _with(edge_sums={j: np.zeros(18) for j in range(200)})
+    with pytest.raises(ValueError, match="exceeds"):
+        encode_consensus(big, POSITION, SID)
+    encode_consensus(big, POSITION, SID, max_bytes=64 * 1024)
+    with pytest.raises(ValueError, match="swarm id"):
+        encode_consensus(MESSAGE, POSITION, "no/slash")
+
+
+# --- malformed input ---------------------------------------------------------------------------
+
+
+def raw_consensus(
+    *,
+    magic: int = 0x51,
+    version: int = WIRE_VERSION,
+    kind: int = Kind.CONSENSUS,
+    sid: bytes = b"demo",
+    sid_len: int | None = None,
+    sender: int = 2,
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    heard: tuple[int, ...] = (1, 3),
+    edge_ids: tuple[int, ...] = (1, 3),
+    floats: list[float] | None = None,
+    n_heard: int | None = None,
+    n_edges: int | None = None,
+    tail: bytes = b"",
+) -> bytes:
+    """A consensus payload packed by hand, without any validation."""
+    floats = [0.25] * 18 * (1 + len(edge_ids)) if floats is None else floats
+    return (
+        bytes([magic, version, kind, len(sid) if sid_len is None else sid_len])
+        + sid
+        + struct.pack(
+            "<IHH3fHH",
+            7,
+            sender,
+            len(heard),
+            *position,
+            len(heard) if n_heard is None else n_heard,
+            len(edge_ids) if n_edges is None else n_edges,
+        )
+        + struct.pack(f"<{len(heard) + len(edge_ids)}H", *heard, *edge_ids)
+        + struct.pack(f"<{len(floats)}d", *floats)
+        + tail
+    )
+
+
+def _floats_with(index: int, value: float) -> list[float]:
+    floats = [0.25] * 18 * 3
+    floats[index] = value
+    return floats
+
+
+MALFORMED_CONSENSUS = [
+    ("empty", b"", Reason.TRUNCATED),
+    ("three bytes", b"\x51\x01\x01", Reason.TRUNCATED),
+    ("header only", raw_consensus()[:8], Reason.TRUNCATED),
+    ("bad magic", raw_consensus(magic=0x52), Reason.BAD_MAGIC),
+    ("newer version", raw_consensus(version=WIRE_VERSION + 1), Reason.BAD_VERSION),
+    ("version 0", raw_consensus(version=0), Reason.BAD_VERSION),
+    ("status kind", raw_consensus(kind=Kind.STATUS), Reason.WRONG_KIND),
+    ("unknown kind", raw_consensus(kind=200), Reason.WRONG_KIND),
+    ("another swarm", raw_consensus(sid=b"other"), Reason.WRONG_SWARM),
+    ("empty swarm id", raw_consensus(sid=b""), Reason.WRONG_SWARM),
+    ("swarm id past the end", raw_consensus(sid_len=250)[:40], Reason.TRUNCATED),
+    ("one byte short", raw_consensus()[:-1], Reason.TRUNCATED),
+    ("one byte long", raw_consensus(tail=b"\0"), Reason.TRAILING),
+    ("edge count too high", raw_consensus(n_edges=3), Reason.TRUNCATED),
+    ("heard count too low", raw_consensus(n_heard=1), Reason.TRAILING),
+    ("heard count huge", raw_consensus(n_heard=0xFFFF), Reason.TRUNCATED),
+    ("NaN gamma", raw_consensus(floats=_floats_with(0, math.nan)), Reason.NOT_FINITE),
+    ("inf edge sum", raw_consensus(floats=_floats_with(40, -math.inf)), Reason.NOT_FINITE),
+    ("NaN position", raw_consensus(position=(0.0, math.nan, 0.0)), Reason.NOT_FINITE),
+    ("duplicate heard id", raw_consensus(heard=(3, 3)), Reason.BAD_VALUE),
+    ("unsorted edge ids", raw_consensus(edge_ids=(3, 1)), Reason.BAD_VALUE),
+    ("oversized", raw_consensus(tail=bytes(MAX_CONSENSUS_BYTES)), Reason.OVERSIZED),
+]
+
+
+@pytest.mark.parametrize(("data", "reason"), [c[1:] for c in MALFORMED_CONSENSUS],
+                         ids=[c[0] for c in MALFORMED_CONSENSUS])  # fmt: skip
+def test_malformed_consensus_is_rejected_with_its_reason(data: bytes, reason: Reason) -> None:
+    with pytest.raises(WireError) as info:
+        decode_consensus(data, SID)
+    assert info.value.reason is reason
+    assert str(info.value).startswith(reason.value)
+
+
+def test_hand_packed_reference_payload_decodes() -> None:
+    packet = decode_consensus(raw_consensus(), SID)
+    assert packet.message.heard == frozenset({1, 3}) and sorted(packet.message.edge_sums) == [1, 3]
+
+
+def test_size_limit_is_configurable() -> None:
+    data = raw_consensus()
+    with pytest.raises(WireError) as info:
+        decode_consensus(data, SID, max_bytes=len(data) - 1)
+    assert info.value.reason is Reason.OVERSIZED
+    decode_consensus(data, SID, max_bytes=len(data))
+
+
+def _status_bytes(mode: int = 3, armed: int = 1, health: int = 15, t_s: float = 1.0) -> bytes:
+    fixed = struct.pack("<HIdBBBI9d6QH", 2, 9, t_s, mode, armed, health, 7, *[0.0] * 9,
+                        *[0] * 6, 2)  # fmt: skip
+    return bytes([0x51, WIRE_VERSION, Kind.STATUS, 4]) + b"demo" + fixed + struct.pack("<2H", 1, 5)
+
+
+@pytest.mark.parametrize(
+    ("data", "reason"),
+    [
+        (_status_bytes(mode=99), Reason.BAD_VALUE),
+        (_status_bytes(armed=2), Reason.BAD_VALUE),
+        (_status_bytes(health=0x80), Reason.BAD_VALUE),
+        (_status_bytes(t_s=math.nan), Reason.NOT_FINITE),
+        (_status_bytes()[:-2], Reason.TRUNCATED),
+        (_status_bytes() + b"\0", Reason.TRAILING),
+        (_status_bytes()[:-4] + struct.pack("<2H", 5, 1), Reason.BAD_VALUE),
+        (raw_consensus(), Reason.WRONG_KIND),
+    ],
+)
+def test_malformed_status_is_rejected(data: bytes, reason: Reason) -> None:
+    assert decode_status(_status_bytes(), SID).neighbours == (1, 5)
+    with pytest.raises(WireError) as info:
+        decode_status(data, SID)
+    assert info.value.reason is reason
+
+
+def _plan_bytes(k: int = 2, command: int = 1, knots: tuple[float, ...] = (0.0, 1.0),
+                coeff: float = 0.0, n_coeffs: int | None = None) -> bytes:  # fmt: skip
+    n = 54 * (len(knots) - 1) if n_coeffs is None else n_coeffs
+    body = struct.pack("<IBH", 3, command, k) + struct.pack(f"<{len(knots)}d", *knots)
+    return (
+        bytes([0x51, WIRE_VERSION, Kind.PLAN, 4])
+        + b"demo"
+        + body
+        + struct.pack(f"<{n}d", *[coeff] * n)
+    )
+
+
+@pytest.mark.parametrize(
+    ("data", "reason"),
+    [
+        (_plan_bytes(k=1, knots=(0.0,), n_coeffs=0), Reason.BAD_VALUE),
+        (_plan_bytes(knots=(1.0, 0.0)), Reason.BAD_VALUE),
+        (_plan_bytes(command=9), Reason.BAD_VALUE),
+        (_plan_bytes(coeff=math.nan), Reason.NOT_FINITE),
+        (_plan_bytes(k=3), Reason.TRUNCATED),
+        (_plan_bytes(n_coeffs=55), Reason.TRAILING),
+    ],
+)
+def test_malformed_plan_is_rejected(data: bytes, reason: Reason) -> None:
+    assert decode_plan(_plan_bytes(), SID).seq == 3
+    with pytest.raises(WireError) as info:
+        decode_plan(data, SID)
+    assert info.value.reason is reason
+
+
+# --- fuzzing: nothing but WireError ------------------------------------------------------------
+
+DECODERS: list[Callable[[bytes, str], object]] = [
+    decode_consensus,
+    decode_status,
+    decode_plan,
+    consensus_origin,
+]
+VALID = [
+    bytes.fromhex(CONSENSUS_HEX),
+    bytes.fromhex(STATUS_HEX),
+    bytes.fromhex(PLAN_HEX),
+    bytes.fromhex(CONSENSUS_HEX),
+]
+
+
+@settings(max_examples=300, deadline=None)
+@given(data=st.binary(max_size=600))
+def test_random_bytes_raise_only_wire_errors(data: bytes) -> None:
+    for decode in DECODERS:
+        for payload in (data, bytes([0x51, WIRE_VERSION]) + data):
+            with contextlib.suppress(WireError):
+                decode(payload, SID)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    which=st.integers(0, len(DECODERS) - 1),
+    flips=st.lists(st.tuples(st.integers(0, 10_000), st.integers(0, 255)), max_size=6),
+    cut=st.integers(0, 10_000),
+    extra=st.binary(max_size=40),
+)
+def test_mutated_payloads_raise_only_wire_errors(
+    which: int, flips: list[tuple[int, int]], cut: int, extra: bytes
+) -> None:
+    """Valid payloads with bytes changed, cut short or extended: decoded or WireError."""
+    data = bytearray(VALID[which])
+    for at, value in flips:
+        data[at % len(data)] = value
+    payload = bytes(data[: max(cut, 1)]) + extra if cut < len(data) else bytes(data) + extra
+    with contextlib.suppress(WireError):
+        DECODERS[which](payload, SID)
