@@ -78,6 +78,7 @@ class HostedAgent:
         self._last_status = -1e9
         self._last_command = -1e9
         self._settled_ticks = 0
+        self._members: frozenset[int] = frozenset()
         self.left = False
 
     @property
@@ -186,7 +187,11 @@ class HostedAgent:
             self.mode = AgentMode.READY if self.converged else AgentMode.WARMUP
 
     def _track_settling(self, out: AgentOutput) -> None:
-        calm = out.disagreement < self.options.settle_tolerance
+        """Count the ticks the estimator has agreed with its neighbours while the membership
+        stayed the same (a drone joining or leaving restarts the count)."""
+        members = self.transport.members()
+        calm = out.disagreement < self.options.settle_tolerance and members == self._members
+        self._members = members
         self._settled_ticks = self._settled_ticks + 1 if calm else 0
 
     @property

@@ -120,7 +120,6 @@ class Endpoint:
         self.outbox = outbox
         self.rx_codec = rx_codec
         self.peer = peer
-        self.fixed_peer = peer is not None
         self.tx_datagrams = 0
         self.tx_errors = 0
         self._batches: list[bytearray] = []

@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
+from protocols.frames import FloatArray
 from sitl_sim.attitude_control import AttitudeGains
 from sitl_sim.autopilot import AutopilotConfig
 from sitl_sim.failsafe import FailsafeConfig
@@ -37,27 +39,78 @@ from sitl_sim.vehicle_params import VehicleParams
 from sitl_sim.world import World, WorldConfig
 
 
+@dataclass(frozen=True)
+class _Vehicles:
+    """What the scenario (or the defaults for ``--drones``) says about the vehicles."""
+
+    params: VehicleParams
+    gains: AttitudeGains
+    positions_ned_m: FloatArray
+    yaw_rad: FloatArray
+    physics_hz: int
+    control_hz: int
+    seed: int
+    crashes: tuple[tuple[float, int], ...]
+
+
 def build_config(args: argparse.Namespace) -> SimConfig:
     """Validate the parsed flags of ``swarm sim``; SimConfigError on the first mistake."""
-    crashes: tuple[tuple[float, int], ...] = ()
-    if args.scenario is not None:
-        params, gains, positions, yaw, physics_hz, control_hz, seed, faults = (
-            vehicles_from_scenario(args.scenario)
-        )
-        crashes = crash_timeline(faults)
-    else:
-        check_count(args.drones)
-        params, gains = VehicleParams(), AttitudeGains()
-        positions, yaw = grid_positions(args.drones), np.zeros(args.drones)
-        physics_hz, control_hz, seed = 500, 50, 0
-    n = len(positions)
+    v = _vehicles(args)
+    n = len(v.positions_ned_m)
     check_count(n)
-    physics_hz = args.physics_hz if args.physics_hz is not None else physics_hz
-    control_hz = args.control_hz if args.control_hz is not None else control_hz
+    physics_hz = args.physics_hz if args.physics_hz is not None else v.physics_hz
+    control_hz = args.control_hz if args.control_hz is not None else v.control_hz
     check_rates(physics_hz, control_hz)
-    for flag in ("speedup", "offboard_timeout", "lockstep_timeout", "join_timeout"):
-        check_positive("--" + flag.replace("_", "-"), float(getattr(args, flag)))
-    for flag in ("agent_rate_hz", "gcs_rate_hz"):
+    _check_numbers(args)
+    check_ports(args.base_port, n)
+    autopilot = AutopilotConfig(failsafe=FailsafeConfig(offboard_timeout_s=args.offboard_timeout))
+    return SimConfig(
+        sysids=parse_sysids(args.sysids, n),
+        params=v.params,
+        gains=v.gains,
+        positions_ned_m=v.positions_ned_m,
+        yaw_rad=v.yaw_rad,
+        world=WorldConfig(physics_hz, control_hz, autopilot, args.position_noise_m, v.crashes),
+        net=NetConfig(
+            bind_host=args.bind,
+            base_port=args.base_port,
+            gcs=parse_gcs_url(args.gcs),
+            signing_key=read_signing_key(args.signing_key),
+            agent_rates_hz=_rates(AGENT_RATES_HZ, args.agent_rate_hz),
+            gcs_rates_hz=_rates(GCS_RATES_HZ, args.gcs_rate_hz),
+        ),
+        clock=ClockConfig(
+            mode=args.clock,
+            speedup=args.speedup,
+            drop_timeout_s=args.lockstep_timeout,
+            join_timeout_s=args.join_timeout,
+            wait_agents=args.wait_agents,
+            duration_s=args.duration_s,
+        ),
+        seed=v.seed if args.seed is None else args.seed,
+    )
+
+
+def _vehicles(args: argparse.Namespace) -> _Vehicles:
+    if args.scenario is None:
+        check_count(args.drones)
+        n = args.drones
+        return _Vehicles(
+            VehicleParams(), AttitudeGains(), grid_positions(n), np.zeros(n), 500, 50, 0, ()
+        )
+    params, gains, positions, yaw, physics_hz, control_hz, seed, faults = vehicles_from_scenario(
+        args.scenario
+    )
+    return _Vehicles(
+        params, gains, positions, yaw, physics_hz, control_hz, seed, crash_timeline(faults)
+    )
+
+
+def _check_numbers(args: argparse.Namespace) -> None:
+    """Every numeric flag in its range."""
+    positive = ("speedup", "offboard_timeout", "lockstep_timeout", "join_timeout",
+                "agent_rate_hz", "gcs_rate_hz")  # fmt: skip
+    for flag in positive:
         check_positive("--" + flag.replace("_", "-"), float(getattr(args, flag)))
     if args.duration_s is not None:
         check_positive("--duration-s", args.duration_s)
@@ -65,36 +118,6 @@ def build_config(args: argparse.Namespace) -> SimConfig:
         raise SimConfigError("--position-noise-m must be a number >= 0")
     if args.wait_agents < 0:
         raise SimConfigError("--wait-agents must be >= 0")
-    check_ports(args.base_port, n)
-    autopilot = AutopilotConfig(failsafe=FailsafeConfig(offboard_timeout_s=args.offboard_timeout))
-    world = WorldConfig(physics_hz, control_hz, autopilot, args.position_noise_m, crashes)
-    net = NetConfig(
-        bind_host=args.bind,
-        base_port=args.base_port,
-        gcs=parse_gcs_url(args.gcs),
-        signing_key=read_signing_key(args.signing_key),
-        agent_rates_hz=_rates(AGENT_RATES_HZ, args.agent_rate_hz),
-        gcs_rates_hz=_rates(GCS_RATES_HZ, args.gcs_rate_hz),
-    )
-    clock = ClockConfig(
-        mode=args.clock,
-        speedup=args.speedup,
-        drop_timeout_s=args.lockstep_timeout,
-        join_timeout_s=args.join_timeout,
-        wait_agents=args.wait_agents,
-        duration_s=args.duration_s,
-    )
-    return SimConfig(
-        sysids=parse_sysids(args.sysids, n),
-        params=params,
-        gains=gains,
-        positions_ned_m=positions,
-        yaw_rad=yaw,
-        world=world,
-        net=net,
-        clock=clock,
-        seed=seed if args.seed is None else args.seed,
-    )
 
 
 def _rates(defaults: Mapping[int, float], state_hz: float) -> dict[int, float]:

@@ -14,7 +14,7 @@ import socket
 from collections.abc import Sequence
 from types import TracebackType
 
-from sitl_sim.channel import Address, Channel, Endpoint, new_codec
+from sitl_sim.channel import Channel, Endpoint, new_codec
 from sitl_sim.sim_config import NetConfig, SimConfigError
 
 _GCS_BUFFER_BYTES = 1 << 21
@@ -103,14 +103,3 @@ class Network:
         outbox = self.outbox
         while outbox:
             outbox.pop().flush()
-
-    @property
-    def gcs_address(self) -> Address | None:
-        """Where ground-station telemetry goes."""
-        return self.config.gcs
-
-    @property
-    def tx_datagrams(self) -> int:
-        """Datagrams sent so far on every endpoint."""
-        total = sum(e.tx_datagrams for e in self.agent_endpoints)
-        return total + (self.gcs_endpoint.tx_datagrams if self.gcs_endpoint else 0)

@@ -155,8 +155,6 @@ class SimServer:
         meter = RateMeter(self.world.t_s, start)
         next_status = start + self.status_interval_s
         self.pacer.rebase(self.world.tick, start)
-        self.report(self.world.pending_events)
-        self.world.pending_events = []
         sent_to = self._emit()
         join_deadline = start + self.clock.join_timeout_s
         while not self._stopped and not self._done():

@@ -64,11 +64,14 @@ def test_nine_agents_converge_on_the_ground_and_survive_a_sigkill(tmp_path: Path
             )
             for d in range(9)
         }
-        started = time.monotonic()
-        assert obs.wait_until(lambda: _all_within(obs, list(range(9)), TRUTH), 25.0), {
+        # start-up (9 interpreters importing zenoh on 2 cores) is not the estimator's time:
+        # the clock starts once every agent has joined and reported
+        assert obs.wait_until(lambda: len(obs.statuses()) == 9, 30.0)
+        joined = time.monotonic()
+        assert obs.wait_until(lambda: _all_within(obs, list(range(9)), TRUTH), 10.0), {
             d: np.round(s.estimate, 3) for d, s in obs.statuses().items()
         }
-        assert time.monotonic() - started < 25.0
+        assert time.monotonic() - joined <= 10.0
         assert all(s.counters.rx > 0 for s in obs.statuses().values())
         # SIGKILL drone 4's agent: everyone drops it at once and re-converges on the survivors
         killed_at = time.monotonic()
@@ -154,7 +157,7 @@ def test_garbage_on_the_consensus_keys_is_dropped_and_counted(tmp_path: Path) ->
         assert _all_within(obs, list(range(9)), TRUTH)
 
 
-@pytest.mark.parametrize("order", [[8, 0, 4, 2, 6, 1, 7, 3, 5]])
+@pytest.mark.parametrize("order", [[8, 0, 4, 2, 6, 1, 7, 3, 5], [3, 7, 5, 1, 0, 8, 2, 6, 4]])
 def test_agents_started_one_by_one_converge_the_same(tmp_path: Path, order: list[int]) -> None:
     scenario = _scenario(tmp_path)
     base = free_port_block(9)

@@ -120,6 +120,14 @@ def test_commands_parameters_and_version(sim: tuple[SimProcess, MavPeer]) -> Non
         value = agent.wait_for("PARAM_VALUE", where=lambda m: m.param_id == "MAV_SYS_ID")
         assert value.param_value == 4.0
 
+        agent.send(agent.mav.command_int_encode(4, 1, 0, 512, 0, 0, 148, 0, 0, 0, 0, 0, 0))
+        assert agent.ack(512) == 0  # COMMAND_INT is answered the same way
+        assert agent.wait_for("AUTOPILOT_VERSION").uid == 4
+        land = (4 << 16) | (6 << 24)  # PX4 AUTO.LAND through the SET_MODE message
+        agent.send(agent.mav.set_mode_encode(4, 1, land))
+        agent.wait_for("HEARTBEAT", where=lambda m: m.custom_mode == land)
+        agent.send(agent.mav.set_mode_encode(4, 1, (4 << 16) | (3 << 24)))
+
         agent.send(agent.mav.timesync_encode(0, 777))
         sync = agent.wait_for("TIMESYNC", where=lambda m: m.ts1 == 777)
         assert sync.tc1 > 0
