@@ -34,6 +34,8 @@ test: lint typecheck
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
+	# RotorPy is the reference the simulator's physics step is compared with (bench only)
+	$(BIN)/python -m pip install --quiet rotorpy
 	$(BIN)/python -m bench.run --out bench/results.json
 
 clean:

@@ -8,7 +8,9 @@ commands or setpoints.
 
 from __future__ import annotations
 
+import hashlib
 import time
+import types
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -17,6 +19,8 @@ from typing import Any
 HARMLESS_UNSIGNED = frozenset({"RADIO_STATUS"})
 #: MAVLink signing timestamps count 10 µs units since 2015-01-01.
 _SIGNING_EPOCH_S = 1420070400
+#: A new stream may start up to a minute (in 10 µs units) before our own timestamp.
+_NEW_STREAM_SLACK = 6_000_000
 
 
 class SigningKeyError(ValueError):
@@ -61,3 +65,25 @@ def setup_signing(
     mav.signing.allow_unsigned_callback = _allow_harmless
     mav.signing.link_id = link_id
     mav.signing.timestamp = max(int((now - _SIGNING_EPOCH_S) * 100_000), 1)
+    mav.check_signature = types.MethodType(check_signature_first, mav)
+
+
+def check_signature_first(mav: Any, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+    """pymavlink's ``MAVLink.check_signature``, but the signature is verified *before* the
+    stream's timestamp is recorded. pymavlink records the timestamp of a frame with a wrong
+    signature too, so anyone could block a signed stream by sending junk-signed frames with a
+    large timestamp (every genuine frame after it would be "old")."""
+    timestamp_low, timestamp_high = mav.mav_sign_unpacker.unpack(msgbuf[-12:-6])
+    timestamp = timestamp_low + (timestamp_high << 32)
+    digest = hashlib.sha256(mav.signing.secret_key + bytes(msgbuf[:-6])).digest()
+    if digest[:6] != bytes(msgbuf[-6:]):
+        return False
+    stream = (msgbuf[-13], src_system, src_component)
+    last = mav.signing.stream_timestamps.get(stream)
+    if last is not None and timestamp <= last:
+        return False  # a replay, or out of order
+    if last is None and timestamp + _NEW_STREAM_SLACK < mav.signing.timestamp:
+        return False  # a new stream more than a minute in the past
+    mav.signing.stream_timestamps[stream] = timestamp
+    mav.signing.timestamp = max(mav.signing.timestamp, timestamp)
+    return True

@@ -18,9 +18,7 @@ import os
 
 os.environ["MAVLINK20"] = "1"  # before any pymavlink import (DEPENDENCIES.md)
 
-import hashlib
 import socket
-import types
 from dataclasses import dataclass
 from typing import Any
 
@@ -53,29 +51,7 @@ def new_codec(sysid: int, compid: int, signing_key: bytes | None) -> Any:
     codec.robust_parsing = True
     if signing_key is not None:
         setup_signing(codec, signing_key, SIGNING_LINK_ID)
-        codec.check_signature = types.MethodType(check_signature_first, codec)
     return codec
-
-
-def check_signature_first(mav: Any, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
-    """pymavlink's ``MAVLink.check_signature``, but the signature is verified *before* the
-    stream's timestamp is recorded. pymavlink records the timestamp of a frame with a wrong
-    signature too, so anyone could block a signed stream by sending junk-signed frames with a
-    large timestamp (every genuine frame after it would be "old")."""
-    timestamp_low, timestamp_high = mav.mav_sign_unpacker.unpack(msgbuf[-12:-6])
-    timestamp = timestamp_low + (timestamp_high << 32)
-    digest = hashlib.sha256(mav.signing.secret_key + bytes(msgbuf[:-6])).digest()
-    if digest[:6] != bytes(msgbuf[-6:]):
-        return False
-    stream = (msgbuf[-13], src_system, src_component)
-    last = mav.signing.stream_timestamps.get(stream)
-    if last is not None and timestamp <= last:
-        return False  # a replay, or out of order
-    if last is None and timestamp + _NEW_STREAM_SLACK < mav.signing.timestamp:
-        return False  # a new stream more than a minute in the past
-    mav.signing.stream_timestamps[stream] = timestamp
-    mav.signing.timestamp = max(mav.signing.timestamp, timestamp)
-    return True
 
 
 def decode_datagram(codec: Any, data: bytes) -> Decoded:

@@ -183,8 +183,9 @@ class SimServer:
         if events:
             self.report(events)
         if self.barrier is not None and self.barrier.members:
-            silent = self.world.autopilot.silent
-            for i in [m for m in self.barrier.members if silent[m]]:
+            # a crashed vehicle leaves the barrier at once: nobody waits for a wreck's agent
+            crashed = self.world.autopilot.crashed
+            for i in [m for m in self.barrier.members if crashed[m]]:
                 self.barrier.leave(i)
 
     def _await_barrier(self, join_deadline: float) -> None:
