@@ -202,3 +202,48 @@ def test_hosted_in_three_processes_gives_the_same_estimates(tmp_path: Path) -> N
 
         # hosted or not, every agent settles on the same (true) descriptors
         assert obs.wait_until(settled, 10.0)
+
+
+def test_agents_with_mavlink_signing(tmp_path: Path) -> None:
+    """The simulator and the agents share a signing key: the agents hear their vehicles (signed
+    telemetry) and their signed setpoints are accepted: lockstep time advances."""
+    key = tmp_path / "key.hex"
+    key.write_text(os.urandom(32).hex())
+    positions = GRID[:4]
+    scenario = write_scenario(
+        tmp_path / "signed.toml", positions, centre=(1.5, 1.0, 0.0), spread=(1.5, 1.0, 0.0)
+    )
+    truth = truth_of(positions)
+    base = free_port_block(4)
+    with (
+        observer() as obs,
+        sim_process(
+            tmp_path,
+            "--scenario",
+            str(scenario),
+            "--gcs",
+            "none",
+            "--signing-key",
+            str(key),
+            "--clock",
+            "lockstep",
+            "--wait-agents",
+            "4",
+            "--quiet",
+            base_port=base,
+        ),
+        agent_process(
+            tmp_path,
+            "0-3",
+            base,
+            obs.zenoh_args,
+            "--scenario",
+            str(scenario),
+            "--no-arm",
+            "--signing-key",
+            str(key),
+        ),
+    ):
+        assert obs.wait_until(lambda: _all_within(obs, [0, 1, 2, 3], truth), 25.0)
+        # lockstep time only advances on accepted (signed) setpoint echoes
+        assert obs.wait_until(lambda: min(s.t_s for s in obs.statuses().values()) > 2.0, 20.0)
