@@ -78,6 +78,7 @@ class HostedAgent:
         self._last_status = -1e9
         self._last_command = -1e9
         self._settled_ticks = 0
+        self._committed = False
         self._members: frozenset[int] = frozenset()
         self.left = False
 
@@ -197,8 +198,9 @@ class HostedAgent:
     @property
     def converged(self) -> bool:
         """Warm-up over and the estimator agreeing with its neighbours (disagreement below
-        ``settle_tolerance``) for ``settle_ticks`` ticks; latched once flying."""
-        return self.mode == AgentMode.FLYING or (
+        ``settle_tolerance``) for ``settle_ticks`` ticks; latched once the agent has decided to
+        fly (the neighbours' take-off must not send it back to the ground half-armed)."""
+        return self._committed or (
             self.last_output is not None
             and self.last_output.ready_to_fly
             and self._settled_ticks >= self.options.settle_ticks
@@ -207,6 +209,7 @@ class HostedAgent:
     def _fly(self, sample: VehicleSample, out: AgentOutput) -> None:
         sp = out.setpoint
         assert sp is not None
+        self._committed = True
         q = quat_from_zyx(sp.yaw_rad, sp.pitch_rad, sp.roll_rad)
         self.link.send_setpoint(sample.time_boot_ms, q, sp.thrust_normalised)
         status = self.link.status

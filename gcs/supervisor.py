@@ -1,0 +1,182 @@
+"""``swarm up``: the simulator, the agents and the ground station as supervised child processes.
+
+Start order: the ground station (the Zenoh rendezvous; it publishes the plan and records the
+flight), the simulator (lockstep waits for every agent), then the agents, one process per drone or
+``--agents-per-process`` drones per process. The run ends when the simulator reaches the
+scenario's duration, on Ctrl-C / SIGTERM, or when a child dies unexpectedly; then every child is
+stopped (SIGTERM, then SIGKILL) so that no process of the run is left and its ports are free. The
+ground station writes the report when it is stopped.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+PR_SET_PDEATHSIG = 1
+STOP_TIMEOUT_S = 15.0
+
+
+class SupervisorError(Exception):
+    """The run could not start or a child failed: one line for the user."""
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child before exec
+    """Linux: the child gets SIGTERM if the supervisor dies, so no orphan outlives a crash."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+@dataclass
+class Child:
+    """A supervised process: its role, command line and log file."""
+
+    role: str
+    argv: list[str]
+    log: Path
+    proc: subprocess.Popen[bytes] | None = None
+    expected_exit: bool = False
+
+    def start(self) -> None:
+        with self.log.open("ab") as out:
+            self.proc = subprocess.Popen(
+                self.argv, stdout=out, stderr=subprocess.STDOUT, preexec_fn=_die_with_parent
+            )
+
+    @property
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> int | None:
+        """SIGTERM, wait, then SIGKILL; the exit code (None if never started)."""
+        if self.proc is None:
+            return None
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        return self.proc.returncode
+
+
+@dataclass
+class RunPlan:
+    """Everything ``swarm up`` starts, in order."""
+
+    gcs: Child
+    sim: Child
+    agents: list[Child] = field(default_factory=list)
+
+    @property
+    def children(self) -> list[Child]:
+        return [self.gcs, self.sim, *self.agents]
+
+
+def free_tcp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def check_udp_ports(first: int, count: int, what: str) -> None:
+    """SupervisorError naming the port if any of ``count`` UDP ports from ``first`` is taken."""
+    for port in range(first, first + count):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                raise SupervisorError(
+                    f"UDP port {port} ({what}) is in use: is another swarm running? "
+                    "Choose other ports with --base-port / --gcs-port"
+                ) from None
+
+
+def agent_groups(n: int, per_process: int) -> list[str]:
+    """``--drone-id`` values: ``per_process`` consecutive drones per process."""
+    return [
+        f"{lo}-{min(lo + per_process, n) - 1}" if per_process > 1 else str(lo)
+        for lo in range(0, n, per_process)
+    ]
+
+
+def swarm_argv(*args: str) -> list[str]:
+    return [sys.executable, "-m", "gcs.cli", *args]
+
+
+def supervise(
+    plan: RunPlan,
+    progress: Callable[[str], None] | None = None,
+    should_stop: Callable[[], bool] = lambda: False,
+    poll_s: float = 0.5,
+) -> str:
+    """Start every child, watch them, stop them all. Returns why the run ended."""
+    reason = "stopped"
+    try:
+        for child in plan.children:
+            child.start()
+            time.sleep(0.3 if child.role == "gcs" else 0.05)
+        while True:
+            if should_stop():
+                reason = "interrupted"
+                break
+            if not plan.sim.running:
+                code = plan.sim.proc.returncode if plan.sim.proc else None
+                reason = "finished" if code == 0 else f"the simulator exited with code {code}"
+                break
+            dead = [c for c in plan.children if not c.running and not c.expected_exit]
+            if dead:
+                code = dead[0].proc.returncode if dead[0].proc else None
+                reason = f"{dead[0].role} exited with code {code} (log: {dead[0].log})"
+                break
+            if progress is not None:
+                progress(_last_line(plan.sim.log))
+            time.sleep(poll_s)
+    finally:
+        for child in [*plan.agents, plan.sim, plan.gcs]:
+            child.stop()
+    return reason
+
+
+def _last_line(path: Path) -> str:
+    try:
+        data = path.read_bytes()[-400:]
+    except OSError:
+        return ""
+    lines = [ln for ln in data.replace(b"\r", b"\n").split(b"\n") if ln.strip()]
+    return lines[-1].decode(errors="replace").strip() if lines else ""
+
+
+@contextlib.contextmanager
+def interrupt_flag() -> Iterator[Callable[[], bool]]:
+    """SIGINT/SIGTERM set a flag (read by the returned callable) instead of raising."""
+    hit: list[int] = []
+
+    def handler(sig: int, _frame: object) -> None:
+        hit.append(sig)
+
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield lambda: bool(hit)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def flags(values: Sequence[tuple[str, object | None]]) -> list[str]:
+    """``--flag value`` pairs for the values that are set."""
+    out: list[str] = []
+    for name, value in values:
+        if value is None or value is False:
+            continue
+        out += [name] if value is True else [name, str(value)]
+    return out

@@ -1,0 +1,201 @@
+"""``swarm up`` and ``swarm demo``: fly a scenario with real processes end to end."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from gcs.summary import summary_lines
+from gcs.supervisor import (
+    Child,
+    RunPlan,
+    SupervisorError,
+    agent_groups,
+    check_udp_ports,
+    flags,
+    free_tcp_port,
+    interrupt_flag,
+    supervise,
+    swarm_argv,
+)
+from protocols.mavlink_conventions import DEFAULT_BASE_PORT, DEFAULT_GCS_PORT
+from protocols.scenario import ScenarioError, load_scenario
+
+PAPER = Path("scenarios/paper.toml")
+
+
+def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``swarm up`` and ``swarm demo``."""
+    up = sub.add_parser(
+        "up",
+        help="fly a scenario: simulator, one agent process per drone, ground station",
+        description=(
+            "Start the ground station, the SITL simulator and the drone agents as supervised "
+            "child processes and fly the scenario to its end. Ctrl-C, an error or the end of the "
+            "scenario stops them all. The report (flight.tlog, events.jsonl, metrics.json, PNG "
+            "plots) is written by the ground station into --report."
+        ),
+    )
+    up.add_argument("scenario", type=Path, help="scenario file (TOML)")
+    _common(up)
+    demo = sub.add_parser(
+        "demo",
+        help="fly the paper's scenario end to end (swarm up scenarios/paper.toml --report report)",
+        description="swarm up scenarios/paper.toml with the report in ./report, then a summary.",
+    )
+    _common(demo)
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--report",
+        type=Path,
+        default=Path("report"),
+        metavar="DIR",
+        help="report folder (default ./report)",
+    )
+    p.add_argument(
+        "--clock",
+        choices=("lockstep", "realtime"),
+        default="lockstep",
+        help="lockstep (default): results do not depend on machine load",
+    )
+    p.add_argument("--speedup", type=float, default=1.0, help="realtime clock speed-up")
+    p.add_argument(
+        "--agents-per-process",
+        type=int,
+        default=1,
+        metavar="K",
+        help="drones hosted per agent process (default 1: one process per drone)",
+    )
+    p.add_argument("--signing-key", type=Path, metavar="FILE", help="MAVLink 2 signing key")
+    p.add_argument(
+        "--zenoh-connect",
+        metavar="ENDPOINT",
+        help="use this Zenoh endpoint (e.g. a router) instead of the ground station's",
+    )
+    p.add_argument("--swarm-id", default="swarm", help="swarm name on Zenoh")
+    p.add_argument(
+        "--base-port", type=int, default=DEFAULT_BASE_PORT, help="vehicle i on UDP BASE+i"
+    )
+    p.add_argument("--gcs-port", type=int, default=DEFAULT_GCS_PORT, help="telemetry to the GCS")
+    p.add_argument("--duration-s", type=float, metavar="S", help="fly only the first S seconds")
+
+
+def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, int]:
+    """The children of the run and the number of drones."""
+    try:
+        scenario = load_scenario(scenario_path)
+    except ScenarioError as exc:
+        raise SupervisorError(str(exc)) from None
+    n = scenario.n_drones
+    if args.agents_per_process < 1:
+        raise SupervisorError("--agents-per-process must be at least 1")
+    duration = scenario.duration_s if args.duration_s is None else args.duration_s
+    if not 0 < duration <= scenario.duration_s:
+        raise SupervisorError(f"--duration-s must be in (0, {scenario.duration_s:g}]")
+    check_udp_ports(args.base_port, n, "vehicle ports")
+    check_udp_ports(args.gcs_port, 1, "ground station")
+    report: Path = args.report
+    logs = report / "logs"
+    try:
+        logs.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SupervisorError(f"cannot write the report folder {report}: {exc}") from None
+    if args.zenoh_connect:
+        gcs_zenoh = ["--zenoh-connect", args.zenoh_connect]
+        agent_zenoh = ["--zenoh-listen", "tcp/127.0.0.1:0", "--zenoh-connect", args.zenoh_connect]
+    else:
+        endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+        gcs_zenoh = ["--zenoh-listen", endpoint]
+        agent_zenoh = ["--zenoh-listen", "tcp/127.0.0.1:0", "--zenoh-connect", endpoint]
+    key = flags([("--signing-key", args.signing_key)])
+    common = ["--scenario", str(scenario_path)]
+    gcs = Child(
+        "gcs",
+        swarm_argv(
+            "gcs",
+            *common,
+            "--report",
+            str(report),
+            "--swarm-id",
+            args.swarm_id,
+            "--gcs-port",
+            str(args.gcs_port),
+            "--quiet",
+            *gcs_zenoh,
+        ),
+        logs / "gcs.log",
+    )
+    sim_flags = flags(
+        [
+            ("--clock", args.clock),
+            ("--speedup", args.speedup),
+            ("--wait-agents", n if args.clock == "lockstep" else None),
+            ("--join-timeout", 120 if args.clock == "lockstep" else None),
+            ("--base-port", args.base_port),
+            ("--gcs", f"udp:127.0.0.1:{args.gcs_port}"),
+            ("--duration-s", duration),
+        ]
+    )
+    sim = Child("simulator", swarm_argv("sim", *common, *sim_flags, *key), logs / "sim.log")
+    agents = [
+        Child(
+            f"agent {ids}",
+            swarm_argv(
+                "agent",
+                "--drone-id",
+                ids,
+                *common,
+                "--base-port",
+                str(args.base_port),
+                "--swarm-id",
+                args.swarm_id,
+                "--quiet",
+                *agent_zenoh,
+                *key,
+            ),
+            logs / f"agent-{ids}.log",
+        )
+        for ids in agent_groups(n, args.agents_per_process)
+    ]
+    return RunPlan(gcs, sim, agents), n
+
+
+def run(args: argparse.Namespace) -> int:
+    """``swarm up`` / ``swarm demo``; exit 0 when the scenario was flown to its end."""
+    scenario = getattr(args, "scenario", None) or PAPER
+    plan, n = build_plan(args, scenario)
+    tty = sys.stderr.isatty()
+    shown = [0.0]
+
+    def progress(line: str) -> None:
+        import time
+
+        if not line:
+            return
+        if tty:
+            print(f"\r{line[:150]:<150}", end="", file=sys.stderr, flush=True)
+        elif time.monotonic() - shown[0] >= 10.0:
+            print(line, file=sys.stderr, flush=True)
+            shown[0] = time.monotonic()
+
+    print(
+        f"swarm up: {n} drones, {len(plan.agents)} agent processes, {args.clock} clock; "
+        f"logs in {args.report / 'logs'}",
+        file=sys.stderr,
+    )
+    with interrupt_flag() as stop:
+        reason = supervise(plan, progress, stop)
+    if tty:
+        print(file=sys.stderr)
+    print(f"swarm up: {reason}", file=sys.stderr)
+    metrics_path = args.report / "metrics.json"
+    if metrics_path.exists():
+        metrics = json.loads(metrics_path.read_text())
+        files = sorted(p for p in args.report.iterdir() if p.is_file())
+        for line in summary_lines(metrics, files):
+            print(line)
+    return 0 if reason == "finished" else 1
