@@ -13,6 +13,9 @@ from typing import Any
 os.environ.setdefault("MAVLINK20", "1")  # before anything imports pymavlink
 
 from drone_agent.agent_cli import add_parser as add_agent_parser
+from gcs.gcs_cli import add_parser as add_gcs_parser
+from gcs.operator_cli import OPERATOR_COMMANDS
+from gcs.operator_cli import add_parsers as add_operator_parsers
 from sitl_sim.sim_cli import add_sim_parser
 
 EXIT_USAGE = 2
@@ -71,6 +74,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     add_sim_parser(sub)
     add_agent_parser(sub)
+    add_gcs_parser(sub)
+    add_operator_parsers(sub)
     return parser
 
 
@@ -88,6 +93,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _sim(args)
         if args.command == "agent":
             return _agent(args)
+        if args.command == "gcs":
+            return _gcs(args)
+        if args.command in OPERATOR_COMMANDS:
+            return _operator(args)
     except CliError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -164,6 +173,25 @@ def _agent(args: argparse.Namespace) -> int:
     try:
         return run(args)
     except AgentCliError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _gcs(args: argparse.Namespace) -> int:
+    from gcs.gcs_cli import GcsCliError, run
+
+    _check_writable(args.report)
+    try:
+        return run(args)
+    except GcsCliError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _operator(args: argparse.Namespace) -> int:
+    from gcs.operator_cli import OperatorError, run
+
+    try:
+        return run(args)
+    except OperatorError as exc:
         raise CliError(str(exc)) from None
 
 

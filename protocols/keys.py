@@ -8,6 +8,7 @@
 ``swarm/<sid>/plan``                              the descriptor trajectory (publication and
                                                   queryable, so late joiners fetch it)
 ``swarm/<sid>/fault``                             link-fault commands for drills
+``swarm/<sid>/command``                           the ground station's operator-command queryable
 ==============================================  ===============================================
 
 Cells: ``cell = floor(position_ned_m / cell_size_m)`` per axis. With ``cell_size_m`` at least the
@@ -173,6 +174,11 @@ class SwarmKeys:
     def fault(self) -> str:
         """Link-fault commands for drills."""
         return f"{self.prefix}/fault"
+
+    @property
+    def command(self) -> str:
+        """The ground station's queryable of operator commands."""
+        return f"{self.prefix}/command"
 
     def drone_of(self, key: str) -> int | None:
         """The drone id that ends a consensus, alive or status key of this swarm; None if ``key``

@@ -55,6 +55,7 @@ def test_keys_of_a_swarm() -> None:
     assert keys.status_all() == "swarm/demo/status/*"
     assert keys.plan == "swarm/demo/plan"
     assert keys.fault == "swarm/demo/fault"
+    assert keys.command == "swarm/demo/command"
     assert keys.consensus_all() == "swarm/demo/consensus/**"
     with pytest.raises(ValueError):
         SwarmKeys("demo", 0.0)
@@ -67,6 +68,7 @@ def test_every_key_is_a_valid_zenoh_key_expression() -> None:
     built = [keys.consensus((-3, 0, 4), 65535), keys.alive(0), keys.status(9), keys.plan]
     built += [
         keys.fault,
+        keys.command,
         keys.alive_all(),
         keys.consensus_all(),
         *keys.consensus_subscriptions((0, 0, -1)),

@@ -1,0 +1,133 @@
+"""``swarm gcs``: run the ground station of a scenario until SIGTERM/SIGINT or its end time."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from pathlib import Path
+from types import FrameType
+
+from drone_agent.agent_cli import RENDEZVOUS_PORT
+from drone_agent.zenoh_transport import ZenohSettings
+from protocols.keys import validate_swarm_id
+from protocols.mavlink_conventions import DEFAULT_GCS_PORT
+
+
+class GcsCliError(Exception):
+    """A user mistake in ``swarm gcs``'s flags: one line, exit code 2."""
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``swarm gcs``."""
+    p = sub.add_parser(
+        "gcs",
+        help="run the ground station: plan, telemetry log, operator commands, report",
+        description=(
+            "Publish the scenario's descriptor trajectory as the swarm's plan over Zenoh, record "
+            "the simulator's GCS telemetry (UDP) into DIR/flight.tlog, follow every agent's "
+            "status and liveliness, answer operator commands (swarm formation, move, ...) and, on "
+            "SIGTERM/SIGINT or at the end time, write events.jsonl, metrics.json, "
+            "trajectory.json and the PNG plots into DIR. By default it listens on "
+            f"tcp/127.0.0.1:{RENDEZVOUS_PORT}: the agents' rendezvous."
+        ),
+    )
+    p.add_argument("--scenario", type=Path, required=True, metavar="FILE", help="scenario (TOML)")
+    p.add_argument(
+        "--report", type=Path, default=Path("report"), metavar="DIR", help="report folder"
+    )
+    p.add_argument("--swarm-id", default="swarm", help="swarm name on Zenoh (default %(default)s)")
+    p.add_argument(
+        "--gcs-port",
+        type=int,
+        default=DEFAULT_GCS_PORT,
+        metavar="PORT",
+        help="UDP port on 127.0.0.1 the simulator sends telemetry to (default %(default)s)",
+    )
+    p.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer")
+    p.add_argument(
+        "--zenoh-listen",
+        nargs="*",
+        default=None,
+        metavar="ENDPOINT",
+        help=f"Zenoh endpoints to listen on (default tcp/127.0.0.1:{RENDEZVOUS_PORT})",
+    )
+    p.add_argument(
+        "--zenoh-connect", nargs="*", default=None, metavar="ENDPOINT", help="endpoints to join"
+    )
+    p.add_argument(
+        "--duration-s",
+        type=float,
+        metavar="S",
+        help="stop at this simulated time, s (default: the scenario's duration)",
+    )
+    p.add_argument(
+        "--telemetry-hz",
+        type=float,
+        default=10.0,
+        metavar="HZ",
+        help="sampling rate of the report's record (the simulator's --gcs-rate-hz; default 10)",
+    )
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument("--quiet", action="store_true", help="no status line")
+
+
+def _zenoh(args: argparse.Namespace) -> ZenohSettings:
+    listen = args.zenoh_listen
+    if listen is None:
+        listen = [f"tcp/127.0.0.1:{RENDEZVOUS_PORT}"] if args.zenoh_mode == "peer" else []
+    try:
+        return ZenohSettings(
+            mode=args.zenoh_mode,
+            listen=tuple(listen) if args.zenoh_mode == "peer" else (),
+            connect=tuple(args.zenoh_connect or ()),
+        )
+    except ValueError as exc:
+        raise GcsCliError(str(exc)) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the ground station; prints a status line per second on stderr unless --quiet."""
+    from gcs.ground_station import GcsOptions, GroundStation
+    from protocols.scenario import ScenarioError, load_scenario
+
+    try:
+        scenario = load_scenario(args.scenario)
+        validate_swarm_id(args.swarm_id)
+    except (ScenarioError, ValueError) as exc:
+        raise GcsCliError(str(exc)) from None
+    if args.duration_s is not None and not args.duration_s > 0:
+        raise GcsCliError("--duration-s must be positive")
+    if not 0 < args.gcs_port < 65536:
+        raise GcsCliError("--gcs-port must be 1..65535")
+    if not args.telemetry_hz > 0:
+        raise GcsCliError("--telemetry-hz must be positive")
+    options = GcsOptions(
+        scenario=scenario,
+        report_dir=args.report,
+        zenoh=_zenoh(args),
+        swarm_id=args.swarm_id,
+        gcs_port=args.gcs_port,
+        duration_s=args.duration_s,
+        telemetry_hz=args.telemetry_hz,
+        plots=not args.no_plots,
+        on_line=None if args.quiet else lambda line: print(line, file=sys.stderr, flush=True),
+    )
+    try:
+        station = GroundStation(options)
+    except OSError as exc:
+        raise GcsCliError(f"cannot bind UDP 127.0.0.1:{args.gcs_port}: {exc.strerror}") from None
+    except Exception as exc:  # zenoh raises ZError with the reason
+        raise GcsCliError(f"cannot start the ground station: {exc}") from None
+
+    def stop(_sig: int, _frame: FrameType | None) -> None:
+        station.stop()
+
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
+    with station:
+        files = station.run()
+    if not args.quiet:
+        for f in files:
+            print(f"wrote {f}", file=sys.stderr)
+    return 0

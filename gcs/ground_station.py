@@ -1,0 +1,312 @@
+"""``swarm gcs``: the ground-station process.
+
+Publishes the scenario's trajectory as the plan (seq 0, FLY) with :class:`PlanServer`, records the
+simulator's GCS telemetry stream into ``flight.tlog`` (:class:`TelemetryReceiver`), follows every
+agent's status and liveliness on Zenoh, answers operator commands on ``swarm/<sid>/command``
+(:mod:`gcs.commands`), logs events to ``events.jsonl``, and at the end writes the report
+(:mod:`gcs.gcs_report`). All times are simulated seconds (the vehicles' ``time_boot_ms``).
+
+One thread does everything: Zenoh callbacks only append to deques, the command queryable is a
+FIFO channel drained by the loop. Use as a context manager; :meth:`stop` is signal-safe.
+"""
+
+from __future__ import annotations
+
+import math
+import select
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from drone_agent.transport_link import PlanServer
+from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
+from gcs.commands import CommandError, Reply, apply_command, encode_reply, parse_request
+from gcs.events import EventLog
+from gcs.gcs_report import Observations, build_record, write_report
+from gcs.planner import Envelope, PlanRefused
+from gcs.telemetry import TelemetryReceiver
+from protocols.descriptors import descriptors
+from protocols.keys import SwarmKeys
+from protocols.scenario import Scenario
+from protocols.wire import WireError
+from protocols.wire_plan import PlanMessage, decode_plan
+from protocols.wire_status import AgentStatus, decode_status
+
+_POLL_S = 0.02
+_SEVERITY_EMERGENCY = 0
+_CRASH_WORDS = ("crash", "destroyed", "all motors off")
+
+
+@dataclass(frozen=True)
+class GcsOptions:
+    """How to run the ground station. ``duration_s``: stop at this simulated time (s);
+    ``telemetry_hz``: sampling rate of the report's record; ``plan_query_s``: how long (s) to ask
+    the swarm for its current plan at start; ``on_line``: gets the status line."""
+
+    scenario: Scenario
+    report_dir: Path
+    zenoh: ZenohSettings
+    swarm_id: str = "swarm"
+    gcs_host: str = "127.0.0.1"
+    gcs_port: int = 14550
+    duration_s: float | None = None
+    envelope: Envelope = field(default_factory=Envelope)
+    telemetry_hz: float = 10.0
+    plan_query_s: float = 1.0
+    plots: bool = True
+    on_line: Callable[[str], None] | None = None
+
+
+class GroundStation:
+    """The ground station of one swarm (see the module doc)."""
+
+    def __init__(self, options: GcsOptions) -> None:
+        self._o = options
+        self._keys = SwarmKeys(options.swarm_id, 1.0)
+        self._stop = False
+        self._statuses: deque[bytes] = deque(maxlen=10_000)
+        self._liveliness: deque[tuple[str, bool]] = deque()
+        self.latest: dict[int, AgentStatus] = {}
+        self.alive: set[int] = set()
+        self.obs = Observations()
+        options.report_dir.mkdir(parents=True, exist_ok=True)
+        self._closers: list[Callable[[], None]] = []
+        try:
+            self.events = EventLog(options.report_dir / "events.jsonl")
+            self.events.open()
+            self._closers.append(self.events.close)
+            self.telemetry = TelemetryReceiver(
+                options.gcs_host, options.gcs_port, options.report_dir / "flight.tlog"
+            )
+            self._closers.append(self.telemetry.close)
+            self.bus = ZenohBus.open(options.zenoh)
+            self._closers.append(self.bus.close)
+            for sub in (
+                self.bus.subscribe_callback(self._keys.status_all(), self._on_status),
+                self.bus.watch_liveliness(self._keys.alive_all(), self._on_alive),
+            ):
+                self._closers.append(sub.close)
+            handler: zenoh.handlers.FifoChannel[zenoh.Query] = zenoh.handlers.FifoChannel(64)
+            self._commands = self.bus.session.declare_queryable(self._keys.command, handler)
+            self._closers.append(self._commands.undeclare)
+            held = self._current_plan()  # before our own plan queryable exists
+            self.plans = PlanServer(self.bus, options.swarm_id)
+            self._closers.append(self.plans.close)
+            if held is None:
+                self._publish(PlanMessage(options.scenario.trajectory()), 0.0, "scenario")
+            else:
+                self._publish(held, 0.0, "restart: adopted the swarm's current plan")
+        except BaseException:
+            self.close()
+            raise
+
+    def _current_plan(self) -> PlanMessage | None:
+        """The newest plan the swarm already flies (agents answer plan queries), if any: a
+        restarted ground station carries on from it instead of going back to the scenario's."""
+        newest: PlanMessage | None = None
+        replies = self.bus.session.get(self._keys.plan, timeout=self._o.plan_query_s)
+        for reply in replies:  # ends when every queryable answered or at the timeout
+            if reply.ok is None:
+                continue
+            try:
+                plan = decode_plan(reply.ok.payload.to_bytes(), self._o.swarm_id)
+            except WireError:
+                continue
+            if newest is None or plan.seq > newest.seq:
+                newest = plan
+        return newest
+
+    def __enter__(self) -> GroundStation:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Undeclare everything, close the session, the socket and the logs (idempotent)."""
+        while self._closers:
+            self._closers.pop()()
+
+    def stop(self) -> None:
+        """Ask :meth:`run` to finish (safe from a signal handler)."""
+        self._stop = True
+
+    @property
+    def now_s(self) -> float:
+        """The newest simulated time (s) heard from a vehicle or an agent."""
+        t_status = max((s.t_s for s in self.latest.values()), default=0.0)
+        return max(self.telemetry.sim_time_s, t_status)
+
+    def _on_status(self, _key: str, payload: bytes) -> None:  # Zenoh thread: enqueue only
+        self._statuses.append(payload)
+
+    def _on_alive(self, key: str, alive: bool) -> None:  # Zenoh thread: enqueue only
+        self._liveliness.append((key, alive))
+
+    def _publish(self, plan: PlanMessage, t_from_s: float, why: str) -> None:
+        self.plans.publish(plan)
+        self.plan = plan
+        self.obs.plans.append((t_from_s, plan.trajectory))
+        self.events.record(
+            self.now_s, "plan_published", seq=plan.seq, command=plan.command.name, reason=why
+        )
+
+    def run(self) -> list[Path]:
+        """Run until :meth:`stop` or the end time; then write and return the report files."""
+        end_s = self._o.duration_s or self._o.scenario.duration_s
+        self.events.record(self.now_s, "run_start", scenario=self._o.scenario.name, end_s=end_s)
+        next_line = time.monotonic() + 1.0
+        last_sample_s = end_s - 1.0 / self._o.telemetry_hz  # the simulator's last report
+        while not self._stop and self.now_s < last_sample_s:
+            select.select([self.telemetry], [], [], _POLL_S)
+            for text in self.telemetry.poll():
+                self._vehicle_text(text.t_s, text.drone, text.severity, text.text)
+            self._drain_zenoh()
+            self._answer_commands()
+            if time.monotonic() >= next_line:
+                next_line += 1.0
+                if self._o.on_line is not None:
+                    self._o.on_line(self.status_line())
+        self.events.record(self.now_s, "run_end", plan_seq=self.plan.seq)
+        self.telemetry.close()
+        n = self._o.scenario.n_drones
+        record = build_record(
+            self._o.report_dir / "flight.tlog", n, self.obs, self._o.telemetry_hz, end_s
+        )
+        extra = {
+            "scenario": self._o.scenario.name,
+            "mode": "distributed (swarm gcs)",
+            "plan_seq": self.plan.seq,
+        }
+        return write_report(
+            self._o.report_dir,
+            record,
+            self.plan.trajectory,
+            self._o.scenario.settle_s,
+            extra,
+            self._o.plots,
+        )
+
+    def _vehicle_text(self, t_s: float, drone: int, severity: int, text: str) -> None:
+        """Log a vehicle's STATUSTEXT: a crash (MAV_SEVERITY_EMERGENCY, motors off, destroyed)
+        takes the drone out of the swarm; failsafes and other texts are logged as such."""
+        lower = text.lower()
+        crashed = severity == _SEVERITY_EMERGENCY or any(w in lower for w in _CRASH_WORDS)
+        kind = "crash" if crashed else "failsafe" if "failsafe" in lower else "vehicle_text"
+        self.events.record(t_s, kind, drone=drone, severity=severity, text=text)
+        if crashed:
+            self.obs.lost_at_s.setdefault(drone, t_s)
+
+    def _drain_zenoh(self) -> None:
+        while self._statuses:
+            try:
+                status = decode_status(self._statuses.popleft(), self._o.swarm_id)
+            except WireError:
+                continue
+            self.latest[status.drone] = status
+            rows = self.obs.statuses.setdefault(status.drone, [])
+            rows.append((status.t_s, np.array(status.estimate), len(status.neighbours)))
+        while self._liveliness:
+            key, alive = self._liveliness.popleft()
+            drone = self._keys.drone_of(key)
+            if drone is None:
+                continue
+            t = self.now_s
+            self.obs.alive.setdefault(drone, []).append((t, alive))
+            if alive and drone not in self.alive:
+                self.alive.add(drone)
+                self.events.record(t, "agent_joined", drone=drone)
+            elif not alive and drone in self.alive:
+                self.alive.discard(drone)
+                self.obs.lost_at_s.setdefault(drone, t)
+                self.events.record(t, "dropout_detected", drone=drone)
+
+    def _answer_commands(self) -> None:
+        while (query := self._commands.try_recv()) is not None:
+            payload = query.payload.to_bytes() if query.payload is not None else None
+            reply = self.execute(payload)
+            query.reply(self._keys.command, encode_reply(reply))
+            query.drop()
+
+    def execute(self, payload: bytes | None) -> Reply:
+        """Validate and carry out one command request; never raises for a bad request."""
+        now = self.now_s
+        try:
+            request = parse_request(payload)
+        except CommandError as exc:
+            self.events.record(now, "command", command=None, accepted=False, reason=str(exc))
+            return Reply(False, str(exc), self.plan.seq)
+        if request.name == "status":
+            return Reply(True, f"t = {now:.2f} s", self.plan.seq, tuple(self.status_table()))
+        try:
+            plan = apply_command(request, self.plan, now, self._o.envelope)
+        except PlanRefused as exc:
+            reply = Reply(False, str(exc), self.plan.seq)
+        else:
+            self._publish(plan, now, request.name)
+            end = plan.trajectory.end_s
+            reply = Reply(True, f"plan {plan.seq}: arrives at t = {end:.1f} s", plan.seq)
+        self.events.record(
+            now,
+            "command",
+            command=request.name,
+            args=request.args,
+            accepted=reply.accepted,
+            reason=reply.reason,
+            seq=reply.seq,
+        )
+        return reply
+
+    def _truth(self) -> np.ndarray | None:
+        positions = [
+            v.position_ned_m
+            for i, v in sorted(self.telemetry.vehicles.items())
+            if v.position_ned_m is not None and (i in self.alive or not self.alive)
+        ]
+        return descriptors(np.array(positions)) if len(positions) >= 2 else None
+
+    def status_table(self) -> list[dict[str, Any]]:
+        """One row per drone heard: mode, armed, position (NED m), centre estimate error (m),
+        neighbours and message counters."""
+        truth = self._truth()
+        rows = []
+        for i in sorted(set(self.telemetry.vehicles) | set(self.latest)):
+            v, s = self.telemetry.vehicles.get(i), self.latest.get(i)
+            err = None
+            if s is not None and truth is not None:
+                err = float(np.linalg.norm(s.estimate[:3] - truth[:3]))
+            rows.append(
+                {
+                    "drone": i,
+                    "alive": i in self.alive,
+                    "mode": s.mode.name if s is not None else None,
+                    "armed": v.armed if v is not None else (s.armed if s else None),
+                    "position_ned_m": list(v.position_ned_m) if v and v.position_ned_m else None,
+                    "estimate_error_m": err if err is None or math.isfinite(err) else None,
+                    "neighbours": list(s.neighbours) if s is not None else [],
+                    "rx": s.counters.rx if s else 0,
+                    "tx": s.counters.tx if s else 0,
+                    "rx_dropped": (
+                        s.counters.rx_dropped_malformed + s.counters.rx_dropped_wrong_swarm
+                        if s
+                        else 0
+                    ),
+                }
+            )
+        return rows
+
+    def status_line(self) -> str:
+        """One line: sim time, vehicles heard, agents alive, worst centre estimate error."""
+        errors = [r["estimate_error_m"] for r in self.status_table() if r["alive"]]
+        finite = [e for e in errors if e is not None]
+        worst = f"{max(finite):.3f} m" if finite else "-"
+        return (
+            f"gcs t={self.now_s:7.2f}s  vehicles {len(self.telemetry.vehicles)}  "
+            f"agents alive {len(self.alive)}  plan {self.plan.seq}  worst estimate error {worst}"
+        )

@@ -1,0 +1,163 @@
+"""Operator commands to a running ground station: ``swarm takeoff|formation|move|rotate|scale|hold|
+land|status``. Each sends one request to ``swarm/<sid>/command`` over Zenoh and prints the answer.
+
+Exit codes: 0 accepted, 1 refused, 2 usage error or no ground station answering within 2 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import Any
+
+from drone_agent.agent_cli import RENDEZVOUS_PORT
+from gcs.commands import CommandError, Reply, Request, decode_reply, encode_request
+from protocols.keys import SwarmKeys
+
+ANSWER_TIMEOUT_S = 2.0
+OPERATOR_COMMANDS = ("takeoff", "formation", "move", "rotate", "scale", "hold", "land", "status")
+
+
+class OperatorError(Exception):
+    """Usage error or no ground station: one line, exit code 2."""
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--swarm-id", default="swarm", help="swarm name on Zenoh (default %(default)s)")
+    p.add_argument(
+        "--zenoh-connect",
+        default=f"tcp/127.0.0.1:{RENDEZVOUS_PORT}",
+        metavar="ENDPOINT",
+        help="where the ground station listens (default %(default)s)",
+    )
+
+
+def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register the operator commands."""
+    helps = {
+        "takeoff": "climb the swarm's centre to an altitude",
+        "formation": "set the formation: centre, heading, length/width/height spreads",
+        "move": "move the formation by north/east/up metres",
+        "rotate": "turn the formation's heading by a number of degrees",
+        "scale": "scale the formation's spreads by a factor",
+        "hold": "stop the formation where it can",
+        "land": "land every drone",
+        "status": "a table per drone: mode, armed, position, estimate error, neighbours",
+    }
+    for name in OPERATOR_COMMANDS:
+        p = sub.add_parser(name, help=f"operator: {helps[name]}", description=helps[name])
+        _common(p)
+        if name not in ("hold", "land", "status"):
+            p.add_argument(
+                "--duration-s", type=float, metavar="S", help="take exactly this long (s)"
+            )
+        if name == "takeoff":
+            p.add_argument("--altitude-m", type=float, required=True, metavar="M")
+        elif name == "formation":
+            centre = p.add_mutually_exclusive_group()
+            centre.add_argument(
+                "--centre-ned-m", type=float, nargs=3, metavar=("N", "E", "D"), help="NED, m"
+            )
+            centre.add_argument("--centre", metavar="N,E,ALT", help="north, east, altitude up (m)")
+            p.add_argument("--heading-deg", type=float, metavar="DEG")
+            for axis in ("length", "width", "height"):
+                p.add_argument(f"--{axis}-m", type=float, metavar="M", help=f"{axis} spread, m")
+        elif name == "move":
+            for axis in ("north", "east", "up"):
+                p.add_argument(f"--{axis}-m", type=float, default=0.0, metavar="M")
+        elif name == "rotate":
+            p.add_argument("--delta-deg", type=float, required=True, metavar="DEG")
+        elif name == "scale":
+            p.add_argument("--factor", type=float, required=True)
+
+
+def request_of(args: argparse.Namespace) -> Request:
+    """The request for parsed ``args``; OperatorError for a malformed value."""
+    out: dict[str, Any] = {}
+    keys = {
+        "takeoff": ("altitude_m",),
+        "formation": ("heading_deg", "length_m", "width_m", "height_m"),
+        "move": ("north_m", "east_m", "up_m"),
+        "rotate": ("delta_deg",),
+        "scale": ("factor",),
+    }.get(args.command, ())
+    for key in keys:
+        if getattr(args, key, None) is not None:
+            out[key] = getattr(args, key)
+    if args.command == "formation":
+        if args.centre_ned_m is not None:
+            out["centre_ned_m"] = list(args.centre_ned_m)
+        elif args.centre is not None:
+            try:
+                n, e, alt = (float(x) for x in args.centre.split(","))
+            except ValueError:
+                raise OperatorError("--centre must look like N,E,ALT (metres)") from None
+            out["centre_ned_m"] = [n, e, -alt]
+    if getattr(args, "duration_s", None) is not None:
+        out["duration_s"] = args.duration_s
+    for key, value in out.items():
+        values = value if isinstance(value, list) else [value]
+        if not all(math.isfinite(v) for v in values):
+            raise OperatorError(f"--{key.replace('_', '-')} must be finite")
+    return Request(args.command, out)
+
+
+def send(
+    swarm_id: str, endpoint: str, payload: bytes, timeout_s: float = ANSWER_TIMEOUT_S
+) -> Reply:
+    """Send one request payload to the ground station; OperatorError if none answers."""
+    import zenoh
+
+    from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
+
+    try:
+        key = SwarmKeys(swarm_id, 1.0).command
+        settings = ZenohSettings(mode="client", listen=(), connect=(endpoint,))
+    except ValueError as exc:
+        raise OperatorError(str(exc)) from None
+    try:
+        bus = ZenohBus.open(settings)
+    except zenoh.ZError:
+        raise OperatorError(f"no ground station reachable at {endpoint}") from None
+    with bus:
+        replies = bus.session.get(key, payload=payload, timeout=timeout_s)
+        for reply in replies:
+            if reply.ok is not None:
+                try:
+                    return decode_reply(reply.ok.payload.to_bytes())
+                except CommandError as exc:
+                    raise OperatorError(str(exc)) from None
+    raise OperatorError(
+        f"no ground station of swarm {swarm_id!r} answered within {timeout_s:g} s at {endpoint}"
+    )
+
+
+def format_reply(name: str, reply: Reply) -> list[str]:
+    """The lines printed for ``reply``."""
+    lines = [f"{name}: {'accepted' if reply.accepted else 'refused'}: {reply.reason}"]
+    if reply.table:
+        lines.append(
+            f"{'drone':>5} {'alive':>5} {'mode':>8} {'armed':>5} {'position NED (m)':>24} "
+            f"{'est.err(m)':>10} {'nbrs':>4} {'rx':>8} {'tx':>8} {'dropped':>7}"
+        )
+        for r in reply.table:
+            pos = r.get("position_ned_m")
+            pos_text = "-" if pos is None else " ".join(f"{x:7.2f}" for x in pos)
+            err = r.get("estimate_error_m")
+            lines.append(
+                f"{r.get('drone'):>5} {('yes' if r.get('alive') else 'no'):>5} "
+                f"{r.get('mode') or '-'!s:>8} {('yes' if r.get('armed') else 'no'):>5} "
+                f"{pos_text:>24} {('-' if err is None else f'{err:.3f}'):>10} "
+                f"{len(r.get('neighbours') or []):>4} {r.get('rx', 0):>8} {r.get('tx', 0):>8} "
+                f"{r.get('rx_dropped', 0):>7}"
+            )
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    """Send the command of ``args``, print the answer; 0 accepted, 1 refused."""
+    request = request_of(args)
+    reply = send(args.swarm_id, args.zenoh_connect, encode_request(request))
+    for line in format_reply(args.command, reply):
+        print(line)
+    return 0 if reply.accepted else 1
