@@ -44,7 +44,7 @@ class RunOptions:
     neighbour_wait_s: float = 0.03
     vehicle_timeout_s: float = 3.0
     heartbeat_period_s: float = 1.0
-    status_period_s: float = 0.2
+    status_every_ticks: int = 2
     command_retry_s: float = 0.5
     settle_ticks: int = 25
     settle_tolerance: float = 0.02
@@ -75,7 +75,6 @@ class HostedAgent:
         self._pending_since: float | None = None
         self._last_sample_wall = wall_clock()
         self._last_heartbeat = -1e9
-        self._last_status = -1e9
         self._last_command = -1e9
         self._settled_ticks = 0
         self._committed = False
@@ -143,9 +142,9 @@ class HostedAgent:
             return
         self._pending_since = None
         self._compute(tick, sample)
-        if now - self._last_status >= self.options.status_period_s:
+        if tick % self.options.status_every_ticks == 0:
+            # on the simulated-time grid, so the ground station compares like with like
             self._publish_status()
-            self._last_status = now
 
     def _vehicle_lost(self) -> bool:
         """The vehicle says it is gone: disarmed while we fly it, or in emergency/termination."""

@@ -16,6 +16,7 @@ from drone_agent.agent_cli import add_parser as add_agent_parser
 from gcs.gcs_cli import add_parser as add_gcs_parser
 from gcs.operator_cli import OPERATOR_COMMANDS
 from gcs.operator_cli import add_parsers as add_operator_parsers
+from gcs.up_cli import add_parsers as add_up_parsers
 from sitl_sim.sim_cli import add_sim_parser
 
 EXIT_USAGE = 2
@@ -76,6 +77,7 @@ def _parser() -> argparse.ArgumentParser:
     add_agent_parser(sub)
     add_gcs_parser(sub)
     add_operator_parsers(sub)
+    add_up_parsers(sub)
     return parser
 
 
@@ -97,6 +99,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _gcs(args)
         if args.command in OPERATOR_COMMANDS:
             return _operator(args)
+        if args.command in ("up", "demo"):
+            return _up(args)
     except CliError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -105,6 +109,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INTERRUPTED
     parser.print_help()
     return EXIT_USAGE
+
+
+def _up(args: argparse.Namespace) -> int:
+    from gcs.supervisor import SupervisorError
+    from gcs.up_cli import run
+
+    try:
+        return run(args)
+    except SupervisorError as exc:
+        raise CliError(str(exc)) from None
 
 
 def _simulate(args: argparse.Namespace) -> int:

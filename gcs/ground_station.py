@@ -162,6 +162,7 @@ class GroundStation:
         end_s = self._o.duration_s or self._o.scenario.duration_s
         self.events.record(self.now_s, "run_start", scenario=self._o.scenario.name, end_s=end_s)
         next_line = time.monotonic() + 1.0
+        wall0 = time.monotonic()
         last_sample_s = end_s - 1.0 / self._o.telemetry_hz  # the simulator's last report
         while not self._stop and self.now_s < last_sample_s:
             select.select([self.telemetry], [], [], _POLL_S)
@@ -179,10 +180,14 @@ class GroundStation:
         record = build_record(
             self._o.report_dir / "flight.tlog", n, self.obs, self._o.telemetry_hz, end_s
         )
+        wall = time.monotonic() - wall0
         extra = {
             "scenario": self._o.scenario.name,
             "mode": "distributed (swarm gcs)",
             "plan_seq": self.plan.seq,
+            "settle_s": self._o.scenario.settle_s,
+            "wall_time_s": round(wall, 3),
+            "real_time_factor": round(self.now_s / wall, 3) if wall > 0 else None,
         }
         return write_report(
             self._o.report_dir,

@@ -3,9 +3,10 @@
 Start order: the ground station (the Zenoh rendezvous; it publishes the plan and records the
 flight), the simulator (lockstep waits for every agent), then the agents, one process per drone or
 ``--agents-per-process`` drones per process. The run ends when the simulator reaches the
-scenario's duration, on Ctrl-C / SIGTERM, or when a child dies unexpectedly; then every child is
-stopped (SIGTERM, then SIGKILL) so that no process of the run is left and its ports are free. The
-ground station writes the report when it is stopped.
+scenario's duration, on Ctrl-C / SIGTERM, or when the simulator or the ground station dies; an
+agent process that ends is a drone leaving the swarm, which flies on. Then every child is stopped
+(SIGTERM, then SIGKILL) so that no process of the run is left and its ports are free. The ground
+station writes the report when it is stopped.
 """
 
 from __future__ import annotations
@@ -133,16 +134,23 @@ def supervise(
                 code = plan.sim.proc.returncode if plan.sim.proc else None
                 reason = "finished" if code == 0 else f"the simulator exited with code {code}"
                 break
-            dead = [c for c in plan.children if not c.running and not c.expected_exit]
-            if dead:
-                code = dead[0].proc.returncode if dead[0].proc else None
-                reason = f"{dead[0].role} exited with code {code} (log: {dead[0].log})"
+            if not plan.gcs.running:
+                code = plan.gcs.proc.returncode if plan.gcs.proc else None
+                reason = f"the ground station exited with code {code} (log: {plan.gcs.log})"
                 break
+            for agent in plan.agents:
+                if not agent.running and not agent.expected_exit:
+                    # a drone drop-out, not a failure of the run: the swarm flies on
+                    agent.expected_exit = True
+                    code = agent.proc.returncode if agent.proc else None
+                    if progress is not None:
+                        progress(f"{agent.role} exited with code {code}; the swarm flies on")
             if progress is not None:
                 progress(_last_line(plan.sim.log))
             time.sleep(poll_s)
     finally:
-        for child in [*plan.agents, plan.sim, plan.gcs]:
+        # the ground station first, so the report ends with the flight, not with the shutdown
+        for child in [plan.gcs, *plan.agents, plan.sim]:
             child.stop()
     return reason
 

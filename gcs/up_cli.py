@@ -24,6 +24,8 @@ from protocols.mavlink_conventions import DEFAULT_BASE_PORT, DEFAULT_GCS_PORT
 from protocols.scenario import ScenarioError, load_scenario
 
 PAPER = Path("scenarios/paper.toml")
+#: Telemetry rate of every vehicle to the ground station, and so of the report's record (Hz).
+TELEMETRY_HZ = 25
 
 
 def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -161,11 +161,13 @@ def write_scenario(
     spread: tuple[float, float, float],
     extra: str = "",
     duration_s: float = 600.0,
+    settle_s: float = 20.0,
 ) -> Path:
     """A scenario holding the swarm at ``centre`` with ``spread``, plus ``extra`` TOML."""
     drones = "\n".join(f"[[drones]]\nposition_ned_m = {list(p)}\n" for p in positions)
     path.write_text(
-        f'version = 1\nname = "{path.stem}"\nduration_s = {duration_s}\n\n{drones}\n'
+        f'version = 1\nname = "{path.stem}"\nduration_s = {duration_s}\nsettle_s = {settle_s}\n\n'
+        f"{drones}\n"
         f"[[trajectory.waypoints]]\nt_s = 0.0\ncentre_ned_m = {list(centre)}\n"
         f"spread_m = {list(spread)}\n\n[[trajectory.waypoints]]\nt_s = 10.0\n"
         f"centre_ned_m = {list(centre)}\nspread_m = {list(spread)}\n\n{extra}\n"

@@ -1,0 +1,117 @@
+"""``swarm up`` end to end: it flies a scenario with real child processes, the ground station
+writes the report, and whether it ends normally or by Ctrl-C nothing of it is left running and
+its ports are free."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+from agent_harness import write_scenario
+from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
+
+from gcs.tlog import read_tlog
+
+pytestmark = pytest.mark.slow
+SQUARE = [(0.0, 0.0, 0.0), (0.0, 3.0, 0.0), (4.0, 0.0, 0.0), (4.0, 3.0, 0.0)]
+
+
+def _processes_mentioning(text: str) -> list[int]:
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if text in cmdline and int(entry.name) != os.getpid():
+            pids.append(int(entry.name))
+    return pids
+
+
+def _udp_free(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def _up(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen[bytes], Path, int, int]:
+    scenario = write_scenario(
+        tmp_path / "hover.toml",
+        SQUARE,
+        centre=(2.0, 1.5, -2.0),
+        spread=(2.0, 1.5, 0.0),
+        duration_s=30.0,
+        settle_s=8.0,
+    )
+    base, gcs_port = free_port_block(4), free_udp_port()
+    report = tmp_path / "report"
+    proc = subprocess.Popen(
+        swarm_command(
+            "up",
+            str(scenario),
+            "--report",
+            str(report),
+            "--base-port",
+            str(base),
+            "--gcs-port",
+            str(gcs_port),
+            *extra,
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        env=ENV,
+        cwd=ROOT,
+    )
+    return proc, report, base, gcs_port
+
+
+def _assert_nothing_left(report: Path, base: int, gcs_port: int) -> None:
+    deadline = time.monotonic() + 5.0
+    while _processes_mentioning(str(report.parent)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert _processes_mentioning(str(report.parent)) == []
+    assert all(_udp_free(p) for p in range(base, base + 4))
+    assert _udp_free(gcs_port)
+
+
+def test_swarm_up_flies_and_reports(tmp_path: Path) -> None:
+    proc, report, base, gcs_port = _up(tmp_path, "--duration-s", "14", "--agents-per-process", "2")
+    out, _ = proc.communicate(timeout=180)
+    text = out.decode(errors="replace")
+    assert proc.returncode == 0, text
+    assert "swarm up: finished" in text
+    metrics = json.loads((report / "metrics.json").read_text())
+    assert metrics["n_drones"] == 4
+    assert metrics["tracking_steady"]["centroid_m"]["rms"] < 0.05
+    assert metrics["collisions"]["count"] == 0
+    track = read_tlog(report / "flight.tlog")
+    assert set(track.vehicles) == {1, 2, 3, 4}
+    assert all(-v.position_ned_m[-1, 2] > 1.5 for v in track.vehicles.values())
+    for png in ("paths.png", "descriptors.png"):
+        assert (report / png).stat().st_size > 10_000
+    _assert_nothing_left(report, base, gcs_port)
+
+
+def test_ctrl_c_stops_everything(tmp_path: Path) -> None:
+    proc, report, base, gcs_port = _up(tmp_path)
+    deadline = time.monotonic() + 60
+    while not (report / "logs" / "sim.log").exists() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    time.sleep(4.0)
+    assert len(_processes_mentioning(str(tmp_path))) >= 4  # up, gcs, sim, agents
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=60)
+    assert "interrupted" in out.decode(errors="replace")
+    assert proc.returncode == 1
+    _assert_nothing_left(report, base, gcs_port)
