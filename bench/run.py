@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.end_to_end import end_to_end
 from bench.physics import physics_step
 from bench.sitl import sitl_rtf
 from bench.zenoh_latency import zenoh_latency
@@ -28,6 +29,7 @@ BENCHMARKS: dict[str, Benchmark] = {
     "physics_step": physics_step,
     "zenoh_latency": zenoh_latency,
     "sitl": sitl_rtf,
+    "end_to_end": end_to_end,
 }
 
 

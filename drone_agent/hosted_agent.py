@@ -41,7 +41,7 @@ class RunOptions:
 
     control_period_ms: int = 20
     arm: bool = True
-    neighbour_wait_s: float = 0.03
+    neighbour_wait_s: float = 0.008
     vehicle_timeout_s: float = 3.0
     heartbeat_period_s: float = 1.0
     status_every_ticks: int = 2

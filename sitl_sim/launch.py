@@ -84,7 +84,7 @@ def build_config(args: argparse.Namespace) -> SimConfig:
             speedup=args.speedup,
             drop_timeout_s=args.lockstep_timeout,
             join_timeout_s=args.join_timeout,
-            wait_agents=args.wait_agents,
+            wait_agents=_wait_agents(args),
             duration_s=args.duration_s,
         ),
         seed=v.seed if args.seed is None else args.seed,
@@ -116,7 +116,7 @@ def _check_numbers(args: argparse.Namespace) -> None:
         check_positive("--duration-s", args.duration_s)
     if not (np.isfinite(args.position_noise_m) and args.position_noise_m >= 0):
         raise SimConfigError("--position-noise-m must be a number >= 0")
-    if args.wait_agents < 0:
+    if args.wait_agents is not None and args.wait_agents < 0:
         raise SimConfigError("--wait-agents must be >= 0")
 
 
@@ -164,3 +164,11 @@ def status_line(s: Status) -> str:
         f"flying {s.flying} failsafe {s.failsafe} crashed {s.crashed} | rx {s.rx} tx {s.tx} "
         f"rejected {s.rejected}{lockstep}"
     )
+
+
+def _wait_agents(args: argparse.Namespace) -> int:
+    """--wait-agents, defaulting to 1 in lockstep (the first agent starts time) and to 0 in
+    realtime (time starts at once)."""
+    if args.wait_agents is not None:
+        return int(args.wait_agents)
+    return 1 if args.clock == "lockstep" else 0

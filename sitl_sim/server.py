@@ -157,6 +157,11 @@ class SimServer:
         self.pacer.rebase(self.world.tick, start)
         sent_to = self._emit()
         join_deadline = start + self.clock.join_timeout_s
+        if self.barrier is None and self.clock.wait_agents > 0:
+            self._await_agents(join_deadline)
+            start = self.wall()
+            meter = RateMeter(self.world.t_s, start)
+            self.pacer.rebase(self.world.tick, start)
         while not self._stopped and not self._done():
             if self.barrier is None:
                 self._poll_until(self.pacer.deadline(self.world.tick + 1))
@@ -214,6 +219,20 @@ class SimServer:
                 self._resend(barrier.awaiting if barrier.members and not joining else None)
                 next_resend = now + RESEND_S
             self._poll(min(wait_until, next_resend) - now)
+
+    def _await_agents(self, deadline: float) -> None:
+        """Realtime: hold tick 0 (re-sending its state) until ``wait_agents`` agents have spoken
+        or the join timeout passes, so that a swarm's plan starts when its agents are there."""
+        next_resend = self.wall()
+        while not self._stopped:
+            now = self.wall()
+            spoken = sum(1 for ch in self.agent.channels if ch.active)
+            if spoken >= self.clock.wait_agents or now >= deadline:
+                return
+            if now >= next_resend:
+                self._resend(None)
+                next_resend = now + RESEND_S
+            self._poll(min(deadline, next_resend) - now)
 
     def _dropped(self, vehicles: list[int]) -> None:
         timeout = self.clock.drop_timeout_s

@@ -145,9 +145,10 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument(
         "--wait-agents",
         type=int,
-        default=1,
+        default=None,
         metavar="K",
-        help="lockstep: tick 0 waits for K agents to join (default 1)",
+        help="tick 0 waits (up to --join-timeout) for K agents: in lockstep K agents in the "
+        "barrier (default 1), in realtime K agents that have spoken (default 0: start at once)",
     )
     p.add_argument(
         "--duration-s",
