@@ -7,6 +7,7 @@ import signal
 import socket
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
 
@@ -14,6 +15,7 @@ import numpy as np
 
 from drone_agent.agent_core import AgentConfig
 from drone_agent.config import agent_config
+from drone_agent.fault_drills import FaultDrills
 from drone_agent.host import AgentHost, DroneIdError, parse_drone_ids
 from drone_agent.hosted_agent import RunOptions
 from drone_agent.link_faults import FaultyTransport, LinkFaults
@@ -217,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
     host = AgentHost(drones, links, bus, transport, config, plan, options)
     hosts.append(host)
     drills = _Drills(scenario, faults, host) if scenario else None
+    live = FaultDrills(bus, args.swarm_id, faults, config.consensus.dt_s, host_round(host))
 
     def stop(_sig: int, _frame: FrameType | None) -> None:
         host.stop()
@@ -231,11 +234,17 @@ def run(args: argparse.Namespace) -> int:
             print(_status_line(h), file=sys.stderr, flush=True)
 
     try:
-        host.run(on_second=report if not args.quiet or drills else None)
+        host.run(on_second=report if not args.quiet or drills else None, on_loop=live.poll)
     finally:
+        live.close()
         host.close()
         bus.close()
     return 0
+
+
+def host_round(host: AgentHost) -> Callable[[], int]:
+    """A clock of ``host``'s current control round."""
+    return lambda: _current_round(host)
 
 
 def _current_round(host: AgentHost) -> int:

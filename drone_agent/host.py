@@ -99,10 +99,17 @@ class AgentHost:
         """Ask :meth:`run` to return (thread-safe)."""
         self._stop.set()
 
-    def run(self, on_second: Callable[[AgentHost], None] | None = None) -> None:
-        """Serve every hosted agent until stopped or all have left the swarm."""
+    def run(
+        self,
+        on_second: Callable[[AgentHost], None] | None = None,
+        on_loop: Callable[[], None] | None = None,
+    ) -> None:
+        """Serve every hosted agent until stopped or all have left the swarm; ``on_second`` runs
+        about once a second (wall clock), ``on_loop`` (cheap) before every pass over the agents."""
         last_report = self._clock()
         while not self._stop.is_set():
+            if on_loop is not None:
+                on_loop()
             for key, _ in self._selector.select(timeout=0.002):
                 slot: _Slot = key.data
                 for sample in slot.link.poll():

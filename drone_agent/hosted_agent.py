@@ -147,9 +147,11 @@ class HostedAgent:
             self._publish_status()
 
     def _vehicle_lost(self) -> bool:
-        """The vehicle says it is gone: disarmed while we fly it, or in emergency/termination."""
+        """The vehicle says it is gone: an EMERGENCY status text (sent the moment its motors
+        fail, long before the 1 Hz heartbeat), disarmed while we fly it, or in emergency or
+        termination state."""
         status = self.link.status
-        return not status.armed or status.system_status in LOST_STATES
+        return status.emergency or not status.armed or status.system_status in LOST_STATES
 
     def _plan(self) -> tuple[DescriptorTrajectory | None, FlightCommand]:
         received = self.transport.plan()

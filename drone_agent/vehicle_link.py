@@ -58,6 +58,7 @@ class VehicleStatus:
     heartbeats: int = 0
     last_ack: dict[int, int] = field(default_factory=dict)
     texts: list[str] = field(default_factory=list)
+    emergency: bool = False
 
 
 @dataclass
@@ -150,6 +151,8 @@ class VehicleLink:
         elif kind == "STATUSTEXT":
             self.status.texts.append(str(msg.text))
             del self.status.texts[:-50]
+            if int(msg.severity) == common.MAV_SEVERITY_EMERGENCY:
+                self.status.emergency = True  # e.g. motors failed: the vehicle is going down
         elif kind == "LOCAL_POSITION_NED":
             self._pos[int(msg.time_boot_ms)] = msg
             return self._pair(int(msg.time_boot_ms))

@@ -13,6 +13,7 @@ from typing import Any
 os.environ.setdefault("MAVLINK20", "1")  # before anything imports pymavlink
 
 from drone_agent.agent_cli import add_parser as add_agent_parser
+from gcs.drill_cli import add_parser as add_drill_parser
 from gcs.gcs_cli import add_parser as add_gcs_parser
 from gcs.operator_cli import OPERATOR_COMMANDS
 from gcs.operator_cli import add_parsers as add_operator_parsers
@@ -78,6 +79,7 @@ def _parser() -> argparse.ArgumentParser:
     add_gcs_parser(sub)
     add_operator_parsers(sub)
     add_up_parsers(sub)
+    add_drill_parser(sub)
     return parser
 
 
@@ -101,6 +103,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _operator(args)
         if args.command in ("up", "demo"):
             return _up(args)
+        if args.command == "drill":
+            return _drill(args)
     except CliError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -206,6 +210,15 @@ def _operator(args: argparse.Namespace) -> int:
     try:
         return run(args)
     except OperatorError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _drill(args: argparse.Namespace) -> int:
+    from gcs.drill_cli import DrillError, run
+
+    try:
+        return run(args)
+    except DrillError as exc:
         raise CliError(str(exc)) from None
 
 

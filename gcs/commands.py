@@ -40,6 +40,7 @@ COMMANDS: dict[str, tuple[frozenset[str], frozenset[str]]] = {
     "hold": (frozenset(), frozenset()),
     "land": (frozenset(), frozenset()),
     "status": (frozenset(), frozenset()),
+    "crash": (frozenset({"drone"}), frozenset()),  # a drill: stop every motor of vehicle drone
 }
 
 

@@ -17,7 +17,7 @@ import select
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +28,7 @@ from drone_agent.transport_link import PlanServer
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
 from gcs.commands import CommandError, Reply, apply_command, encode_reply, parse_request
 from gcs.events import EventLog
+from gcs.gcs_drills import GcsDrills
 from gcs.gcs_report import Observations, build_record, write_report
 from gcs.planner import Envelope, PlanRefused
 from gcs.telemetry import TelemetryReceiver
@@ -92,6 +93,8 @@ class GroundStation:
                 self.bus.watch_liveliness(self._keys.alive_all(), self._on_alive),
             ):
                 self._closers.append(sub.close)
+            self.drills = GcsDrills(self.bus, options.swarm_id, self.events, self.telemetry)
+            self._closers.append(self.drills.close)
             handler: zenoh.handlers.FifoChannel[zenoh.Query] = zenoh.handlers.FifoChannel(64)
             self._commands = self.bus.session.declare_queryable(self._keys.command, handler)
             self._closers.append(self._commands.undeclare)
@@ -169,6 +172,7 @@ class GroundStation:
             for text in self.telemetry.poll():
                 self._vehicle_text(text.t_s, text.drone, text.severity, text.text)
             self._drain_zenoh()
+            self.drills.drain(self.now_s)
             self._answer_commands()
             if time.monotonic() >= next_line:
                 next_line += 1.0
@@ -249,6 +253,9 @@ class GroundStation:
             return Reply(False, str(exc), self.plan.seq)
         if request.name == "status":
             return Reply(True, f"t = {now:.2f} s", self.plan.seq, tuple(self.status_table()))
+        if request.name == "crash":  # a drill, recorded by GcsDrills
+            n = self._o.scenario.n_drones
+            return replace(self.drills.crash(request.args["drone"], n, now), seq=self.plan.seq)
         try:
             plan = apply_command(request, self.plan, now, self._o.envelope)
         except PlanRefused as exc:

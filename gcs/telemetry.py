@@ -2,9 +2,10 @@
 records every packet into ``flight.tlog`` stamped with simulated time, and keeps the newest state
 of each vehicle (system id = drone index + 1).
 
-The simulator sends to the ground station's address; the ground station sends nothing back. The
-record time of a packet is its own ``time_boot_ms`` (s) when it has one, else its vehicle's last
-known time, else the newest simulated time heard from any vehicle.
+The simulator sends to the ground station's address; the ground station sends back only drills
+(:meth:`TelemetryReceiver.send_command`, e.g. MAV_CMD_INJECT_FAILURE), to the address the vehicles'
+telemetry comes from. The record time of a packet is its own ``time_boot_ms`` (s) when it has one,
+else its vehicle's last known time, else the newest simulated time heard from any vehicle.
 """
 
 from __future__ import annotations
@@ -57,6 +58,7 @@ class TelemetryReceiver:
     vehicles: dict[int, VehicleState] = field(default_factory=dict)
     sim_time_s: float = 0.0
     malformed: int = 0
+    sim_address: tuple[str, int] | None = None
 
     def __post_init__(self) -> None:
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -64,6 +66,7 @@ class TelemetryReceiver:
             self._sock.bind((self.host, self.port))
             self._sock.setblocking(False)
             self._codec = common.MAVLink(None)
+            self._out = common.MAVLink(None, srcSystem=255, srcComponent=190)  # a GCS
             self._codec.robust_parsing = True
             self._tlog = TlogWriter(self.tlog_path)
             self._tlog.open()
@@ -91,7 +94,7 @@ class TelemetryReceiver:
         texts: list[VehicleText] = []
         while True:
             try:
-                data = self._sock.recv(_MAX_DATAGRAM)
+                data, address = self._sock.recvfrom(_MAX_DATAGRAM)
             except (BlockingIOError, InterruptedError):
                 return texts
             except OSError:
@@ -102,9 +105,20 @@ class TelemetryReceiver:
                 self.malformed += 1
                 continue
             for msg in messages:
+                if msg.get_type() != "BAD_DATA" and 1 <= msg.get_srcSystem() <= 254:
+                    self.sim_address = (str(address[0]), int(address[1]))
                 text = self._handle(msg)
                 if text is not None:
                     texts.append(text)
+
+    def send_command(self, drone: int, command: int, *params: float) -> None:
+        """COMMAND_LONG ``command`` with up to 7 ``params`` to vehicle ``drone`` (index; system id
+        drone + 1) through the simulator's GCS endpoint; OSError if nothing has been heard yet."""
+        if self.sim_address is None:
+            raise OSError("no telemetry heard yet: the simulator's address is unknown")
+        padded = [float(p) for p in params] + [0.0] * (7 - len(params))
+        msg = self._out.command_long_encode(drone + 1, 1, command, 0, *padded)
+        self._sock.sendto(msg.pack(self._out), self.sim_address)
 
     def _handle(self, msg: Any) -> VehicleText | None:
         if msg.get_type() == "BAD_DATA":

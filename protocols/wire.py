@@ -28,7 +28,8 @@ needs them exact: a decoded message equals the sent one bit for bit.
 
 Decoders raise only :class:`WireError`, whose ``reason`` says why (callers count drops by
 reason); encoders raise ValueError for a message that cannot be sent.
-Status and plan messages live in ``protocols.wire_status`` and ``protocols.wire_plan``.
+Status, plan and fault messages live in ``protocols.wire_status``, ``protocols.wire_plan``
+and ``protocols.wire_fault``.
 """
 
 from __future__ import annotations
@@ -65,6 +66,7 @@ class Kind(IntEnum):
     CONSENSUS = 1
     STATUS = 2
     PLAN = 3
+    FAULT = 4
 
 
 class Reason(StrEnum):

@@ -1,0 +1,173 @@
+"""Drills against a running swarm (issue 5): ``swarm drill link-cut`` / ``clear`` on nine agents
+on the ground, malformed fault payloads ignored, and ``swarm drill crash`` in a flying swarm."""
+
+from __future__ import annotations
+
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from agent_harness import (
+    GRID,
+    SWARM,
+    SwarmObserver,
+    agent_process,
+    observer,
+    truth_of,
+    within_bound,
+    write_scenario,
+)
+from sitl_client import ENV, ROOT, free_port_block, free_udp_port, sim_process, swarm_command
+
+from drone_agent.transport import Congestion
+from gcs.events import read_events
+from gcs.tlog import read_tlog
+from protocols.keys import SwarmKeys
+from protocols.wire_status import AgentMode
+
+pytestmark = pytest.mark.slow
+TRUTH = truth_of(GRID)
+
+
+def drill(endpoint: str, *args: str) -> subprocess.CompletedProcess[str]:
+    """Run ``swarm drill ARGS`` against the swarm reachable at ``endpoint``."""
+    return subprocess.run(
+        swarm_command("drill", *args, "--swarm-id", SWARM, "--zenoh-connect", endpoint),
+        capture_output=True,
+        text=True,
+        env=ENV,
+        cwd=ROOT,
+        timeout=30,
+    )
+
+
+def _all_within(obs: SwarmObserver) -> bool:
+    st = obs.statuses()
+    return len(st) == 9 and all(within_bound(np.asarray(s.estimate), TRUTH) for s in st.values())
+
+
+def _linked(obs: SwarmObserver, i: int, j: int) -> tuple[bool, bool]:
+    st = obs.statuses()
+    return j in st[i].neighbours, i in st[j].neighbours
+
+
+def test_link_cut_and_clear_on_the_ground_and_malformed_commands_are_ignored(
+    tmp_path: Path,
+) -> None:
+    scenario = write_scenario(
+        tmp_path / "ground.toml", GRID, centre=(3.0, 2.0, 0.0), spread=(2.45, 1.63, 0.0)
+    )
+    base = free_port_block(9)
+    with (
+        observer() as obs,
+        sim_process(
+            tmp_path, "--scenario", str(scenario), "--gcs", "none", "--quiet", base_port=base
+        ),
+        agent_process(
+            tmp_path, "0-8", base, obs.zenoh_args, "--scenario", str(scenario), "--no-arm"
+        ) as agents,
+    ):
+        assert obs.wait_until(lambda: _all_within(obs), 30.0)
+        assert _linked(obs, 0, 4) == (True, True)
+
+        done = drill(obs.endpoint, "link-cut", "0", "4")
+        assert done.returncode == 0, done.stderr
+        assert "link_cut 0<->4" in done.stdout
+        # both ends stop integrating each other; everyone stays within the bound meanwhile
+        cut_seen = False
+        end = time.monotonic() + 8.0
+        while time.monotonic() < end:
+            st = obs.statuses()
+            assert all(within_bound(np.asarray(s.estimate), TRUTH) for s in st.values())
+            if _linked(obs, 0, 4) == (False, False):
+                if cut_seen and time.monotonic() > end - 5.0:
+                    break
+                cut_seen = True
+            time.sleep(0.1)
+        assert cut_seen and _linked(obs, 0, 4) == (False, False)
+        assert 1 in obs.statuses()[0].neighbours  # only that link is cut
+
+        # malformed fault payloads: counted, logged, ignored; the agents keep running
+        pub = obs.bus.publisher(SwarmKeys(SWARM, 1.0).fault, Congestion.BLOCK)
+        for payload in (b"", b"\x51\x01\x04\x04test\x09", b"\x51\x01\x04\x04test\x01\x00", b"junk"):
+            pub.put(payload)
+        pub.close()
+
+        done = drill(obs.endpoint, "clear")
+        assert done.returncode == 0, done.stderr
+        assert obs.wait_until(lambda: _linked(obs, 0, 4) == (True, True), 8.0)
+        assert obs.wait_until(lambda: _all_within(obs), 5.0)
+        assert agents.proc.poll() is None
+        log = agents.log.read_text()
+        assert "fault drill at t=" in log and "link_cut 0<->4" in log and ": clear" in log
+        assert "4 malformed so far" in log, log[-2000:]
+
+
+#: Five drones: a 4 m x 3 m rectangle and its centre.
+FIVE = [(0.0, 0.0, 0.0), (0.0, 3.0, 0.0), (4.0, 0.0, 0.0), (4.0, 3.0, 0.0), (2.0, 1.5, 0.0)]
+
+
+def test_crash_drill_in_a_flying_swarm(tmp_path: Path) -> None:
+    scenario = write_scenario(
+        tmp_path / "hover.toml",
+        FIVE,
+        centre=(2.0, 1.5, -3.0),
+        spread=(2.0, 1.5, 0.0),
+        duration_s=30.0,
+        settle_s=8.0,
+    )
+    base, gcs_port = free_port_block(5), free_udp_port()
+    report = tmp_path / "report"
+    with observer() as obs:
+        proc = subprocess.Popen(
+            swarm_command(
+                *("up", str(scenario), "--report", str(report), "--duration-s", "20"),
+                *("--base-port", str(base), "--gcs-port", str(gcs_port)),
+                *("--swarm-id", SWARM, "--zenoh-connect", obs.endpoint),
+            ),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            env=ENV,
+            cwd=ROOT,
+        )
+        try:
+            flying = obs.wait_until(
+                lambda: all(s.mode == AgentMode.FLYING and s.t_s > 10.0
+                            for s in obs.statuses().values()) and len(obs.statuses()) == 5,
+                90.0,
+            )  # fmt: skip
+            assert flying, {d: (s.mode, s.t_s) for d, s in obs.statuses().items()}
+            # a link-fault drill the ground station records (clear: changes nothing in flight)
+            clear = drill(obs.endpoint, "clear")
+            assert clear.returncode == 0, clear.stderr
+            crash = drill(obs.endpoint, "crash", "--drone", "1")
+            assert crash.returncode == 0, crash.stdout + crash.stderr
+            assert "accepted" in crash.stdout
+            refused = drill(obs.endpoint, "crash", "--drone", "7")
+            assert refused.returncode == 1 and "refused" in refused.stdout
+            out, _ = proc.communicate(timeout=120)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(10)
+    text = out.decode(errors="replace")
+    assert proc.returncode == 0, text
+    events = read_events(report / "events.jsonl")
+    drills = [e for e in events if e["kind"] == "drill"]
+    assert [(d["drill"], d["accepted"]) for d in drills] == [
+        ("clear", True),
+        ("crash", True),
+        ("crash", False),
+    ], drills
+    crashes = [e for e in events if e["kind"] == "crash" and e["drone"] == 1]
+    assert crashes and crashes[0]["t_s"] >= drills[1]["t_s"] - 0.2  # vehicle vs agents' clock
+    assert "Failure injected: all motors off" in crashes[0]["text"]
+    track = read_tlog(report / "flight.tlog")
+    # it fell: its last telemetry (it goes silent on the ground) is at most a fall step above it
+    assert -track.vehicles[2].position_ned_m[-1, 2] < 0.5
+    assert any("hit the ground" in e["text"] for e in crashes)
+    # the others fly on: drone 1's agent leaves the swarm on its vehicle's EMERGENCY text
+    assert all(-track.vehicles[s].position_ned_m[-1, 2] > 2.0 for s in (1, 3, 4, 5))
+    assert [e["drone"] for e in events if e["kind"] == "crash"] == [1] * len(crashes)

@@ -1,0 +1,136 @@
+"""Live fault drills in an agent process (drone_agent.fault_drills) over the in-memory bus:
+commands applied to LinkFaults, timed faults undone in simulated time, malformed ones counted."""
+
+from __future__ import annotations
+
+import pytest
+
+from drone_agent.fault_drills import FaultDrills, describe
+from drone_agent.link_faults import LinkFaults
+from drone_agent.memory_bus import MemoryBus
+from gcs.cli import main
+from gcs.commands import CommandError, Request, encode_request, parse_request
+from protocols.keys import SwarmKeys
+from protocols.wire_fault import (
+    Clear,
+    Delay,
+    FaultCommand,
+    LinkCut,
+    LinkRestore,
+    Loss,
+    Partition,
+    encode_fault,
+)
+
+SID = "unit"
+DT_S = 0.02
+
+
+class Clock:
+    """A settable control round."""
+
+    def __init__(self) -> None:
+        self.round = 0
+
+    def __call__(self) -> int:
+        return self.round
+
+
+def _setup() -> tuple[MemoryBus, LinkFaults, Clock, FaultDrills, list[str]]:
+    medium, faults, clock = MemoryBus(), LinkFaults(), Clock()
+    lines: list[str] = []
+    drills = FaultDrills(medium.session(), SID, faults, DT_S, clock, lines.append)
+    return medium, faults, clock, drills, lines
+
+
+def _send(medium: MemoryBus, *commands: FaultCommand) -> None:
+    for command in commands:
+        medium.deliver(SwarmKeys(SID, 1.0).fault, encode_fault(command, SID))
+
+
+def test_commands_apply_only_when_polled_and_timed_cuts_end_in_simulated_time() -> None:
+    medium, faults, clock, drills, lines = _setup()
+    clock.round = 100  # t = 2 s
+    _send(medium, LinkCut(0, 4, duration_s=1.0), LinkCut(2, 3, one_way=True))
+    assert faults.cut == set()  # the callback only queues
+    drills.poll()
+    assert faults.cut == {(0, 4), (4, 0), (2, 3)}
+    assert drills.applied == 2 and lines[0] == "fault drill at t=2.00s: link_cut 0<->4 for 1 s"
+    clock.round = 149
+    drills.poll()
+    assert (0, 4) in faults.cut
+    clock.round = 150  # t = 3 s: one second of simulated time later
+    drills.poll()
+    assert faults.cut == {(2, 3)}
+    _send(medium, LinkRestore(2, 3))
+    drills.poll()
+    assert faults.cut == set()
+
+
+def test_loss_delay_partition_and_clear() -> None:
+    medium, faults, clock, drills, _ = _setup()
+    _send(medium, Loss(0.25), Loss(0.5, (1, 2), duration_s=0.5), Delay(41.0), Delay(100.0, (3, 4)))
+    _send(medium, Partition(((0, 1), (2, 3))))
+    drills.poll()
+    assert faults.loss == 0.25 and faults.loss_for(2, 1) == 0.5
+    assert faults.extra_delay_ticks == 2 and faults.delay_for(4, 3) == 5  # ms -> ticks of 20 ms
+    assert faults.blocks(1, 2) and not faults.blocks(0, 1)
+    clock.round = 25
+    drills.poll()
+    assert faults.loss_for(2, 1) == 0.0 and faults.loss == 0.25
+    _send(medium, Partition(None))
+    drills.poll()
+    assert faults.partition is None
+    _send(medium, LinkCut(5, 6, duration_s=9.0), Clear())
+    drills.poll()
+    assert faults == LinkFaults()
+    clock.round = 10_000
+    drills.poll()  # the cleared cut's timed restore is forgotten too
+    assert faults == LinkFaults()
+
+
+def test_malformed_payloads_are_counted_and_ignored() -> None:
+    medium, faults, _, drills, lines = _setup()
+    key = SwarmKeys(SID, 1.0).fault
+    for payload in (b"", b"junk", encode_fault(Clear(), "other"), encode_fault(Clear(), SID)[:-1]):
+        medium.deliver(key, payload)
+    _send(medium, LinkCut(0, 1))
+    drills.poll()
+    assert drills.malformed == 4 and drills.applied == 1
+    assert faults.cut == {(0, 1), (1, 0)}
+    assert sum("ignored" in line for line in lines) == 4
+    drills.close()
+    _send(medium, Clear())
+    drills.poll()
+    assert faults.cut == {(0, 1), (1, 0)}  # no longer listening
+
+
+def test_describe() -> None:
+    assert describe(Loss(0.1, (1, 2), 3.0)) == "loss 0.1 on 1<->2 for 3 s"
+    assert describe(Delay(20.0)) == "delay 20 ms"
+    assert describe(LinkCut(1, 2, one_way=True)) == "link_cut 1->2"
+    assert describe(Partition(((0, 1), (2,)))) == "partition 0,1/2"
+    assert describe(Partition(None)) == "partition healed"
+    assert describe(Clear()) == "clear"
+
+
+def test_drill_cli_usage_errors_are_one_line_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    for argv in (
+        ["drill", "link-cut", "3", "3"],
+        ["drill", "loss", "1.5"],
+        ["drill", "loss", "0.1", "--link", "1"],
+        ["drill", "delay", "20", "--link", "a,b"],
+        ["drill", "partition", "--groups", "0,1/1,2"],
+        ["drill", "link-cut", "0", "1", "--for-s", "0"],
+        ["drill", "clear", "--zenoh-connect", "tcp/127.0.0.1:1"],
+    ):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.startswith("swarm: error: ") and err.count("\n") == 1, err
+
+
+def test_crash_is_an_operator_request_with_a_drone() -> None:
+    request = parse_request(encode_request(Request("crash", {"drone": 2})))
+    assert request == Request("crash", {"drone": 2.0})
+    with pytest.raises(CommandError, match="missing argument 'drone'"):
+        parse_request(encode_request(Request("crash", {})))
