@@ -207,17 +207,15 @@ def run(args: argparse.Namespace) -> int:
         raise
     except Exception as exc:  # zenoh raises ZError with the reason
         raise AgentCliError(f"cannot open the Zenoh session: {exc}") from None
-    hosts: list[AgentHost] = []
     rng = np.random.default_rng(args.seed)
 
     def transport(bus_: Bus, drone: int, position: Position) -> AgentTransport:
+        # called once the host runs; ``host`` is bound by then
         inner = AgentLink(bus_, drone, position, settings)
-        agent_host = hosts[0]
-        return FaultyTransport(inner, faults, rng, lambda: _current_round(agent_host))
+        return FaultyTransport(inner, faults, rng, lambda: _current_round(host))
 
     options = RunOptions(control_period_ms=period_ms, arm=not args.no_arm)
     host = AgentHost(drones, links, bus, transport, config, plan, options)
-    hosts.append(host)
     drills = _Drills(scenario, faults, host) if scenario else None
     live = FaultDrills(bus, args.swarm_id, faults, config.consensus.dt_s, host_round(host))
 
@@ -227,14 +225,16 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
 
-    def report(h: AgentHost) -> None:
-        if drills is not None:
+    def each_loop() -> None:
+        live.poll()
+        if drills is not None:  # the scenario's timeline, applied as soon as it is due
             drills.apply()
-        if not args.quiet:
-            print(_status_line(h), file=sys.stderr, flush=True)
+
+    def report(h: AgentHost) -> None:
+        print(_status_line(h, config.consensus.dt_s), file=sys.stderr, flush=True)
 
     try:
-        host.run(on_second=report if not args.quiet or drills else None, on_loop=live.poll)
+        host.run(on_second=None if args.quiet else report, on_loop=each_loop)
     finally:
         live.close()
         host.close()
@@ -285,7 +285,7 @@ class _FaultsOnly:
         pass
 
 
-def _status_line(host: AgentHost) -> str:
+def _status_line(host: AgentHost, period_s: float) -> str:
     agents = host.agents
     modes: dict[str, int] = {}
     for a in agents:
@@ -295,6 +295,6 @@ def _status_line(host: AgentHost) -> str:
     neighbours = [len(a.last_output.active_neighbours) for a in agents if a.last_output]
     nb = f"{min(neighbours)}-{max(neighbours)}" if neighbours else "-"
     return (
-        f"agents t={tick * 0.02:7.2f}s  {len(agents)} joined: {mode_text}; neighbours {nb}; "
+        f"agents t={tick * period_s:7.2f}s  {len(agents)} joined: {mode_text}; neighbours {nb}; "
         f"{time.strftime('%H:%M:%S')}"
     )

@@ -86,6 +86,18 @@ class ZenohSettings:
         return conf
 
 
+def open_client(endpoint: str) -> ZenohBus:
+    """A short-lived client session on ``endpoint`` (for tools: operator commands, drills).
+
+    ValueError for an endpoint that is not ``tcp/HOST:PORT``; ConnectionError if nothing answers.
+    """
+    settings = ZenohSettings(mode="client", listen=(), connect=(endpoint,))
+    try:
+        return ZenohBus.open(settings)
+    except zenoh.ZError:
+        raise ConnectionError(f"nothing reachable at {endpoint}") from None
+
+
 def free_loopback_endpoint() -> str:
     """``tcp/127.0.0.1:<port>`` with a port that was free a moment ago (for tests and tools)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:

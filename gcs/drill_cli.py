@@ -117,19 +117,15 @@ def command_of(args: argparse.Namespace) -> FaultCommand:
 
 def publish(swarm_id: str, endpoint: str, payload: bytes) -> None:
     """Publish ``payload`` once on the swarm's fault key (BLOCK congestion, reliable)."""
-    import zenoh
-
     from drone_agent.transport import Congestion
-    from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
+    from drone_agent.zenoh_transport import open_client
 
     try:
         key = SwarmKeys(swarm_id, 1.0).fault
-        settings = ZenohSettings(mode="client", listen=(), connect=(endpoint,))
+        bus = open_client(endpoint)
     except ValueError as exc:
         raise DrillError(str(exc)) from None
-    try:
-        bus = ZenohBus.open(settings)
-    except zenoh.ZError:
+    except ConnectionError:
         raise DrillError(f"no swarm reachable at {endpoint}") from None
     with bus:
         publisher = bus.publisher(key, Congestion.BLOCK)

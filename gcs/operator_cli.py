@@ -106,18 +106,14 @@ def send(
     swarm_id: str, endpoint: str, payload: bytes, timeout_s: float = ANSWER_TIMEOUT_S
 ) -> Reply:
     """Send one request payload to the ground station; OperatorError if none answers."""
-    import zenoh
-
-    from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
+    from drone_agent.zenoh_transport import open_client
 
     try:
         key = SwarmKeys(swarm_id, 1.0).command
-        settings = ZenohSettings(mode="client", listen=(), connect=(endpoint,))
+        bus = open_client(endpoint)
     except ValueError as exc:
         raise OperatorError(str(exc)) from None
-    try:
-        bus = ZenohBus.open(settings)
-    except zenoh.ZError:
+    except ConnectionError:
         raise OperatorError(f"no ground station reachable at {endpoint}") from None
     with bus:
         replies = bus.session.get(key, payload=payload, timeout=timeout_s)

@@ -20,7 +20,6 @@ from drone_agent.link_faults import LinkFaults
 from gcs.fault_timeline import TimedAction, link_faults, timeline
 from gcs.flight_record import FlightRecord
 from gcs.inprocess_network import InProcessNetwork
-from protocols.frames import FloatArray
 from protocols.scenario import Scenario
 from sitl_sim.attitude_control import euler_from_quat_batch
 from sitl_sim.config import attitude_gains, vehicle_params
@@ -247,8 +246,3 @@ class ReferenceFlight:
         for i in np.flatnonzero(landed):
             self.armed[i] = False
             self._event("disarmed", drone=int(i), reason="failsafe landing complete")
-
-
-def positions_at(record: FlightRecord, t_s: float) -> FloatArray:
-    """Positions (N, 3) at the sample nearest ``t_s``."""
-    return record.position_ned_m[int(np.argmin(np.abs(record.t_s - t_s)))]
