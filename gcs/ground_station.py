@@ -182,7 +182,13 @@ class GroundStation:
         self.telemetry.close()
         n = self._o.scenario.n_drones
         record = build_record(
-            self._o.report_dir / "flight.tlog", n, self.obs, self._o.telemetry_hz, end_s
+            self._o.report_dir / "flight.tlog",
+            n,
+            self.obs,
+            self._o.telemetry_hz,
+            end_s,
+            self._o.scenario,
+            self._o.report_dir / "events.jsonl",
         )
         wall = time.monotonic() - wall0
         extra = {

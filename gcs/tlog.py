@@ -8,7 +8,8 @@ Timestamps: a record's timestamp is the *simulated* time in µs plus a fixed ``e
 byte-identical logs). As MAVProxy does, the two low bits of the timestamp carry the link number
 (here always 0), so a record time is rounded down to a multiple of 4 µs. Messages that carry
 ``time_boot_ms`` (LOCAL_POSITION_NED, ATTITUDE) hold the simulated time in ms; the reader takes
-vehicle time from that field, not from the record timestamp.
+vehicle time from that field, not from the record timestamp, and from ``time_usec`` (µs) for
+ACTUATOR_OUTPUT_STATUS (the rotor forces, N, of rotors 1..4: protocols/mavlink_conventions.py).
 
 pymavlink is used only as a codec, one per system id (component 1, the autopilot), so every
 vehicle's packets carry its own sequence numbers.
@@ -30,6 +31,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common
 
 from protocols.frames import FloatArray
+from protocols.mavlink_conventions import ACTUATOR_ROTORS
 
 _TS = struct.Struct(">Q")
 _AUTOPILOT_COMPONENT = 1
@@ -170,6 +172,8 @@ class VehicleTrack:
       ``velocity_ned_m_s`` (K, 3).
     - ``attitude_t_s`` (L,): ATTITUDE time_boot_ms / 1000, s; ``euler_rad`` (L, 3) roll, pitch, yaw;
       ``body_rates_rad_s`` (L, 3).
+    - ``actuator_t_s`` (M,): ACTUATOR_OUTPUT_STATUS time_usec / 1e6, s; ``rotor_forces_n`` (M, 4)
+      the forces of rotors 1..4, N (empty when the log has none).
     Samples are sorted by time.
     """
 
@@ -179,6 +183,8 @@ class VehicleTrack:
     attitude_t_s: FloatArray
     euler_rad: FloatArray
     body_rates_rad_s: FloatArray
+    actuator_t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
+    rotor_forces_n: FloatArray = field(default_factory=lambda: np.zeros((0, ACTUATOR_ROTORS)))
 
 
 @dataclass(frozen=True)
@@ -233,6 +239,7 @@ def read_tlog(path: str | Path, epoch_offset_s: float = 0.0) -> TlogTrack:
     codec = common.MAVLink(None)
     pos: dict[int, list[tuple[float, ...]]] = {}
     att: dict[int, list[tuple[float, ...]]] = {}
+    act: dict[int, list[tuple[float, ...]]] = {}
     texts: list[StatusText] = []
     chunks: dict[tuple[int, int], list[bytes]] = {}
     bad, resyncing = 0, False
@@ -264,11 +271,17 @@ def read_tlog(path: str | Path, epoch_offset_s: float = 0.0) -> TlogTrack:
             att.setdefault(sysid, []).append(
                 (msg.time_boot_ms, msg.roll, msg.pitch, msg.yaw, *rates)
             )
+        elif mtype == "ACTUATOR_OUTPUT_STATUS":
+            forces = msg.actuator[:ACTUATOR_ROTORS]
+            act.setdefault(sysid, []).append((msg.time_usec / 1000.0, *forces))
         elif mtype == "STATUSTEXT":
             text = _statustext(msg, sysid, chunks)
             if text is not None:
                 texts.append(StatusText(t_rec, sysid, int(msg.severity), text))
-    vehicles = {s: _track(pos.get(s, []), att.get(s, [])) for s in sorted(set(pos) | set(att))}
+    vehicles = {
+        s: _track(pos.get(s, []), att.get(s, []), act.get(s, []))
+        for s in sorted(set(pos) | set(att) | set(act))
+    }
     return TlogTrack(vehicles, texts, bad)
 
 
@@ -297,11 +310,11 @@ def _statustext(msg: Any, sysid: int, chunks: dict[tuple[int, int], list[bytes]]
     return b"".join(parts).decode("utf-8", errors="replace")
 
 
-def _track(pos: list[tuple[float, ...]], att: list[tuple[float, ...]]) -> VehicleTrack:
-    p = np.asarray(pos, dtype=float).reshape(-1, 7)
-    a = np.asarray(att, dtype=float).reshape(-1, 7)
-    p = p[np.argsort(p[:, 0], kind="stable")]
-    a = a[np.argsort(a[:, 0], kind="stable")]
+def _track(
+    pos: list[tuple[float, ...]], att: list[tuple[float, ...]], act: list[tuple[float, ...]]
+) -> VehicleTrack:
+    """Rows ``(time ms, values...)`` of each message, sorted by time, as a track."""
+    p, a, f = _by_time(pos, 7), _by_time(att, 7), _by_time(act, 1 + ACTUATOR_ROTORS)
     return VehicleTrack(
         t_s=p[:, 0] / 1000.0,
         position_ned_m=p[:, 1:4],
@@ -309,4 +322,11 @@ def _track(pos: list[tuple[float, ...]], att: list[tuple[float, ...]]) -> Vehicl
         attitude_t_s=a[:, 0] / 1000.0,
         euler_rad=a[:, 1:4],
         body_rates_rad_s=a[:, 4:7],
+        actuator_t_s=f[:, 0] / 1000.0,
+        rotor_forces_n=f[:, 1:],
     )
+
+
+def _by_time(rows: list[tuple[float, ...]], width: int) -> FloatArray:
+    table = np.asarray(rows, dtype=float).reshape(-1, width)
+    return table[np.argsort(table[:, 0], kind="stable")]

@@ -15,6 +15,14 @@ Modes use PX4's custom-mode encoding so GCS tools (MAVProxy, QGroundControl) nam
 Units on the wire: SET_ATTITUDE_TARGET carries a quaternion (w, x, y, z) body FRD -> world NED and a
 *normalised* collective thrust 0..1 of the vehicle's maximum (PX4 offboard convention).
 
+Rotor outputs: ACTUATOR_OUTPUT_STATUS (id 375; streamed to the GCS at the state rate, off on an
+agent link unless asked for) carries the *force in newtons* of rotors 1..4 in ``actuator[0..3]``
+(``active`` = 0b1111, the other entries 0) and ``time_usec`` = simulated time in µs, on the same
+clock as ``time_boot_ms``. Rotor order (sitl_sim/mixer.py, body FRD, plus frame): 1 left (-y),
+2 front (+x), 3 right (+y), 4 back (-x), so with arm length D and yaw moment per newton k (m):
+thrust ``T = F1+F2+F3+F4``, moments ``l = D(F1-F3)``, ``m = D(F2-F4)``, ``n = k(F1-F2+F3-F4)``
+(``sitl_sim.mixer.wrench_from_rotor_forces``).
+
 Lockstep handshake (needs nothing beyond standard MAVLink; SPEC.md "Time"):
 1. The simulator sends the state of control tick k to each agent: ATTITUDE and
    LOCAL_POSITION_NED with ``time_boot_ms = k * control_period_ms``.
@@ -57,6 +65,10 @@ MAX_VEHICLES = 250  # system ids 1..250; 251..255 stay free for ground stations
 
 #: MAVLink 2 signing: link id used by the simulator's outgoing telemetry.
 SIGNING_LINK_ID = 0
+
+#: ACTUATOR_OUTPUT_STATUS: rotors in ``actuator[0..ACTUATOR_ROTORS-1]`` (forces, N), their bits.
+ACTUATOR_ROTORS = 4
+ACTUATOR_ROTORS_ACTIVE = (1 << ACTUATOR_ROTORS) - 1
 
 
 def sysid_of(index: int) -> int:

@@ -7,7 +7,7 @@ raises :class:`~sitl_sim.sim_config.SimConfigError` with one line naming the fla
 from __future__ import annotations
 
 import argparse
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,7 +33,12 @@ from sitl_sim.sim_config import (
     read_signing_key,
     vehicles_from_scenario,
 )
-from sitl_sim.streams import AGENT_RATES_HZ, ATTITUDE, GCS_RATES_HZ, LOCAL_POSITION_NED
+from sitl_sim.streams import (
+    AGENT_RATES_HZ,
+    AGENT_STATE_STREAMS,
+    GCS_RATES_HZ,
+    GCS_STATE_STREAMS,
+)
 from sitl_sim.tunables import FleetAttitudeGains, Tunables
 from sitl_sim.vehicle_params import VehicleParams
 from sitl_sim.world import World, WorldConfig
@@ -76,8 +81,8 @@ def build_config(args: argparse.Namespace) -> SimConfig:
             base_port=args.base_port,
             gcs=parse_gcs_url(args.gcs),
             signing_key=read_signing_key(args.signing_key),
-            agent_rates_hz=_rates(AGENT_RATES_HZ, args.agent_rate_hz),
-            gcs_rates_hz=_rates(GCS_RATES_HZ, args.gcs_rate_hz),
+            agent_rates_hz=_rates(AGENT_RATES_HZ, AGENT_STATE_STREAMS, args.agent_rate_hz),
+            gcs_rates_hz=_rates(GCS_RATES_HZ, GCS_STATE_STREAMS, args.gcs_rate_hz),
         ),
         clock=ClockConfig(
             mode=args.clock,
@@ -120,10 +125,12 @@ def _check_numbers(args: argparse.Namespace) -> None:
         raise SimConfigError("--wait-agents must be >= 0")
 
 
-def _rates(defaults: Mapping[int, float], state_hz: float) -> dict[int, float]:
-    """``defaults`` with ATTITUDE and LOCAL_POSITION_NED at ``state_hz``."""
+def _rates(
+    defaults: Mapping[int, float], state_streams: Sequence[int], state_hz: float
+) -> dict[int, float]:
+    """``defaults`` with the messages ``state_streams`` at ``state_hz`` (Hz)."""
     rates = dict(defaults)
-    rates[ATTITUDE] = rates[LOCAL_POSITION_NED] = state_hz
+    rates.update(dict.fromkeys(state_streams, state_hz))
     return rates
 
 

@@ -12,6 +12,12 @@ SYS_STATUS carries the vehicle's receive counters so that a peer can watch them:
 truncated), ``errors_count2`` = rejected setpoints (NaN/inf/out of range), ``errors_count3`` =
 signature failures, ``errors_count4`` = wrong target system; ``drop_rate_comm`` the rejected share
 (c%), ``load`` the simulator's busy share of wall time (d%). Counters saturate at 65535.
+
+ACTUATOR_OUTPUT_STATUS carries the rotor outputs (protocols/mavlink_conventions.py): the force
+(N) of rotors 1..4 in ``actuator[0..3]`` in the mixer's order (sitl_sim/mixer.py), ``active`` =
+0b1111, ``time_usec`` the simulated time (µs) of the tick, as ``time_boot_ms`` is in ms. The forces
+are those the inner loop commands at the tick's state for the autopilot's last command: zero when
+disarmed and for a stopped motor.
 """
 
 from __future__ import annotations
@@ -25,8 +31,16 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from protocols.mavlink_conventions import MODE_HOLD, MODE_LAND, MODE_OFFBOARD
+from protocols.frames import FloatArray
+from protocols.mavlink_conventions import (
+    ACTUATOR_ROTORS,
+    ACTUATOR_ROTORS_ACTIVE,
+    MODE_HOLD,
+    MODE_LAND,
+    MODE_OFFBOARD,
+)
 from sitl_sim.autopilot import Autopilot, Mode
+from sitl_sim.inner_loop import inner_loop
 from sitl_sim.setpoint import quat_from_euler
 from sitl_sim.world import Snapshot, World
 
@@ -146,6 +160,29 @@ def attitude_target(world: World, i: int) -> Any:
     return mavlink.MAVLink_attitude_target_message(
         world.time_boot_ms(), IGNORE_BODY_RATES, q, 0.0, 0.0, 0.0, flown
     )
+
+
+def rotor_forces_n(world: World) -> FloatArray:
+    """Rotor forces (4, N) N of every vehicle, rotors 1..4 in the mixer's order: what the inner
+    loop commands at the current state for the last command (0 if disarmed or stopped)."""
+    euler, thrust = world.commanded()
+    ap = world.autopilot
+    speed = inner_loop(world.state, euler, thrust, world.params, world.gains, ap.armed)
+    speed[~ap.motor_ok] = 0.0
+    return world.params.thrust_coeff * (speed * speed)
+
+
+def time_usec(world: World) -> int:
+    """The simulated time (µs) of the current tick (``time_boot_ms`` * 1000 up to rounding)."""
+    return round(world.tick * 1_000_000 / world.config.control_hz)
+
+
+def actuator_output_status(t_usec: int, forces_n: FloatArray) -> Any:
+    """ACTUATOR_OUTPUT_STATUS: the forces (N) of rotors 1..4 (``forces_n`` (4,)) at simulated
+    time ``t_usec`` (µs); the other 28 actuators are 0 and not active."""
+    actuator = [float(f) for f in forces_n[:ACTUATOR_ROTORS]]
+    actuator += [0.0] * (32 - len(actuator))
+    return mavlink.MAVLink_actuator_output_status_message(t_usec, ACTUATOR_ROTORS_ACTIVE, actuator)
 
 
 def statustext(severity: int, text: str) -> Any:

@@ -15,6 +15,12 @@ Saturation, per vehicle, keeping roll and pitch authority first:
    they alone do not fit).
 
 Returns ``w_i = sqrt(F_i / c)``, always finite and within the rotor-speed limits.
+
+:func:`wrench_from_rotor_forces` is the forward map (forces -> thrust and moments), e.g. for a
+ground station that receives the rotor forces (ACTUATOR_OUTPUT_STATUS).
+
+Rotor order (from the signs of eq. 3 in body FRD): rotor 1 left (-y), 2 front (+x), 3 right
+(+y), 4 back (-x); rotors 1 and 3 give a positive reaction yaw moment, 2 and 4 a negative one.
 """
 
 from __future__ import annotations
@@ -45,6 +51,24 @@ def rotor_forces_from_wrench(
         np.asarray(thrust_n, dtype=np.float64), np.asarray(moments_nm, dtype=np.float64), params
     )
     return base + yaw
+
+
+def wrench_from_rotor_forces(
+    forces_n: FloatArray, params: VehicleParams
+) -> tuple[FloatArray, FloatArray]:
+    """Thrust (N,) N and body moments (3, N) N m of rotor forces (4, N) N: the allocation that
+    :func:`mix` inverts (paper eq. 3), ``T = F1+F2+F3+F4``, ``l = D(F1-F3)``, ``m = D(F2-F4)``,
+    ``n = k(F1-F2+F3-F4)`` with ``k = params.yaw_moment_per_thrust_m``."""
+    f = np.asarray(forces_n, dtype=np.float64)
+    thrust = f[0] + f[1] + f[2] + f[3]
+    moments = np.stack(
+        [
+            params.arm_m * (f[0] - f[2]),
+            params.arm_m * (f[1] - f[3]),
+            params.yaw_moment_per_thrust_m * (f[0] - f[1] + f[2] - f[3]),
+        ]
+    )
+    return thrust, moments
 
 
 def _shares(

@@ -23,6 +23,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
+from protocols.frames import FloatArray
 from sitl_sim import messages
 from sitl_sim.autopilot import Severity, VehicleEvent
 from sitl_sim.commands import CommandHandler
@@ -32,6 +35,7 @@ from sitl_sim.network import Network
 from sitl_sim.pacing import Pacer, RateMeter
 from sitl_sim.sim_config import ClockConfig
 from sitl_sim.streams import (
+    ACTUATOR_OUTPUT_STATUS,
     ATTITUDE,
     ATTITUDE_TARGET,
     HEARTBEAT,
@@ -105,7 +109,12 @@ class SimServer:
             ATTITUDE: lambda i: messages.attitude(self._snapshot, i),
             LOCAL_POSITION_NED: lambda i: messages.local_position_ned(self._snapshot, i),
             ATTITUDE_TARGET: lambda i: messages.attitude_target(world, i),
+            ACTUATOR_OUTPUT_STATUS: lambda i: messages.actuator_output_status(
+                messages.time_usec(world), self._rotor_forces()[:, i]
+            ),
         }
+        self._forces_tick = -1
+        self._forces = np.zeros((4, n))
         self._snapshot: Snapshot = world.snapshot()
         self._stopped = False
         self._load = 0.0
@@ -294,6 +303,13 @@ class SimServer:
                     sent_to.append(i)
         self.net.flush()
         return sent_to
+
+    def _rotor_forces(self) -> FloatArray:
+        """Rotor forces (4, N) N of the current tick, computed once per tick when first asked."""
+        if self._forces_tick != self.world.tick:
+            self._forces = messages.rotor_forces_n(self.world)
+            self._forces_tick = self.world.tick
+        return self._forces
 
     def _new_peer(self, i: int) -> None:
         """A new agent address: give it the heartbeat and the current tick's state now."""

@@ -1,11 +1,14 @@
 """Message-interval bookkeeping: which streamed messages a link is due at each control tick. Pure.
 
 Each link of each vehicle (its agent link and its share of the GCS link) streams HEARTBEAT,
-SYS_STATUS, ATTITUDE, LOCAL_POSITION_NED and ATTITUDE_TARGET at its own rates, changed by
+SYS_STATUS, ATTITUDE, LOCAL_POSITION_NED, ATTITUDE_TARGET and ACTUATOR_OUTPUT_STATUS (the four
+rotor forces, N; protocols/mavlink_conventions.py) at its own rates, changed by
 MAV_CMD_SET_MESSAGE_INTERVAL (interval in µs; 0 = the default rate, -1 = off). Telemetry is sent
 at control ticks, so the highest rate is the control rate: a shorter interval is accepted and
 capped. A rate that does not divide the control rate is met on average (the due time accumulates
-in fractional ticks).
+in fractional ticks). ACTUATOR_OUTPUT_STATUS is off by default on an agent link (an agent may
+ask for it) and goes to the GCS at the state rate, so that a ground station can rebuild thrust
+and moments.
 
 Links that keep the default rates share one :class:`StreamSchedule`; :class:`StreamTable` gives a
 link its own copy on its first change (copy on write), so the common case costs one schedule
@@ -22,6 +25,7 @@ SYS_STATUS = 1
 ATTITUDE = 30
 LOCAL_POSITION_NED = 32
 ATTITUDE_TARGET = 83
+ACTUATOR_OUTPUT_STATUS = 375
 
 #: Default rates (Hz) on an agent link (onboard computer) and to the ground station.
 AGENT_RATES_HZ: Mapping[int, float] = {
@@ -30,6 +34,7 @@ AGENT_RATES_HZ: Mapping[int, float] = {
     ATTITUDE: 50.0,
     LOCAL_POSITION_NED: 50.0,
     ATTITUDE_TARGET: 10.0,
+    ACTUATOR_OUTPUT_STATUS: 0.0,
 }
 GCS_RATES_HZ: Mapping[int, float] = {
     HEARTBEAT: 1.0,
@@ -37,7 +42,12 @@ GCS_RATES_HZ: Mapping[int, float] = {
     ATTITUDE: 10.0,
     LOCAL_POSITION_NED: 10.0,
     ATTITUDE_TARGET: 2.0,
+    ACTUATOR_OUTPUT_STATUS: 10.0,
 }
+#: The messages whose default rate is the link's state rate (``--agent-rate-hz``,
+#: ``--gcs-rate-hz``): the vehicle state on both links, and the rotor outputs to the GCS.
+AGENT_STATE_STREAMS: tuple[int, ...] = (ATTITUDE, LOCAL_POSITION_NED)
+GCS_STATE_STREAMS: tuple[int, ...] = (ATTITUDE, LOCAL_POSITION_NED, ACTUATOR_OUTPUT_STATUS)
 
 
 class StreamSchedule:
