@@ -1,7 +1,7 @@
-"""The ground station's report: a :class:`~gcs.flight_record.FlightRecord` rebuilt from what the
-ground station saw (its own ``flight.tlog``, the plans it published, the agents' statuses and
-liveliness), then ``metrics.json``, ``trajectory.json`` and the paper-style PNG plots, the same
-files as ``swarm simulate`` writes.
+"""The ground station's report: a :class:`~gcs.flight_record.FlightRecord` rebuilt from the
+ground station's own logs (``flight.tlog``: vehicle telemetry and the agents' statuses;
+``events.jsonl``: joins, drop-outs, crashes, drills) and the final plan, then ``metrics.json``,
+``trajectory.json`` and the paper-style PNG plots, the same files as ``swarm simulate`` writes.
 
 Sampling: a uniform grid of simulated time at ``rate_hz`` (the telemetry rate), sample-and-hold.
 Estimates are NaN where no status of that agent is younger than ``max_age_s``.
@@ -22,11 +22,12 @@ from __future__ import annotations
 import json
 import re
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from gcs.events import read_events
 from gcs.fault_timeline import link_faults
@@ -47,21 +48,6 @@ MAX_AGE_S = 1.0
 #: ``what`` of a link-cut / link-restore drill event (drone_agent.fault_drills.describe).
 _CUT = re.compile(r"link_cut (\d+)(->|<->)(\d+)(?: for (\S+) s)?")
 _RESTORE = re.compile(r"link_restore (\d+)<->(\d+)")
-
-
-@dataclass
-class Observations:
-    """What the ground station saw over Zenoh, in simulated time (s).
-
-    ``plans``: (t_from_s, trajectory) in publication order; ``statuses``: drone -> list of
-    (t_s, estimate (9,), neighbour count); ``alive``: drone -> list of (t_s, alive);
-    ``lost_at_s``: drone -> time its drop-out or crash was detected.
-    """
-
-    plans: list[tuple[float, DescriptorTrajectory]] = field(default_factory=list)
-    statuses: dict[int, list[tuple[float, FloatArray, int]]] = field(default_factory=dict)
-    alive: dict[int, list[tuple[float, bool]]] = field(default_factory=dict)
-    lost_at_s: dict[int, float] = field(default_factory=dict)
 
 
 def _hold(
@@ -117,22 +103,25 @@ def drill_link_faults(events: Iterable[Mapping[str, Any]], end_s: float) -> list
 
 def build_record(
     tlog_path: Path,
+    events_path: Path,
+    plan: DescriptorTrajectory,
     n_drones: int,
-    obs: Observations,
     rate_hz: float,
     end_s: float,
     scenario: Scenario | None = None,
-    events_path: Path | None = None,
 ) -> FlightRecord | None:
-    """The flight as seen by the ground station, or None if no vehicle was heard.
+    """The flight as the ground station logged it, or None if no vehicle was heard.
 
-    ``scenario`` gives the vehicle parameters that turn rotor forces into thrust and moments
-    (default: :class:`VehicleParams`) and its link cuts; ``events_path`` (an ``events.jsonl``)
-    the link-cut drills. Without them the record has no link faults.
+    Everything comes from the files, so a ground station restarted mid-flight reports the whole
+    flight: positions, attitudes, rotor forces and agent statuses from ``tlog_path``; who was in
+    the swarm (``agent_joined``, ``dropout_detected``, ``crash``) and the link-cut drills from
+    ``events_path``; the commanded descriptors from ``plan``, the final plan (a plan keeps the
+    segments already flown). ``scenario`` gives the vehicle parameters that turn rotor forces
+    into thrust and moments (default: :class:`VehicleParams`) and its own link cuts.
     """
     track = read_tlog(tlog_path)
     heard = [v for s, v in track.vehicles.items() if 1 <= s <= n_drones and v.t_s.size]
-    if not heard or not obs.plans:
+    if not heard:
         return None
     t0 = min(float(v.t_s[0]) for v in heard)
     t1 = min(end_s, max(float(v.t_s[-1]) for v in heard))
@@ -146,7 +135,6 @@ def build_record(
     params = VehicleParams() if scenario is None else vehicle_params(scenario)
     est = np.full((t.size, n, 9), np.nan)
     nbrs = np.zeros((t.size, n), dtype=int)
-    alive = np.zeros((t.size, n), dtype=bool)
     for sysid, v in track.vehicles.items():
         i = sysid - 1
         if not 0 <= i < n:
@@ -155,27 +143,13 @@ def build_record(
         vel[:, i] = np.nan_to_num(_hold(t, v.t_s, v.velocity_ned_m_s, np.inf))
         euler[:, i] = np.nan_to_num(_hold(t, v.attitude_t_s, v.euler_rad, np.inf))
         thrust[:, i], moments[:, i] = controls(t, v, params)
-    for i, rows in obs.statuses.items():
-        if 0 <= i < n and rows:
-            ts = np.array([r[0] for r in rows])
-            est[:, i] = _hold(t, ts, np.array([r[1] for r in rows]), MAX_AGE_S)
-            nb = _hold(t, ts, np.array([float(r[2]) for r in rows]), MAX_AGE_S)
-            nbrs[:, i] = np.nan_to_num(nb).astype(int)
-    for i, changes in obs.alive.items():
-        if 0 <= i < n and changes:
-            ts = np.array([c[0] for c in changes])
-            held = _hold(t, ts, np.array([1.0 if c[1] else 0.0 for c in changes]), np.inf)
-            alive[:, i] = held == 1.0
+        status = _hold(t, v.status_t_s, v.status, MAX_AGE_S)
+        est[:, i] = status[:, :9]
+        nbrs[:, i] = np.nan_to_num(status[:, 9]).astype(int)
+    events = read_events(events_path) if events_path.exists() else []
+    alive, lost_at_s = membership(events, t, n)
     known = ~np.isnan(pos[..., 0])
     pos = np.where(known[..., None], pos, 0.0)
-    desired = np.empty((t.size, 9))
-    for k, tk in enumerate(t):
-        plan = next((p for t_from, p in reversed(obs.plans) if t_from <= tk), obs.plans[0][1])
-        desired[k] = plan.evaluate(float(tk))[0]
-    member = known & alive
-    for i, t_lost in obs.lost_at_s.items():
-        if 0 <= i < n:
-            member[t >= t_lost, i] = False
     return FlightRecord(
         t_s=t,
         position_ned_m=pos,
@@ -183,24 +157,44 @@ def build_record(
         euler_rad=euler,
         thrust_n=thrust,
         moments_nm=moments,
-        desired=desired,
+        desired=plan.evaluate_many(t)[0],
         estimate=est,
-        member=member,
+        member=known & alive,
         airborne=known & (-pos[..., 2] > AIRBORNE_M),
         neighbours=nbrs,
-        link_faults=_link_faults(scenario, events_path, float(t[-1])),
-        lost_at_s=dict(obs.lost_at_s),
+        link_faults=_link_faults(scenario, events, float(t[-1])),
+        lost_at_s=lost_at_s,
     )
 
 
+def membership(
+    events: Iterable[Mapping[str, Any]], t_grid: FloatArray, n_drones: int
+) -> tuple[npt.NDArray[np.bool_], dict[int, float]]:
+    """Who is in the swarm on ``t_grid`` (T,) s: (T, N) True from an ``agent_joined`` event until
+    the drone is lost; and when each lost drone was lost (its first ``dropout_detected`` or
+    ``crash``, s). A lost drone does not come back."""
+    alive = np.zeros((t_grid.size, n_drones), dtype=bool)
+    lost_at_s: dict[int, float] = {}
+    for event in events:
+        i, kind = event.get("drone"), event.get("kind")
+        if not isinstance(i, int) or not 0 <= i < n_drones:
+            continue
+        t = float(event["t_s"])
+        if kind == "agent_joined" and i not in lost_at_s:
+            alive[t_grid >= t - 5e-4, i] = True
+        elif kind in ("dropout_detected", "crash"):
+            lost_at_s.setdefault(i, t)
+    for i, t_lost in lost_at_s.items():
+        alive[t_grid >= t_lost, i] = False
+    return alive, lost_at_s
+
+
 def _link_faults(
-    scenario: Scenario | None, events_path: Path | None, end_s: float
+    scenario: Scenario | None, events: Iterable[Mapping[str, Any]], end_s: float
 ) -> list[LinkFault]:
-    """The scenario's link cuts and the drills logged in ``events_path`` (if it exists)."""
+    """The scenario's link cuts and the drills among ``events``."""
     faults = [] if scenario is None else link_faults(scenario)
-    if events_path is not None and events_path.exists():
-        faults += drill_link_faults(read_events(events_path), end_s)
-    return faults
+    return faults + drill_link_faults(events, end_s)
 
 
 def write_report(

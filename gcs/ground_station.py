@@ -29,7 +29,7 @@ from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
 from gcs.commands import CommandError, Reply, apply_command, encode_reply, parse_request
 from gcs.events import EventLog
 from gcs.gcs_drills import GcsDrills
-from gcs.gcs_report import Observations, build_record, write_report
+from gcs.gcs_report import build_record, write_report
 from gcs.planner import Envelope, PlanRefused
 from gcs.telemetry import TelemetryReceiver
 from protocols.descriptors import descriptors
@@ -75,7 +75,6 @@ class GroundStation:
         self._liveliness: deque[tuple[str, bool]] = deque()
         self.latest: dict[int, AgentStatus] = {}
         self.alive: set[int] = set()
-        self.obs = Observations()
         options.report_dir.mkdir(parents=True, exist_ok=True)
         self._closers: list[Callable[[], None]] = []
         try:
@@ -155,7 +154,6 @@ class GroundStation:
     def _publish(self, plan: PlanMessage, t_from_s: float, why: str) -> None:
         self.plans.publish(plan)
         self.plan = plan
-        self.obs.plans.append((t_from_s, plan.trajectory))
         self.events.record(
             self.now_s, "plan_published", seq=plan.seq, command=plan.command.name, reason=why
         )
@@ -181,14 +179,15 @@ class GroundStation:
         self.events.record(self.now_s, "run_end", plan_seq=self.plan.seq)
         self.telemetry.close()
         n = self._o.scenario.n_drones
+        report = self._o.report_dir
         record = build_record(
-            self._o.report_dir / "flight.tlog",
+            report / "flight.tlog",
+            report / "events.jsonl",
+            self.plan.trajectory,
             n,
-            self.obs,
             self._o.telemetry_hz,
             end_s,
             self._o.scenario,
-            self._o.report_dir / "events.jsonl",
         )
         wall = time.monotonic() - wall0
         extra = {
@@ -215,8 +214,6 @@ class GroundStation:
         crashed = severity == _SEVERITY_EMERGENCY or any(w in lower for w in _CRASH_WORDS)
         kind = "crash" if crashed else "failsafe" if "failsafe" in lower else "vehicle_text"
         self.events.record(t_s, kind, drone=drone, severity=severity, text=text)
-        if crashed:
-            self.obs.lost_at_s.setdefault(drone, t_s)
 
     def _drain_zenoh(self) -> None:
         while self._statuses:
@@ -225,21 +222,18 @@ class GroundStation:
             except WireError:
                 continue
             self.latest[status.drone] = status
-            rows = self.obs.statuses.setdefault(status.drone, [])
-            rows.append((status.t_s, np.array(status.estimate), len(status.neighbours)))
+            self.telemetry.log_agent_status(status)
         while self._liveliness:
             key, alive = self._liveliness.popleft()
             drone = self._keys.drone_of(key)
             if drone is None:
                 continue
             t = self.now_s
-            self.obs.alive.setdefault(drone, []).append((t, alive))
             if alive and drone not in self.alive:
                 self.alive.add(drone)
                 self.events.record(t, "agent_joined", drone=drone)
             elif not alive and drone in self.alive:
                 self.alive.discard(drone)
-                self.obs.lost_at_s.setdefault(drone, t)
                 self.events.record(t, "dropout_detected", drone=drone)
 
     def _answer_commands(self) -> None:

@@ -15,9 +15,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from pymavlink.dialects.v20 import common
 
 from gcs.tlog import TlogWriter
+from protocols.wire_status import AgentStatus
 
 _MAX_DATAGRAM = 65535
 _ARMED_FLAG = 128  # MAV_MODE_FLAG_SAFETY_ARMED
@@ -110,6 +112,11 @@ class TelemetryReceiver:
                 text = self._handle(msg)
                 if text is not None:
                     texts.append(text)
+
+    def log_agent_status(self, status: AgentStatus) -> None:
+        """Record an agent's status in the tlog (protocols/mavlink_conventions.py "AGENT")."""
+        values = [*status.estimate, len(status.neighbours), int(status.mode), int(status.armed)]
+        self._tlog.write_agent_status(status.t_s, status.drone + 1, np.array(values, dtype=float))
 
     def send_command(self, drone: int, command: int, *params: float) -> None:
         """COMMAND_LONG ``command`` with up to 7 ``params`` to vehicle ``drone`` (index; system id

@@ -10,9 +10,11 @@ byte-identical logs). As MAVProxy does, the two low bits of the timestamp carry 
 ``time_boot_ms`` (LOCAL_POSITION_NED, ATTITUDE) hold the simulated time in ms; the reader takes
 vehicle time from that field, not from the record timestamp, and from ``time_usec`` (µs) for
 ACTUATOR_OUTPUT_STATUS (the rotor forces, N, of rotors 1..4: protocols/mavlink_conventions.py).
+The ground station also logs each agent's status as DEBUG_FLOAT_ARRAY "AGENT" from the agent's
+component (191), ``time_usec`` = simulated time (same file), so the log alone holds the flight.
 
-pymavlink is used only as a codec, one per system id (component 1, the autopilot), so every
-vehicle's packets carry its own sequence numbers.
+pymavlink is used only as a codec, one per (system id, component): the autopilot (1) for vehicle
+telemetry, the onboard computer (191) for agent statuses; each carries its own sequence numbers.
 """
 
 from __future__ import annotations
@@ -31,7 +33,12 @@ import numpy as np
 from pymavlink.dialects.v20 import common
 
 from protocols.frames import FloatArray
-from protocols.mavlink_conventions import ACTUATOR_ROTORS
+from protocols.mavlink_conventions import (
+    ACTUATOR_ROTORS,
+    AGENT_COMPID,
+    AGENT_STATUS_NAME,
+    AGENT_STATUS_VALUES,
+)
 
 _TS = struct.Struct(">Q")
 _AUTOPILOT_COMPONENT = 1
@@ -48,7 +55,7 @@ class TlogWriter:
     def __init__(self, path: str | Path, epoch_offset_s: float = 0.0) -> None:
         self.path = Path(path)
         self.epoch_offset_us = round(epoch_offset_s * 1e6)
-        self._codecs: dict[int, Any] = {}
+        self._codecs: dict[tuple[int, int], Any] = {}
         self._file: BinaryIO | None = None
         self.n_records = 0
 
@@ -75,15 +82,14 @@ class TlogWriter:
             self._file.close()
             self._file = None
 
-    def codec(self, sysid: int) -> Any:
-        """The pymavlink MAVLink 2 codec speaking as ``sysid``, component 1."""
+    def codec(self, sysid: int, compid: int = _AUTOPILOT_COMPONENT) -> Any:
+        """The pymavlink MAVLink 2 codec speaking as ``sysid``, ``compid`` (default 1)."""
         if not 1 <= sysid <= 255:
             raise ValueError(f"system id {sysid} outside 1..255")
-        if sysid not in self._codecs:
-            self._codecs[sysid] = common.MAVLink(
-                None, srcSystem=sysid, srcComponent=_AUTOPILOT_COMPONENT
-            )
-        return self._codecs[sysid]
+        key = (sysid, compid)
+        if key not in self._codecs:
+            self._codecs[key] = common.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        return self._codecs[key]
 
     def write_packet(self, t_s: float, packet: bytes) -> None:
         """Append one already-encoded MAVLink packet stamped with simulated time ``t_s`` (s)."""
@@ -121,6 +127,16 @@ class TlogWriter:
         mav = self.codec(sysid)
         self.write_packet(t_s, mav.local_position_ned_encode(ms, x, y, z, vx, vy, vz).pack(mav))
         self.write_packet(t_s, mav.attitude_encode(ms, roll, pitch, yaw, p, q, r).pack(mav))
+
+    def write_agent_status(self, t_s: float, sysid: int, values: FloatArray) -> None:
+        """An agent's status (``values``: protocols/mavlink_conventions.py AGENT_STATUS_VALUES,
+        NaN allowed) as DEBUG_FLOAT_ARRAY "AGENT" from (``sysid``, 191) at simulated ``t_s``."""
+        data = [float(v) for v in values][:AGENT_STATUS_VALUES]
+        data += [float("nan")] * (58 - len(data))
+        mav = self.codec(sysid, AGENT_COMPID)
+        usec = max(0, round(t_s * 1e6))
+        msg = mav.debug_float_array_encode(usec, AGENT_STATUS_NAME.encode(), 0, data)
+        self.write_packet(t_s, msg.pack(mav))
 
     def write_heartbeat(
         self, t_s: float, sysid: int, armed: bool, system_status: int, custom_mode: int = 0
@@ -174,6 +190,8 @@ class VehicleTrack:
       ``body_rates_rad_s`` (L, 3).
     - ``actuator_t_s`` (M,): ACTUATOR_OUTPUT_STATUS time_usec / 1e6, s; ``rotor_forces_n`` (M, 4)
       the forces of rotors 1..4, N (empty when the log has none).
+    - ``status_t_s`` (S,): the agent's status times (DEBUG_FLOAT_ARRAY "AGENT"), s;
+      ``status`` (S, AGENT_STATUS_VALUES): estimate (9), neighbours, mode, armed (empty if none).
     Samples are sorted by time.
     """
 
@@ -185,6 +203,8 @@ class VehicleTrack:
     body_rates_rad_s: FloatArray
     actuator_t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
     rotor_forces_n: FloatArray = field(default_factory=lambda: np.zeros((0, ACTUATOR_ROTORS)))
+    status_t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
+    status: FloatArray = field(default_factory=lambda: np.zeros((0, AGENT_STATUS_VALUES)))
 
 
 @dataclass(frozen=True)
@@ -240,6 +260,7 @@ def read_tlog(path: str | Path, epoch_offset_s: float = 0.0) -> TlogTrack:
     pos: dict[int, list[tuple[float, ...]]] = {}
     att: dict[int, list[tuple[float, ...]]] = {}
     act: dict[int, list[tuple[float, ...]]] = {}
+    agent: dict[int, list[tuple[float, ...]]] = {}
     texts: list[StatusText] = []
     chunks: dict[tuple[int, int], list[bytes]] = {}
     bad, resyncing = 0, False
@@ -274,13 +295,17 @@ def read_tlog(path: str | Path, epoch_offset_s: float = 0.0) -> TlogTrack:
         elif mtype == "ACTUATOR_OUTPUT_STATUS":
             forces = msg.actuator[:ACTUATOR_ROTORS]
             act.setdefault(sysid, []).append((msg.time_usec / 1000.0, *forces))
+        elif mtype == "DEBUG_FLOAT_ARRAY" and msg.get_srcComponent() == AGENT_COMPID:
+            if _name(msg.name) == AGENT_STATUS_NAME:
+                values = msg.data[:AGENT_STATUS_VALUES]
+                agent.setdefault(sysid, []).append((msg.time_usec / 1000.0, *values))
         elif mtype == "STATUSTEXT":
             text = _statustext(msg, sysid, chunks)
             if text is not None:
                 texts.append(StatusText(t_rec, sysid, int(msg.severity), text))
     vehicles = {
-        s: _track(pos.get(s, []), att.get(s, []), act.get(s, []))
-        for s in sorted(set(pos) | set(att) | set(act))
+        s: _track(pos.get(s, []), att.get(s, []), act.get(s, []), agent.get(s, []))
+        for s in sorted(set(pos) | set(att) | set(act) | set(agent))
     }
     return TlogTrack(vehicles, texts, bad)
 
@@ -310,11 +335,21 @@ def _statustext(msg: Any, sysid: int, chunks: dict[tuple[int, int], list[bytes]]
     return b"".join(parts).decode("utf-8", errors="replace")
 
 
+def _name(raw: Any) -> str:
+    """A fixed-length MAVLink char[] field as text (pymavlink gives str or bytes)."""
+    text = raw.decode("ascii", "replace") if isinstance(raw, bytes) else str(raw)
+    return text.split("\x00", 1)[0]
+
+
 def _track(
-    pos: list[tuple[float, ...]], att: list[tuple[float, ...]], act: list[tuple[float, ...]]
+    pos: list[tuple[float, ...]],
+    att: list[tuple[float, ...]],
+    act: list[tuple[float, ...]],
+    agent: list[tuple[float, ...]],
 ) -> VehicleTrack:
     """Rows ``(time ms, values...)`` of each message, sorted by time, as a track."""
     p, a, f = _by_time(pos, 7), _by_time(att, 7), _by_time(act, 1 + ACTUATOR_ROTORS)
+    st = _by_time(agent, 1 + AGENT_STATUS_VALUES)
     return VehicleTrack(
         t_s=p[:, 0] / 1000.0,
         position_ned_m=p[:, 1:4],
@@ -324,6 +359,8 @@ def _track(
         body_rates_rad_s=a[:, 4:7],
         actuator_t_s=f[:, 0] / 1000.0,
         rotor_forces_n=f[:, 1:],
+        status_t_s=st[:, 0] / 1000.0,
+        status=st[:, 1:],
     )
 
 

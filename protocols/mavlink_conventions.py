@@ -23,6 +23,12 @@ clock as ``time_boot_ms``. Rotor order (sitl_sim/mixer.py, body FRD, plus frame)
 thrust ``T = F1+F2+F3+F4``, moments ``l = D(F1-F3)``, ``m = D(F2-F4)``, ``n = k(F1-F2+F3-F4)``
 (``sitl_sim.mixer.wrench_from_rotor_forces``).
 
+Agent status in the ground station's log: DEBUG_FLOAT_ARRAY (id 350) named "AGENT" from system
+``i + 1``, component 191, ``time_usec`` = the status's simulated time (µs); ``data[0..8]`` the
+agent's estimate of the descriptors (m, rad, m²; NaN if it has none), ``data[9]`` its neighbour
+count, ``data[10]`` its mode (protocols/wire_status.AgentMode), ``data[11]`` armed (0/1), the rest
+NaN. Only the ground station writes it (into flight.tlog); agents publish their status on Zenoh.
+
 Lockstep handshake (needs nothing beyond standard MAVLink; SPEC.md "Time"):
 1. The simulator sends the state of control tick k to each agent: ATTITUDE and
    LOCAL_POSITION_NED with ``time_boot_ms = k * control_period_ms``.
@@ -58,6 +64,9 @@ GCS_SYSID = 255
 GCS_COMPID = 190
 AUTOPILOT_COMPID = 1
 AGENT_COMPID = 191
+AGENT_STATUS_NAME = "AGENT"
+#: Values of the agent status in the log: estimate (9), neighbours, mode, armed.
+AGENT_STATUS_VALUES = 12
 
 DEFAULT_BASE_PORT = 14540
 DEFAULT_GCS_PORT = 14550

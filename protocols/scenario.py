@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from protocols.faults import Crash, Dropout, Fault, LinkCut, LinkDelay, PacketLoss, Partition
 from protocols.frames import FloatArray
@@ -330,10 +329,9 @@ def _drones(top: Table) -> tuple[DroneConfig, ...]:
             )
         drones.append(DroneConfig(pos, t.number("yaw_deg", 0.0)))
     x = np.array([d.position_ned_m for d in drones])
-    close = [
-        (i, j) for i, j in cKDTree(x).query_pairs(MIN_SEPARATION_M)
-        if np.linalg.norm(x[i] - x[j]) < MIN_SEPARATION_M
-    ]  # fmt: skip
+    gap = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=-1)  # N <= MAX_DRONES: <= 24 MB
+    pairs = np.argwhere(np.triu(gap < MIN_SEPARATION_M, k=1))
+    close = [(int(i), int(j)) for i, j in pairs]
     if close:
         i, j = min(close)
         raise tables[j].error(

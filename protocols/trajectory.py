@@ -18,7 +18,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from protocols.frames import FloatArray
 
@@ -261,6 +260,10 @@ def _derived_rates(
     wps: Sequence[Waypoint], t: FloatArray, p: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     """Rates and accelerations (K, 9) at the waypoints: given ones, else from a clamped spline."""
+    if all(wp.rate is not None and wp.accel is not None for wp in wps):
+        return np.array([wp.rate for wp in wps]), np.array([wp.accel for wp in wps])
+    from scipy.interpolate import CubicSpline  # imported here: scipy costs ~1 s per process start
+
     zero = np.zeros(N_DESCRIPTORS)
     first_rate = wps[0].rate if wps[0].rate is not None else zero
     last_rate = wps[-1].rate if wps[-1].rate is not None else zero

@@ -14,11 +14,12 @@ from drone_agent.memory_bus import MemoryBus
 from gcs.events import EventLog
 from gcs.flight_record import LinkFault
 from gcs.gcs_drills import GcsDrills
-from gcs.gcs_report import Observations, build_record, drill_link_faults
+from gcs.gcs_report import build_record, drill_link_faults, membership
 from gcs.tlog import TlogWriter, read_tlog
 from protocols.frames import G_M_S2
 from protocols.keys import SwarmKeys
 from protocols.scenario import load_scenario
+from protocols.trajectory import DescriptorTrajectory
 from protocols.wire_fault import Clear, LinkCut, LinkRestore, Partition, encode_fault
 from sitl_sim.dynamics import wrench_from_rotor_speeds
 from sitl_sim.messages import actuator_output_status
@@ -98,9 +99,8 @@ def test_read_tlog_collects_rotor_forces_per_system(tmp_path: Path) -> None:
     assert one.actuator_t_s.shape == (0,) and one.rotor_forces_n.shape == (0, 4)
 
 
-def _observations(scenario_path: Path) -> Observations:
-    plan = load_scenario(scenario_path).trajectory()
-    return Observations(plans=[(0.0, plan)])
+def _plan(scenario_path: Path) -> DescriptorTrajectory:
+    return load_scenario(scenario_path).trajectory()
 
 
 def test_build_record_rebuilds_thrust_and_moments(tmp_path: Path) -> None:
@@ -117,7 +117,13 @@ def test_build_record_rebuilds_thrust_and_moments(tmp_path: Path) -> None:
     rolled = [weight / 4 + 0.1, weight / 4, weight / 4 - 0.1, weight / 4]  # l = 0.2 D
     _write_flight(tmp_path / "flight.tlog", {1: hover, 2: rolled})
     record = build_record(
-        tmp_path / "flight.tlog", 3, _observations(scenario_path), 25.0, 10.0, scenario
+        tmp_path / "flight.tlog",
+        tmp_path / "none.jsonl",
+        _plan(scenario_path),
+        3,
+        25.0,
+        10.0,
+        scenario,
     )
     assert record is not None
     np.testing.assert_allclose(record.thrust_n[:, :2], weight, rtol=1e-6)
@@ -138,7 +144,9 @@ def test_build_record_without_actuator_messages_keeps_zeros(tmp_path: Path) -> N
     with TlogWriter(tmp_path / "flight.tlog") as log:
         for k in range(20):
             log.write_vehicle_sample(k / 10, 1, np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
-    record = build_record(tmp_path / "flight.tlog", 2, _observations(scenario_path), 10.0, 5.0)
+    record = build_record(
+        tmp_path / "flight.tlog", tmp_path / "none.jsonl", _plan(scenario_path), 2, 10.0, 5.0
+    )
     assert record is not None
     assert not record.thrust_n.any() and not record.moments_nm.any()
 
@@ -183,12 +191,12 @@ def test_link_cut_drills_and_scenario_cuts_are_shaded(tmp_path: Path) -> None:
     _write_flight(tmp_path / "flight.tlog", {1: [0.0] * 4, 2: [0.0] * 4, 3: [0.0] * 4})
     record = build_record(
         tmp_path / "flight.tlog",
+        events,
+        _plan(scenario_path),
         3,
-        _observations(scenario_path),
         25.0,
         8.0,
         load_scenario(scenario_path),
-        events,
     )
     assert record is not None
     assert record.link_faults == [
@@ -209,3 +217,57 @@ def test_drill_link_faults_ignores_refused_and_unknown_events() -> None:
          "accepted": True},
     ]  # fmt: skip
     assert drill_link_faults(events, 10.0) == [LinkFault(2.0, 10.0, 3, 4, one_way=True)]
+
+
+def test_agent_statuses_and_membership_come_from_the_logs(tmp_path: Path) -> None:
+    """The report needs nothing but the files: estimates and neighbour counts from the AGENT
+    records of the tlog, membership from joins, drop-outs and crashes in events.jsonl."""
+    scenario_path = write_scenario(
+        tmp_path / "s.toml",
+        [(0.0, 0.0, 0.0), (0.0, 3.0, 0.0), (4.0, 0.0, 0.0)],
+        centre=(0.0, 0.0, -1.0),
+        spread=(4.0, 4.0, 0.0),
+    )
+    estimate = np.arange(9.0)
+    with TlogWriter(tmp_path / "flight.tlog") as log:
+        for k in range(50):
+            t = k / 10
+            for sysid in (1, 2, 3):
+                p = np.array([sysid, 0.0, -1.0])
+                log.write_vehicle_sample(t, sysid, p, np.zeros(3), np.zeros(3), np.zeros(3))
+                values = np.array([*estimate * sysid, 2.0, 3.0, 1.0])
+                if not (sysid == 3 and t >= 2.0):  # agent 3 falls silent at 2 s
+                    log.write_agent_status(t, sysid, values)
+    with EventLog(tmp_path / "events.jsonl") as events:
+        for i in range(3):
+            events.record(0.0, "agent_joined", drone=i)
+        events.record(1.5, "crash", drone=1, severity=0, text="crashed")
+        events.record(2.5, "dropout_detected", drone=2)
+        events.record(3.0, "agent_joined", drone=2)  # a lost drone does not come back
+    track = read_tlog(tmp_path / "flight.tlog")
+    assert track.vehicles[2].status.shape == (50, 12)
+    np.testing.assert_allclose(track.vehicles[2].status[0, :9], estimate * 2)
+    record = build_record(
+        tmp_path / "flight.tlog", tmp_path / "events.jsonl", _plan(scenario_path), 3, 10.0, 4.9
+    )
+    assert record is not None
+    t = record.t_s
+    np.testing.assert_allclose(record.estimate[10, 1], estimate * 2)
+    assert (record.neighbours[:, 0] == 2).all()
+    assert np.isnan(record.estimate[t >= 3.05, 2]).all()  # silent for more than MAX_AGE_S
+    assert record.lost_at_s == {1: 1.5, 2: 2.5}
+    assert record.member[:, 0].all()
+    assert (record.member[:, 1] == (t < 1.5 - 1e-9)).all()
+    assert (record.member[:, 2] == (t < 2.5 - 1e-9)).all()
+
+
+def test_membership_ignores_events_without_a_valid_drone() -> None:
+    t = np.arange(0.0, 1.0, 0.1)
+    events = [
+        {"t_s": 0.0, "kind": "agent_joined", "drone": 0},
+        {"t_s": 0.0, "kind": "agent_joined", "drone": 7},
+        {"t_s": 0.2, "kind": "crash", "drone": "x"},
+        {"t_s": 0.3, "kind": "command", "accepted": True},
+    ]
+    alive, lost = membership(events, t, 2)
+    assert alive[:, 0].all() and not alive[:, 1].any() and lost == {}
