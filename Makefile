@@ -22,7 +22,7 @@ $(STAMP): pyproject.toml
 	@touch $@
 
 demo: $(STAMP)
-	$(BIN)/swarm simulate scenarios/paper.toml --report report
+	$(BIN)/swarm demo
 
 lint: $(STAMP)
 	$(BIN)/ruff check gcs drone_agent sitl_sim protocols tests bench scripts

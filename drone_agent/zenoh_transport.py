@@ -81,6 +81,11 @@ class ZenohSettings:
             ("connect/endpoints", list(self.connect)),
             ("transport/link/tx/lease", self.lease_ms),
             ("transport/link/tx/keep_alive", self.keep_alive),
+            # a lost connect endpoint (a restarted ground station) is retried within a second
+            (
+                "connect/retry",
+                {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2},
+            ),
         ):
             conf.insert_json5(key, json.dumps(value))
         return conf

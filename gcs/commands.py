@@ -40,7 +40,10 @@ COMMANDS: dict[str, tuple[frozenset[str], frozenset[str]]] = {
     "hold": (frozenset(), frozenset()),
     "land": (frozenset(), frozenset()),
     "status": (frozenset(), frozenset()),
-    "crash": (frozenset({"drone"}), frozenset()),  # a drill: stop every motor of vehicle drone
+    # drills: stop every motor of vehicle drone; SIGKILL its agent; restart the ground station
+    "crash": (frozenset({"drone"}), frozenset()),
+    "dropout": (frozenset({"drone"}), frozenset()),
+    "gcs-restart": (frozenset(), frozenset()),
 }
 
 

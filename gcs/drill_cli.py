@@ -4,8 +4,9 @@ Link faults (``link-cut``, ``loss``, ``delay``, ``partition``, ``clear``) are pu
 ``swarm/<sid>/fault`` (:mod:`protocols.wire_fault`, BLOCK congestion) from a short-lived Zenoh
 client session; every agent applies them on its receive side and the ground station records them
 in events.jsonl. ``crash --drone I`` asks the ground station (its command queryable) to stop every
-motor of vehicle I. Exit codes: 0 done, 1 refused by the ground station, 2 usage error or nobody
-reachable.
+motor of vehicle I, ``dropout --drone I`` to SIGKILL drone I's agent process and ``gcs-restart``
+to stop itself so that ``swarm up`` starts it again (both need a swarm started by ``swarm up``).
+Exit codes: 0 done, 1 refused by the ground station, 2 usage error or nobody reachable.
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ from protocols.wire_fault import (
     encode_fault,
 )
 
+#: Drills carried out by the ground station (its command queryable) rather than the agents.
+GCS_DRILLS = ("crash", "dropout", "gcs-restart")
 #: Time given to the session to reach its peers before publishing, and to flush after (s).
 CONNECT_WAIT_S = 0.5
 FLUSH_WAIT_S = 0.2
@@ -79,6 +82,17 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     drill("clear", "end every link fault")
     crash = drill("crash", "stop every motor of one vehicle (through the ground station)")
     crash.add_argument("--drone", type=int, required=True, metavar="I", help="drone index")
+    dropout = drill(
+        "dropout",
+        "SIGKILL one drone's agent process (through the ground station; a swarm started by "
+        "swarm up)",
+    )
+    dropout.add_argument("--drone", type=int, required=True, metavar="I", help="drone index")
+    drill(
+        "gcs-restart",
+        "stop the ground station and have swarm up start it again: it adopts the swarm's "
+        "current plan and continues its logs",
+    )
 
 
 def _ids(text: str, what: str) -> tuple[int, ...]:
@@ -137,15 +151,15 @@ def publish(swarm_id: str, endpoint: str, payload: bytes) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Carry out the drill of ``args``; 0 done, 1 refused by the ground station."""
-    if args.drill == "crash":
+    if args.drill in GCS_DRILLS:
         from gcs.operator_cli import OperatorError, send
 
-        request = Request("crash", {"drone": args.drone})
+        request = Request(args.drill, {"drone": args.drone} if "drone" in args else {})
         try:
             reply = send(args.swarm_id, args.zenoh_connect, encode_request(request))
         except OperatorError as exc:
             raise DrillError(str(exc)) from None
-        print(f"drill crash: {'accepted' if reply.accepted else 'refused'}: {reply.reason}")
+        print(f"drill {args.drill}: {'accepted' if reply.accepted else 'refused'}: {reply.reason}")
         return 0 if reply.accepted else 1
     try:
         command = command_of(args)

@@ -13,6 +13,9 @@ from drone_agent.zenoh_transport import ZenohSettings
 from protocols.keys import validate_swarm_id
 from protocols.mavlink_conventions import DEFAULT_GCS_PORT
 
+#: Exit code of a ground station that ends for the gcs-restart drill (EX_TEMPFAIL).
+RESTART_EXIT_CODE = 75
+
 
 class GcsCliError(Exception):
     """A user mistake in ``swarm gcs``'s flags: one line, exit code 2."""
@@ -69,6 +72,26 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="sampling rate of the report's record (the simulator's --gcs-rate-hz; default 10)",
     )
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument(
+        "--run-file",
+        type=Path,
+        metavar="FILE",
+        help="the agents' process ids (written by swarm up); enables the dropout and "
+        f"gcs-restart drills (gcs-restart exits with code {RESTART_EXIT_CODE} for swarm up to "
+        "restart it)",
+    )
+    p.add_argument(
+        "--signing-key",
+        type=Path,
+        metavar="FILE",
+        help="MAVLink 2 signing key (as given to swarm sim): sign the commands sent to vehicles",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue a run after a restart: append to flight.tlog and events.jsonl and adopt "
+        "the swarm's current plan",
+    )
     p.add_argument("--quiet", action="store_true", help="no status line")
 
 
@@ -96,6 +119,14 @@ def run(args: argparse.Namespace) -> int:
         validate_swarm_id(args.swarm_id)
     except (ScenarioError, ValueError) as exc:
         raise GcsCliError(str(exc)) from None
+    key = None
+    if args.signing_key is not None:
+        from protocols.mavlink_signing import SigningKeyError, load_signing_key
+
+        try:
+            key = load_signing_key(args.signing_key)
+        except SigningKeyError as exc:
+            raise GcsCliError(str(exc)) from None
     if args.duration_s is not None and not args.duration_s > 0:
         raise GcsCliError("--duration-s must be positive")
     if not 0 < args.gcs_port < 65536:
@@ -111,6 +142,9 @@ def run(args: argparse.Namespace) -> int:
         duration_s=args.duration_s,
         telemetry_hz=args.telemetry_hz,
         plots=not args.no_plots,
+        run_file=args.run_file,
+        resume=args.resume,
+        signing_key=key,
         on_line=None if args.quiet else lambda line: print(line, file=sys.stderr, flush=True),
     )
     try:
@@ -127,6 +161,9 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, stop)
     with station:
         files = station.run()
+    if station.restart_requested:
+        print("swarm gcs: stopping for a restart (gcs-restart drill)", file=sys.stderr)
+        return RESTART_EXIT_CODE
     if not args.quiet:
         for f in files:
             print(f"wrote {f}", file=sys.stderr)

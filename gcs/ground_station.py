@@ -27,7 +27,7 @@ import zenoh
 from drone_agent.transport_link import PlanServer
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
 from gcs.commands import CommandError, Reply, apply_command, encode_reply, parse_request
-from gcs.events import EventLog
+from gcs.events import EventLog, read_events
 from gcs.gcs_drills import GcsDrills
 from gcs.gcs_report import build_record, write_report
 from gcs.planner import Envelope, PlanRefused
@@ -40,6 +40,8 @@ from protocols.wire_plan import PlanMessage, decode_plan
 from protocols.wire_status import AgentStatus, decode_status
 
 _POLL_S = 0.02
+#: How long a restarted ground station asks the swarm for its current plan (s).
+RESUME_PLAN_WAIT_S = 10.0
 _SEVERITY_EMERGENCY = 0
 _CRASH_WORDS = ("crash", "destroyed", "all motors off")
 
@@ -48,7 +50,10 @@ _CRASH_WORDS = ("crash", "destroyed", "all motors off")
 class GcsOptions:
     """How to run the ground station. ``duration_s``: stop at this simulated time (s);
     ``telemetry_hz``: sampling rate of the report's record; ``plan_query_s``: how long (s) to ask
-    the swarm for its current plan at start; ``on_line``: gets the status line."""
+    the swarm for its current plan at start; ``on_line``: gets the status line; ``run_file``: the
+    agents' process ids written by ``swarm up`` (enables the dropout and gcs-restart drills);
+    ``resume``: a restart: append to flight.tlog and events.jsonl instead of starting them;
+    ``signing_key``: sign the MAVLink commands sent to the vehicles (crash drills)."""
 
     scenario: Scenario
     report_dir: Path
@@ -62,6 +67,9 @@ class GcsOptions:
     plan_query_s: float = 1.0
     plots: bool = True
     on_line: Callable[[str], None] | None = None
+    run_file: Path | None = None
+    resume: bool = False
+    signing_key: bytes | None = None
 
 
 class GroundStation:
@@ -71,9 +79,18 @@ class GroundStation:
         self._o = options
         self._keys = SwarmKeys(options.swarm_id, 1.0)
         self._stop = False
+        self.restart_requested = False
+        #: a restarted station's clock starts where its events log ended, not at 0
+        self._t_floor_s = (
+            _last_event_time(options.report_dir / "events.jsonl") if options.resume else 0.0
+        )
         self._statuses: deque[bytes] = deque(maxlen=10_000)
         self._liveliness: deque[tuple[str, bool]] = deque()
         self.latest: dict[int, AgentStatus] = {}
+        #: drone -> share of the expected consensus messages received (smoothed, 0..1)
+        self.link_quality: dict[int, float] = {}
+        #: drone -> failsafes its vehicle reported
+        self.failsafes: dict[int, int] = {}
         self.alive: set[int] = set()
         options.report_dir.mkdir(parents=True, exist_ok=True)
         self._closers: list[Callable[[], None]] = []
@@ -82,7 +99,11 @@ class GroundStation:
             self.events.open()
             self._closers.append(self.events.close)
             self.telemetry = TelemetryReceiver(
-                options.gcs_host, options.gcs_port, options.report_dir / "flight.tlog"
+                options.gcs_host,
+                options.gcs_port,
+                options.report_dir / "flight.tlog",
+                append=options.resume,
+                signing_key=options.signing_key,
             )
             self._closers.append(self.telemetry.close)
             self.bus = ZenohBus.open(options.zenoh)
@@ -112,17 +133,22 @@ class GroundStation:
         """The newest plan the swarm already flies (agents answer plan queries), if any: a
         restarted ground station carries on from it instead of going back to the scenario's."""
         newest: PlanMessage | None = None
-        replies = self.bus.session.get(self._keys.plan, timeout=self._o.plan_query_s)
-        for reply in replies:  # ends when every queryable answered or at the timeout
-            if reply.ok is None:
-                continue
-            try:
-                plan = decode_plan(reply.ok.payload.to_bytes(), self._o.swarm_id)
-            except WireError:
-                continue
-            if newest is None or plan.seq > newest.seq:
-                newest = plan
-        return newest
+        # a restart waits for the agents to reconnect (they retry within a second)
+        deadline = time.monotonic() + (RESUME_PLAN_WAIT_S if self._o.resume else 0.0)
+        while True:
+            replies = self.bus.session.get(self._keys.plan, timeout=self._o.plan_query_s)
+            for reply in replies:  # ends when every queryable answered or at the timeout
+                if reply.ok is None:
+                    continue
+                try:
+                    plan = decode_plan(reply.ok.payload.to_bytes(), self._o.swarm_id)
+                except WireError:
+                    continue
+                if newest is None or plan.seq > newest.seq:
+                    newest = plan
+            if newest is not None or time.monotonic() >= deadline:
+                return newest
+            time.sleep(0.2)
 
     def __enter__(self) -> GroundStation:
         return self
@@ -143,7 +169,7 @@ class GroundStation:
     def now_s(self) -> float:
         """The newest simulated time (s) heard from a vehicle or an agent."""
         t_status = max((s.t_s for s in self.latest.values()), default=0.0)
-        return max(self.telemetry.sim_time_s, t_status)
+        return max(self.telemetry.sim_time_s, t_status, self._t_floor_s)
 
     def _on_status(self, _key: str, payload: bytes) -> None:  # Zenoh thread: enqueue only
         self._statuses.append(payload)
@@ -161,7 +187,12 @@ class GroundStation:
     def run(self) -> list[Path]:
         """Run until :meth:`stop` or the end time; then write and return the report files."""
         end_s = self._o.duration_s or self._o.scenario.duration_s
-        self.events.record(self.now_s, "run_start", scenario=self._o.scenario.name, end_s=end_s)
+        self.events.record(
+            self.now_s,
+            "gcs_restarted" if self._o.resume else "run_start",
+            scenario=self._o.scenario.name,
+            end_s=end_s,
+        )
         next_line = time.monotonic() + 1.0
         wall0 = time.monotonic()
         last_sample_s = end_s - 1.0 / self._o.telemetry_hz  # the simulator's last report
@@ -176,6 +207,9 @@ class GroundStation:
                 next_line += 1.0
                 if self._o.on_line is not None:
                     self._o.on_line(self.status_line())
+        if self.restart_requested:
+            self.events.record(self.now_s, "gcs_stopped", reason="restart", plan_seq=self.plan.seq)
+            return []
         self.events.record(self.now_s, "run_end", plan_seq=self.plan.seq)
         self.telemetry.close()
         n = self._o.scenario.n_drones
@@ -213,6 +247,8 @@ class GroundStation:
         lower = text.lower()
         crashed = severity == _SEVERITY_EMERGENCY or any(w in lower for w in _CRASH_WORDS)
         kind = "crash" if crashed else "failsafe" if "failsafe" in lower else "vehicle_text"
+        if kind == "failsafe":
+            self.failsafes[drone] = self.failsafes.get(drone, 0) + 1
         self.events.record(t_s, kind, drone=drone, severity=severity, text=text)
 
     def _drain_zenoh(self) -> None:
@@ -221,6 +257,7 @@ class GroundStation:
                 status = decode_status(self._statuses.popleft(), self._o.swarm_id)
             except WireError:
                 continue
+            self._update_link_quality(self.latest.get(status.drone), status)
             self.latest[status.drone] = status
             self.telemetry.log_agent_status(status)
         while self._liveliness:
@@ -235,6 +272,16 @@ class GroundStation:
             elif not alive and drone in self.alive:
                 self.alive.discard(drone)
                 self.events.record(t, "dropout_detected", drone=drone)
+
+    def _update_link_quality(self, before: AgentStatus | None, now: AgentStatus) -> None:
+        """Messages received between two statuses over those its neighbours should have sent
+        (one per neighbour per round), smoothed over about ten statuses."""
+        if before is None or now.round <= before.round or not now.neighbours:
+            return
+        expected = (now.round - before.round) * len(now.neighbours)
+        share = min(1.0, max(0.0, (now.counters.rx - before.counters.rx) / expected))
+        old = self.link_quality.get(now.drone, share)
+        self.link_quality[now.drone] = old + 0.1 * (share - old)
 
     def _answer_commands(self) -> None:
         while (query := self._commands.try_recv()) is not None:
@@ -253,9 +300,14 @@ class GroundStation:
             return Reply(False, str(exc), self.plan.seq)
         if request.name == "status":
             return Reply(True, f"t = {now:.2f} s", self.plan.seq, tuple(self.status_table()))
-        if request.name == "crash":  # a drill, recorded by GcsDrills
-            n = self._o.scenario.n_drones
+        n = self._o.scenario.n_drones
+        if request.name == "crash":  # drills, recorded by GcsDrills
             return replace(self.drills.crash(request.args["drone"], n, now), seq=self.plan.seq)
+        if request.name == "dropout":
+            reply = self.drills.dropout(request.args["drone"], n, now, self._o.run_file)
+            return replace(reply, seq=self.plan.seq)
+        if request.name == "gcs-restart":
+            return self._restart(now)
         try:
             plan = apply_command(request, self.plan, now, self._o.envelope)
         except PlanRefused as exc:
@@ -275,6 +327,25 @@ class GroundStation:
         )
         return reply
 
+    def _restart(self, now_s: float) -> Reply:
+        """The gcs-restart drill: end the run without a report, exit code RESTART_EXIT_CODE, and
+        ``swarm up`` starts the ground station again (with ``--resume``)."""
+        if self._o.run_file is None:
+            reply = Reply(
+                False,
+                "only a ground station started by swarm up can be restarted (swarm up starts it "
+                "again); stop and start this one yourself",
+                self.plan.seq,
+            )
+        else:
+            reply = Reply(True, "the ground station restarts now", self.plan.seq)
+            self.restart_requested = True
+            self._stop = True
+        self.events.record(
+            now_s, "drill", drill="gcs_restart", accepted=reply.accepted, reason=reply.reason
+        )
+        return reply
+
     def _truth(self) -> np.ndarray | None:
         positions = [
             v.position_ned_m
@@ -285,7 +356,8 @@ class GroundStation:
 
     def status_table(self) -> list[dict[str, Any]]:
         """One row per drone heard: mode, armed, position (NED m), centre estimate error (m),
-        neighbours and message counters."""
+        neighbours, link quality (share of expected consensus messages received), failsafes
+        reported by its vehicle and message counters."""
         truth = self._truth()
         rows = []
         for i in sorted(set(self.telemetry.vehicles) | set(self.latest)):
@@ -302,6 +374,8 @@ class GroundStation:
                     "position_ned_m": list(v.position_ned_m) if v and v.position_ned_m else None,
                     "estimate_error_m": err if err is None or math.isfinite(err) else None,
                     "neighbours": list(s.neighbours) if s is not None else [],
+                    "link_quality": self.link_quality.get(i),
+                    "failsafes": self.failsafes.get(i, 0),
                     "rx": s.counters.rx if s else 0,
                     "tx": s.counters.tx if s else 0,
                     "rx_dropped": (
@@ -322,3 +396,12 @@ class GroundStation:
             f"gcs t={self.now_s:7.2f}s  vehicles {len(self.telemetry.vehicles)}  "
             f"agents alive {len(self.alive)}  plan {self.plan.seq}  worst estimate error {worst}"
         )
+
+
+def _last_event_time(path: Path) -> float:
+    """The time (s) of the last event in ``path``; 0 if there is none."""
+    try:
+        events = read_events(path)
+    except (OSError, ValueError):
+        return 0.0
+    return max((float(e.get("t_s", 0.0)) for e in events), default=0.0)

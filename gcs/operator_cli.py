@@ -134,17 +134,21 @@ def format_reply(name: str, reply: Reply) -> list[str]:
     if reply.table:
         lines.append(
             f"{'drone':>5} {'alive':>5} {'mode':>8} {'armed':>5} {'position NED (m)':>24} "
-            f"{'est.err(m)':>10} {'nbrs':>4} {'rx':>8} {'tx':>8} {'dropped':>7}"
+            f"{'est.err(m)':>10} {'nbrs':>4} {'link':>5} {'fsafe':>5} {'rx':>8} {'tx':>8} "
+            f"{'dropped':>7}"
         )
         for r in reply.table:
             pos = r.get("position_ned_m")
             pos_text = "-" if pos is None else " ".join(f"{x:7.2f}" for x in pos)
             err = r.get("estimate_error_m")
+            link = r.get("link_quality")
+            link_text = "-" if link is None else f"{100 * link:.0f}%"
             lines.append(
                 f"{r.get('drone'):>5} {('yes' if r.get('alive') else 'no'):>5} "
                 f"{r.get('mode') or '-'!s:>8} {('yes' if r.get('armed') else 'no'):>5} "
                 f"{pos_text:>24} {('-' if err is None else f'{err:.3f}'):>10} "
-                f"{len(r.get('neighbours') or []):>4} {r.get('rx', 0):>8} {r.get('tx', 0):>8} "
+                f"{len(r.get('neighbours') or []):>4} {link_text:>5} {r.get('failsafes', 0):>5} "
+                f"{r.get('rx', 0):>8} {r.get('tx', 0):>8} "
                 f"{r.get('rx_dropped', 0):>7}"
             )
     return lines

@@ -37,8 +37,9 @@ from sitl_sim.inner_loop import inner_loop
 
 AIRBORNE_ALTITUDE_M = 0.1
 HARD_LANDING_M_S = 2.0
-#: An agent notices its vehicle is gone (telemetry silent) after this long, then leaves the swarm.
-VEHICLE_LOST_TIMEOUT_S = 0.5
+#: An agent leaves the swarm this long after its vehicle crashes: the next control tick, as the
+#: distributed agent does on its vehicle's EMERGENCY STATUSTEXT (drone_agent/hosted_agent.py).
+CRASH_NOTICE_S = 0.0
 
 
 @dataclass(frozen=True)
@@ -114,10 +115,10 @@ class ReferenceFlight:
         self._lose(drone)
 
     def crash_vehicle(self, drone: int) -> None:
-        """Motors off: the vehicle falls. Its agent notices and leaves after a timeout."""
+        """Motors off: the vehicle falls. Its agent hears the crash and leaves at the next tick."""
         self.crashed[drone] = True
         self.armed[drone] = False
-        self.leave_at[drone] = self.t_s + VEHICLE_LOST_TIMEOUT_S
+        self.leave_at[drone] = self.t_s + CRASH_NOTICE_S
         self._lose(drone)
 
     def _lose(self, drone: int) -> None:
@@ -175,7 +176,7 @@ class ReferenceFlight:
             if self.t_s >= t_leave:
                 del self.leave_at[drone]
                 if self.agents.pop(drone, None) is not None:
-                    self._event("agent_left", drone=drone, reason="vehicle lost")
+                    self._event("agent_left", drone=drone, reason="vehicle crashed")
 
     def _control_tick(self, k: int, rec: _Recorder) -> None:
         pos, vel = self.state[POS].T, self.state[VEL].T

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import json
 import signal
 import socket
 import subprocess
@@ -77,16 +78,50 @@ class RunPlan:
     gcs: Child
     sim: Child
     agents: list[Child] = field(default_factory=list)
+    #: drones of each agent process (same order as ``agents``)
+    agent_drones: list[list[int]] = field(default_factory=list)
+    #: where the agents' process ids go, for the ground station's dropout drill
+    run_file: Path | None = None
+    #: the Zenoh endpoint of the run (operator commands and drills connect to it)
+    zenoh_endpoint: str | None = None
 
     @property
     def children(self) -> list[Child]:
         return [self.gcs, self.sim, *self.agents]
+
+    def write_run_file(self) -> None:
+        """``{"zenoh": endpoint, "agents": {"<drone>": pid}}``: the run's Zenoh endpoint and the
+        agent processes started so far."""
+        if self.run_file is None:
+            return
+        pids = {
+            str(d): child.proc.pid
+            for child, drones in zip(self.agents, self.agent_drones, strict=False)
+            if child.proc is not None
+            for d in drones
+        }
+        tmp = self.run_file.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"zenoh": self.zenoh_endpoint, "agents": pids}) + "\n")
+        tmp.replace(self.run_file)  # atomic: the ground station never reads half a file
 
 
 def free_tcp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def rendezvous_port() -> int:
+    """The agents' default rendezvous port (where ``swarm status`` etc. look by default) if it is
+    free, else any free TCP port."""
+    from drone_agent.agent_cli import RENDEZVOUS_PORT
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        try:
+            s.bind(("127.0.0.1", RENDEZVOUS_PORT))
+        except OSError:
+            return free_tcp_port()
+    return RENDEZVOUS_PORT
 
 
 def check_udp_ports(first: int, count: int, what: str) -> None:
@@ -126,6 +161,7 @@ def supervise(
         for child in plan.children:
             child.start()
             time.sleep(0.3 if child.role == "gcs" else 0.05)
+        plan.write_run_file()
         while True:
             if should_stop():
                 reason = "interrupted"
@@ -134,6 +170,12 @@ def supervise(
                 code = plan.sim.proc.returncode if plan.sim.proc else None
                 reason = "finished" if code == 0 else f"the simulator exited with code {code}"
                 break
+            if not plan.gcs.running and _restart_asked(plan.gcs):
+                if "--resume" not in plan.gcs.argv:
+                    plan.gcs.argv.append("--resume")
+                plan.gcs.start()
+                if progress is not None:
+                    progress("the ground station restarts (gcs-restart drill)")
             if not plan.gcs.running:
                 code = plan.gcs.proc.returncode if plan.gcs.proc else None
                 reason = f"the ground station exited with code {code} (log: {plan.gcs.log})"
@@ -153,6 +195,13 @@ def supervise(
         for child in [plan.gcs, *plan.agents, plan.sim]:
             child.stop()
     return reason
+
+
+def _restart_asked(child: Child) -> bool:
+    """The child ended with the gcs-restart drill's exit code."""
+    from gcs.gcs_cli import RESTART_EXIT_CODE
+
+    return child.proc is not None and child.proc.returncode == RESTART_EXIT_CODE
 
 
 def _last_line(path: Path) -> str:

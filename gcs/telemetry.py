@@ -19,6 +19,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common
 
 from gcs.tlog import TlogWriter
+from protocols.mavlink_signing import setup_signing
 from protocols.wire_status import AgentStatus
 
 _MAX_DATAGRAM = 65535
@@ -51,8 +52,10 @@ class VehicleText:
 
 @dataclass
 class TelemetryReceiver:
-    """Binds UDP ``host:port``; :meth:`poll` drains what arrived into the tlog at ``tlog_path``.
-    Use as a context manager (closes the socket and the tlog)."""
+    """Binds UDP ``host:port``; :meth:`poll` drains what arrived into the tlog at ``tlog_path``
+    (appended to with ``append``, else started afresh). With ``signing_key`` its commands are
+    signed (MAVLink 2 signing, link id 2). Use as a context manager (closes the socket and the
+    tlog)."""
 
     host: str
     port: int
@@ -61,6 +64,8 @@ class TelemetryReceiver:
     sim_time_s: float = 0.0
     malformed: int = 0
     sim_address: tuple[str, int] | None = None
+    append: bool = False
+    signing_key: bytes | None = None
 
     def __post_init__(self) -> None:
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -69,8 +74,10 @@ class TelemetryReceiver:
             self._sock.setblocking(False)
             self._codec = common.MAVLink(None)
             self._out = common.MAVLink(None, srcSystem=255, srcComponent=190)  # a GCS
+            if self.signing_key is not None:  # the simulator rejects unsigned commands then
+                setup_signing(self._out, self.signing_key, link_id=2)
             self._codec.robust_parsing = True
-            self._tlog = TlogWriter(self.tlog_path)
+            self._tlog = TlogWriter(self.tlog_path, append=self.append)
             self._tlog.open()
         except BaseException:
             self._sock.close()

@@ -49,11 +49,13 @@ MAX_SAMPLE_AGE_S = 0.5
 class TlogWriter:
     """Writes vehicle telemetry to a ``.tlog`` file; use as a context manager.
 
-    ``epoch_offset_s`` is added to the simulated time to make each record's timestamp.
+    ``epoch_offset_s`` is added to the simulated time to make each record's timestamp;
+    ``append`` continues an existing log (a restarted ground station) instead of starting afresh.
     """
 
-    def __init__(self, path: str | Path, epoch_offset_s: float = 0.0) -> None:
+    def __init__(self, path: str | Path, epoch_offset_s: float = 0.0, append: bool = False) -> None:
         self.path = Path(path)
+        self.append = append
         self.epoch_offset_us = round(epoch_offset_s * 1e6)
         self._codecs: dict[tuple[int, int], Any] = {}
         self._file: BinaryIO | None = None
@@ -72,9 +74,9 @@ class TlogWriter:
         self.close()
 
     def open(self) -> None:
-        """Create (truncate) the file; done by ``__enter__``."""
+        """Create (truncate) the file, or append to it with ``append``; done by ``__enter__``."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file = self.path.open("wb")
+        self._file = self.path.open("ab" if self.append else "wb")
 
     def close(self) -> None:
         """Flush and close the file (idempotent)."""

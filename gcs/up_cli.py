@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+from gcs.gcs_drills import RUN_FILE
 from gcs.summary import summary_lines
 from gcs.supervisor import (
     Child,
@@ -15,15 +16,16 @@ from gcs.supervisor import (
     agent_groups,
     check_udp_ports,
     flags,
-    free_tcp_port,
     interrupt_flag,
+    rendezvous_port,
     supervise,
     swarm_argv,
 )
 from protocols.mavlink_conventions import DEFAULT_BASE_PORT, DEFAULT_GCS_PORT
 from protocols.scenario import ScenarioError, load_scenario
 
-PAPER = Path("scenarios/paper.toml")
+#: The paper's flight, shipped with the project (so `swarm demo` works from any folder).
+PAPER = Path(__file__).resolve().parents[1] / "scenarios" / "paper.toml"
 #: Telemetry rate of every vehicle to the ground station, and so of the report's record (Hz).
 TELEMETRY_HZ = 25
 
@@ -106,11 +108,12 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
         logs.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SupervisorError(f"cannot write the report folder {report}: {exc}") from None
+    endpoint = args.zenoh_connect
     if args.zenoh_connect:
         gcs_zenoh = ["--zenoh-connect", args.zenoh_connect]
         agent_zenoh = ["--zenoh-listen", "tcp/127.0.0.1:0", "--zenoh-connect", args.zenoh_connect]
     else:
-        endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+        endpoint = f"tcp/127.0.0.1:{rendezvous_port()}"
         gcs_zenoh = ["--zenoh-listen", endpoint]
         agent_zenoh = ["--zenoh-listen", "tcp/127.0.0.1:0", "--zenoh-connect", endpoint]
     key = flags([("--signing-key", args.signing_key)])
@@ -126,6 +129,11 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
             args.swarm_id,
             "--gcs-port",
             str(args.gcs_port),
+            "--telemetry-hz",
+            str(TELEMETRY_HZ),
+            "--run-file",
+            str(logs / RUN_FILE),
+            *key,
             "--quiet",
             *gcs_zenoh,
         ),
@@ -139,10 +147,12 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
             ("--join-timeout", 120),
             ("--base-port", args.base_port),
             ("--gcs", f"udp:127.0.0.1:{args.gcs_port}"),
+            ("--gcs-rate-hz", TELEMETRY_HZ),
             ("--duration-s", duration),
         ]
     )
     sim = Child("simulator", swarm_argv("sim", *common, *sim_flags, *key), logs / "sim.log")
+    groups = agent_groups(n, args.agents_per_process)
     agents = [
         Child(
             f"agent {ids}",
@@ -161,9 +171,16 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
             ),
             logs / f"agent-{ids}.log",
         )
-        for ids in agent_groups(n, args.agents_per_process)
+        for ids in groups
     ]
-    return RunPlan(gcs, sim, agents), n
+    drones = [list(range(*_bounds(ids))) for ids in groups]
+    return RunPlan(gcs, sim, agents, drones, logs / RUN_FILE, endpoint), n
+
+
+def _bounds(ids: str) -> tuple[int, int]:
+    """``"3"`` or ``"3-5"`` (an agent_groups entry) as a slice's (start, stop)."""
+    lo, _, hi = ids.partition("-")
+    return int(lo), int(hi or lo) + 1
 
 
 def run(args: argparse.Namespace) -> int:
@@ -187,6 +204,11 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"swarm up: {n} drones, {len(plan.agents)} agent processes, {args.clock} clock; "
         f"logs in {args.report / 'logs'}",
+        file=sys.stderr,
+    )
+    print(
+        f"swarm up: operator commands and drills: swarm status --swarm-id {args.swarm_id} "
+        f"--zenoh-connect {plan.zenoh_endpoint}",
         file=sys.stderr,
     )
     with interrupt_flag() as stop:

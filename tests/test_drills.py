@@ -109,7 +109,11 @@ def test_link_cut_and_clear_on_the_ground_and_malformed_commands_are_ignored(
 FIVE = [(0.0, 0.0, 0.0), (0.0, 3.0, 0.0), (4.0, 0.0, 0.0), (4.0, 3.0, 0.0), (2.0, 1.5, 0.0)]
 
 
-def test_crash_drill_in_a_flying_swarm(tmp_path: Path) -> None:
+def test_crash_drill_in_a_flying_signed_swarm(tmp_path: Path) -> None:
+    """The whole run signs its MAVLink (swarm up --signing-key): the agents' setpoints and the
+    ground station's crash command are both accepted by the signing simulator."""
+    key = tmp_path / "swarm.key"
+    key.write_text("5a" * 32)
     scenario = write_scenario(
         tmp_path / "hover.toml",
         FIVE,
@@ -126,6 +130,7 @@ def test_crash_drill_in_a_flying_swarm(tmp_path: Path) -> None:
                 *("up", str(scenario), "--report", str(report), "--duration-s", "20"),
                 *("--base-port", str(base), "--gcs-port", str(gcs_port)),
                 *("--swarm-id", SWARM, "--zenoh-connect", obs.endpoint),
+                *("--signing-key", str(key)),
             ),
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,

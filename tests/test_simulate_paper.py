@@ -9,7 +9,6 @@ closer than 1.0 m, the drop-out at 30 s survived and re-converged within 10 s.
 from __future__ import annotations
 
 import json
-import os
 import re
 import subprocess
 import sys
@@ -17,49 +16,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from paper_flight import ENV, min_airborne_separation, paper_flight
 
 from gcs.events import read_events
 from gcs.metrics import descriptors_of, tracking_from_positions
-from gcs.tlog import read_tlog
-from protocols.scenario import Crash, load_scenario
-
-ROOT = Path(__file__).resolve().parents[1]
-PAPER = ROOT / "scenarios" / "paper.toml"
-SWARM = [sys.executable, "-m", "gcs.cli"]
-ENV = {**os.environ, "MAVLINK20": "1", "MPLBACKEND": "Agg"}
-TLOG_GRID_HZ = 25.0
 
 
 @pytest.fixture(scope="module")
-def report(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("paper")
-    proc = subprocess.run(
-        [*SWARM, "simulate", str(PAPER), "--report", str(out), "--progress", "off"],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        cwd=ROOT,
-        timeout=900,
-    )
-    assert proc.returncode == 0, proc.stderr
-    assert "centroid tracking" in proc.stdout
-    return out
+def report(simulated_paper_report: Path) -> Path:
+    return simulated_paper_report
 
 
 @pytest.fixture(scope="module")
 def flight(report: Path) -> dict[str, np.ndarray]:
-    """Positions on a 25 Hz grid from the tlog, with membership and the command from the
-    scenario (drone 1 is lost when the scenario crashes it)."""
-    scenario = load_scenario(PAPER)
-    track = read_tlog(report / "flight.tlog")
-    t = np.arange(0.0, scenario.duration_s + 1e-9, 1.0 / TLOG_GRID_HZ)
-    positions = track.resample(t, scenario.n_drones)
-    member = np.ones((t.size, scenario.n_drones), dtype=bool)
-    for fault in scenario.faults:
-        if isinstance(fault, Crash):
-            member[t >= fault.t_s, fault.drone] = False
-    desired = scenario.trajectory().evaluate_many(t)[0]
-    return {"t": t, "positions": positions, "member": member, "desired": desired}
+    return paper_flight(report)
 
 
 @pytest.mark.slow
@@ -84,14 +54,7 @@ def test_tracking_from_the_tlog(flight: dict[str, np.ndarray]) -> None:
 
 @pytest.mark.slow
 def test_no_two_airborne_drones_closer_than_one_metre(flight: dict[str, np.ndarray]) -> None:
-    pos = flight["positions"]
-    airborne = np.isfinite(pos[..., 2]) & (-pos[..., 2] > 0.1)
-    d = np.linalg.norm(pos[:, :, None, :] - pos[:, None, :, :], axis=-1)
-    both = airborne[:, :, None] & airborne[:, None, :]
-    n = pos.shape[1]
-    both &= ~np.eye(n, dtype=bool)[None]
-    assert both.any()
-    assert np.nanmin(np.where(both, d, np.inf)) > 1.0
+    assert min_airborne_separation(flight["positions"]) > 1.0
 
 
 @pytest.mark.slow

@@ -1,0 +1,65 @@
+"""The paper's flight read back from a report's flight.tlog, shared by the tests of
+``swarm simulate`` (in-process) and ``swarm demo`` (distributed): positions on a 25 Hz grid, who
+is in the swarm (drone 1 is lost when the scenario crashes it) and the commanded descriptors."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from gcs.tlog import TlogTrack, read_tlog
+from protocols.scenario import Crash, load_scenario
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = ROOT / "scenarios" / "paper.toml"
+SWARM = [sys.executable, "-m", "gcs.cli"]
+ENV = {**os.environ, "MAVLINK20": "1", "MPLBACKEND": "Agg"}
+TLOG_GRID_HZ = 25.0
+
+
+def simulate_paper(out: Path) -> Path:
+    """Run ``swarm simulate scenarios/paper.toml --report out``; returns ``out``."""
+    proc = subprocess.run(
+        [*SWARM, "simulate", str(PAPER), "--report", str(out), "--progress", "off"],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        cwd=ROOT,
+        timeout=900,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "centroid tracking" in proc.stdout
+    return out
+
+
+def paper_flight(report: Path) -> dict[str, np.ndarray]:
+    """``t`` (T,), ``positions`` (T, N, 3), ``member`` (T, N), ``desired`` (T, 9) of the paper's
+    flight from ``report/flight.tlog``."""
+    return flight_of(read_tlog(report / "flight.tlog"))
+
+
+def flight_of(track: TlogTrack) -> dict[str, np.ndarray]:
+    """As :func:`paper_flight`, from an already read tlog."""
+    scenario = load_scenario(PAPER)
+    t = np.arange(0.0, scenario.duration_s + 1e-9, 1.0 / TLOG_GRID_HZ)
+    positions = track.resample(t, scenario.n_drones)
+    member = np.ones((t.size, scenario.n_drones), dtype=bool)
+    for fault in scenario.faults:
+        if isinstance(fault, Crash):
+            member[t >= fault.t_s, fault.drone] = False
+    desired = scenario.trajectory().evaluate_many(t)[0]
+    return {"t": t, "positions": positions, "member": member, "desired": desired}
+
+
+def min_airborne_separation(positions: np.ndarray) -> float:
+    """Smallest distance (m) between two airborne (> 0.1 m up) drones over the flight."""
+    airborne = np.isfinite(positions[..., 2]) & (-positions[..., 2] > 0.1)
+    d = np.linalg.norm(positions[:, :, None, :] - positions[:, None, :, :], axis=-1)
+    both = airborne[:, :, None] & airborne[:, None, :]
+    both &= ~np.eye(positions.shape[1], dtype=bool)[None]
+    assert both.any()
+    return float(np.nanmin(np.where(both, d, np.inf)))

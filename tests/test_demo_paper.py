@@ -1,0 +1,182 @@
+"""``swarm demo`` (what ``make demo`` runs) end to end: the paper's 200 s flight with the real
+simulator, 9 agent processes over Zenoh and the ground station, judged from the ground station's
+own ``report/flight.tlog`` (recomputed here, not read from metrics.json), and compared with the
+in-process reference ``swarm simulate`` on the same scenario.
+
+Bars (the ground-station issue): centroid RMS < 0.10 m and shape-variance RMS < 0.2 m^2 after
+the first 20 s; no two airborne drones closer than 1.0 m; drone 1 (system id 2) crashes at 30 s
+and every surviving agent's estimate is back within the agent issue's bound within 10 s; the
+distributed flight is within 0.05 m / 0.1 m^2 RMS of ``swarm simulate``. Lockstep: the result
+does not depend on the machine's load. It takes about 3 minutes.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from paper_flight import ENV, ROOT, SWARM, flight_of, min_airborne_separation, paper_flight
+from sitl_client import free_port_block, free_udp_port
+
+from gcs.events import read_events
+from gcs.metrics import descriptors_of, tracking_from_positions
+from gcs.tlog import TlogTrack, read_tlog
+
+pytestmark = pytest.mark.slow
+CRASHED, CRASH_T_S = 1, 30.0
+SURVIVORS = [i for i in range(9) if i != CRASHED]
+SETTLE_S = 20.0
+HEADING = 3  # index of yaw in the checked rows below
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """Run ``swarm demo`` once (free ports, so it does not clash with a swarm already running)."""
+    out = tmp_path_factory.mktemp("demo")
+    report = out / "report"
+    base, gcs_port = free_port_block(9), free_udp_port()
+    proc = subprocess.run(
+        [
+            *SWARM,
+            "demo",
+            "--report",
+            str(report),
+            "--base-port",
+            str(base),
+            "--gcs-port",
+            str(gcs_port),
+            "--swarm-id",
+            "demotest",
+        ],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        cwd=out,  # not the project folder: the demo finds the paper's scenario by itself
+        timeout=900,
+    )
+    logs = "\n".join(f"{p.name}: {p.read_text()[-2000:]}" for p in (report / "logs").glob("*.log"))
+    assert proc.returncode == 0, proc.stderr[-3000:] + logs
+    return report, proc.stdout
+
+
+@pytest.fixture(scope="module")
+def track(demo: tuple[Path, str]) -> TlogTrack:
+    return read_tlog(demo[0] / "flight.tlog")
+
+
+@pytest.fixture(scope="module")
+def flight(track: TlogTrack) -> dict[str, np.ndarray]:
+    return flight_of(track)
+
+
+def test_tracking_from_the_ground_stations_tlog(flight: dict[str, np.ndarray]) -> None:
+    errors = tracking_from_positions(
+        flight["t"], flight["positions"], flight["member"], flight["desired"], SETTLE_S
+    )
+    assert errors["centroid_m"]["rms"] < 0.10
+    assert errors["shape_m2"]["rms"] < 0.2
+
+
+def test_no_two_airborne_drones_closer_than_one_metre(flight: dict[str, np.ndarray]) -> None:
+    assert min_airborne_separation(flight["positions"]) > 1.0
+
+
+def test_drop_out_survived_and_every_estimate_back_within_10_s(
+    flight: dict[str, np.ndarray], track: TlogTrack
+) -> None:
+    t, pos, member, desired = flight["t"], flight["positions"], flight["member"], flight["desired"]
+    truth = descriptors_of(pos, member, desired)
+    # the survivors fly to the end; the crashed vehicle went silent after it hit the ground
+    assert np.all(-pos[-1, SURVIVORS, 2] > 4.5)
+    assert np.all(np.isnan(pos[-1, CRASHED]))
+    # each survivor's own estimate (its AGENT records in the tlog) against the survivors' truth
+    rows = [0, 1, 2, 5, 6, 7, 8]  # centre, heading, variances (roll/pitch of a flat swarm ~0)
+    bound = np.maximum(0.02 * np.abs(truth[:, rows]), 0.05)
+    back = (t >= CRASH_T_S + 10.0) & (t <= t[-1] - 1.0)
+    # heading is undefined where length and width variances tie (ALGORITHM.md §1: masked)
+    tie = np.abs(truth[:, 6] - truth[:, 7]) / (truth[:, 6] + truth[:, 7]) < 0.05
+    assert tie[back].any() and not tie[back].all()  # the width crosses the length once
+    for i in SURVIVORS:
+        v = track.vehicles[i + 1]
+        assert v.status_t_s.size > 1000, i  # statuses were logged all flight
+        k = np.clip(np.searchsorted(v.status_t_s, t + 5e-4, side="right") - 1, 0, None)
+        estimate = v.status[k, :9]
+        fresh = t - v.status_t_s[k] < 0.5
+        assert fresh[back].all(), i
+        err = np.abs(estimate[:, rows] - truth[:, rows])
+        err[tie, HEADING] = 0.0
+        assert (err[back] <= bound[back]).all(), (i, err[back].max(axis=0))
+    # the crash is felt by the survivors' estimates, so the bound above is not vacuous
+    during = (t >= CRASH_T_S) & (t < CRASH_T_S + 1.0)
+    assert np.nanmax(np.abs(truth[during, 0] - desired[during, 0])) > 0.1
+
+
+def test_distributed_flight_matches_swarm_simulate(
+    flight: dict[str, np.ndarray], simulated_paper_report: Path
+) -> None:
+    """Tracking RMS of the two runs within 0.05 m / 0.1 m^2 of each other (the issue's bar);
+    the flights themselves: the same to 1 cm / 0.02 m^2 away from the crash, and within 0.1 m
+    RMS with its transient (the distributed agents learn of the crash a few ticks apart)."""
+    reference = paper_flight(simulated_paper_report)
+    t = flight["t"]
+    ours = descriptors_of(flight["positions"], flight["member"], flight["desired"])
+    theirs = descriptors_of(reference["positions"], reference["member"], reference["desired"])
+    for a_true in (ours, theirs):
+        assert np.isfinite(a_true[t >= SETTLE_S]).all()
+
+    def rms(x: np.ndarray, mask: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(x[mask] ** 2)))
+
+    after = t >= SETTLE_S
+    steady = after & ~((t >= CRASH_T_S) & (t < CRASH_T_S + 10.0))
+    desired = flight["desired"]
+    for part, bar in ((slice(0, 3), 0.05), (slice(6, 9), 0.1)):
+        tracking = [np.linalg.norm(a[:, part] - desired[:, part], axis=1) for a in (ours, theirs)]
+        assert abs(rms(tracking[0], after) - rms(tracking[1], after)) < bar
+    centre_diff = np.linalg.norm(ours[:, :3] - theirs[:, :3], axis=1)
+    shape_diff = np.linalg.norm(ours[:, 6:9] - theirs[:, 6:9], axis=1)
+    assert rms(centre_diff, steady) < 0.01 and rms(shape_diff, steady) < 0.02
+    assert rms(centre_diff, after) < 0.1 and rms(shape_diff, after) < 0.2
+
+
+def test_report_and_summary(demo: tuple[Path, str]) -> None:
+    report, stdout = demo
+    assert "centroid tracking" in stdout and "re-converged" in stdout
+    metrics = json.loads((report / "metrics.json").read_text())
+    assert metrics["mode"] == "distributed (swarm gcs)"
+    assert [d["sysid"] for d in metrics["drones_lost"]] == [CRASHED + 1]
+    crash = next(r for r in metrics["reconvergence"] if "lost" in r["description"])
+    assert crash["time_to_reconverge_s"] is not None and crash["time_to_reconverge_s"] < 10.0
+    events = read_events(report / "events.jsonl")
+    assert {e["drone"] for e in events if e["kind"] == "agent_joined"} == set(range(9))
+    assert any(e["kind"] == "crash" and e["drone"] == CRASHED for e in events)
+    for png in ("paths.png", "descriptors.png", "controls.png"):
+        data = (report / png).read_bytes()
+        assert data.startswith(b"\x89PNG") and len(data) > 20_000
+
+
+def test_ground_station_tlog_reads_back_with_mavlogdump(demo: tuple[Path, str]) -> None:
+    mavlogdump = Path(sys.executable).parent / "mavlogdump.py"
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(mavlogdump),
+            "--types",
+            "LOCAL_POSITION_NED,ACTUATOR_OUTPUT_STATUS,DEBUG_FLOAT_ARRAY",
+            "--format",
+            "json",
+            str(demo[0] / "flight.tlog"),
+        ],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        cwd=ROOT,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    kinds = {json.loads(line)["meta"]["type"] for line in proc.stdout.splitlines()}
+    assert kinds == {"LOCAL_POSITION_NED", "ACTUATOR_OUTPUT_STATUS", "DEBUG_FLOAT_ARRAY"}
