@@ -4,7 +4,8 @@
   25 agents hosted per process. The simulator is paced to the wall clock, so the question is
   whether the agents keep up: the end-to-end real-time factor is the simulator's own rate times
   the fraction of control ticks the agents answered (setpoints received / (N x control rate)).
-- Lockstep clock, N = 9 (the paper's swarm): how much faster than real time it runs (target 5x).
+- Lockstep clock, N = 9 (the paper's swarm): how much faster than real time it runs (target 5x),
+  with one agent process per drone and with the nine hosted in one process.
 
 Writes a PNG of real-time factor against N beside the JSON (``bench/rtf_vs_n.png``).
 """
@@ -128,6 +129,8 @@ def end_to_end() -> dict[str, Any]:
             rows.append(run_up(n, per, "realtime", REALTIME_S))
     lockstep = run_up(9, 1, "lockstep", LOCKSTEP_S)
     rows.append(lockstep)
+    lockstep_hosted = run_up(9, 9, "lockstep", LOCKSTEP_S)  # the 9 agents in one process
+    rows.append(lockstep_hosted)
     hosted_100 = next(r for r in rows if r["n"] == 100 and r["agents_per_process"] > 1)
     per_process = [r for r in rows if r["agents_per_process"] == 1 and r["clock"] == "realtime"]
     keeps_up = [r["n"] for r in per_process if (r["rtf"] or 0) >= 0.95]
@@ -136,7 +139,7 @@ def end_to_end() -> dict[str, Any]:
         "rows": rows,
         "targets": {"hosted_n100_rtf": 1.0, "lockstep_n9_speed": 5.0},
         "hosted_n100_rtf_met": (hosted_100["rtf"] or 0) >= 1.0 * 0.95,
-        "lockstep_n9_speed_met": (lockstep["rtf"] or 0) >= 5.0,
+        "lockstep_n9_speed_met": max(lockstep["rtf"] or 0, lockstep_hosted["rtf"] or 0) >= 5.0,
         "one_process_per_drone_keeps_up_to_n": max(keeps_up) if keeps_up else None,
         "plot": "bench/rtf_vs_n.png",
     }

@@ -204,15 +204,19 @@ def write_report(
     settle_s: float,
     extra: dict[str, Any],
     plots: bool = True,
+    max_thrust_n: float | None = None,
 ) -> list[Path]:
-    """Write ``trajectory.json``, ``metrics.json`` (when there is a record) and the plots."""
+    """Write ``trajectory.json``, ``metrics.json`` (when there is a record) and the plots;
+    ``max_thrust_n`` (N) gives the metrics' max_thrust_ratio."""
     files = [_write_trajectory(plan, report_dir / "trajectory.json")]
     metrics_path = report_dir / "metrics.json"
     if record is None:
         metrics: dict[str, Any] = {"n_samples": 0, "note": "no telemetry received", **extra}
     else:
         faults = [(t, f"drone {i} lost") for i, t in sorted(record.lost_at_s.items())]
-        metrics = compute_metrics(record, settle_s=settle_s, faults=faults, extra=extra)
+        metrics = compute_metrics(
+            record, settle_s=settle_s, faults=faults, max_thrust_n=max_thrust_n, extra=extra
+        )
     metrics_path.write_text(json.dumps(metrics, indent=2) + "\n")
     files.append(metrics_path)
     if plots and record is not None:

@@ -12,7 +12,6 @@ FIFO channel drained by the loop. Use as a context manager; :meth:`stop` is sign
 
 from __future__ import annotations
 
-import math
 import select
 import time
 from collections import deque
@@ -21,7 +20,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import zenoh
 
 from drone_agent.transport_link import PlanServer
@@ -31,19 +29,18 @@ from gcs.events import EventLog, read_events
 from gcs.gcs_drills import GcsDrills
 from gcs.gcs_report import build_record, write_report
 from gcs.planner import Envelope, PlanRefused
+from gcs.swarm_watch import SwarmWatch
 from gcs.telemetry import TelemetryReceiver
-from protocols.descriptors import descriptors
 from protocols.keys import SwarmKeys
 from protocols.scenario import Scenario
 from protocols.wire import WireError
 from protocols.wire_plan import PlanMessage, decode_plan
-from protocols.wire_status import AgentStatus, decode_status
+from protocols.wire_status import decode_status
+from sitl_sim.config import vehicle_params
 
 _POLL_S = 0.02
 #: How long a restarted ground station asks the swarm for its current plan (s).
 RESUME_PLAN_WAIT_S = 10.0
-_SEVERITY_EMERGENCY = 0
-_CRASH_WORDS = ("crash", "destroyed", "all motors off")
 
 
 @dataclass(frozen=True)
@@ -86,12 +83,7 @@ class GroundStation:
         )
         self._statuses: deque[bytes] = deque(maxlen=10_000)
         self._liveliness: deque[tuple[str, bool]] = deque()
-        self.latest: dict[int, AgentStatus] = {}
-        #: drone -> share of the expected consensus messages received (smoothed, 0..1)
-        self.link_quality: dict[int, float] = {}
-        #: drone -> failsafes its vehicle reported
-        self.failsafes: dict[int, int] = {}
-        self.alive: set[int] = set()
+        self.watch = SwarmWatch()
         options.report_dir.mkdir(parents=True, exist_ok=True)
         self._closers: list[Callable[[], None]] = []
         try:
@@ -168,7 +160,7 @@ class GroundStation:
     @property
     def now_s(self) -> float:
         """The newest simulated time (s) heard from a vehicle or an agent."""
-        t_status = max((s.t_s for s in self.latest.values()), default=0.0)
+        t_status = max((s.t_s for s in self.watch.latest.values()), default=0.0)
         return max(self.telemetry.sim_time_s, t_status, self._t_floor_s)
 
     def _on_status(self, _key: str, payload: bytes) -> None:  # Zenoh thread: enqueue only
@@ -239,16 +231,12 @@ class GroundStation:
             self._o.scenario.settle_s,
             extra,
             self._o.plots,
+            vehicle_params(self._o.scenario).max_thrust_n,
         )
 
     def _vehicle_text(self, t_s: float, drone: int, severity: int, text: str) -> None:
-        """Log a vehicle's STATUSTEXT: a crash (MAV_SEVERITY_EMERGENCY, motors off, destroyed)
-        takes the drone out of the swarm; failsafes and other texts are logged as such."""
-        lower = text.lower()
-        crashed = severity == _SEVERITY_EMERGENCY or any(w in lower for w in _CRASH_WORDS)
-        kind = "crash" if crashed else "failsafe" if "failsafe" in lower else "vehicle_text"
-        if kind == "failsafe":
-            self.failsafes[drone] = self.failsafes.get(drone, 0) + 1
+        """Log a vehicle's STATUSTEXT as a crash, a failsafe or a plain text."""
+        kind = self.watch.on_vehicle_text(drone, severity, text)
         self.events.record(t_s, kind, drone=drone, severity=severity, text=text)
 
     def _drain_zenoh(self) -> None:
@@ -257,31 +245,13 @@ class GroundStation:
                 status = decode_status(self._statuses.popleft(), self._o.swarm_id)
             except WireError:
                 continue
-            self._update_link_quality(self.latest.get(status.drone), status)
-            self.latest[status.drone] = status
+            self.watch.on_status(status)
             self.telemetry.log_agent_status(status)
         while self._liveliness:
             key, alive = self._liveliness.popleft()
             drone = self._keys.drone_of(key)
-            if drone is None:
-                continue
-            t = self.now_s
-            if alive and drone not in self.alive:
-                self.alive.add(drone)
-                self.events.record(t, "agent_joined", drone=drone)
-            elif not alive and drone in self.alive:
-                self.alive.discard(drone)
-                self.events.record(t, "dropout_detected", drone=drone)
-
-    def _update_link_quality(self, before: AgentStatus | None, now: AgentStatus) -> None:
-        """Messages received between two statuses over those its neighbours should have sent
-        (one per neighbour per round), smoothed over about ten statuses."""
-        if before is None or now.round <= before.round or not now.neighbours:
-            return
-        expected = (now.round - before.round) * len(now.neighbours)
-        share = min(1.0, max(0.0, (now.counters.rx - before.counters.rx) / expected))
-        old = self.link_quality.get(now.drone, share)
-        self.link_quality[now.drone] = old + 0.1 * (share - old)
+            if drone is not None and (kind := self.watch.on_liveliness(drone, alive)):
+                self.events.record(self.now_s, kind, drone=drone)
 
     def _answer_commands(self) -> None:
         while (query := self._commands.try_recv()) is not None:
@@ -346,55 +316,17 @@ class GroundStation:
         )
         return reply
 
-    def _truth(self) -> np.ndarray | None:
-        positions = [
-            v.position_ned_m
-            for i, v in sorted(self.telemetry.vehicles.items())
-            if v.position_ned_m is not None and (i in self.alive or not self.alive)
-        ]
-        return descriptors(np.array(positions)) if len(positions) >= 2 else None
-
     def status_table(self) -> list[dict[str, Any]]:
-        """One row per drone heard: mode, armed, position (NED m), centre estimate error (m),
-        neighbours, link quality (share of expected consensus messages received), failsafes
-        reported by its vehicle and message counters."""
-        truth = self._truth()
-        rows = []
-        for i in sorted(set(self.telemetry.vehicles) | set(self.latest)):
-            v, s = self.telemetry.vehicles.get(i), self.latest.get(i)
-            err = None
-            if s is not None and truth is not None:
-                err = float(np.linalg.norm(s.estimate[:3] - truth[:3]))
-            rows.append(
-                {
-                    "drone": i,
-                    "alive": i in self.alive,
-                    "mode": s.mode.name if s is not None else None,
-                    "armed": v.armed if v is not None else (s.armed if s else None),
-                    "position_ned_m": list(v.position_ned_m) if v and v.position_ned_m else None,
-                    "estimate_error_m": err if err is None or math.isfinite(err) else None,
-                    "neighbours": list(s.neighbours) if s is not None else [],
-                    "link_quality": self.link_quality.get(i),
-                    "failsafes": self.failsafes.get(i, 0),
-                    "rx": s.counters.rx if s else 0,
-                    "tx": s.counters.tx if s else 0,
-                    "rx_dropped": (
-                        s.counters.rx_dropped_malformed + s.counters.rx_dropped_wrong_swarm
-                        if s
-                        else 0
-                    ),
-                }
-            )
-        return rows
+        """The ``swarm status`` table (:meth:`SwarmWatch.table`)."""
+        return self.watch.table(self.telemetry.vehicles)
 
     def status_line(self) -> str:
         """One line: sim time, vehicles heard, agents alive, worst centre estimate error."""
-        errors = [r["estimate_error_m"] for r in self.status_table() if r["alive"]]
-        finite = [e for e in errors if e is not None]
-        worst = f"{max(finite):.3f} m" if finite else "-"
+        worst = self.watch.worst_error_m(self.telemetry.vehicles)
         return (
             f"gcs t={self.now_s:7.2f}s  vehicles {len(self.telemetry.vehicles)}  "
-            f"agents alive {len(self.alive)}  plan {self.plan.seq}  worst estimate error {worst}"
+            f"agents alive {len(self.watch.alive)}  plan {self.plan.seq}  "
+            f"worst estimate error {'-' if worst is None else f'{worst:.3f} m'}"
         )
 
 

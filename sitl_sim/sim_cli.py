@@ -103,7 +103,8 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
         type=float,
         default=10.0,
         metavar="HZ",
-        help="default ATTITUDE and LOCAL_POSITION_NED rate to the GCS (default 10)",
+        help="default ATTITUDE, LOCAL_POSITION_NED and ACTUATOR_OUTPUT_STATUS rate to the GCS "
+        "(default 10)",
     )
     p.add_argument(
         "--signing-key",

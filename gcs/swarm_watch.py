@@ -1,0 +1,122 @@
+"""What the ground station knows of each drone, and the ``swarm status`` table. Pure: fed with
+decoded agent statuses, liveliness changes, vehicle texts and the vehicles' telemetry state, it
+keeps the newest status, who is alive, link quality and failsafe counts, and says which events to
+log; the ground station does the I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from gcs.telemetry import VehicleState
+from protocols.descriptors import descriptors
+from protocols.wire_status import AgentStatus
+
+_SEVERITY_EMERGENCY = 0
+_CRASH_WORDS = ("crash", "destroyed", "all motors off")
+#: Smoothing of the link quality: weight of the newest status (about ten statuses).
+_LINK_SMOOTHING = 0.1
+
+
+def text_kind(severity: int, text: str) -> str:
+    """The event kind of a vehicle's STATUSTEXT: ``crash`` (MAV_SEVERITY_EMERGENCY, motors off,
+    destroyed), ``failsafe`` or ``vehicle_text``."""
+    lower = text.lower()
+    if severity == _SEVERITY_EMERGENCY or any(w in lower for w in _CRASH_WORDS):
+        return "crash"
+    return "failsafe" if "failsafe" in lower else "vehicle_text"
+
+
+@dataclass
+class SwarmWatch:
+    """Per-drone bookkeeping of the ground station (see the module doc)."""
+
+    latest: dict[int, AgentStatus] = field(default_factory=dict)
+    alive: set[int] = field(default_factory=set)
+    #: drone -> share of the expected consensus messages received (smoothed, 0..1)
+    link_quality: dict[int, float] = field(default_factory=dict)
+    #: drone -> failsafes its vehicle reported
+    failsafes: dict[int, int] = field(default_factory=dict)
+
+    def on_status(self, status: AgentStatus) -> None:
+        """Take an agent's status; updates its link quality: messages received since its last
+        status over those its neighbours should have sent (one per neighbour per round)."""
+        before = self.latest.get(status.drone)
+        self.latest[status.drone] = status
+        if before is None or status.round <= before.round or not status.neighbours:
+            return
+        expected = (status.round - before.round) * len(status.neighbours)
+        share = min(1.0, max(0.0, (status.counters.rx - before.counters.rx) / expected))
+        old = self.link_quality.get(status.drone, share)
+        self.link_quality[status.drone] = old + _LINK_SMOOTHING * (share - old)
+
+    def on_liveliness(self, drone: int, alive: bool) -> str | None:
+        """A liveliness change; the event to log (``agent_joined``, ``dropout_detected``) or
+        None if nothing changed."""
+        if alive and drone not in self.alive:
+            self.alive.add(drone)
+            return "agent_joined"
+        if not alive and drone in self.alive:
+            self.alive.discard(drone)
+            return "dropout_detected"
+        return None
+
+    def on_vehicle_text(self, drone: int, severity: int, text: str) -> str:
+        """A vehicle's STATUSTEXT; its event kind (:func:`text_kind`), failsafes counted."""
+        kind = text_kind(severity, text)
+        if kind == "failsafe":
+            self.failsafes[drone] = self.failsafes.get(drone, 0) + 1
+        return kind
+
+    def truth(self, vehicles: Mapping[int, VehicleState]) -> np.ndarray | None:
+        """True descriptors (9,) of the alive drones' vehicles (every vehicle before any agent
+        joined); None with fewer than two positions."""
+        positions = [
+            v.position_ned_m
+            for i, v in sorted(vehicles.items())
+            if v.position_ned_m is not None and (i in self.alive or not self.alive)
+        ]
+        return descriptors(np.array(positions)) if len(positions) >= 2 else None
+
+    def table(self, vehicles: Mapping[int, VehicleState]) -> list[dict[str, Any]]:
+        """One row per drone heard: mode, armed, position (NED m), centre estimate error (m),
+        neighbours, link quality (0..1), failsafes reported by its vehicle, message counters."""
+        truth = self.truth(vehicles)
+        rows = []
+        for i in sorted(set(vehicles) | set(self.latest)):
+            v, s = vehicles.get(i), self.latest.get(i)
+            err = None
+            if s is not None and truth is not None:
+                err = float(np.linalg.norm(s.estimate[:3] - truth[:3]))
+            rows.append(
+                {
+                    "drone": i,
+                    "alive": i in self.alive,
+                    "mode": s.mode.name if s is not None else None,
+                    "armed": v.armed if v is not None else (s.armed if s else None),
+                    "position_ned_m": list(v.position_ned_m) if v and v.position_ned_m else None,
+                    "estimate_error_m": err if err is None or math.isfinite(err) else None,
+                    "neighbours": list(s.neighbours) if s is not None else [],
+                    "link_quality": self.link_quality.get(i),
+                    "failsafes": self.failsafes.get(i, 0),
+                    "rx": s.counters.rx if s else 0,
+                    "tx": s.counters.tx if s else 0,
+                    "rx_dropped": (
+                        s.counters.rx_dropped_malformed + s.counters.rx_dropped_wrong_swarm
+                        if s
+                        else 0
+                    ),
+                }
+            )
+        return rows
+
+    def worst_error_m(self, vehicles: Mapping[int, VehicleState]) -> float | None:
+        """The largest centre estimate error (m) among alive agents; None if unknown."""
+        errors = [r["estimate_error_m"] for r in self.table(vehicles) if r["alive"]]
+        finite = [e for e in errors if e is not None]
+        return max(finite) if finite else None

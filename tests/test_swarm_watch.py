@@ -1,0 +1,69 @@
+"""The ground station's per-drone bookkeeping: link quality from status counters, liveliness
+events, vehicle texts, and the ``swarm status`` table against the vehicles' true positions."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gcs.swarm_watch import SwarmWatch, text_kind
+from gcs.telemetry import VehicleState
+from protocols.wire_status import AgentMode, AgentStatus, Health, StatusCounters
+
+
+def _status(drone: int, round_: int, rx: int, neighbours: tuple[int, ...]) -> AgentStatus:
+    estimate = np.array([1.0, 0.0, -2.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0])
+    return AgentStatus(
+        drone,
+        round_,
+        round_ / 50,
+        AgentMode.FLYING,
+        True,
+        Health(0),
+        estimate,
+        neighbours,
+        StatusCounters(rx=rx),
+    )
+
+
+def test_link_quality_is_the_share_of_expected_messages_smoothed() -> None:
+    watch = SwarmWatch()
+    watch.on_status(_status(0, 10, 0, (1, 2)))
+    assert 0 not in watch.link_quality  # needs two statuses
+    watch.on_status(_status(0, 12, 4, (1, 2)))  # 2 rounds x 2 neighbours, all 4 came
+    assert watch.link_quality[0] == 1.0
+    for k in range(1, 60):  # from now on half of them
+        watch.on_status(_status(0, 12 + 2 * k, 4 + 2 * k, (1, 2)))
+    assert abs(watch.link_quality[0] - 0.5) < 0.01
+    watch.on_status(_status(0, 5, 0, (1, 2)))  # a restarted agent: rounds went back, no update
+    assert abs(watch.link_quality[0] - 0.5) < 0.01
+
+
+def test_liveliness_and_vehicle_texts_give_events() -> None:
+    watch = SwarmWatch()
+    assert watch.on_liveliness(3, True) == "agent_joined"
+    assert watch.on_liveliness(3, True) is None
+    assert watch.on_liveliness(3, False) == "dropout_detected"
+    assert watch.on_liveliness(3, False) is None
+    assert watch.on_vehicle_text(1, 4, "Failsafe: no offboard setpoint") == "failsafe"
+    assert watch.on_vehicle_text(1, 6, "Armed") == "vehicle_text"
+    assert watch.failsafes == {1: 1}
+    assert text_kind(0, "anything") == "crash"
+    assert text_kind(2, "Failure injected: all motors off") == "crash"
+
+
+def test_status_table_errors_against_the_alive_vehicles() -> None:
+    watch = SwarmWatch()
+    vehicles = {
+        0: VehicleState(position_ned_m=(0.0, 0.0, -2.0), armed=True),
+        1: VehicleState(position_ned_m=(2.0, 0.0, -2.0), armed=True),
+        2: VehicleState(position_ned_m=(50.0, 0.0, 0.0)),  # its agent is not alive: left out
+    }
+    for i in (0, 1):
+        watch.on_liveliness(i, True)
+        watch.on_status(_status(i, 10, 0, (1 - i,)))
+    rows = watch.table(vehicles)
+    assert [r["drone"] for r in rows] == [0, 1, 2]
+    assert rows[0]["estimate_error_m"] == 0.0  # the estimate (1, 0, -2) is the true centre
+    assert rows[2]["mode"] is None and rows[2]["alive"] is False
+    assert watch.worst_error_m(vehicles) == 0.0
+    assert SwarmWatch().worst_error_m({}) is None
