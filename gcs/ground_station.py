@@ -2,9 +2,16 @@
 
 Publishes the scenario's trajectory as the plan (seq 0, FLY) with :class:`PlanServer`, records the
 simulator's GCS telemetry stream into ``flight.tlog`` (:class:`TelemetryReceiver`), follows every
-agent's status and liveliness on Zenoh, answers operator commands on ``swarm/<sid>/command``
-(:mod:`gcs.commands`), logs events to ``events.jsonl``, and at the end writes the report
-(:mod:`gcs.gcs_report`). All times are simulated seconds (the vehicles' ``time_boot_ms``).
+agent's status (also logged into ``flight.tlog``) and liveliness on Zenoh (:class:`SwarmWatch`),
+answers operator commands and drills on ``swarm/<sid>/command`` (:mod:`gcs.commands`,
+:mod:`gcs.gcs_drills`), logs events to ``events.jsonl``, and at the end writes the report from
+those two files (:mod:`gcs.gcs_report`). All times are simulated seconds (the vehicles'
+``time_boot_ms``).
+
+Restart (the gcs-restart drill, under ``swarm up``): the station ends without a report and
+``swarm up`` starts it again with ``resume``: it appends to both logs, its clock starts at the
+last logged event and it adopts the plan the agents fly (asking them for up to 10 s while they
+reconnect), so the final report covers the whole flight.
 
 One thread does everything: Zenoh callbacks only append to deques, the command queryable is a
 FIFO channel drained by the loop. Use as a context manager; :meth:`stop` is signal-safe.

@@ -118,9 +118,10 @@ def test_drop_out_survived_and_every_estimate_back_within_10_s(
 def test_distributed_flight_matches_swarm_simulate(
     flight: dict[str, np.ndarray], simulated_paper_report: Path
 ) -> None:
-    """Tracking RMS of the two runs within 0.05 m / 0.1 m^2 of each other (the issue's bar);
-    the flights themselves: the same to 1 cm / 0.02 m^2 away from the crash, and within 0.1 m
-    RMS with its transient (the distributed agents learn of the crash a few ticks apart)."""
+    """Tracking RMS of the two runs within 0.05 m / 0.1 m^2 of each other (the issue's bar), and
+    the flights themselves close: measured 0.6 mm / 0.003 m^2 RMS apart after 20 s, crash
+    included (bars 1 cm / 0.02 m^2 away from it, 2 cm / 0.05 m^2 with it: a consensus message
+    that misses its tick on a loaded machine shifts the distributed transient a little)."""
     reference = paper_flight(simulated_paper_report)
     t = flight["t"]
     ours = descriptors_of(flight["positions"], flight["member"], flight["desired"])
@@ -140,7 +141,7 @@ def test_distributed_flight_matches_swarm_simulate(
     centre_diff = np.linalg.norm(ours[:, :3] - theirs[:, :3], axis=1)
     shape_diff = np.linalg.norm(ours[:, 6:9] - theirs[:, 6:9], axis=1)
     assert rms(centre_diff, steady) < 0.01 and rms(shape_diff, steady) < 0.02
-    assert rms(centre_diff, after) < 0.1 and rms(shape_diff, after) < 0.2
+    assert rms(centre_diff, after) < 0.02 and rms(shape_diff, after) < 0.05
 
 
 def test_report_and_summary(demo: tuple[Path, str]) -> None:

@@ -1,9 +1,9 @@
 """``swarm simulate scenarios/paper.toml`` end to end, judged from the run's own flight.tlog.
 
-The full 200 s paper flight runs once (about a minute) for the whole module. The bars are the
+The full 200 s paper flight runs once (about a minute) for the session. The bars are the
 flight-core issue's: centroid RMS < 0.05 m and shape-variance RMS < 0.1 m^2 after the first 20 s
-(steady state, i.e. away from the drop-out, as ALGORITHM.md §7 measures it), no two airborne drones
-closer than 1.0 m, the drop-out at 30 s survived and re-converged within 10 s.
+(both away from the drop-out, as ALGORITHM.md §7 measures it, and with its transient), no two
+airborne drones closer than 1.0 m, the drop-out at 30 s survived and re-converged within 10 s.
 """
 
 from __future__ import annotations
@@ -47,9 +47,10 @@ def test_tracking_from_the_tlog(flight: dict[str, np.ndarray]) -> None:
     everything = tracking_from_positions(
         flight["t"], flight["positions"], flight["member"], flight["desired"], 20.0
     )
-    # the drop-out transient included: bounded, and still a small error over the flight
-    assert everything["centroid_m"]["rms"] < 0.1
-    assert everything["shape_m2"]["rms"] < 0.2
+    # the drop-out transient included, the flight-core bars still hold (0.048 m / 0.095 m^2:
+    # the in-process run is seeded, so this does not vary from run to run)
+    assert everything["centroid_m"]["rms"] < 0.05
+    assert everything["shape_m2"]["rms"] < 0.1
 
 
 @pytest.mark.slow

@@ -20,6 +20,7 @@ from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
 
 from gcs.events import read_events
 from gcs.tlog import read_tlog
+from protocols.descriptors import descriptors
 
 pytestmark = pytest.mark.slow
 SQUARE = [(0.0, 0.0, 0.0), (0.0, 3.0, 0.0), (4.0, 0.0, 0.0), (4.0, 3.0, 0.0)]
@@ -148,8 +149,10 @@ def _wait(condition: object, timeout_s: float) -> bool:
 
 
 def test_drills_dropout_link_cut_and_gcs_restart_during_a_run(tmp_path: Path) -> None:
-    """swarm drill dropout kills an agent process, link-cut cuts a link, gcs-restart restarts the
-    ground station, which adopts the current plan and continues its logs; the swarm flies on."""
+    """In a swarm started by swarm up: a formation change is flown and a move beyond the geofence
+    refused (the plan is unchanged); swarm drill dropout kills an agent process, link-cut cuts a
+    link, gcs-restart restarts the ground station, which adopts the current plan and continues
+    its logs; the swarm flies on."""
     proc, report, base, gcs_port = _up(tmp_path, "--swarm-id", "drills", duration_s=70.0)
     try:
         run_file = report / "logs" / "run.json"
@@ -162,8 +165,10 @@ def test_drills_dropout_link_cut_and_gcs_restart_during_a_run(tmp_path: Path) ->
             return t > 12.0 and len(rows) == 4 and all("FLYING" in r for r in rows)
 
         assert _wait(flying, 90.0), _swarm(run, "status").stdout
-        moved = _swarm(run, "formation", "--heading-deg", "20")
+        moved = _swarm(run, "formation", "--heading-deg", "20", "--length-m", "3")
         assert moved.returncode == 0 and "plan 1" in moved.stdout, moved.stdout + moved.stderr
+        fenced = _swarm(run, "move", "--north-m", "5000")
+        assert fenced.returncode == 1 and "geofence" in fenced.stdout, fenced.stdout
         killed = _swarm(run, "drill", "dropout", "--drone", "3")
         assert killed.returncode == 0 and "killed" in killed.stdout, killed.stdout + killed.stderr
         again = _swarm(run, "drill", "dropout", "--drone", "3")
@@ -206,6 +211,10 @@ def test_drills_dropout_link_cut_and_gcs_restart_during_a_run(tmp_path: Path) ->
         assert t[0] < 1.0 and t[-1] > 68.0 and np.diff(t).max() < 10.0, sysid
         assert -track.vehicles[sysid].position_ned_m[-1, 2] > 1.5  # still flying
     assert track.vehicles[4].t_s[-1] < 68.0 or -track.vehicles[4].position_ned_m[-1, 2] < 0.2
+    # the three survivors took the commanded heading and length (true, from telemetry)
+    end = min(float(track.vehicles[s].t_s[-1]) for s in (1, 2, 3))
+    truth = descriptors(track.resample(np.array([end]), 3)[0])
+    assert abs(np.degrees(truth[5]) - 20.0) < 3.0 and abs(np.sqrt(truth[6]) - 3.0) < 0.15, truth
     metrics = json.loads((report / "metrics.json").read_text())
     assert metrics["plan_seq"] == 2  # formation (1), then hold (2) after the restart
     assert [d["sysid"] for d in metrics["drones_lost"]] == [4]
