@@ -121,9 +121,9 @@ class GroundStation:
             self.plans = PlanServer(self.bus, options.swarm_id)
             self._closers.append(self.plans.close)
             if held is None:
-                self._publish(PlanMessage(options.scenario.trajectory()), 0.0, "scenario")
+                self._publish(PlanMessage(options.scenario.trajectory()), "scenario")
             else:
-                self._publish(held, 0.0, "restart: adopted the swarm's current plan")
+                self._publish(held, "restart: adopted the swarm's current plan")
         except BaseException:
             self.close()
             raise
@@ -176,7 +176,7 @@ class GroundStation:
     def _on_alive(self, key: str, alive: bool) -> None:  # Zenoh thread: enqueue only
         self._liveliness.append((key, alive))
 
-    def _publish(self, plan: PlanMessage, t_from_s: float, why: str) -> None:
+    def _publish(self, plan: PlanMessage, why: str) -> None:
         self.plans.publish(plan)
         self.plan = plan
         self.events.record(
@@ -290,7 +290,7 @@ class GroundStation:
         except PlanRefused as exc:
             reply = Reply(False, str(exc), self.plan.seq)
         else:
-            self._publish(plan, now, request.name)
+            self._publish(plan, request.name)
             end = plan.trajectory.end_s
             reply = Reply(True, f"plan {plan.seq}: arrives at t = {end:.1f} s", plan.seq)
         self.events.record(

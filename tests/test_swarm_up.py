@@ -219,3 +219,27 @@ def test_drills_dropout_link_cut_and_gcs_restart_during_a_run(tmp_path: Path) ->
     assert metrics["plan_seq"] == 2  # formation (1), then hold (2) after the restart
     assert [d["sysid"] for d in metrics["drones_lost"]] == [4]
     _assert_nothing_left(report, base, gcs_port)
+
+
+def test_a_dead_simulator_ends_the_run_and_everything_is_stopped(tmp_path: Path) -> None:
+    """A child that dies (here the simulator, SIGKILLed) ends swarm up with exit code 1 and the
+    reason; no process of the run is left and its ports are free."""
+    proc, report, base, gcs_port = _up(tmp_path)
+    run_file = report / "logs" / "run.json"
+    assert _wait(run_file.exists, 60.0)
+    time.sleep(3.0)
+    sims = [p for p in _processes_mentioning(str(tmp_path)) if _cmdline(p).find(" sim ") > 0]
+    assert len(sims) == 1, [_cmdline(p) for p in _processes_mentioning(str(tmp_path))]
+    os.kill(sims[0], signal.SIGKILL)
+    out, _ = proc.communicate(timeout=90)
+    text = out.decode(errors="replace")
+    assert proc.returncode == 1, text
+    assert "the simulator exited with code -9" in text
+    _assert_nothing_left(report, base, gcs_port)
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
