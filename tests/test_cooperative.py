@@ -13,7 +13,7 @@ from drone_agent.cooperative import (
     pinv_block_zyx,
     virtual_acceleration,
 )
-from drone_agent.moments import true_moments
+from drone_agent.moments import SwarmMoments, true_moments
 from protocols.descriptors import align_axes, covariance, descriptors
 from protocols.frames import FloatArray, rot_zyx
 
@@ -123,3 +123,22 @@ def test_flat_axis_is_held_by_local_pd() -> None:
     assert a_final[8] < 1e-3
     np.testing.assert_allclose(a_final[6:8], a_goal[6:8], atol=0.05)
     np.testing.assert_allclose(a_final[0:3], a_goal[0:3], atol=0.02)
+
+
+def test_an_estimated_spreading_rate_does_not_push_a_flat_axis_apart() -> None:
+    """Regression: the null-space damping explained a flat axis's spreading rate with a gain of
+    1 / (2 s_min) = 10 /s, so estimate noise in the vertical spread rate pushed every drone further
+    from the plane, and sparse 25-drone swarms split vertically after take-off. Along a commanded-
+    flat axis only the local PD acts: a drone above the plane is sent back towards it."""
+    mu = np.array([0.0, 0.0, -3.0])
+    sigma = np.diag([12.0, 10.0, 0.01])
+    spreading = np.diag([0.0, 0.0, 0.5])  # the estimate says the swarm is thickening
+    swarm = SwarmMoments(mu, np.zeros(3), sigma, spreading)
+    a_d = np.array([0.0, 0.0, -3.0, 0.0, 0.0, 0.0, 12.0, 10.0, 0.0])
+    reference = (a_d, np.zeros(9), np.zeros(9))
+    gains = CooperativeGains()
+    above = mu + np.array([0.0, 0.0, -0.5])  # NED: 0.5 m above the centre, at rest
+    v = virtual_acceleration(above, np.zeros(3), swarm, reference, gains)
+    # back down (NED +z) with the flat-axis PD's stiffness, not away from the plane
+    assert v[2] > 0.0
+    assert v[2] == pytest.approx(gains.flat_kp * 0.5, rel=0.05)

@@ -84,3 +84,33 @@ def test_runs_are_deterministic_for_a_seed() -> None:
     a = ReferenceFlight(scenario).run()
     b = ReferenceFlight(scenario).run()
     np.testing.assert_array_equal(a.position_ned_m, b.position_ned_m)
+
+
+def test_a_sparse_25_drone_swarm_takes_off_and_hovers_flat() -> None:
+    """Regression: on a sparse radio graph (a 5 x 5 grid 2.5 m apart, 6 m range, degree-
+    normalised consensus) the swarm used to split vertically after take-off and run away (the
+    null-space damping amplified the estimated spreading rate of the commanded-flat axis)."""
+    side = [2.5 * k for k in range(5)]
+    spread = [float(np.std(side)), 0.9 * float(np.std(side)), 0.0]
+    hover = {"centre_ned_m": [5.0, 5.0, -3.0], "spread_m": spread}
+    scenario = parse_scenario(
+        {
+            "version": 1,
+            "name": "sparse25",
+            "duration_s": 20.0,
+            "comms": {"range_m": 6.0},
+            "consensus": {"degree_normalised": True, "rho": 8.0, "warmup_s": 5.0},
+            "drones": [{"position_ned_m": [x, y, 0.0]} for x in side for y in side],
+            "trajectory": {
+                "waypoints": [{"t_s": 0.0, **hover}, {"t_s": 10.0, **hover}],
+            },
+        },
+        "test",
+    )
+    rec = ReferenceFlight(scenario).run()
+    late = rec.t_s >= 15.0
+    altitude = -rec.position_ned_m[late, :, 2]
+    assert np.all((altitude > 2.5) & (altitude < 3.5)), (altitude.min(), altitude.max())
+    a = true_descriptors(rec)
+    assert np.abs(a[late, 8]).max() < 0.05  # flat: the height variance stays near 0
+    assert np.abs(a[late, 6:8] - np.square(spread[:2])).max() < 1.0
