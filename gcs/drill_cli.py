@@ -46,8 +46,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         description=(
             "Faults against a running swarm. Link faults (link-cut, loss, delay, partition, "
             "clear) go to every agent over Zenoh and are applied on their receive side; crash "
-            "asks the ground station to stop every motor of one vehicle. The ground station "
-            "records each drill in events.jsonl."
+            "asks the ground station to stop every motor of one vehicle; dropout and gcs-restart "
+            "(a swarm started by swarm up) kill one agent's process and restart the ground "
+            "station. The ground station records each drill in events.jsonl."
         ),
     )
     drills = p.add_subparsers(dest="drill", metavar="DRILL", required=True)

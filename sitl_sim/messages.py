@@ -16,8 +16,8 @@ signature failures, ``errors_count4`` = wrong target system; ``drop_rate_comm`` 
 ACTUATOR_OUTPUT_STATUS carries the rotor outputs (protocols/mavlink_conventions.py): the force
 (N) of rotors 1..4 in ``actuator[0..3]`` in the mixer's order (sitl_sim/mixer.py), ``active`` =
 0b1111, ``time_usec`` the simulated time (µs) of the tick, as ``time_boot_ms`` is in ms. The forces
-are those the inner loop commands at the tick's state for the autopilot's last command: zero when
-disarmed and for a stopped motor.
+are those applied in the last physics step before the tick: zero when disarmed and for a stopped
+motor.
 """
 
 from __future__ import annotations
@@ -40,7 +40,6 @@ from protocols.mavlink_conventions import (
     MODE_OFFBOARD,
 )
 from sitl_sim.autopilot import Autopilot, Mode
-from sitl_sim.inner_loop import inner_loop
 from sitl_sim.setpoint import quat_from_euler
 from sitl_sim.world import Snapshot, World
 
@@ -163,12 +162,9 @@ def attitude_target(world: World, i: int) -> Any:
 
 
 def rotor_forces_n(world: World) -> FloatArray:
-    """Rotor forces (4, N) N of every vehicle, rotors 1..4 in the mixer's order: what the inner
-    loop commands at the current state for the last command (0 if disarmed or stopped)."""
-    euler, thrust = world.commanded()
-    ap = world.autopilot
-    speed = inner_loop(world.state, euler, thrust, world.params, world.gains, ap.armed)
-    speed[~ap.motor_ok] = 0.0
+    """Rotor forces (4, N) N of every vehicle, rotors 1..4 in the mixer's order, as applied in the
+    last physics step (0 if disarmed or stopped)."""
+    speed = world.rotor_speed_rad_s
     return world.params.thrust_coeff * (speed * speed)
 
 

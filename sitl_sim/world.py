@@ -89,6 +89,8 @@ class World:
         self.autopilot = Autopilot(self.n, config.autopilot, np.asarray(yaw_rad, float))
         self.guidance = Guidance(self.autopilot, params.hover_thrust_n / params.max_thrust_n)
         self.tick = 0
+        #: rotor speeds (4, N) rad/s applied in the last physics step (0 before the first)
+        self.rotor_speed_rad_s = np.zeros((4, self.n))
         self._crashes = sorted(config.crashes)
         self.pending_events: list[VehicleEvent] = self.autopilot.update(
             0.0, self.state[2], np.zeros(self.n)
@@ -120,6 +122,7 @@ class World:
             if not ap.motor_ok.all():
                 rotor[~ap.motor_ok] = 0.0
             result = step_with_contact(state, rotor, params, self.dt_physics_s)
+            self.rotor_speed_rad_s = rotor
             state = result.state
             np.maximum(impact, result.impact_speed_m_s, out=impact)
         self.state = state

@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 from paper_flight import simulate_paper
+
+# Property tests draw the same examples on every run (CI included): a failure is reproducible,
+# and a green run stays green. Set HYPOTHESIS_PROFILE=explore to draw new examples.
+settings.register_profile("repeatable", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repeatable"))
 
 
 @pytest.fixture(scope="session")

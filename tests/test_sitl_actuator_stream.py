@@ -115,17 +115,19 @@ def test_stream_defaults() -> None:
 
 
 def test_world_rotor_forces_and_message() -> None:
+    """The forces are those the last physics step applied: none before the first step and while
+    disarmed; c w^2 of the applied rotor speeds after (the hover check flies a real process)."""
     params = VehicleParams()
     positions = np.array([[0.0, 0.0, -5.0], [2.0, 0.0, 0.0]])
     gains = FleetAttitudeGains(AttitudeGains(), 2)
     world = World(params, gains, positions, np.zeros(2), WorldConfig(), np.random.default_rng(0))
-    assert not rotor_forces_n(world).any()  # disarmed
-    world.autopilot.armed[:] = True
-    world.guidance.thrust[:] = 0.5  # hover thrust of the default vehicle, level
+    assert rotor_forces_n(world).shape == (4, 2) and not rotor_forces_n(world).any()
+    world.step()
+    assert not rotor_forces_n(world).any()  # disarmed: motors stopped
+    hover_speed = np.sqrt(params.weight_n / 4 / params.thrust_coeff)
+    world.rotor_speed_rad_s = np.full((4, 2), hover_speed)
     forces = rotor_forces_n(world)
     np.testing.assert_allclose(forces.sum(axis=0), params.weight_n, rtol=1e-9)
-    world.autopilot.motor_ok[2, 0] = False
-    assert rotor_forces_n(world)[2, 0] == 0.0
     msg = actuator_output_status(1_020_000, forces[:, 1])
     assert msg.time_usec == 1_020_000 and msg.active == 0b1111
     np.testing.assert_allclose(msg.actuator[:4], forces[:, 1], rtol=1e-6)
