@@ -79,7 +79,7 @@ class RunPlan:
     sim: Child
     agents: list[Child] = field(default_factory=list)
     #: drones of each agent process (same order as ``agents``)
-    agent_drones: list[list[int]] = field(default_factory=list)
+    agent_drones: list[range] = field(default_factory=list)
     #: where the agents' process ids go, for the ground station's dropout drill
     run_file: Path | None = None
     #: the Zenoh endpoint of the run (operator commands and drills connect to it)
@@ -96,7 +96,7 @@ class RunPlan:
             return
         pids = {
             str(d): child.proc.pid
-            for child, drones in zip(self.agents, self.agent_drones, strict=False)
+            for child, drones in zip(self.agents, self.agent_drones, strict=True)
             if child.proc is not None
             for d in drones
         }
@@ -137,11 +137,16 @@ def check_udp_ports(first: int, count: int, what: str) -> None:
                 ) from None
 
 
+def agent_ranges(n: int, per_process: int) -> list[range]:
+    """The drones of each agent process: ``per_process`` consecutive drones per process."""
+    return [range(lo, min(lo + per_process, n)) for lo in range(0, n, per_process)]
+
+
 def agent_groups(n: int, per_process: int) -> list[str]:
-    """``--drone-id`` values: ``per_process`` consecutive drones per process."""
+    """``--drone-id`` values of :func:`agent_ranges`."""
     return [
-        f"{lo}-{min(lo + per_process, n) - 1}" if per_process > 1 else str(lo)
-        for lo in range(0, n, per_process)
+        f"{r.start}-{r.stop - 1}" if per_process > 1 else str(r.start)
+        for r in agent_ranges(n, per_process)
     ]
 
 

@@ -14,6 +14,7 @@ from gcs.supervisor import (
     RunPlan,
     SupervisorError,
     agent_groups,
+    agent_ranges,
     check_udp_ports,
     flags,
     interrupt_flag,
@@ -173,14 +174,8 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
         )
         for ids in groups
     ]
-    drones = [list(range(*_bounds(ids))) for ids in groups]
+    drones = agent_ranges(n, args.agents_per_process)
     return RunPlan(gcs, sim, agents, drones, logs / RUN_FILE, endpoint), n
-
-
-def _bounds(ids: str) -> tuple[int, int]:
-    """``"3"`` or ``"3-5"`` (an agent_groups entry) as a slice's (start, stop)."""
-    lo, _, hi = ids.partition("-")
-    return int(lo), int(hi or lo) + 1
 
 
 def run(args: argparse.Namespace) -> int:
