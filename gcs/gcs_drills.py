@@ -26,7 +26,7 @@ from gcs.events import EventLog
 from gcs.telemetry import TelemetryReceiver
 from protocols.keys import SwarmKeys
 from protocols.wire import WireError
-from protocols.wire_fault import decode_fault, fault_op
+from protocols.wire_fault import LinkCut, LinkRestore, decode_fault, fault_op
 
 MAV_CMD_INJECT_FAILURE = 420
 FAILURE_UNIT_SYSTEM_MOTOR = 101
@@ -72,8 +72,19 @@ class GcsDrills:
                 )
                 continue
             name = fault_op(command).name.lower()
+            link: dict[str, object] = {}
+            if isinstance(command, LinkCut | LinkRestore):  # the report shades link cuts
+                link = {"link": [command.i, command.j]}
+            if isinstance(command, LinkCut):
+                link |= {"one_way": command.one_way, "duration_s": command.duration_s}
             self._events.record(
-                now_s, "drill", drill=name, what=describe(command), accepted=True, reason="sent"
+                now_s,
+                "drill",
+                drill=name,
+                what=describe(command),
+                accepted=True,
+                reason="sent",
+                **link,
             )
 
     def crash(self, drone: float, n_drones: int, now_s: float) -> Reply:

@@ -20,7 +20,6 @@ or the end of the run.
 from __future__ import annotations
 
 import json
-import re
 from collections.abc import Iterable, Mapping
 from dataclasses import replace
 from pathlib import Path
@@ -45,9 +44,6 @@ from sitl_sim.vehicle_params import VehicleParams
 
 AIRBORNE_M = 0.1  # above this altitude (m) a vehicle counts as airborne
 MAX_AGE_S = 1.0
-#: ``what`` of a link-cut / link-restore drill event (drone_agent.fault_drills.describe).
-_CUT = re.compile(r"link_cut (\d+)(->|<->)(\d+)(?: for (\S+) s)?")
-_RESTORE = re.compile(r"link_restore (\d+)<->(\d+)")
 
 
 def _hold(
@@ -79,22 +75,20 @@ def controls(
 
 
 def drill_link_faults(events: Iterable[Mapping[str, Any]], end_s: float) -> list[LinkFault]:
-    """The link cuts of the accepted ``drill`` events (times in s), in order: each lasts its
-    duration, or until a ``link_restore`` of the pair, a ``clear`` or ``end_s``."""
+    """The link cuts of the accepted ``drill`` events (times in s; their ``link``, ``one_way`` and
+    ``duration_s`` fields, gcs.gcs_drills), in order: each lasts its duration, or until a
+    ``link_restore`` of the pair, a ``clear`` or ``end_s``."""
     cuts: list[LinkFault] = []
     for event in events:
         if event.get("kind") != "drill" or not event.get("accepted"):
             continue
-        t, drill, what = float(event["t_s"]), event.get("drill"), str(event.get("what", ""))
-        if drill == "link_cut" and (cut := _CUT.fullmatch(what)):
-            i, j, duration = int(cut[1]), int(cut[3]), cut[4]
+        t, drill, link = float(event["t_s"]), event.get("drill"), event.get("link")
+        if drill == "link_cut" and link:
+            duration = event.get("duration_s")
             t1 = min(end_s, t + float(duration)) if duration else end_s
-            cuts.append(LinkFault(t, t1, i, j, one_way=cut[2] == "->"))
-        elif drill in ("link_restore", "clear"):
-            pair = _RESTORE.fullmatch(what)
-            ends = None if pair is None else {int(pair[1]), int(pair[2])}
-            if drill == "link_restore" and ends is None:
-                continue
+            cuts.append(LinkFault(t, t1, int(link[0]), int(link[1]), bool(event.get("one_way"))))
+        elif drill == "clear" or (drill == "link_restore" and link):
+            ends = {int(link[0]), int(link[1])} if drill == "link_restore" and link else None
             for k, c in enumerate(cuts):
                 if c.t0_s <= t < c.t1_s and (ends is None or {c.i, c.j} == ends):
                     cuts[k] = replace(c, t1_s=t)

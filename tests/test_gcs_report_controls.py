@@ -210,11 +210,12 @@ def test_link_cut_drills_and_scenario_cuts_are_shaded(tmp_path: Path) -> None:
 
 def test_drill_link_faults_ignores_refused_and_unknown_events() -> None:
     events = [
-        {"t_s": 1.0, "kind": "drill", "drill": "link_cut", "what": "link_cut 0<->1", "accepted": 0},
-        {"t_s": 1.0, "kind": "drill", "drill": "link_cut", "what": "nonsense", "accepted": True},
+        {"t_s": 1.0, "kind": "drill", "drill": "link_cut", "link": [0, 1], "accepted": 0},
+        {"t_s": 1.0, "kind": "drill", "drill": "link_cut", "what": "no link", "accepted": True},
         {"t_s": 1.0, "kind": "command", "command": "goto", "accepted": True},
-        {"t_s": 2.0, "kind": "drill", "drill": "link_cut", "what": "link_cut 3->4 for 60 s",
-         "accepted": True},
+        {"t_s": 1.5, "kind": "drill", "drill": "link_restore", "accepted": True},
+        {"t_s": 2.0, "kind": "drill", "drill": "link_cut", "link": [3, 4], "one_way": True,
+         "duration_s": 60.0, "accepted": True},
     ]  # fmt: skip
     assert drill_link_faults(events, 10.0) == [LinkFault(2.0, 10.0, 3, 4, one_way=True)]
 
