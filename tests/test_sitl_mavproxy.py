@@ -1,9 +1,14 @@
 """MAVProxy, a real ground station (headless, commands on stdin), on the simulator's GCS port:
-it detects both vehicles, fetches parameters, and ``arm throttle`` arms vehicle 1."""
+it detects both vehicles, fetches parameters, and ``arm throttle`` arms vehicle 1.
+
+MAVProxy is part of the test environment (``make venv`` installs it): without it this test fails
+and says how to install it, instead of skipping and leaving the real-peer check silently undone.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import subprocess
 import sys
 import time
@@ -16,6 +21,25 @@ from tests.sitl_client import ENV, HOST, MavPeer, free_udp_port, sim_process
 
 pytestmark = pytest.mark.timeout(120)
 MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
+INSTALL_HINT = (
+    "run `make venv`, or install it into this interpreter's environment: "
+    f"{sys.executable} -m pip install --no-deps 'MAVProxy>=1.8,<2' 'pyserial>=3.5'"
+)
+
+
+def require_mavproxy() -> None:
+    """Fail (never skip) when MAVProxy is not installed next to this interpreter."""
+    missing = [
+        what
+        for what, present in (
+            (f"the script {MAVPROXY}", MAVPROXY.exists()),
+            ("the MAVProxy package", importlib.util.find_spec("MAVProxy") is not None),
+            ("pyserial", importlib.util.find_spec("serial") is not None),
+        )
+        if not present
+    ]
+    if missing:
+        pytest.fail(f"MAVProxy is missing ({', '.join(missing)}): {INSTALL_HINT}", pytrace=False)
 
 
 @contextlib.contextmanager
@@ -52,8 +76,8 @@ def _wait_output(log: Path, *needles: str, timeout_s: float = 30.0) -> str:
     raise AssertionError(f"MAVProxy did not print {needles}; it printed:\n{text[-3000:]}")
 
 
-@pytest.mark.skipif(not MAVPROXY.exists(), reason="MAVProxy is not installed (make venv does)")
 def test_mavproxy_sees_the_vehicles_and_arms_one(tmp_path: Path) -> None:
+    require_mavproxy()
     port = free_udp_port()
     with (
         mavproxy(tmp_path, port) as (proc, log),
