@@ -3,11 +3,26 @@ simulator, 9 agent processes over Zenoh and the ground station, judged from the 
 own ``report/flight.tlog`` (recomputed here, not read from metrics.json), and compared with the
 in-process reference ``swarm simulate`` on the same scenario.
 
-Bars (the ground-station issue): centroid RMS < 0.10 m and shape-variance RMS < 0.2 m^2 after
-the first 20 s; no two airborne drones closer than 1.0 m; drone 1 (system id 2) crashes at 30 s
-and every surviving agent's estimate is back within the agent issue's bound within 10 s; the
-distributed flight is within 0.05 m / 0.1 m^2 RMS of ``swarm simulate``. Lockstep: the result
-does not depend on the machine's load. It takes about 3 minutes.
+The bars sit at 2-3x the figures the README quotes (measured on two runs, in brackets), never
+looser than the ground-station issue's (centroid RMS < 0.10 m, shape < 0.2 m^2 after 20 s, 1.0 m
+separation, estimates back within the agent issue's bound within 10 s, within 0.05 m / 0.1 m^2
+RMS of ``swarm simulate``); where the figure is a crash transient the flight repeats exactly, the
+bar is closer:
+
+- after 20 s: centroid RMS < 0.06 m, shape < 0.12 m^2 with the crash (0.048 m / 0.095 m^2);
+  < 2 mm / 0.008 m^2 in steady flight (0.6 mm / 0.0032-0.0034 m^2);
+- no two airborne drones closer than 1.9 m (2.02 m);
+- drone 1 (system id 2) crashes at 30 s: the survivors' formation is back within 5 cm / 0.1 m^2
+  within 7 s (5.2 s), every surviving agent's estimate within the agent issue's bound 1 s after
+  the crash (0.12-0.16 s); agents' centroid estimate error in steady flight < 2.5 mm RMS
+  (0.8-0.9 mm);
+- against ``swarm simulate``: tracking RMS within 1 mm / 0.003 m^2 of each other (0.1-0.2 mm /
+  0.0006-0.0009 m^2), flights < 2 mm / 0.008 m^2 RMS apart in steady flight (0.6 mm /
+  0.0017-0.0033 m^2) and < 2 mm / 0.01 m^2 with the crash (0.6 mm / 0.002-0.004 m^2).
+
+Lockstep: the simulated flight does not depend on the machine's load (a consensus message that
+misses its tick on a loaded machine shifts the distributed transient a little). It takes about 3
+minutes.
 """
 
 from __future__ import annotations
@@ -31,6 +46,8 @@ CRASHED, CRASH_T_S = 1, 30.0
 SURVIVORS = [i for i in range(9) if i != CRASHED]
 SETTLE_S = 20.0
 HEADING = 3  # index of yaw in the checked rows below
+#: Simulated time after the crash by which every surviving agent's estimate is within the bound.
+ESTIMATES_BACK_S = 1.0
 
 
 @pytest.fixture(scope="module")
@@ -74,18 +91,22 @@ def flight(track: TlogTrack) -> dict[str, np.ndarray]:
 
 
 def test_tracking_from_the_ground_stations_tlog(flight: dict[str, np.ndarray]) -> None:
-    errors = tracking_from_positions(
-        flight["t"], flight["positions"], flight["member"], flight["desired"], SETTLE_S
-    )
-    assert errors["centroid_m"]["rms"] < 0.10
-    assert errors["shape_m2"]["rms"] < 0.2
+    t, pos, member, desired = flight["t"], flight["positions"], flight["member"], flight["desired"]
+    errors = tracking_from_positions(t, pos, member, desired, SETTLE_S)
+    assert errors["centroid_m"]["rms"] < 0.06, errors["centroid_m"]  # README: 0.048 m
+    assert errors["shape_m2"]["rms"] < 0.12, errors["shape_m2"]  # README: 0.095 m^2
+    window = [(CRASH_T_S, CRASH_T_S + 10.0)]
+    steady = tracking_from_positions(t, pos, member, desired, SETTLE_S, exclude=window)
+    assert steady["centroid_m"]["rms"] < 0.002, steady["centroid_m"]  # README: 0.6 mm
+    assert steady["shape_m2"]["rms"] < 0.008, steady["shape_m2"]  # README: 0.003 m^2
 
 
-def test_no_two_airborne_drones_closer_than_one_metre(flight: dict[str, np.ndarray]) -> None:
-    assert min_airborne_separation(flight["positions"]) > 1.0
+def test_no_two_airborne_drones_closer_than_1_9_metres(flight: dict[str, np.ndarray]) -> None:
+    separation = min_airborne_separation(flight["positions"])
+    assert separation > 1.9, separation  # README: 2.0 m
 
 
-def test_drop_out_survived_and_every_estimate_back_within_10_s(
+def test_drop_out_survived_and_every_estimate_back_within_1_s(
     flight: dict[str, np.ndarray], track: TlogTrack
 ) -> None:
     t, pos, member, desired = flight["t"], flight["positions"], flight["member"], flight["desired"]
@@ -93,10 +114,16 @@ def test_drop_out_survived_and_every_estimate_back_within_10_s(
     # the survivors fly to the end; the crashed vehicle went silent after it hit the ground
     assert np.all(-pos[-1, SURVIVORS, 2] > 4.5)
     assert np.all(np.isnan(pos[-1, CRASHED]))
+    # their formation is back within 5 cm / 0.1 m^2 of the plan within 7 s (README: 5.2 s) and
+    # stays there until the next fault (67 s)
+    centroid = np.linalg.norm(truth[:, :3] - desired[:, :3], axis=1)
+    shape = np.abs(truth[:, 6:9] - desired[:, 6:9]).max(axis=1)
+    recovered = (t >= CRASH_T_S + 7.0) & (t < 67.0)
+    assert centroid[recovered].max() < 0.05 and shape[recovered].max() < 0.1
     # each survivor's own estimate (its AGENT records in the tlog) against the survivors' truth
     rows = [0, 1, 2, 5, 6, 7, 8]  # centre, heading, variances (roll/pitch of a flat swarm ~0)
     bound = np.maximum(0.02 * np.abs(truth[:, rows]), 0.05)
-    back = (t >= CRASH_T_S + 10.0) & (t <= t[-1] - 1.0)
+    back = (t >= CRASH_T_S + ESTIMATES_BACK_S) & (t <= t[-1] - 1.0)
     # heading is undefined where length and width variances tie (ALGORITHM.md §1: masked)
     tie = np.abs(truth[:, 6] - truth[:, 7]) / (truth[:, 6] + truth[:, 7]) < 0.05
     assert tie[back].any() and not tie[back].all()  # the width crosses the length once
@@ -110,18 +137,19 @@ def test_drop_out_survived_and_every_estimate_back_within_10_s(
         err = np.abs(estimate[:, rows] - truth[:, rows])
         err[tie, HEADING] = 0.0
         assert (err[back] <= bound[back]).all(), (i, err[back].max(axis=0))
-    # the crash is felt by the survivors' estimates, so the bound above is not vacuous
+    # the crash is felt (README: peak error 0.50 m), so the bound above is not vacuous
     during = (t >= CRASH_T_S) & (t < CRASH_T_S + 1.0)
-    assert np.nanmax(np.abs(truth[during, 0] - desired[during, 0])) > 0.1
+    assert np.nanmax(np.abs(truth[during, 0] - desired[during, 0])) > 0.4
 
 
 def test_distributed_flight_matches_swarm_simulate(
     flight: dict[str, np.ndarray], simulated_paper_report: Path
 ) -> None:
-    """Tracking RMS of the two runs within 0.05 m / 0.1 m^2 of each other (the issue's bar), and
-    the flights themselves close: measured 0.6 mm / 0.003 m^2 RMS apart after 20 s, crash
-    included (bars 1 cm / 0.02 m^2 away from it, 2 cm / 0.05 m^2 with it: a consensus message
-    that misses its tick on a loaded machine shifts the distributed transient a little)."""
+    """Tracking RMS of the two runs within 1 mm / 0.003 m^2 of each other (the issue's bar: 0.05 m
+    / 0.1 m^2), and the flights themselves close: measured 0.6 mm / 0.002-0.004 m^2 RMS apart
+    after 20 s, crash included (bars 2 mm / 0.008 m^2 away from it, 2 mm / 0.01 m^2 with it: a
+    consensus message that misses its tick on a loaded machine shifts the distributed transient
+    a little)."""
     reference = paper_flight(simulated_paper_report)
     t = flight["t"]
     ours = descriptors_of(flight["positions"], flight["member"], flight["desired"])
@@ -135,13 +163,18 @@ def test_distributed_flight_matches_swarm_simulate(
     after = t >= SETTLE_S
     steady = after & ~((t >= CRASH_T_S) & (t < CRASH_T_S + 10.0))
     desired = flight["desired"]
-    for part, bar in ((slice(0, 3), 0.05), (slice(6, 9), 0.1)):
+    for part, bar in ((slice(0, 3), 0.001), (slice(6, 9), 0.003)):
         tracking = [np.linalg.norm(a[:, part] - desired[:, part], axis=1) for a in (ours, theirs)]
-        assert abs(rms(tracking[0], after) - rms(tracking[1], after)) < bar
+        gap = abs(rms(tracking[0], after) - rms(tracking[1], after))
+        assert gap < bar, (part, gap)
     centre_diff = np.linalg.norm(ours[:, :3] - theirs[:, :3], axis=1)
     shape_diff = np.linalg.norm(ours[:, 6:9] - theirs[:, 6:9], axis=1)
-    assert rms(centre_diff, steady) < 0.01 and rms(shape_diff, steady) < 0.02
-    assert rms(centre_diff, after) < 0.02 and rms(shape_diff, after) < 0.05
+    apart = {
+        "steady": (rms(centre_diff, steady), rms(shape_diff, steady)),
+        "after": (rms(centre_diff, after), rms(shape_diff, after)),
+    }
+    assert apart["steady"][0] < 0.002 and apart["steady"][1] < 0.008, apart
+    assert apart["after"][0] < 0.002 and apart["after"][1] < 0.01, apart
 
 
 def test_report_and_summary(demo: tuple[Path, str]) -> None:
@@ -151,7 +184,10 @@ def test_report_and_summary(demo: tuple[Path, str]) -> None:
     assert metrics["mode"] == "distributed (swarm gcs)"
     assert [d["sysid"] for d in metrics["drones_lost"]] == [CRASHED + 1]
     crash = next(r for r in metrics["reconvergence"] if "lost" in r["description"])
+    # the ground station's measure also waits for every agent's estimate: 5.2 s and 8.5 s measured
     assert crash["time_to_reconverge_s"] is not None and crash["time_to_reconverge_s"] < 10.0
+    # README: agents' centroid estimate error 0.8-0.9 mm RMS in steady flight
+    assert metrics["consensus_steady"]["centroid_m"]["rms"] < 0.0025, metrics["consensus_steady"]
     events = read_events(report / "events.jsonl")
     assert {e["drone"] for e in events if e["kind"] == "agent_joined"} == set(range(9))
     assert any(e["kind"] == "crash" and e["drone"] == CRASHED for e in events)

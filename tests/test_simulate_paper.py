@@ -1,9 +1,17 @@
 """``swarm simulate scenarios/paper.toml`` end to end, judged from the run's own flight.tlog.
 
-The full 200 s paper flight runs once (about a minute) for the session. The bars are the
-flight-core issue's: centroid RMS < 0.05 m and shape-variance RMS < 0.1 m^2 after the first 20 s
-(both away from the drop-out, as ALGORITHM.md §7 measures it, and with its transient), no two
-airborne drones closer than 1.0 m, the drop-out at 30 s survived and re-converged within 10 s.
+The full 200 s paper flight runs once (about a minute) for the session. The run is seeded, so
+its figures do not vary from run to run; the bars sit at 2-3x the figures the README quotes
+(measured, in brackets), never looser than the flight-core issue's (centroid RMS < 0.05 m,
+shape-variance RMS < 0.1 m^2 after 20 s, 1.0 m separation, re-converged within 10 s):
+
+- steady flight (after 20 s, leaving out the 10 s after the crash): centroid RMS < 0.1 mm
+  (0.03 mm), shape RMS < 0.008 m^2 (0.0028 m^2); with the crash: < 0.05 m / 0.1 m^2 (0.048 m /
+  0.095 m^2, the crash transient itself);
+- no two airborne drones closer than 1.9 m (2.02 m);
+- drone 1 crashes at 30 s: peak error 0.4-0.6 m / 0.8-1.2 m^2 (0.50 m / 0.98 m^2), survivors back
+  within 5 cm / 0.1 m^2 in under 6 s (5.2 s) and within 1.5 mm / 0.01 m^2 from 40 s (0.5 mm /
+  0.0033 m^2); agents' centroid consensus error in steady flight < 1.5 mm RMS (0.57 mm).
 """
 
 from __future__ import annotations
@@ -42,35 +50,40 @@ def test_tracking_from_the_tlog(flight: dict[str, np.ndarray]) -> None:
         20.0,
         exclude=[(30.0, 40.0)],
     )
-    assert steady["centroid_m"]["rms"] < 0.05
-    assert steady["shape_m2"]["rms"] < 0.1
+    assert steady["centroid_m"]["rms"] < 1e-4, steady["centroid_m"]  # README: 0.03 mm
+    assert steady["shape_m2"]["rms"] < 0.008, steady["shape_m2"]  # README: 0.003 m^2
     everything = tracking_from_positions(
         flight["t"], flight["positions"], flight["member"], flight["desired"], 20.0
     )
     # the drop-out transient included, the flight-core bars still hold (0.048 m / 0.095 m^2:
     # the in-process run is seeded, so this does not vary from run to run)
-    assert everything["centroid_m"]["rms"] < 0.05
-    assert everything["shape_m2"]["rms"] < 0.1
+    assert everything["centroid_m"]["rms"] < 0.05, everything["centroid_m"]
+    assert everything["shape_m2"]["rms"] < 0.1, everything["shape_m2"]
 
 
 @pytest.mark.slow
-def test_no_two_airborne_drones_closer_than_one_metre(flight: dict[str, np.ndarray]) -> None:
-    assert min_airborne_separation(flight["positions"]) > 1.0
+def test_no_two_airborne_drones_closer_than_1_9_metres(flight: dict[str, np.ndarray]) -> None:
+    separation = min_airborne_separation(flight["positions"])
+    assert separation > 1.9, separation  # README: 2.0 m
 
 
 @pytest.mark.slow
-def test_drop_out_survived_and_reconverged_within_10_s(flight: dict[str, np.ndarray]) -> None:
+def test_drop_out_survived_and_reconverged_within_6_s(flight: dict[str, np.ndarray]) -> None:
     t, pos, member, desired = flight["t"], flight["positions"], flight["member"], flight["desired"]
     a = descriptors_of(pos, member, desired)
     centroid = np.linalg.norm(a[:, :3] - desired[:, :3], axis=1)
     shape = np.abs(a[:, 6:9] - desired[:, 6:9]).max(axis=1)
-    # the loss is felt ...
+    # the loss is felt (README: peak 0.50 m) ...
     just_after = (t >= 30.0) & (t < 31.0)
-    assert centroid[just_after].max() > 0.2
-    # ... and the survivors are back within 5 cm / 0.1 m^2 within 10 s, and stay there
+    assert 0.4 < centroid[just_after].max() < 0.6, centroid[just_after].max()
+    # ... the survivors are back within 5 cm / 0.1 m^2 within 6 s (README: 5.2 s) and stay
+    # there until the next fault (67 s) ...
+    recovered = (t >= 36.0) & (t < 67.0)
+    assert centroid[recovered].max() < 0.05 and shape[recovered].max() < 0.1
+    # ... and from 40 s on they are back to steady flight (0.5 mm / 0.0033 m^2)
     back = (t >= 40.0) & (t < 67.0)
-    assert centroid[back].max() < 0.05
-    assert shape[back].max() < 0.1
+    assert centroid[back].max() < 0.0015, centroid[back].max()
+    assert shape[back].max() < 0.01, shape[back].max()
     # every survivor flies to the end; the crashed drone went silent after it hit the ground
     end = pos[-1]
     survivors = [i for i in range(pos.shape[1]) if i != 1]
@@ -96,8 +109,13 @@ def test_report_contents(report: Path) -> None:
     assert metrics["collisions"]["count"] == 0
     assert [d["sysid"] for d in metrics["drones_lost"]] == [2]
     crash = next(r for r in metrics["reconvergence"] if "crash" in r["description"])
-    assert crash["time_to_reconverge_s"] is not None and crash["time_to_reconverge_s"] < 10.0
-    assert metrics["consensus_steady"]["centroid_m"]["rms"] < 0.01
+    # README: re-converged in 5.2 s, peak error 0.50 m / 0.98 m^2
+    assert crash["time_to_reconverge_s"] is not None and crash["time_to_reconverge_s"] < 6.0
+    assert 0.4 < crash["peak_centroid_error_m"] < 0.6, crash
+    assert 0.8 < crash["peak_shape_error_m2"] < 1.2, crash
+    # README: consensus error 0.6 mm
+    assert metrics["consensus_steady"]["centroid_m"]["rms"] < 0.0015, metrics["consensus_steady"]
+    assert metrics["separation"]["min_m"] > 1.9, metrics["separation"]
     kinds = [e["kind"] for e in read_events(report / "events.jsonl")]
     assert kinds[0] == "run_start" and kinds[-1] == "run_end"
     assert "agent_left" in kinds and kinds.count("armed") == 9
