@@ -3,9 +3,11 @@ on the ground, malformed fault payloads ignored, and ``swarm drill crash`` in a 
 
 from __future__ import annotations
 
+import hashlib
 import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -19,7 +21,18 @@ from agent_harness import (
     within_bound,
     write_scenario,
 )
-from sitl_client import ENV, ROOT, free_port_block, free_udp_port, sim_process, swarm_command
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink
+from sitl_client import (
+    ENV,
+    HOST,
+    ROOT,
+    MavPeer,
+    free_port_block,
+    free_udp_port,
+    sim_process,
+    swarm_command,
+)
 
 from drone_agent.transport import Congestion
 from gcs.events import read_events
@@ -107,11 +120,49 @@ def test_link_cut_and_clear_on_the_ground_and_malformed_commands_are_ignored(
 
 #: Five drones: a 4 m x 3 m rectangle and its centre.
 FIVE = [(0.0, 0.0, 0.0), (0.0, 3.0, 0.0), (4.0, 0.0, 0.0), (4.0, 3.0, 0.0), (2.0, 1.5, 0.0)]
+#: The vehicle an unsigned peer attacks in the signed flight (drone 3, system id 4).
+ATTACKED = 3
+#: SET_ATTITUDE_TARGET type_mask: body rates ignored.
+NO_RATES = 0b111
+#: MAV_CMD_COMPONENT_ARM_DISARM's param2 that forces a disarm in flight.
+FORCE = 21196
+
+
+def _attack_unsigned(peer: MavPeer, rounds: int = 15) -> int:
+    """``peer``, a plain pymavlink peer (no key), sends the flying vehicle ``ATTACKED`` what would
+    bring it down if accepted: zero-thrust setpoints and forced disarms. Returns the frames sent."""
+    sysid = ATTACKED + 1
+    for _ in range(rounds):
+        peer.setpoint(sysid, 0, 0.0, type_mask=NO_RATES)
+        peer.command(sysid, 400, 0, FORCE)  # MAV_CMD_COMPONENT_ARM_DISARM: disarm, forced
+        time.sleep(0.02)
+    return 2 * rounds
+
+
+def _vehicle_frames(tlog: Path) -> list[Any]:
+    """Every frame the simulator's vehicles (component 1) sent, as the ground station logged it."""
+    log = mavutil.mavlink_connection(str(tlog), dialect="common")
+    frames = []
+    while (msg := log.recv_match()) is not None:
+        if msg.get_type() != "BAD_DATA" and msg.get_srcComponent() == 1:
+            frames.append(msg)
+    log.close()
+    return frames
+
+
+def _signed_with(msg: Any, key: bytes) -> bool:
+    """Whether ``msg`` is a MAVLink 2 frame carrying a valid signature made with ``key``."""
+    buf = bytes(msg.get_msgbuf())
+    flagged = buf[0] == mavlink.PROTOCOL_MARKER_V2 and buf[2] & mavlink.MAVLINK_IFLAG_SIGNED
+    return bool(flagged) and hashlib.sha256(key + buf[:-6]).digest()[:6] == buf[-6:]
 
 
 def test_crash_drill_in_a_flying_signed_swarm(tmp_path: Path) -> None:
     """The whole run signs its MAVLink (swarm up --signing-key): the agents' setpoints and the
-    ground station's crash command are both accepted by the signing simulator."""
+    ground station's crash command are both accepted by the signing simulator, and signing is
+    shown on: an unsigned peer's setpoints and disarms to a flying vehicle are rejected and
+    counted as signature failures (SYS_STATUS), and every vehicle frame in flight.tlog is signed
+    with the key."""
     key = tmp_path / "swarm.key"
     key.write_text("5a" * 32)
     scenario = write_scenario(
@@ -124,7 +175,7 @@ def test_crash_drill_in_a_flying_signed_swarm(tmp_path: Path) -> None:
     )
     base, gcs_port = free_port_block(5), free_udp_port()
     report = tmp_path / "report"
-    with observer() as obs:
+    with observer() as obs, MavPeer(ATTACKED + 1, 191, (HOST, base + ATTACKED)) as attacker:
         proc = subprocess.Popen(
             swarm_command(
                 *("up", str(scenario), "--report", str(report), "--duration-s", "20"),
@@ -144,6 +195,7 @@ def test_crash_drill_in_a_flying_signed_swarm(tmp_path: Path) -> None:
                 90.0,
             )  # fmt: skip
             assert flying, {d: (s.mode, s.t_s) for d, s in obs.statuses().items()}
+            sent = _attack_unsigned(attacker)
             # a link-fault drill the ground station records (clear: changes nothing in flight)
             clear = drill(obs.endpoint, "clear")
             assert clear.returncode == 0, clear.stderr
@@ -153,6 +205,9 @@ def test_crash_drill_in_a_flying_signed_swarm(tmp_path: Path) -> None:
             refused = drill(obs.endpoint, "crash", "--drone", "7")
             assert refused.returncode == 1 and "refused" in refused.stdout
             out, _ = proc.communicate(timeout=120)
+            # nobody answered the unsigned peer: its frames did not make it the vehicle's agent
+            answered = {m.get_type() for m in attacker.poll(0.0)}
+            assert not answered, f"vehicle {ATTACKED + 1} answered an unsigned peer: {answered}"
         finally:
             if proc.poll() is None:
                 proc.kill()
@@ -176,3 +231,15 @@ def test_crash_drill_in_a_flying_signed_swarm(tmp_path: Path) -> None:
     # the others fly on: drone 1's agent leaves the swarm on its vehicle's EMERGENCY text
     assert all(-track.vehicles[s].position_ned_m[-1, 2] > 2.0 for s in (1, 3, 4, 5))
     assert [e["drone"] for e in events if e["kind"] == "crash"] == [1] * len(crashes)
+    # signing was on: the vehicles' own counters (SYS_STATUS, logged by the ground station)
+    # count the unsigned frames as rejected signature failures, on the attacked vehicle only
+    frames = _vehicle_frames(report / "flight.tlog")
+    status = {m.get_srcSystem(): m for m in frames if m.get_type() == "SYS_STATUS"}  # newest
+    assert sorted(status) == [1, 2, 3, 4, 5], sorted(status)
+    attacked = status[ATTACKED + 1]
+    assert 0.9 * sent <= attacked.errors_count3 <= sent, (sent, attacked)
+    assert attacked.errors_comm >= attacked.errors_count3
+    assert all(m.errors_count3 == 0 for s, m in status.items() if s != ATTACKED + 1), status
+    # ... and all its telemetry is signed with the run's key
+    secret = bytes.fromhex(key.read_text())
+    assert len(frames) > 1000 and all(_signed_with(m, secret) for m in frames)
