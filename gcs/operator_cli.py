@@ -1,6 +1,9 @@
 """Operator commands to a running ground station: ``swarm takeoff|formation|move|rotate|scale|hold|
 land|status``. Each sends one request to ``swarm/<sid>/command`` over Zenoh and prints the answer.
 
+The first line says how long the ground station took to answer, from the request leaving to the
+reply arriving (opening the Zenoh session is not counted): ``hold: accepted (0.004 s): ...``.
+
 Exit codes: 0 accepted, 1 refused, 2 usage error or no ground station answering within 2 s.
 """
 
@@ -8,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import time
 from typing import Any
 
 from drone_agent.agent_cli import RENDEZVOUS_PORT
@@ -106,6 +110,13 @@ def send(
     swarm_id: str, endpoint: str, payload: bytes, timeout_s: float = ANSWER_TIMEOUT_S
 ) -> Reply:
     """Send one request payload to the ground station; OperatorError if none answers."""
+    return send_timed(swarm_id, endpoint, payload, timeout_s)[0]
+
+
+def send_timed(
+    swarm_id: str, endpoint: str, payload: bytes, timeout_s: float = ANSWER_TIMEOUT_S
+) -> tuple[Reply, float]:
+    """As :func:`send`, with the seconds from sending the request to its reply's arrival."""
     from drone_agent.zenoh_transport import open_client
 
     try:
@@ -116,11 +127,13 @@ def send(
     except ConnectionError:
         raise OperatorError(f"no ground station reachable at {endpoint}") from None
     with bus:
+        sent = time.monotonic()
         replies = bus.session.get(key, payload=payload, timeout=timeout_s)
         for reply in replies:
             if reply.ok is not None:
+                elapsed = time.monotonic() - sent
                 try:
-                    return decode_reply(reply.ok.payload.to_bytes())
+                    return decode_reply(reply.ok.payload.to_bytes()), elapsed
                 except CommandError as exc:
                     raise OperatorError(str(exc)) from None
     raise OperatorError(
@@ -128,9 +141,11 @@ def send(
     )
 
 
-def format_reply(name: str, reply: Reply) -> list[str]:
-    """The lines printed for ``reply``."""
-    lines = [f"{name}: {'accepted' if reply.accepted else 'refused'}: {reply.reason}"]
+def format_reply(name: str, reply: Reply, elapsed_s: float | None = None) -> list[str]:
+    """The lines printed for ``reply`` (answered after ``elapsed_s`` seconds, when known)."""
+    verdict = "accepted" if reply.accepted else "refused"
+    took = "" if elapsed_s is None else f" ({elapsed_s:.3f} s)"
+    lines = [f"{name}: {verdict}{took}: {reply.reason}"]
     if reply.table:
         lines.append(
             f"{'drone':>5} {'alive':>5} {'mode':>8} {'armed':>5} {'position NED (m)':>24} "
@@ -157,7 +172,7 @@ def format_reply(name: str, reply: Reply) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     """Send the command of ``args``, print the answer; 0 accepted, 1 refused."""
     request = request_of(args)
-    reply = send(args.swarm_id, args.zenoh_connect, encode_request(request))
-    for line in format_reply(args.command, reply):
+    reply, elapsed_s = send_timed(args.swarm_id, args.zenoh_connect, encode_request(request))
+    for line in format_reply(args.command, reply, elapsed_s):
         print(line)
     return 0 if reply.accepted else 1

@@ -25,7 +25,7 @@ from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_e
 from gcs.commands import Reply, Request, encode_request
 from gcs.events import read_events
 from gcs.ground_station import GcsOptions, GroundStation
-from gcs.operator_cli import send
+from gcs.operator_cli import format_reply, send
 from gcs.tlog import read_tlog
 from protocols.descriptors import descriptors
 from protocols.keys import SwarmKeys
@@ -95,6 +95,14 @@ def _wait(condition: object, timeout_s: float) -> bool:
     return False
 
 
+def _answer_s(stdout: str, command: str, verdict: str) -> float:
+    """How long the ground station took to answer, as the operator client printed it on its
+    first line (``formation: accepted (0.004 s): ...``)."""
+    match = re.match(rf"{command}: {verdict} \(([0-9.]+) s\): ", stdout)
+    assert match, stdout
+    return float(match.group(1))
+
+
 def test_gcs_flies_a_formation_change_refuses_the_fence_and_writes_the_report(
     tmp_path: Path,
 ) -> None:
@@ -138,10 +146,13 @@ def test_gcs_flies_a_formation_change_refuses_the_fence_and_writes_the_report(
             done = _operator(endpoint, "formation", "--heading-deg", "30", "--length-m", "3")
             assert done.returncode == 0, done.stdout + done.stderr
             assert "accepted" in done.stdout
+            # operator commands answer within a second, a flying swarm's planning included
+            assert _answer_s(done.stdout, "formation", "accepted") < 1.0
             arrives = float(re.findall(r"arrives at t = ([0-9.]+) s", done.stdout)[0])
             fence = _operator(endpoint, "move", "--north-m", "5000")
             assert fence.returncode == 1, fence.stdout + fence.stderr
             assert "refused" in fence.stdout and "geofence" in fence.stdout
+            assert _answer_s(fence.stdout, "move", "refused") < 1.0
             assert _status(endpoint).seq == 1  # the refused move changed nothing
             for bad in (
                 b"garbage",
@@ -178,6 +189,16 @@ def test_gcs_flies_a_formation_change_refuses_the_fence_and_writes_the_report(
     for png in ("paths.png", "descriptors.png", "controls.png"):
         assert (report / png).stat().st_size > 1000
     assert json.loads((report / "trajectory.json").read_text())["seq"] == 1
+
+
+def test_operator_replies_say_how_long_the_ground_station_took() -> None:
+    assert format_reply("hold", Reply(True, "plan 2: holds", 2), 0.0123) == [
+        "hold: accepted (0.012 s): plan 2: holds"
+    ]
+    assert format_reply("move", Reply(False, "outside the geofence"), 0.5)[0] == (
+        "move: refused (0.500 s): outside the geofence"
+    )
+    assert format_reply("land", Reply(True, "plan 3")) == ["land: accepted: plan 3"]
 
 
 def _try_status(endpoint: str) -> Reply | None:
