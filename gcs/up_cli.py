@@ -111,7 +111,9 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
         raise SupervisorError(f"cannot write the report folder {report}: {exc}") from None
     endpoint = args.zenoh_connect
     if args.zenoh_connect:
-        gcs_zenoh = ["--zenoh-connect", args.zenoh_connect]
+        # the ground station joins that endpoint and listens on a port of its own: left to its
+        # default it would take the rendezvous port, which another swarm on the machine may hold
+        gcs_zenoh = ["--zenoh-listen", "tcp/127.0.0.1:0", "--zenoh-connect", args.zenoh_connect]
         agent_zenoh = ["--zenoh-listen", "tcp/127.0.0.1:0", "--zenoh-connect", args.zenoh_connect]
     else:
         endpoint = f"tcp/127.0.0.1:{rendezvous_port()}"

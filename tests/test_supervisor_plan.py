@@ -8,7 +8,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+from agent_harness import GRID, write_scenario
+from sitl_client import free_port_block, free_udp_port
+
+from gcs.cli import _parser
 from gcs.supervisor import Child, RunPlan, agent_groups, agent_ranges
+from gcs.up_cli import build_plan
 
 
 def test_agent_groups_and_ranges() -> None:
@@ -40,3 +45,32 @@ def test_run_file_lists_each_drone_with_its_process(tmp_path: Path) -> None:
     pids = [a.proc.pid for a in agents if isinstance(a.proc, subprocess.Popen)]
     assert run["agents"] == {"0": pids[0], "1": pids[0], "2": pids[1]}
     assert not (tmp_path / "run.tmp").exists()
+
+
+def _up_plan(tmp_path: Path, *flags: str) -> RunPlan:
+    scenario = write_scenario(tmp_path / "s.toml", GRID, centre=(3, 2, -3), spread=(2, 1, 0))
+    ports = ["--base-port", str(free_port_block(9)), "--gcs-port", str(free_udp_port())]
+    args = _parser().parse_args(["up", str(scenario), "--report", str(tmp_path), *ports, *flags])
+    return build_plan(args, scenario)[0]
+
+
+def _flag(argv: list[str], name: str) -> str | None:
+    return argv[argv.index(name) + 1] if name in argv else None
+
+
+def test_with_zenoh_connect_no_child_takes_the_rendezvous_port(tmp_path: Path) -> None:
+    """Regression: with ``--zenoh-connect`` the ground station was left to listen on its default,
+    the rendezvous port 7447, so the run failed whenever another swarm on the machine held it."""
+    plan = _up_plan(tmp_path, "--zenoh-connect", "tcp/127.0.0.1:17999")
+    assert plan.zenoh_endpoint == "tcp/127.0.0.1:17999"
+    for child in (plan.gcs, *plan.agents):
+        assert _flag(child.argv, "--zenoh-listen") == "tcp/127.0.0.1:0", child.argv
+        assert _flag(child.argv, "--zenoh-connect") == "tcp/127.0.0.1:17999", child.argv
+
+
+def test_by_default_the_ground_station_is_the_rendezvous(tmp_path: Path) -> None:
+    plan = _up_plan(tmp_path)
+    endpoint = plan.zenoh_endpoint
+    assert endpoint is not None and endpoint.startswith("tcp/127.0.0.1:")
+    assert _flag(plan.gcs.argv, "--zenoh-listen") == endpoint
+    assert all(_flag(a.argv, "--zenoh-connect") == endpoint for a in plan.agents)
