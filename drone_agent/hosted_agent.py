@@ -2,16 +2,18 @@
 
 Each control tick (named by the vehicle's ``time_boot_ms``, protocols/mavlink_conventions.py) the
 agent gathers the consensus messages that arrived, runs :class:`AgentCore`, publishes its message,
-and answers the vehicle with a SET_ATTITUDE_TARGET echoing the tick: the real setpoint while
-flying, a level zero-thrust one before (it still acknowledges the tick for lockstep). For
-reproducible consensus it waits, up to ``neighbour_wait_s`` of wall time, until every neighbour
-heard recently has sent its message of the previous round.
+lets :class:`~drone_agent.flight_phase.FlightPhase` decide what to do with the vehicle (fly the
+formation, land, hold, stay on the ground), and answers the vehicle with that SET_ATTITUDE_TARGET
+echoing the tick (also on the ground, for lockstep). For reproducible consensus it waits, up to
+``neighbour_wait_s`` of wall time, until every neighbour heard recently has sent its message of
+the previous round.
 
-Safety: it arms only once the plan says fly and its estimator has settled; it leaves the swarm
-(drops its liveliness token) when its vehicle falls silent (``vehicle_timeout_s``, longer than the
+Safety: it arms only once the plan says fly and its estimator has settled; an airborne vehicle is
+never sent less than the minimum thrust (flight_phase's invariant); it leaves the swarm (drops its
+liveliness token) when its vehicle falls silent (``vehicle_timeout_s``, longer than the
 simulator's lockstep timeout, during which a stalled barrier legitimately sends nothing) or says
-it is lost (disarmed under us, or in emergency); the core checks every setpoint for NaN and limits
-before it is sent.
+it is lost (an EMERGENCY text, emergency or termination state, or disarmed under it while it flies
+the formation); the core checks every setpoint for NaN and limits before it is sent.
 """
 
 from __future__ import annotations
@@ -21,18 +23,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drone_agent.agent_core import AgentCore, AgentOutput
+from drone_agent.agent_core import AgentCore, AgentOutput, Setpoint
 from drone_agent.consensus import ConsensusMessage
+from drone_agent.flight_phase import FlightPhase, Order, Request, VehicleView
 from drone_agent.transport import AgentTransport
 from drone_agent.vehicle_link import VehicleLink, VehicleSample
+from protocols.descriptor_vector import CENTRE
 from protocols.frames import quat_from_zyx
+from protocols.mavlink_conventions import MODE_HOLD, MODE_LAND, MODE_OFFBOARD
 from protocols.trajectory import DescriptorTrajectory
 from protocols.wire_plan import FlightCommand
 from protocols.wire_status import AgentMode, AgentStatus, Health
 
-LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
 #: MAV_STATE values meaning the vehicle is lost (EMERGENCY, FLIGHT_TERMINATION).
 LOST_STATES = frozenset({6, 8})
+#: Agent modes in which the vehicle flies the agent's setpoints: disarmed under it = lost.
+_FLYING_MODES = frozenset({AgentMode.FLYING, AgentMode.HOLDING})
 
 
 @dataclass(frozen=True)
@@ -77,7 +83,7 @@ class HostedAgent:
         self._last_heartbeat = -1e9
         self._last_command = -1e9
         self._settled_ticks = 0
-        self._committed = False
+        self.phase = FlightPhase(core.config.limits)
         self._members: frozenset[int] = frozenset()
         self.left = False
 
@@ -127,7 +133,7 @@ class HostedAgent:
         ):
             self.leave()
             return
-        if self.mode == AgentMode.FLYING and self._vehicle_lost():
+        if self._vehicle_lost():
             self.leave()
             return
         self._collect()
@@ -148,10 +154,12 @@ class HostedAgent:
 
     def _vehicle_lost(self) -> bool:
         """The vehicle says it is gone: an EMERGENCY status text (sent the moment its motors
-        fail, long before the 1 Hz heartbeat), disarmed while we fly it, or in emergency or
-        termination state."""
+        fail or it hits the ground too hard, long before the 1 Hz heartbeat), in emergency or
+        termination state, or disarmed while we fly it (not after we handed it to LAND)."""
         status = self.link.status
-        return status.emergency or not status.armed or status.system_status in LOST_STATES
+        if status.emergency or status.system_status in LOST_STATES:
+            return True
+        return self.mode in _FLYING_MODES and not status.armed and not self.phase.handed_over
 
     def _plan(self) -> tuple[DescriptorTrajectory | None, FlightCommand]:
         received = self.transport.plan()
@@ -164,8 +172,8 @@ class HostedAgent:
     def _compute(self, tick: int, sample: VehicleSample) -> None:
         plan, command = self._plan()
         self.last_tick = tick
-        if plan is None:
-            self.link.send_setpoint(sample.time_boot_ms, LEVEL, 0.0)
+        if plan is None:  # no plan yet: stay on the ground (an airborne vehicle lands)
+            self._carry_out(self._decide(FlightCommand.GROUND, None, 0.0, sample), sample)
             return
         t_s = sample.time_boot_ms / 1000.0
         inbox, self._inbox = self._inbox, []
@@ -181,12 +189,57 @@ class HostedAgent:
         self.last_output = out
         self.transport.publish_consensus(out.message, sample.position_ned_m)
         self._track_settling(out)
-        fly = command == FlightCommand.FLY and self.options.arm
-        if fly and out.setpoint is not None and self.converged:
-            self._fly(sample, out)
-        else:
-            self.link.send_setpoint(sample.time_boot_ms, LEVEL, 0.0)
-            self.mode = AgentMode.READY if self.converged else AgentMode.WARMUP
+        commanded_altitude = -float(plan.evaluate(t_s)[0][CENTRE][2])
+        self._carry_out(self._decide(command, out.setpoint, commanded_altitude, sample), sample)
+
+    def _decide(
+        self,
+        command: FlightCommand,
+        setpoint: Setpoint | None,
+        commanded_altitude_m: float,
+        sample: VehicleSample,
+    ) -> Order:
+        status = self.link.status
+        vehicle = VehicleView(
+            armed=status.armed,
+            in_offboard=status.custom_mode == MODE_OFFBOARD,
+            in_land=status.custom_mode == MODE_LAND,
+            in_hold=status.custom_mode == MODE_HOLD,
+            altitude_m=-float(sample.position_ned_m[2]),
+        )
+        return self.phase.decide(
+            command,
+            self.options.arm,
+            self.converged,
+            setpoint,
+            commanded_altitude_m,
+            vehicle,
+            float(sample.euler_rad[2]),
+        )
+
+    def _carry_out(self, order: Order, sample: VehicleSample) -> None:
+        """Send the order's setpoint (echoing the tick) and, at most every ``command_retry_s``
+        of wall time, its request to the autopilot."""
+        sp = order.setpoint
+        q = quat_from_zyx(sp.yaw_rad, sp.pitch_rad, sp.roll_rad)
+        self.link.send_setpoint(sample.time_boot_ms, q, sp.thrust_normalised)
+        self.mode = order.mode
+        if order.request == Request.NONE:
+            return
+        now = self.clock()
+        if now - self._last_command < self.options.command_retry_s:
+            return
+        self._last_command = now
+        status = self.link.status
+        if order.request == Request.ARM_OFFBOARD:
+            if not self.link.in_offboard:
+                self.link.set_offboard()
+            if not status.armed:
+                self.link.arm(True)
+        elif order.request == Request.LAND_MODE:
+            self.link.set_land()
+        elif order.request == Request.HOLD_MODE:
+            self.link.set_hold()
 
     def _track_settling(self, out: AgentOutput) -> None:
         """Count the ticks the estimator has agreed with its neighbours while the membership
@@ -201,29 +254,11 @@ class HostedAgent:
         """Warm-up over and the estimator agreeing with its neighbours (disagreement below
         ``settle_tolerance``) for ``settle_ticks`` ticks; latched once the agent has decided to
         fly (the neighbours' take-off must not send it back to the ground half-armed)."""
-        return self._committed or (
+        return self.phase.committed or (
             self.last_output is not None
             and self.last_output.ready_to_fly
             and self._settled_ticks >= self.options.settle_ticks
         )
-
-    def _fly(self, sample: VehicleSample, out: AgentOutput) -> None:
-        sp = out.setpoint
-        assert sp is not None
-        self._committed = True
-        q = quat_from_zyx(sp.yaw_rad, sp.pitch_rad, sp.roll_rad)
-        self.link.send_setpoint(sample.time_boot_ms, q, sp.thrust_normalised)
-        status = self.link.status
-        if status.armed and self.link.in_offboard:
-            self.mode = AgentMode.FLYING
-            return
-        now = self.clock()
-        if now - self._last_command >= self.options.command_retry_s:
-            if not self.link.in_offboard:
-                self.link.set_offboard()
-            if not status.armed:
-                self.link.arm(True)
-            self._last_command = now
 
     def _publish_status(self) -> None:
         out = self.last_output

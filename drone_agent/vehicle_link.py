@@ -27,6 +27,7 @@ from protocols.mavlink_conventions import (
     AUTOPILOT_COMPID,
     DEFAULT_BASE_PORT,
     MODE_OFFBOARD,
+    Px4AutoSubMode,
     Px4MainMode,
     sysid_of,
 )
@@ -233,6 +234,22 @@ class VehicleLink:
             common.MAV_CMD_DO_SET_MODE,
             common.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
             float(Px4MainMode.OFFBOARD),
+        )
+
+    def set_land(self) -> None:
+        """The autopilot's LAND mode (PX4 AUTO.LAND): level, sink, disarm on touchdown."""
+        self._set_px4_mode(Px4MainMode.AUTO, Px4AutoSubMode.LAND)
+
+    def set_hold(self) -> None:
+        """The autopilot's HOLD mode (PX4 AUTO.LOITER): level, hold the altitude."""
+        self._set_px4_mode(Px4MainMode.AUTO, Px4AutoSubMode.LOITER)
+
+    def _set_px4_mode(self, main: int, sub: int) -> None:
+        self.command(
+            common.MAV_CMD_DO_SET_MODE,
+            common.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+            float(main),
+            float(sub),
         )
 
     @property

@@ -19,12 +19,15 @@ from typing import Any
 
 import numpy as np
 
-from gcs.planner import Envelope, PlanRefused, formation_target, goal_of, hold, plan_to
+from gcs.planner import Envelope, PlanRefused, formation_target, goal_of, hold, land, plan_to
 from protocols.descriptor_vector import I_YAW, SHAPE
-from protocols.wire_plan import FlightCommand, PlanMessage
+from protocols.wire_plan import LAND_HANDOVER_ALTITUDE_M, FlightCommand, PlanMessage
 
 VERSION = 1
 MAX_REQUEST_BYTES = 4096
+#: A hold stops a landing only while the commanded altitude is this much (m) above the altitude
+#: where the agents hand their vehicles to the autopilot's LAND mode.
+HOLD_ABORT_MARGIN_M = 0.5
 
 #: Each command and its arguments: name -> (required, optional) argument names. Values are numbers
 #: except ``centre_ned_m`` (a list of 3 numbers).
@@ -150,10 +153,21 @@ def apply_command(
     plan, args = current.trajectory, request.args
     duration = args.get("duration_s")
     goal = goal_of(plan, now_s)
-    if request.name == "hold":
-        return PlanMessage(hold(plan, now_s, env), current.command)
     if request.name == "land":
-        return PlanMessage(hold(plan, now_s, env), FlightCommand.LAND)
+        if current.command == FlightCommand.LAND:
+            raise PlanRefused("the swarm is already landing")
+        return PlanMessage(land(plan, now_s, env), FlightCommand.LAND)
+    if request.name == "hold":
+        if current.command == FlightCommand.LAND:
+            altitude = -float(plan.evaluate(now_s)[0][2])
+            if altitude <= LAND_HANDOVER_ALTITUDE_M + HOLD_ABORT_MARGIN_M:
+                raise PlanRefused(
+                    f"the swarm is touching down (commanded altitude {altitude:.1f} m): "
+                    "take off to fly again"
+                )
+            # a hold during the descent stops it: the swarm flies on where it stopped
+            return PlanMessage(hold(plan, now_s, env), FlightCommand.FLY)
+        return PlanMessage(hold(plan, now_s, env), current.command)
     if current.command == FlightCommand.LAND and request.name != "takeoff":
         raise PlanRefused("the swarm is landing: take off first")
     if request.name == "takeoff":

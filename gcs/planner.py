@@ -15,7 +15,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocols.descriptor_vector import CENTRE, I_PITCH, I_ROLL, I_YAW, ORIENTATION, SHAPE
+from protocols.descriptor_vector import (
+    CENTRE,
+    I_PITCH,
+    I_ROLL,
+    I_S3,
+    I_YAW,
+    ORIENTATION,
+    SHAPE,
+)
 from protocols.frames import FloatArray
 from protocols.trajectory import DescriptorTrajectory, Waypoint
 
@@ -35,7 +43,8 @@ class Envelope:
     """Limits of what the swarm may be commanded to do (SI units, angles in degrees).
 
     The geofence bounds north and east (m) and altitude (m, up) of the whole formation, taken as
-    the centre ± 2 spreads along each world axis.
+    the centre ± 2 spreads along each world axis. ``max_descent_m_s``: peak sink rate of the
+    centre when landing.
     """
 
     max_speed_m_s: float = 2.0
@@ -50,6 +59,7 @@ class Envelope:
     fence_east_m: tuple[float, float] = (-1000.0, 1000.0)
     fence_altitude_m: tuple[float, float] = (-0.5, 60.0)
     min_duration_s: float = 1.0
+    max_descent_m_s: float = 1.0
 
 
 def _limits(env: Envelope) -> list[tuple[slice, float, float, str]]:
@@ -115,15 +125,25 @@ def _min_duration(a0: FloatArray, a1: FloatArray, env: Envelope) -> float:
     return t
 
 
-def _violation(plan: DescriptorTrajectory, t0: float, t1: float, env: Envelope) -> str | None:
-    """The first limit the plan breaks on [t0, t1], or None."""
+def _rate_violation(plan: DescriptorTrajectory, t0: float, t1: float, env: Envelope) -> str | None:
+    """The first speed or acceleration limit the plan breaks on [t0, t1], or None."""
     t = np.linspace(t0, t1, _SAMPLES)
-    a, rate, acc = plan.evaluate_many(t)
+    _, rate, acc = plan.evaluate_many(t)
     for rows, v_max, acc_max, name in _limits(env):
         if np.linalg.norm(rate[:, rows], axis=1).max() > v_max * 1.001:
             return f"{name} limit"
         if np.linalg.norm(acc[:, rows], axis=1).max() > acc_max * 1.001:
             return f"{name} acceleration limit"
+    return None
+
+
+def _violation(plan: DescriptorTrajectory, t0: float, t1: float, env: Envelope) -> str | None:
+    """The first limit the plan breaks on [t0, t1], or None."""
+    broken = _rate_violation(plan, t0, t1, env)
+    if broken is not None:
+        return broken
+    t = np.linspace(t0, t1, _SAMPLES)
+    a, _, _ = plan.evaluate_many(t)
     for k in range(0, _SAMPLES, 10):
         _check_fence(a[k], env, when=f" on the way (t = {t[k]:.1f} s)")
     return None
@@ -194,12 +214,54 @@ def formation_target(
     return goal
 
 
-def hold(plan: DescriptorTrajectory, now_s: float, env: Envelope) -> DescriptorTrajectory:
-    """Stop where the swarm can: come to rest as soon as the envelope allows."""
+def _stop(plan: DescriptorTrajectory, now_s: float, env: Envelope) -> tuple[FloatArray, float]:
+    """Where the plan can come to rest from ``now_s`` as soon as the envelope allows, and how
+    long that takes (s): each group brakes at its acceleration limit."""
     a0, rate, _ = plan.evaluate(now_s)
     t = env.min_duration_s
     for rows, _, acc_max, _ in _limits(env):
         t = max(t, 2.0 * float(np.linalg.norm(rate[rows])) / acc_max)
-    goal = a0 + rate * t / 2.0
+    return a0 + rate * t / 2.0, t
+
+
+def hold(plan: DescriptorTrajectory, now_s: float, env: Envelope) -> DescriptorTrajectory:
+    """Stop where the swarm can: come to rest as soon as the envelope allows."""
+    goal, t = _stop(plan, now_s, env)
     zero = np.zeros(9)
     return plan.append([Waypoint(now_s + t, goal, zero, zero)], t_start_s=now_s)
+
+
+def land(plan: DescriptorTrajectory, now_s: float, env: Envelope) -> DescriptorTrajectory:
+    """The landing plan: come to rest over the ground where the swarm can stop, level (roll and
+    pitch 0) and flat (height variance 0), then lower the centre straight down to altitude 0
+    with a peak sink rate of ``env.max_descent_m_s``, at rest on the ground.
+
+    Never refused: the geofence is not checked (landing is how a swarm leaves it); the durations
+    are stretched until the speed and acceleration limits hold. The agents follow the formation
+    down and hand each vehicle to its autopilot's LAND mode once the commanded altitude is below
+    :data:`protocols.wire_plan.LAND_HANDOVER_ALTITUDE_M` (see :mod:`drone_agent.flight_phase`).
+    """
+    a0, _, _ = plan.evaluate(now_s)
+    stop, t_stop = _stop(plan, now_s, env)
+    stop[I_ROLL] = stop[I_PITCH] = 0.0
+    stop[I_S3] = 0.0  # the height variance: every drone at one altitude
+    t_stop = max(t_stop, _min_duration(a0, stop, env))
+    ground = stop.copy()
+    altitude = max(-float(stop[2]), 0.0)
+    ground[2] = 0.0
+    t_down = max(
+        env.min_duration_s,
+        _PEAK_SPEED * altitude / env.max_descent_m_s,
+        math.sqrt(_PEAK_ACCEL * altitude / env.max_accel_m_s2),
+    )
+    zero = np.zeros(9)
+    for _ in range(_MAX_TRIES):
+        t1 = now_s + t_stop
+        candidate = plan.append(
+            [Waypoint(t1, stop, zero, zero), Waypoint(t1 + t_down, ground, zero, zero)],
+            t_start_s=now_s,
+        )
+        if _rate_violation(candidate, now_s, t1, env) is None:
+            return candidate
+        t_stop *= 1.2
+    return candidate  # still a smooth descent: better late than refused

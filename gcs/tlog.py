@@ -30,6 +30,7 @@ from types import TracebackType
 from typing import Any, BinaryIO
 
 import numpy as np
+import numpy.typing as npt
 from pymavlink.dialects.v20 import common
 
 from protocols.frames import FloatArray
@@ -194,6 +195,8 @@ class VehicleTrack:
       the forces of rotors 1..4, N (empty when the log has none).
     - ``status_t_s`` (S,): the agent's status times (DEBUG_FLOAT_ARRAY "AGENT"), s;
       ``status`` (S, AGENT_STATUS_VALUES): estimate (9), neighbours, mode, armed (empty if none).
+    - ``heartbeat_t_s`` (H,): record times of the autopilot's HEARTBEATs, s; ``armed`` (H,) its
+      armed flag; ``custom_mode`` (H,) its PX4 custom mode (protocols/mavlink_conventions.py).
     Samples are sorted by time.
     """
 
@@ -207,6 +210,9 @@ class VehicleTrack:
     rotor_forces_n: FloatArray = field(default_factory=lambda: np.zeros((0, ACTUATOR_ROTORS)))
     status_t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
     status: FloatArray = field(default_factory=lambda: np.zeros((0, AGENT_STATUS_VALUES)))
+    heartbeat_t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
+    armed: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    custom_mode: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 @dataclass(frozen=True)
@@ -263,6 +269,7 @@ def read_tlog(path: str | Path, epoch_offset_s: float = 0.0) -> TlogTrack:
     att: dict[int, list[tuple[float, ...]]] = {}
     act: dict[int, list[tuple[float, ...]]] = {}
     agent: dict[int, list[tuple[float, ...]]] = {}
+    beats: dict[int, list[tuple[float, ...]]] = {}
     texts: list[StatusText] = []
     chunks: dict[tuple[int, int], list[bytes]] = {}
     bad, resyncing = 0, False
@@ -301,12 +308,17 @@ def read_tlog(path: str | Path, epoch_offset_s: float = 0.0) -> TlogTrack:
             if _name(msg.name) == AGENT_STATUS_NAME:
                 values = msg.data[:AGENT_STATUS_VALUES]
                 agent.setdefault(sysid, []).append((msg.time_usec / 1000.0, *values))
+        elif mtype == "HEARTBEAT" and msg.get_srcComponent() == _AUTOPILOT_COMPONENT:
+            armed = float(bool(msg.base_mode & common.MAV_MODE_FLAG_SAFETY_ARMED))
+            beats.setdefault(sysid, []).append((t_rec * 1000.0, armed, float(msg.custom_mode)))
         elif mtype == "STATUSTEXT":
             text = _statustext(msg, sysid, chunks)
             if text is not None:
                 texts.append(StatusText(t_rec, sysid, int(msg.severity), text))
     vehicles = {
-        s: _track(pos.get(s, []), att.get(s, []), act.get(s, []), agent.get(s, []))
+        s: _track(
+            pos.get(s, []), att.get(s, []), act.get(s, []), agent.get(s, []), beats.get(s, [])
+        )
         for s in sorted(set(pos) | set(att) | set(act) | set(agent))
     }
     return TlogTrack(vehicles, texts, bad)
@@ -348,10 +360,12 @@ def _track(
     att: list[tuple[float, ...]],
     act: list[tuple[float, ...]],
     agent: list[tuple[float, ...]],
+    beats: list[tuple[float, ...]],
 ) -> VehicleTrack:
     """Rows ``(time ms, values...)`` of each message, sorted by time, as a track."""
     p, a, f = _by_time(pos, 7), _by_time(att, 7), _by_time(act, 1 + ACTUATOR_ROTORS)
     st = _by_time(agent, 1 + AGENT_STATUS_VALUES)
+    hb = _by_time(beats, 3)
     return VehicleTrack(
         t_s=p[:, 0] / 1000.0,
         position_ned_m=p[:, 1:4],
@@ -363,6 +377,9 @@ def _track(
         rotor_forces_n=f[:, 1:],
         status_t_s=st[:, 0] / 1000.0,
         status=st[:, 1:],
+        heartbeat_t_s=hb[:, 0] / 1000.0,
+        armed=hb[:, 1] > 0.5,
+        custom_mode=hb[:, 2].astype(np.int64),
     )
 
 

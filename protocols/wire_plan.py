@@ -38,12 +38,20 @@ _FIXED = struct.Struct("<IBH")
 _SEGMENT = N_DESCRIPTORS * N_COEFFS
 
 
+#: Under a LAND plan the agents fly the formation down until the plan's commanded centre
+#: altitude is at or below this (m), then hand their vehicles to the autopilot's LAND mode, which
+#: sinks at its land speed (0.7 m/s by default), detects touchdown and disarms.
+LAND_HANDOVER_ALTITUDE_M = 1.0
+
+
 class FlightCommand(IntEnum):
     """What the plan tells the agents to do with their vehicles."""
 
-    GROUND = 0  #: stay disarmed on the ground (consensus runs)
+    GROUND = 0  #: stay disarmed on the ground (consensus runs); airborne vehicles land
     FLY = 1  #: arm once converged and follow the trajectory
-    LAND = 2  #: descend and disarm
+    #: follow the trajectory (gcs.planner.land: stop, level, descend) down to
+    #: LAND_HANDOVER_ALTITUDE_M, then autopilot LAND: touchdown, disarm
+    LAND = 2
 
 
 _COMMANDS = frozenset(int(c) for c in FlightCommand)

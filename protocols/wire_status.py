@@ -54,9 +54,10 @@ class AgentMode(IntEnum):
     WARMUP = 1  #: consensus running on the ground, not armed
     READY = 2  #: converged; arms when the plan says fly
     FLYING = 3
-    LANDING = 4
-    HOLDING = 5  #: plan finished or ground station lost: holds its place
+    LANDING = 4  #: flying the landing plan down, or handed to the autopilot's LAND mode
+    HOLDING = 5  #: no valid setpoint in the air: the autopilot holds its altitude
     LEAVING = 6  #: lost its vehicle; leaving the swarm
+    LANDED = 7  #: back on the ground and disarmed after a landing; takes off on a FLY plan
 
 
 class Health(IntFlag):

@@ -89,3 +89,17 @@ def test_commands_make_the_next_plan_or_are_refused() -> None:
         apply_command(Request("rotate", {"delta_deg": 90.0, "duration_s": 0.5}), current, 5.0, env)
     with pytest.raises(PlanRefused, match="positive"):
         apply_command(Request("scale", {"factor": 0.0}), current, 5.0, env)
+
+
+def test_land_twice_is_refused_and_hold_stops_a_descent_only_high_up() -> None:
+    current, env = _plan(), Envelope()
+    landing = apply_command(Request("land", {}), current, 5.0, env)
+    with pytest.raises(PlanRefused, match="already landing"):
+        apply_command(Request("land", {}), landing, 6.0, env)
+    # early in the descent (still near the hover altitude): hold stops it and flies on
+    held = apply_command(Request("hold", {}), landing, 6.0, env)
+    assert held.command == FlightCommand.FLY
+    assert held.trajectory.evaluate(held.trajectory.end_s)[0][2] < -1.5
+    # near the ground: the vehicles are about to be handed to LAND, a hold is refused
+    with pytest.raises(PlanRefused, match="touching down"):
+        apply_command(Request("hold", {}), landing, landing.trajectory.end_s, env)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from gcs.planner import Envelope, PlanRefused, formation_target, goal_of, hold, plan_to
+from gcs.planner import Envelope, PlanRefused, formation_target, goal_of, hold, land, plan_to
 from protocols.trajectory import DescriptorTrajectory, Waypoint
 
 ENV = Envelope(fence_north_m=(-50.0, 50.0), fence_east_m=(-50.0, 50.0))
@@ -94,3 +94,33 @@ def test_hold_comes_to_rest() -> None:
     _, rate, _ = stopped.evaluate(stopped.end_s)
     np.testing.assert_allclose(rate, 0.0, atol=1e-9)
     assert stopped.evaluate(stopped.end_s)[0][0] < 30.0
+
+
+def test_land_stops_levels_flattens_and_descends_gently_to_the_ground() -> None:
+    tilted = HOVER + np.r_[30.0, 0, 0, 0.2, 0.1, 0, 0, 0, 1.0]  # moving north, tilted, thick
+    plan = plan_to(_hover_plan(), 12.0, tilted, ENV)
+    mid = 12.0 + (plan.end_s - 12.0) / 2
+    landing = land(plan, mid, ENV)
+    assert landing.seq == plan.seq + 1
+    np.testing.assert_allclose(landing.evaluate(mid - 1.0)[0], plan.evaluate(mid - 1.0)[0])
+    end, rate, acc = landing.evaluate(landing.end_s)
+    assert end[2] == pytest.approx(0.0, abs=1e-9)  # on the ground
+    np.testing.assert_allclose(end[[3, 4, 8]], 0.0, atol=1e-9)  # level and flat
+    np.testing.assert_allclose(rate, 0.0, atol=1e-9)
+    np.testing.assert_allclose(acc, 0.0, atol=1e-9)
+    t = np.linspace(mid, landing.end_s, 4000)
+    a, rates, accs = landing.evaluate_many(t)
+    assert rates[:, 2].max() <= ENV.max_descent_m_s * 1.001  # sink rate (NED z grows)
+    assert np.linalg.norm(accs[:, :3], axis=1).max() <= ENV.max_accel_m_s2 * 1.001
+    # it stops before it descends: no horizontal motion below 2 m
+    low = -a[:, 2] < 2.0
+    assert np.abs(rates[low, :2]).max() < 1e-6
+    assert -a[:, 2].min() >= -1e-9  # never below the ground
+
+
+def test_land_is_never_refused_even_outside_the_fence() -> None:
+    far = DescriptorTrajectory.from_waypoints(
+        [Waypoint(0.0, HOVER + np.r_[80.0, 0, 0, 0, 0, 0, 0, 0, 0])]
+    )
+    landing = land(far, 3.0, ENV)
+    assert landing.evaluate(landing.end_s)[0][2] == pytest.approx(0.0, abs=1e-9)

@@ -1,0 +1,150 @@
+"""The agent's flight phases (drone_agent/flight_phase.py): the safety invariant over every flight
+command, agent phase and vehicle state, and the landing and take-off sequences."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from drone_agent.agent_core import Setpoint
+from drone_agent.flight_phase import (
+    AIRBORNE_ALTITUDE_M,
+    FlightPhase,
+    Request,
+    VehicleView,
+)
+from drone_agent.thrust_attitude import ThrustLimits
+from protocols.frames import G_M_S2
+from protocols.wire_plan import LAND_HANDOVER_ALTITUDE_M, FlightCommand
+from protocols.wire_status import AgentMode
+
+LIMITS = ThrustLimits(mass_kg=0.34, max_thrust_n=2 * 0.34 * G_M_S2)
+MIN_THRUST = LIMITS.thrust_range_n[0] / LIMITS.max_thrust_n
+FORMATION = Setpoint(0.05, -0.1, 0.3, 0.55, False)
+#: A setpoint a broken core might produce: it must never reach an airborne vehicle.
+ZERO = Setpoint(0.0, 0.0, 0.0, 0.0, False)
+
+
+def _vehicle(armed: bool, mode: str, altitude_m: float) -> VehicleView:
+    return VehicleView(
+        armed=armed,
+        in_offboard=mode == "offboard",
+        in_land=mode == "land",
+        in_hold=mode == "hold",
+        altitude_m=altitude_m,
+    )
+
+
+def _phase(history: str) -> FlightPhase:
+    """A phase object in one of its internal states, reached the way an agent reaches it."""
+    phase = FlightPhase(LIMITS)
+    flying = _vehicle(True, "offboard", 5.0)
+    if history in ("committed", "handed_over", "landed"):
+        phase.decide(FlightCommand.FLY, True, True, FORMATION, 5.0, flying, 0.0)
+    if history in ("handed_over", "landed"):
+        phase.decide(FlightCommand.LAND, True, True, FORMATION, 0.5, flying, 0.0)
+    if history == "landed":
+        phase.decide(FlightCommand.LAND, True, True, FORMATION, 0.0, _vehicle(False, "hold", 0), 0)
+    return phase
+
+
+VEHICLES = [
+    _vehicle(armed, mode, alt)
+    for armed, mode, alt in itertools.product(
+        (False, True), ("offboard", "land", "hold", "other"), (0.0, 0.05, 0.5, 1.5, 30.0)
+    )
+]
+
+
+@pytest.mark.parametrize("history", ["fresh", "committed", "handed_over", "landed"])
+@pytest.mark.parametrize("command", list(FlightCommand))
+def test_an_airborne_vehicle_is_never_sent_less_than_the_minimum_thrust(
+    history: str, command: FlightCommand
+) -> None:
+    """Every command x agent phase x (armed, mode, altitude) x core setpoint x readiness x
+    commanded altitude: an armed or airborne vehicle always gets at least the minimum thrust;
+    zero thrust goes only to a disarmed vehicle on the ground."""
+    cases = itertools.product(
+        VEHICLES, (None, FORMATION, ZERO), (False, True), (False, True), (0.0, 0.8, 5.0)
+    )
+    for vehicle, setpoint, arm_allowed, converged, commanded in cases:
+        phase = _phase(history)
+        order = phase.decide(command, arm_allowed, converged, setpoint, commanded, vehicle, 0.2)
+        thrust = order.setpoint.thrust_normalised
+        context = (history, command, vehicle, setpoint, arm_allowed, converged, commanded, order)
+        if vehicle.armed or vehicle.altitude_m > AIRBORNE_ALTITUDE_M:
+            assert thrust >= MIN_THRUST, context
+        else:
+            assert order.request in (Request.NONE, Request.ARM_OFFBOARD), context
+        if thrust == 0.0:
+            assert not vehicle.armed and vehicle.altitude_m <= AIRBORNE_ALTITUDE_M, context
+
+
+def test_land_follows_the_formation_down_then_hands_over_and_lands() -> None:
+    phase = _phase("committed")
+    flying = _vehicle(True, "offboard", 4.0)
+    # high up: the formation flies the landing plan down (the core's setpoint, no request)
+    order = phase.decide(FlightCommand.LAND, True, True, FORMATION, 4.0, flying, 0.0)
+    assert order.mode == AgentMode.LANDING and order.setpoint == FORMATION
+    assert order.request == Request.NONE
+    # the plan reaches the hand-over altitude: the autopilot's LAND mode is asked for
+    low = _vehicle(True, "offboard", LAND_HANDOVER_ALTITUDE_M)
+    order = phase.decide(FlightCommand.LAND, True, True, FORMATION, 0.99, low, 0.0)
+    assert order.request == Request.LAND_MODE and order.setpoint == FORMATION
+    assert phase.handed_over
+    # in LAND: hover-level setpoints only acknowledge the tick
+    order = phase.decide(
+        FlightCommand.LAND, True, True, FORMATION, 0.5, _vehicle(True, "land", 0.4), 0
+    )
+    assert order.mode == AgentMode.LANDING and order.request == Request.NONE
+    assert order.setpoint.thrust_normalised == pytest.approx(0.5)
+    # touchdown, disarmed by the autopilot: LANDED, zero thrust
+    ground = _vehicle(False, "hold", 0.0)
+    order = phase.decide(FlightCommand.LAND, True, True, FORMATION, 0.0, ground, 0.0)
+    assert order.mode == AgentMode.LANDED and order.setpoint.thrust_normalised == 0.0
+    assert not phase.committed and not phase.handed_over
+    # take-off: a FLY plan arms it again
+    order = phase.decide(FlightCommand.FLY, True, True, FORMATION, 0.0, ground, 0.0)
+    assert order.mode == AgentMode.READY and order.request == Request.ARM_OFFBOARD
+    order = phase.decide(
+        FlightCommand.FLY, True, True, FORMATION, 0.2, _vehicle(True, "offboard", 0.1), 0
+    )
+    assert order.mode == AgentMode.FLYING and order.setpoint == FORMATION
+
+
+def test_a_low_vehicle_or_one_without_a_setpoint_is_handed_over_at_once() -> None:
+    for vehicle, setpoint in ((_vehicle(True, "offboard", 0.2), FORMATION),
+                              (_vehicle(True, "offboard", 8.0), None)):  # fmt: skip
+        phase = _phase("committed")
+        order = phase.decide(FlightCommand.LAND, True, True, setpoint, 8.0, vehicle, 0.0)
+        assert order.request == Request.LAND_MODE, (vehicle, setpoint)
+
+
+def test_take_off_in_mid_descent_takes_the_vehicle_back_from_land() -> None:
+    phase = _phase("handed_over")
+    order = phase.decide(
+        FlightCommand.FLY, True, True, FORMATION, 0.7, _vehicle(True, "land", 0.7), 0
+    )
+    assert order.mode == AgentMode.FLYING and order.request == Request.ARM_OFFBOARD
+    assert order.setpoint == FORMATION
+
+
+def test_fly_without_a_valid_setpoint_in_the_air_asks_the_autopilot_to_hold() -> None:
+    phase = _phase("committed")
+    order = phase.decide(FlightCommand.FLY, True, True, None, 5.0, _vehicle(True, "offboard", 5), 0)
+    assert order.mode == AgentMode.HOLDING and order.request == Request.HOLD_MODE
+    assert order.setpoint.thrust_normalised == pytest.approx(0.5)
+
+
+def test_on_the_ground_it_waits_for_convergence_and_the_fly_command() -> None:
+    phase = FlightPhase(LIMITS)
+    ground = _vehicle(False, "hold", 0.0)
+    assert phase.decide(FlightCommand.FLY, True, False, FORMATION, 0, ground, 0).mode == (
+        AgentMode.WARMUP
+    )
+    assert phase.decide(FlightCommand.GROUND, True, True, FORMATION, 0, ground, 0).mode == (
+        AgentMode.READY
+    )
+    no_arm = phase.decide(FlightCommand.FLY, False, True, FORMATION, 0, ground, 0)
+    assert no_arm.request == Request.NONE and no_arm.setpoint.thrust_normalised == 0.0
