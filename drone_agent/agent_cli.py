@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import signal
-import socket
 import sys
 import time
 from collections.abc import Callable
@@ -22,7 +21,7 @@ from drone_agent.link_faults import FaultyTransport, LinkFaults
 from drone_agent.transport import AgentTransport, Bus, Position
 from drone_agent.transport_link import AgentLink, LinkSettings
 from drone_agent.vehicle_link import VehicleLink
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
+from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, tcp_listen_free
 from protocols.mavlink_conventions import DEFAULT_BASE_PORT
 from protocols.mavlink_signing import SigningKeyError, load_signing_key
 from protocols.scenario import Scenario, ScenarioError, load_scenario
@@ -121,7 +120,7 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
     """The session settings: the flags, or the embedded loopback rendezvous by default."""
     listen, connect = args.zenoh_listen, args.zenoh_connect
     if listen is None and connect is None:
-        if _port_free(RENDEZVOUS_PORT):
+        if tcp_listen_free(RENDEZVOUS_PORT):
             listen, connect = [f"tcp/127.0.0.1:{RENDEZVOUS_PORT}"], []
         else:
             listen, connect = ["tcp/127.0.0.1:0"], [f"tcp/127.0.0.1:{RENDEZVOUS_PORT}"]
@@ -133,15 +132,6 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
         )
     except ValueError as exc:
         raise AgentCliError(str(exc)) from None
-
-
-def _port_free(port: int) -> bool:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
 
 
 def _default_config(control_hz: int = 50) -> AgentConfig:

@@ -103,6 +103,20 @@ def open_client(endpoint: str) -> ZenohBus:
         raise ConnectionError(f"nothing reachable at {endpoint}") from None
 
 
+def tcp_listen_free(port: int, host: str = "127.0.0.1") -> bool:
+    """Whether a Zenoh session could listen on TCP ``host:port`` now: nobody listens there.
+
+    Bound with SO_REUSEADDR as Zenoh binds its listeners, so the TIME_WAIT connections a swarm
+    that just ended leaves on its port (for a minute) do not count as busy."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
 def free_loopback_endpoint() -> str:
     """``tcp/127.0.0.1:<port>`` with a port that was free a moment ago (for tests and tools)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:

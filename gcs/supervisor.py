@@ -115,13 +115,9 @@ def rendezvous_port() -> int:
     """The agents' default rendezvous port (where ``swarm status`` etc. look by default) if it is
     free, else any free TCP port."""
     from drone_agent.agent_cli import RENDEZVOUS_PORT
+    from drone_agent.zenoh_transport import tcp_listen_free
 
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        try:
-            s.bind(("127.0.0.1", RENDEZVOUS_PORT))
-        except OSError:
-            return free_tcp_port()
-    return RENDEZVOUS_PORT
+    return RENDEZVOUS_PORT if tcp_listen_free(RENDEZVOUS_PORT) else free_tcp_port()
 
 
 def check_udp_ports(first: int, count: int, what: str) -> None:
