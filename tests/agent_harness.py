@@ -90,17 +90,20 @@ class Seen:
 @dataclass
 class SwarmObserver:
     """A Zenoh peer that listens on ``endpoint`` (the agents connect to it) and records every
-    agent's status and liveliness."""
+    agent's status and liveliness of swarm ``swarm_id``; with ``connect`` it also joins a swarm
+    that listens there (e.g. ``swarm up``'s default tcp/127.0.0.1:7447)."""
 
     endpoint: str = field(default_factory=free_loopback_endpoint)
+    swarm_id: str = SWARM
+    connect: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         self._lock = threading.Lock()
         self.latest: dict[int, Seen] = {}
         self.alive: dict[int, bool] = {}
         self.changes: list[tuple[float, int, bool]] = []
-        self.bus = ZenohBus.open(ZenohSettings(listen=(self.endpoint,)))
-        keys = SwarmKeys.for_range(SWARM, 10.0)
+        self.bus = ZenohBus.open(ZenohSettings(listen=(self.endpoint,), connect=self.connect))
+        keys = SwarmKeys.for_range(self.swarm_id, 10.0)
         self._keys = keys
         self._subs = [
             self.bus.subscribe_callback(keys.status_all(), self._on_status),
@@ -114,7 +117,7 @@ class SwarmObserver:
 
     def _on_status(self, _key: str, payload: bytes) -> None:
         try:
-            status = decode_status(payload, SWARM)
+            status = decode_status(payload, self.swarm_id)
         except ValueError:
             return
         with self._lock:
@@ -145,8 +148,8 @@ class SwarmObserver:
 
 
 @contextlib.contextmanager
-def observer() -> Iterator[SwarmObserver]:
-    obs = SwarmObserver()
+def observer(swarm_id: str = SWARM, connect: tuple[str, ...] = ()) -> Iterator[SwarmObserver]:
+    obs = SwarmObserver(swarm_id=swarm_id, connect=connect)
     try:
         yield obs
     finally:

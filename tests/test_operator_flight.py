@@ -1,0 +1,283 @@
+"""Operator commands flown end to end, typed as a user types them, on a flying swarm started by
+``swarm up``, in lockstep and in realtime; every result is read back from the ground station's
+flight.tlog and events.jsonl (what happened to the vehicles), not from the replies.
+
+- The paper's swarm, with the README's plain commands and default ports: ``swarm up
+  scenarios/paper.toml`` then ``swarm land`` (every vehicle comes down under control, touches
+  down at most 1 m/s, disarms, no crash) and ``swarm takeoff`` (they fly again).
+- A 3 x 3 swarm through every plan command: takeoff, formation, move, rotate, scale, hold, land
+  and takeoff again, each checked against what was typed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from agent_harness import GRID, SwarmObserver, observer, truth_of, write_scenario
+from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
+
+from gcs.events import read_events
+from gcs.tlog import TlogTrack, VehicleTrack, read_tlog
+from protocols.descriptors import descriptors
+from protocols.wire_status import AgentMode
+
+pytestmark = pytest.mark.slow
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+#: The issue's bar on touchdown speed (m/s).
+TOUCHDOWN_LIMIT_M_S = 1.0
+ON_GROUND_M = 0.05
+
+
+@dataclass
+class Run:
+    """A ``swarm up`` process and where its report goes; ``args`` finish an operator command."""
+
+    proc: subprocess.Popen[bytes]
+    report: Path
+    obs: SwarmObserver
+    args: tuple[str, ...] = ()
+
+    def command(self, *words: str) -> str:
+        """An operator command typed as a user types it; its output (asserting it succeeded)."""
+        out = subprocess.run(
+            swarm_command(*words, *self.args),
+            capture_output=True,
+            text=True,
+            env=ENV,
+            cwd=ROOT,
+            timeout=30,
+        )
+        assert out.returncode == 0, f"swarm {' '.join(words)}: {out.stdout}{out.stderr}"
+        assert "accepted" in out.stdout, out.stdout
+        return out.stdout
+
+    def now_s(self) -> float:
+        """The newest simulated time an agent reported."""
+        return max((s.t_s for s in self.obs.statuses().values()), default=-1.0)
+
+    def wait_t(self, t_s: float, timeout_s: float = 120.0) -> None:
+        assert self.obs.wait_until(lambda: self.now_s() >= t_s, timeout_s), (t_s, self.now_s())
+
+    def wait_modes(self, drones: range, mode: AgentMode, timeout_s: float) -> None:
+        def all_in_mode() -> bool:
+            st = self.obs.statuses()
+            return all(d in st and st[d].mode == mode for d in drones)
+
+        modes = lambda: {d: s.mode.name for d, s in self.obs.statuses().items()}  # noqa: E731
+        assert self.obs.wait_until(all_in_mode, timeout_s), (mode, modes(), self.now_s())
+
+    def finish(self, timeout_s: float = 240.0) -> tuple[TlogTrack, list[dict[str, object]]]:
+        out, _ = self.proc.communicate(timeout=timeout_s)
+        text = out.decode(errors="replace")
+        assert self.proc.returncode == 0, text[-3000:]
+        return read_tlog(self.report / "flight.tlog"), read_events(self.report / "events.jsonl")
+
+
+def _start(cmd: list[str], cwd: Path, report: Path, obs: SwarmObserver, *args: str) -> Run:
+    proc = subprocess.Popen(
+        swarm_command(*cmd), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=ENV, cwd=cwd
+    )
+    return Run(proc, report, obs, args)
+
+
+def _stop(run: Run) -> None:
+    if run.proc.poll() is None:
+        run.proc.kill()
+        run.proc.wait(10)
+
+
+# -- what flight.tlog says ----------------------------------------------------------------------
+def _command_time(events: list[dict[str, object]], name: str, nth: int = 0) -> float:
+    times = [float(e["t_s"]) for e in events if e["kind"] == "command" and e["command"] == name]  # type: ignore[arg-type]
+    return times[nth]
+
+
+def _sample(track: VehicleTrack, t_s: float) -> int:
+    k = int(np.searchsorted(track.t_s, t_s, side="right")) - 1
+    assert k >= 0 and t_s - track.t_s[k] < 0.2, (t_s, track.t_s[-1])
+    return k
+
+
+def _armed_at(track: VehicleTrack, t_s: float) -> bool:
+    k = int(np.searchsorted(track.heartbeat_t_s, t_s, side="right")) - 1
+    assert k >= 0
+    return bool(track.armed[k])
+
+
+def _positions(track: TlogTrack, drones: int, t_s: float) -> np.ndarray:
+    return np.array([track.vehicles[i + 1].position_ned_m[_sample(track.vehicles[i + 1], t_s)]
+                     for i in range(drones)])  # fmt: skip
+
+
+def assert_landed_safely(track: TlogTrack, drones: int, t_land: float, t_check: float) -> None:
+    """Between ``t_land`` and ``t_check`` every vehicle came down at most TOUCHDOWN_LIMIT_M_S, and
+    at ``t_check`` it rests on the ground, disarmed."""
+    for sysid in range(1, drones + 1):
+        v = track.vehicles[sysid]
+        window = (v.t_s >= t_land) & (v.t_s <= t_check)
+        altitude = -v.position_ned_m[window, 2]
+        sink = v.velocity_ned_m_s[window, 2]
+        near_ground = altitude < 0.5
+        assert near_ground.any(), (sysid, altitude.min())
+        touchdown = float(sink[near_ground].max())
+        assert touchdown <= TOUCHDOWN_LIMIT_M_S, (sysid, touchdown)
+        assert abs(altitude[-1]) < ON_GROUND_M, (sysid, altitude[-1])
+        assert not _armed_at(v, t_check), sysid
+    texts = [t for t in track.statustexts if t.text == "Landed, disarmed"]
+    assert {t.sysid for t in texts} == set(range(1, drones + 1)), texts
+
+
+def assert_no_crash(events: list[dict[str, object]]) -> None:
+    bad = [e for e in events if e["kind"] in ("crash", "failsafe", "dropout_detected")]
+    assert bad == [], bad
+
+
+# -- the paper's swarm, as the README types it ------------------------------------------------
+@pytest.mark.parametrize("clock", ["lockstep", "realtime"])
+def test_land_then_take_off_the_flying_paper_swarm(tmp_path: Path, clock: str) -> None:
+    """``swarm up scenarios/paper.toml`` (default ports and endpoint; the scenario's crash at 30 s
+    lies after the run), ``swarm land`` once it flies, ``swarm takeoff --altitude-m 5`` once every
+    agent reports LANDED."""
+    cmd = ["up", str(ROOT / "scenarios" / "paper.toml"), "--duration-s", "29"]
+    if clock == "realtime":
+        cmd += ["--clock", "realtime"]
+    proc = subprocess.Popen(
+        swarm_command(*cmd), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=ENV, cwd=tmp_path
+    )
+    report = tmp_path / "report"  # the default ./report
+    run_file = report / "logs" / "run.json"
+    deadline = time.monotonic() + 60.0
+    while not run_file.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.1)
+    # the endpoint every operator command uses by default
+    assert json.loads(run_file.read_text())["zenoh"] == DEFAULT_ENDPOINT
+    with observer(swarm_id="swarm", connect=(DEFAULT_ENDPOINT,)) as obs:
+        run = Run(proc, report, obs)
+        try:
+            run.wait_modes(range(9), AgentMode.FLYING, 90.0)
+            run.wait_t(9.0)
+            assert "plan 1" in run.command("land")
+            run.wait_modes(range(9), AgentMode.LANDED, 60.0)
+            run.command("takeoff", "--altitude-m", "5")
+            track, events = run.finish()
+        finally:
+            _stop(run)
+    assert_no_crash(events)
+    t_land, t_up = _command_time(events, "land"), _command_time(events, "takeoff")
+    assert_landed_safely(track, 9, t_land, t_up)
+    hard = [t for t in track.statustexts if "Hard landing" in t.text or "Crashed" in t.text]
+    assert hard == []
+    # flying again at the end: armed, near 5 m
+    for sysid in range(1, 10):
+        v = track.vehicles[sysid]
+        assert _armed_at(v, v.t_s[-1]), sysid
+        assert -v.position_ned_m[-1, 2] == pytest.approx(5.0, abs=0.3), sysid
+
+
+# -- every plan command on a 3 x 3 swarm ------------------------------------------------------
+GRID_TRUTH = truth_of(GRID)
+GRID_CENTRE = (float(GRID_TRUTH[0]), float(GRID_TRUTH[1]), -3.0)
+GRID_SPREAD = (math.sqrt(GRID_TRUTH[6]), math.sqrt(GRID_TRUTH[7]), 0.0)
+#: (sim time to type it, command words)
+SEQUENCE: list[tuple[float, tuple[str, ...]]] = [
+    (12.0, ("takeoff", "--altitude-m", "6")),
+    (22.0, ("formation", "--heading-deg", "30", "--length-m", "3", "--width-m", "2")),
+    (36.0, ("move", "--north-m", "5")),
+    (48.0, ("rotate", "--delta-deg", "-30")),
+    (61.0, ("scale", "--factor", "1.2")),
+    (72.0, ("move", "--north-m", "10")),
+    (74.0, ("hold",)),
+    (82.0, ("land",)),
+]
+TAKEOFF_AGAIN_ALTITUDE_M = 4.0
+DURATION_S = 110.0
+
+
+def _descriptors_at(track: TlogTrack, t_s: float, heading_deg: float) -> np.ndarray:
+    desired = np.zeros(9)
+    desired[5] = math.radians(heading_deg)
+    return descriptors(_positions(track, 9, t_s), desired)
+
+
+def _assert_formation(
+    a: np.ndarray,
+    centre: tuple[float, float, float],
+    heading_deg: float,
+    spread: tuple[float, float],
+    what: str,
+) -> None:
+    np.testing.assert_allclose(a[:3], centre, atol=0.05, err_msg=what)
+    assert math.degrees(a[5]) == pytest.approx(heading_deg, abs=3.0), what
+    np.testing.assert_allclose(np.sqrt(a[6:8]), spread, rtol=0.03, err_msg=what)
+    assert math.sqrt(max(a[8], 0.0)) < 0.05, what  # the height stays flat
+
+
+@pytest.mark.parametrize("clock", ["lockstep", "realtime"])
+def test_every_operator_command_flies_as_typed(tmp_path: Path, clock: str) -> None:
+    scenario = write_scenario(
+        tmp_path / "grid.toml",
+        GRID,
+        centre=GRID_CENTRE,
+        spread=GRID_SPREAD,
+        duration_s=DURATION_S,
+        settle_s=10.0,
+    )
+    base, gcs_port = free_port_block(9), free_udp_port()
+    report = tmp_path / "report"
+    with observer(swarm_id="ops") as obs:
+        cmd = ["up", str(scenario), "--report", str(report), "--clock", clock,
+               "--agents-per-process", "9", "--base-port", str(base), "--gcs-port", str(gcs_port),
+               "--swarm-id", "ops", "--zenoh-connect", obs.endpoint]  # fmt: skip
+        run = _start(cmd, ROOT, report, obs, "--swarm-id", "ops", "--zenoh-connect", obs.endpoint)
+        try:
+            run.wait_modes(range(9), AgentMode.FLYING, 90.0)
+            for t_s, words in SEQUENCE:
+                run.wait_t(t_s)
+                run.command(*words)
+            run.wait_modes(range(9), AgentMode.LANDED, 60.0)
+            landed_at = run.now_s()
+            run.command("takeoff", "--altitude-m", str(TAKEOFF_AGAIN_ALTITUDE_M))
+            track, events = run.finish()
+        finally:
+            _stop(run)
+    assert_no_crash(events)
+    c0 = GRID_CENTRE
+    l0, w0 = GRID_SPREAD[0], GRID_SPREAD[1]
+    # takeoff to 6 m: the centre climbs, nothing else changes
+    a = _descriptors_at(track, 21.5, 0.0)
+    _assert_formation(a, (c0[0], c0[1], -6.0), 0.0, (l0, w0), "takeoff --altitude-m 6")
+    # formation: heading 30 deg, spreads 3 m x 2 m
+    a = _descriptors_at(track, 35.5, 30.0)
+    _assert_formation(a, (c0[0], c0[1], -6.0), 30.0, (3.0, 2.0), "formation")
+    # move 5 m north
+    a = _descriptors_at(track, 47.5, 30.0)
+    _assert_formation(a, (c0[0] + 5, c0[1], -6.0), 30.0, (3.0, 2.0), "move --north-m 5")
+    # rotate back by 30 deg
+    a = _descriptors_at(track, 60.5, 0.0)
+    _assert_formation(a, (c0[0] + 5, c0[1], -6.0), 0.0, (3.0, 2.0), "rotate --delta-deg -30")
+    # scale by 1.2
+    a = _descriptors_at(track, 71.5, 0.0)
+    _assert_formation(a, (c0[0] + 5, c0[1], -6.0), 0.0, (3.6, 2.4), "scale --factor 1.2")
+    # hold during a 10 m move: the swarm stops short of it and stays there
+    t_hold = _command_time(events, "hold")
+    a1, a2 = _descriptors_at(track, 79.0, 0.0), _descriptors_at(track, 81.5, 0.0)
+    assert c0[0] + 5.1 < a1[0] < c0[0] + 8.0, a1[:3]
+    assert np.linalg.norm(a2[:3] - a1[:3]) < 0.03, (a1[:3], a2[:3])
+    assert t_hold > 73.5
+    # land: everybody down, gently, disarmed
+    t_land, t_up = _command_time(events, "land"), _command_time(events, "takeoff", 1)
+    assert t_up >= landed_at - 0.5
+    assert_landed_safely(track, 9, t_land, t_up)
+    # take off again: the same formation, 4 m up, over where it landed
+    a = _descriptors_at(track, DURATION_S - 1.0, 0.0)
+    _assert_formation(
+        a, (a2[0], a2[1], -TAKEOFF_AGAIN_ALTITUDE_M), 0.0, (3.6, 2.4), "takeoff after landing"
+    )
+    assert all(_armed_at(v, v.t_s[-1]) for v in track.vehicles.values())
