@@ -16,7 +16,7 @@ from drone_agent.agent_core import AgentConfig
 from drone_agent.config import agent_config
 from drone_agent.fault_drills import FaultDrills
 from drone_agent.host import AgentHost, DroneIdError, parse_drone_ids
-from drone_agent.hosted_agent import RunOptions
+from drone_agent.hosted_agent import HostedAgent, RunOptions
 from drone_agent.link_faults import FaultyTransport, LinkFaults
 from drone_agent.transport import AgentTransport, Bus, Position
 from drone_agent.transport_link import AgentLink, LinkSettings
@@ -223,8 +223,16 @@ def run(args: argparse.Namespace) -> int:
     def report(h: AgentHost) -> None:
         print(_status_line(h, config.consensus.dt_s), file=sys.stderr, flush=True)
 
+    def left(agent: HostedAgent) -> None:  # always said, --quiet or not
+        t_s = max(agent.last_tick, 0) * config.consensus.dt_s
+        print(
+            f"agents: drone {agent.drone} left the swarm at t={t_s:.2f}s: {agent.leave_reason}",
+            file=sys.stderr,
+            flush=True,
+        )
+
     try:
-        host.run(on_second=None if args.quiet else report, on_loop=each_loop)
+        host.run(on_second=None if args.quiet else report, on_loop=each_loop, on_leave=left)
     finally:
         live.close()
         host.close()

@@ -62,6 +62,7 @@ class _Slot:
     link: VehicleLink
     agent: HostedAgent | None = None
     greeted_at: float = -1e9
+    left_reported: bool = False
 
 
 class AgentHost:
@@ -103,9 +104,11 @@ class AgentHost:
         self,
         on_second: Callable[[AgentHost], None] | None = None,
         on_loop: Callable[[], None] | None = None,
+        on_leave: Callable[[HostedAgent], None] | None = None,
     ) -> None:
         """Serve every hosted agent until stopped or all have left the swarm; ``on_second`` runs
-        about once a second (wall clock), ``on_loop`` (cheap) before every pass over the agents."""
+        about once a second (wall clock), ``on_loop`` (cheap) before every pass over the agents,
+        ``on_leave`` once for each agent that leaves the swarm on its own."""
         last_report = self._clock()
         while not self._stop.is_set():
             if on_loop is not None:
@@ -121,6 +124,10 @@ class AgentHost:
                     self._greet(slot)
                 else:
                     slot.agent.service()
+                    if slot.agent.left and not slot.left_reported:
+                        slot.left_reported = True
+                        if on_leave is not None:
+                            on_leave(slot.agent)
             if self._slots and all(s.agent is not None and s.agent.left for s in self._slots):
                 break
             now = self._clock()

@@ -86,6 +86,7 @@ class HostedAgent:
         self.phase = FlightPhase(core.config.limits)
         self._members: frozenset[int] = frozenset()
         self.left = False
+        self.leave_reason = ""
 
     @property
     def drone(self) -> int:
@@ -131,10 +132,11 @@ class HostedAgent:
             self.sample is not None
             and now - self._last_sample_wall > self.options.vehicle_timeout_s
         ):
-            self.leave()
+            self.leave(f"no state from its vehicle for {self.options.vehicle_timeout_s:g} s")
             return
-        if self._vehicle_lost():
-            self.leave()
+        lost = self._vehicle_lost()
+        if lost is not None:
+            self.leave(lost)
             return
         self._collect()
         sample = self.sample
@@ -152,14 +154,19 @@ class HostedAgent:
             # on the simulated-time grid, so the ground station compares like with like
             self._publish_status()
 
-    def _vehicle_lost(self) -> bool:
-        """The vehicle says it is gone: an EMERGENCY status text (sent the moment its motors
+    def _vehicle_lost(self) -> str | None:
+        """Why the vehicle is gone, or None: an EMERGENCY status text (sent the moment its motors
         fail or it hits the ground too hard, long before the 1 Hz heartbeat), in emergency or
         termination state, or disarmed while we fly it (not after we handed it to LAND)."""
         status = self.link.status
-        if status.emergency or status.system_status in LOST_STATES:
-            return True
-        return self.mode in _FLYING_MODES and not status.armed and not self.phase.handed_over
+        if status.emergency:
+            last = status.texts[-1] if status.texts else ""
+            return f"its vehicle reported an emergency ({last})" if last else "vehicle emergency"
+        if status.system_status in LOST_STATES:
+            return f"its vehicle is in state {status.system_status} (emergency or termination)"
+        if self.mode in _FLYING_MODES and not status.armed and not self.phase.handed_over:
+            return "its vehicle was disarmed in flight"
+        return None
 
     def _plan(self) -> tuple[DescriptorTrajectory | None, FlightCommand]:
         received = self.transport.plan()
@@ -288,9 +295,11 @@ class HostedAgent:
             )
         )
 
-    def leave(self) -> None:
-        """Leave the swarm: drop the liveliness token so every peer removes this drone."""
+    def leave(self, reason: str = "stopped") -> None:
+        """Leave the swarm: drop the liveliness token so every peer removes this drone;
+        ``leave_reason`` says why."""
         if not self.left:
             self.left = True
+            self.leave_reason = reason
             self.mode = AgentMode.LEAVING
             self.transport.close()

@@ -67,6 +67,10 @@ def test_agents_leave_when_their_vehicles_fall_silent(tmp_path: Path, sig: signa
             assert last_status < silenced + 0.5, last_status - silenced
             # nothing left to fly: the agent process ends by itself, cleanly
             assert agents.proc.wait(5.0) == 0, agents.log.read_text()[-2000:]
+            log = agents.log.read_text()
+            for d in (0, 1):  # and says why, even with --quiet
+                assert f"drone {d} left the swarm at t=" in log, log[-2000:]
+            assert f"no state from its vehicle for {TIMEOUT_S:g} s" in log, log[-2000:]
         finally:
             if sig == signal.SIGSTOP:
                 sim.proc.send_signal(signal.SIGCONT)  # so that it can be stopped normally
