@@ -25,12 +25,16 @@ from protocols.trajectory import DescriptorTrajectory
 
 @dataclass(frozen=True)
 class AgentConfig:
-    """What one agent needs to know: gains, limits, and the warm-up before it may arm."""
+    """What one agent needs to know: gains, limits, the warm-up before it may arm, and when its
+    estimate counts as settled: disagreement with its neighbours (ConsensusOutput) below
+    ``settle_tolerance`` for ``settle_ticks`` ticks in a row with the same membership."""
 
     consensus: ConsensusParams
     gains: CooperativeGains
     limits: ThrustLimits
     warmup_s: float = 3.0
+    settle_ticks: int = 25
+    settle_tolerance: float = 0.02
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
-from drone_agent.agent_core import Setpoint
+from drone_agent.agent_core import AgentConfig, AgentOutput, Setpoint
 from drone_agent.thrust_attitude import ThrustLimits
 from protocols.frames import G_M_S2
 from protocols.wire_plan import LAND_HANDOVER_ALTITUDE_M, FlightCommand
@@ -85,6 +85,29 @@ def idle_setpoint(yaw_rad: float) -> Setpoint:
 def hover_setpoint(limits: ThrustLimits, yaw_rad: float) -> Setpoint:
     """Level at ``yaw_rad`` with the thrust that carries the weight."""
     return Setpoint(0.0, 0.0, yaw_rad, limits.mass_kg * G_M_S2 / limits.max_thrust_n, False)
+
+
+class Settling:
+    """Whether an agent's estimate has settled, the condition to arm (with the plan's FLY):
+    warm-up over (``AgentOutput.ready_to_fly``) and the estimator agreeing with its neighbours
+    (disagreement below ``settle_tolerance``) for ``settle_ticks`` ticks in a row while the
+    membership stayed the same (a drone joining or leaving restarts the count). The same rule for
+    ``swarm simulate`` and every ``swarm agent``."""
+
+    def __init__(self, config: AgentConfig) -> None:
+        self.ticks = config.settle_ticks
+        self.tolerance = config.settle_tolerance
+        self.calm_ticks = 0
+        self._members: frozenset[int] | None = None
+        self.settled = False
+
+    def update(self, out: AgentOutput, members: frozenset[int]) -> bool:
+        """Take one tick's output and the membership; whether the estimate has settled."""
+        calm = out.disagreement < self.tolerance and members == self._members
+        self._members = members
+        self.calm_ticks = self.calm_ticks + 1 if calm else 0
+        self.settled = out.ready_to_fly and self.calm_ticks >= self.ticks
+        return self.settled
 
 
 class FlightPhase:

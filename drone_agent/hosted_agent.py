@@ -25,7 +25,7 @@ import numpy as np
 
 from drone_agent.agent_core import AgentCore, AgentOutput, Setpoint
 from drone_agent.consensus import ConsensusMessage
-from drone_agent.flight_phase import FlightPhase, Order, Request, VehicleView
+from drone_agent.flight_phase import FlightPhase, Order, Request, Settling, VehicleView
 from drone_agent.transport import AgentTransport
 from drone_agent.vehicle_link import VehicleLink, VehicleSample
 from protocols.descriptor_vector import CENTRE
@@ -52,8 +52,6 @@ class RunOptions:
     heartbeat_period_s: float = 1.0
     status_every_ticks: int = 2
     command_retry_s: float = 0.5
-    settle_ticks: int = 25
-    settle_tolerance: float = 0.02
 
 
 class HostedAgent:
@@ -82,9 +80,8 @@ class HostedAgent:
         self._last_sample_wall = wall_clock()
         self._last_heartbeat = -1e9
         self._last_command = -1e9
-        self._settled_ticks = 0
+        self.settling = Settling(core.config)
         self.phase = FlightPhase(core.config.limits)
-        self._members: frozenset[int] = frozenset()
         self.left = False
         self.leave_reason = ""
 
@@ -195,7 +192,7 @@ class HostedAgent:
         )
         self.last_output = out
         self.transport.publish_consensus(out.message, sample.position_ned_m)
-        self._track_settling(out)
+        self.settling.update(out, self.transport.members())
         commanded_altitude = -float(plan.evaluate(t_s)[0][CENTRE][2])
         self._carry_out(self._decide(command, out.setpoint, commanded_altitude, sample), sample)
 
@@ -248,24 +245,11 @@ class HostedAgent:
         elif order.request == Request.HOLD_MODE:
             self.link.set_hold()
 
-    def _track_settling(self, out: AgentOutput) -> None:
-        """Count the ticks the estimator has agreed with its neighbours while the membership
-        stayed the same (a drone joining or leaving restarts the count)."""
-        members = self.transport.members()
-        calm = out.disagreement < self.options.settle_tolerance and members == self._members
-        self._members = members
-        self._settled_ticks = self._settled_ticks + 1 if calm else 0
-
     @property
     def converged(self) -> bool:
-        """Warm-up over and the estimator agreeing with its neighbours (disagreement below
-        ``settle_tolerance``) for ``settle_ticks`` ticks; latched once the agent has decided to
+        """The estimate has settled (:class:`Settling`); latched once the agent has decided to
         fly (the neighbours' take-off must not send it back to the ground half-armed)."""
-        return self.phase.committed or (
-            self.last_output is not None
-            and self.last_output.ready_to_fly
-            and self._settled_ticks >= self.options.settle_ticks
-        )
+        return self.phase.committed or self.settling.settled
 
     def _publish_status(self) -> None:
         out = self.last_output

@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import itertools
 
+import numpy as np
 import pytest
 
-from drone_agent.agent_core import Setpoint
+from drone_agent.agent_core import AgentConfig, AgentOutput, Setpoint
 from drone_agent.flight_phase import (
     AIRBORNE_ALTITUDE_M,
     FlightPhase,
     Request,
+    Settling,
     VehicleView,
 )
 from drone_agent.thrust_attitude import ThrustLimits
@@ -148,3 +150,21 @@ def test_on_the_ground_it_waits_for_convergence_and_the_fly_command() -> None:
     )
     no_arm = phase.decide(FlightCommand.FLY, False, True, FORMATION, 0, ground, 0)
     assert no_arm.request == Request.NONE and no_arm.setpoint.thrust_normalised == 0.0
+
+
+def _output(disagreement: float, ready: bool = True) -> AgentOutput:
+    return AgentOutput(None, np.zeros(9), None, None, (), ready, disagreement)  # type: ignore[arg-type]
+
+
+def test_settling_needs_calm_ticks_with_a_steady_membership() -> None:
+    config = AgentConfig(None, None, LIMITS, settle_ticks=5, settle_tolerance=0.02)  # type: ignore[arg-type]
+    settling = Settling(config)
+    members = frozenset({0, 1, 2})
+    assert not any(settling.update(_output(0.001), members) for _ in range(5))  # 1st sets members
+    assert settling.update(_output(0.001), members)
+    assert not settling.update(_output(0.001), frozenset({0, 1}))  # a drone left: start again
+    assert not any(settling.update(_output(0.001), frozenset({0, 1})) for _ in range(4))
+    assert settling.update(_output(0.001), frozenset({0, 1}))
+    assert not settling.update(_output(0.05), frozenset({0, 1}))  # disagreeing again
+    calm_but_warming_up = [settling.update(_output(0.0, ready=False), members) for _ in range(9)]
+    assert not any(calm_but_warming_up)
