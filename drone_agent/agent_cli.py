@@ -197,12 +197,13 @@ def run(args: argparse.Namespace) -> int:
         raise
     except Exception as exc:  # zenoh raises ZError with the reason
         raise AgentCliError(f"cannot open the Zenoh session: {exc}") from None
-    rng = np.random.default_rng(args.seed)
 
     def transport(bus_: Bus, drone: int, position: Position) -> AgentTransport:
         # called once the host runs; ``host`` is bound by then
         inner = AgentLink(bus_, drone, position, settings)
-        return FaultyTransport(inner, faults, rng, lambda: _current_round(host))
+        return FaultyTransport(
+            inner, faults, fault_rng(args.seed, drone), lambda: _current_round(host)
+        )
 
     options = RunOptions(control_period_ms=period_ms, arm=not args.no_arm)
     host = AgentHost(drones, links, bus, transport, config, plan, options)
@@ -238,6 +239,14 @@ def run(args: argparse.Namespace) -> int:
         host.close()
         bus.close()
     return 0
+
+
+def fault_rng(seed: int, drone: int) -> np.random.Generator:
+    """The random stream of drone ``drone``'s link-fault drills (which of its messages a loss
+    drill drops): one per drone, so losses are independent across drones and agent processes
+    (one seed for every process drew the same drops everywhere: a loss drill then dropped the
+    two directions of a link together) and do not depend on which drones share a process."""
+    return np.random.default_rng((seed, drone))
 
 
 def host_round(host: AgentHost) -> Callable[[], int]:

@@ -138,9 +138,12 @@ class LinkCounters:
     plans_rejected: int = 0
 
     def status(self, rejected_setpoints: int = 0) -> StatusCounters:
-        """The counters an agent reports in its status."""
+        """The counters an agent reports in its status. Its ``rx`` counts what the radio
+        delivered: messages from beyond the communication range or dropped by a link fault (cut,
+        loss, partition) never reached the drone, so the ground station's link quality (received
+        over expected) shows them."""
         return StatusCounters(
-            rx=self.rx,
+            rx=self.rx - self.out_of_range - self.faults,
             rx_dropped_malformed=self.malformed,
             rx_dropped_wrong_swarm=self.wrong_swarm,
             rx_dropped_wrong_version=self.wrong_version,

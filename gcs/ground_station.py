@@ -90,7 +90,7 @@ class GroundStation:
         )
         self._statuses: deque[bytes] = deque(maxlen=10_000)
         self._liveliness: deque[tuple[str, bool]] = deque()
-        self.watch = SwarmWatch()
+        self.watch = SwarmWatch(range_m=options.scenario.comms.range_m)
         options.report_dir.mkdir(parents=True, exist_ok=True)
         self._closers: list[Callable[[], None]] = []
         try:
@@ -252,7 +252,7 @@ class GroundStation:
                 status = decode_status(self._statuses.popleft(), self._o.swarm_id)
             except WireError:
                 continue
-            self.watch.on_status(status)
+            self.watch.on_status(status, self.telemetry.vehicles)
             self.telemetry.log_agent_status(status)
         while self._liveliness:
             key, alive = self._liveliness.popleft()

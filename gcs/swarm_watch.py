@@ -42,18 +42,50 @@ class SwarmWatch:
     link_quality: dict[int, float] = field(default_factory=dict)
     #: drone -> failsafes its vehicle reported
     failsafes: dict[int, int] = field(default_factory=dict)
+    #: the radio's communication range (m); None: expect only the neighbours the agent lists
+    range_m: float | None = None
+    _smoothed_share: dict[int, float] = field(default_factory=dict, repr=False)
 
-    def on_status(self, status: AgentStatus) -> None:
+    def on_status(
+        self, status: AgentStatus, vehicles: Mapping[int, VehicleState] | None = None
+    ) -> None:
         """Take an agent's status; updates its link quality: messages received since its last
-        status over those its neighbours should have sent (one per neighbour per round)."""
+        status over those the drones in its radio range should have sent, one per drone per round
+        (:meth:`senders`)."""
         before = self.latest.get(status.drone)
         self.latest[status.drone] = status
-        if before is None or status.round <= before.round or not status.neighbours:
+        if before is None or status.round <= before.round:
             return
-        expected = (status.round - before.round) * len(status.neighbours)
-        share = min(1.0, max(0.0, (status.counters.rx - before.counters.rx) / expected))
-        old = self.link_quality.get(status.drone, share)
-        self.link_quality[status.drone] = old + _LINK_SMOOTHING * (share - old)
+        senders = self.senders(status, vehicles)
+        if not senders:
+            return
+        expected = (status.round - before.round) * senders
+        # clipped only for showing: a message counted just after one status instead of just
+        # before makes one share low and the next high, and clipping those would bias it low
+        share = max(0.0, (status.counters.rx - before.counters.rx) / expected)
+        old = self._smoothed_share.get(status.drone, share)
+        new = self._smoothed_share[status.drone] = old + _LINK_SMOOTHING * (share - old)
+        self.link_quality[status.drone] = min(1.0, new)
+
+    def senders(
+        self, status: AgentStatus, vehicles: Mapping[int, VehicleState] | None = None
+    ) -> int:
+        """How many drones should be heard by ``status.drone``: the other alive drones whose
+        vehicles are within :attr:`range_m` of its vehicle. Without the range or the positions,
+        the neighbours the agent integrated this round (which also fall when messages are lost,
+        so the share then hides loss)."""
+        me = None if vehicles is None else vehicles.get(status.drone)
+        if self.range_m is None or vehicles is None or me is None or me.position_ned_m is None:
+            return len(status.neighbours)
+        here = me.position_ned_m
+        return sum(
+            1
+            for j, v in vehicles.items()
+            if j != status.drone
+            and v.position_ned_m is not None
+            and (j in self.alive or not self.alive)
+            and math.dist(here, v.position_ned_m) < self.range_m
+        )
 
     def on_liveliness(self, drone: int, alive: bool) -> str | None:
         """A liveliness change; the event to log (``agent_joined``, ``dropout_detected``) or

@@ -67,3 +67,40 @@ def test_status_table_errors_against_the_alive_vehicles() -> None:
     assert rows[2]["mode"] is None and rows[2]["alive"] is False
     assert watch.worst_error_m(vehicles) == 0.0
     assert SwarmWatch().worst_error_m({}) is None
+
+
+def test_link_quality_expects_every_alive_drone_in_radio_range() -> None:
+    """With the radio's range and the vehicles' positions, a drone is expected to hear every
+    other alive drone in range once a round. Regression: the share used to be taken over the
+    neighbours the agent integrated that round, which fall with the messages lost, so a 50 %
+    loss drill showed 100 %."""
+    vehicles = {i: VehicleState(position_ned_m=(2.0 * i, 0.0, -3.0)) for i in range(5)}
+    vehicles[5] = VehicleState(position_ned_m=(40.0, 0.0, -3.0))  # alive but out of range
+    watch = SwarmWatch(range_m=10.0)
+    for i in range(6):
+        watch.on_liveliness(i, True)
+    watch.on_liveliness(4, False)  # left the swarm: no longer expected
+    assert watch.senders(_status(0, 10, 0, ()), vehicles) == 3  # 1, 2, 3
+    watch.on_status(_status(0, 10, 0, (1, 2, 3)), vehicles)
+    rx = 0
+    for k in range(1, 80):  # half of the 3 messages a round come; one neighbour integrated
+        rx += 3
+        watch.on_status(_status(0, 10 + 2 * k, rx, (1 + k % 3,)), vehicles)
+    assert abs(watch.link_quality[0] - 0.5) < 0.01
+    for k in range(80, 160):  # none come: the quality falls, though no neighbour is listed
+        watch.on_status(_status(0, 10 + 2 * k, rx, ()), vehicles)
+    assert watch.link_quality[0] < 0.01
+    # without the range (or the drone's position) it falls back to the listed neighbours
+    assert SwarmWatch().senders(_status(0, 10, 0, (1, 2)), vehicles) == 2
+    assert watch.senders(_status(7, 10, 0, (1,)), vehicles) == 1
+
+
+def test_link_quality_of_a_clean_link_is_full_though_messages_straddle_statuses() -> None:
+    """Every message arrives, but one lands just after a status now and then: 14 then 18 of the
+    16 expected. The smoothed share stays at 100 % (clipping each status's share at 1 read 94 %)."""
+    watch = SwarmWatch()
+    rx = 0
+    for k in range(100):
+        rx += 14 if k % 2 else 18
+        watch.on_status(_status(0, 2 * k, rx, tuple(range(1, 9))))
+    assert watch.link_quality[0] > 0.99
