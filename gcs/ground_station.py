@@ -186,14 +186,17 @@ class GroundStation:
     def run(self) -> list[Path]:
         """Run until :meth:`stop` or the end time; then write and return the report files."""
         end_s = self._o.duration_s or self._o.scenario.duration_s
+        # wall clock of the run's start: a restarted station's report covers the whole flight
+        started = _run_started(self._o.report_dir / "events.jsonl") if self._o.resume else None
+        wall0 = time.time() if started is None else started
         self.events.record(
             self.now_s,
             "gcs_restarted" if self._o.resume else "run_start",
             scenario=self._o.scenario.name,
             end_s=end_s,
+            wall_clock_s=round(time.time(), 3),
         )
         next_line = time.monotonic() + 1.0
-        wall0 = time.monotonic()
         last_sample_s = end_s - 1.0 / self._o.telemetry_hz  # the simulator's last report
         while not self._stop and self.now_s < last_sample_s:
             select.select([self.telemetry], [], [], _POLL_S)
@@ -222,7 +225,7 @@ class GroundStation:
             end_s,
             self._o.scenario,
         )
-        wall = time.monotonic() - wall0
+        wall = time.time() - wall0
         extra = {
             "scenario": self._o.scenario.name,
             "mode": "distributed (swarm gcs)",
@@ -344,3 +347,14 @@ def _last_event_time(path: Path) -> float:
     except (OSError, ValueError):
         return 0.0
     return max((float(e.get("t_s", 0.0)) for e in events), default=0.0)
+
+
+def _run_started(path: Path) -> float | None:
+    """The wall clock (Unix time, s) the run of the events log ``path`` started; None if the
+    log does not say."""
+    try:
+        events = read_events(path)
+    except (OSError, ValueError):
+        return None
+    starts = [e.get("wall_clock_s") for e in events if e.get("kind") == "run_start"]
+    return float(starts[0]) if starts and isinstance(starts[0], int | float) else None
