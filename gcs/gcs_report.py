@@ -34,7 +34,7 @@ from gcs.flight_record import FlightRecord, LinkFault
 from gcs.metrics import compute_metrics
 from gcs.plots import write_plots
 from gcs.simulate import _write_trajectory
-from gcs.tlog import VehicleTrack, read_tlog
+from gcs.tlog import TlogTrack, VehicleTrack, read_tlog
 from protocols.frames import FloatArray
 from protocols.scenario import Scenario
 from protocols.trajectory import DescriptorTrajectory
@@ -103,6 +103,7 @@ def build_record(
     rate_hz: float,
     end_s: float,
     scenario: Scenario | None = None,
+    track: TlogTrack | None = None,
 ) -> FlightRecord | None:
     """The flight as the ground station logged it, or None if no vehicle was heard.
 
@@ -111,9 +112,11 @@ def build_record(
     the swarm (``agent_joined``, ``dropout_detected``, ``crash``) and the link-cut drills from
     ``events_path``; the commanded descriptors from ``plan``, the final plan (a plan keeps the
     segments already flown). ``scenario`` gives the vehicle parameters that turn rotor forces
-    into thrust and moments (default: :class:`VehicleParams`) and its own link cuts.
+    into thrust and moments (default: :class:`VehicleParams`) and its own link cuts. ``track``:
+    the tlog already read (else it is read from ``tlog_path``).
     """
-    track = read_tlog(tlog_path)
+    if track is None:
+        track = read_tlog(tlog_path)
     heard = [v for s, v in track.vehicles.items() if 1 <= s <= n_drones and v.t_s.size]
     if not heard:
         return None

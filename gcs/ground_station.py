@@ -31,6 +31,7 @@ import zenoh
 
 from drone_agent.transport_link import PlanServer
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
+from gcs.agent_timing import timing_metrics
 from gcs.commands import CommandError, Reply, apply_command, encode_reply, parse_request
 from gcs.events import EventLog, read_events
 from gcs.gcs_drills import GcsDrills
@@ -38,6 +39,7 @@ from gcs.gcs_report import build_record, write_report
 from gcs.planner import Envelope, PlanRefused
 from gcs.swarm_watch import SwarmWatch
 from gcs.telemetry import TelemetryReceiver
+from gcs.tlog import read_tlog
 from protocols.keys import SwarmKeys
 from protocols.scenario import Scenario
 from protocols.wire import WireError
@@ -216,6 +218,7 @@ class GroundStation:
         self.telemetry.close()
         n = self._o.scenario.n_drones
         report = self._o.report_dir
+        track = read_tlog(report / "flight.tlog")
         record = build_record(
             report / "flight.tlog",
             report / "events.jsonl",
@@ -224,6 +227,7 @@ class GroundStation:
             self._o.telemetry_hz,
             end_s,
             self._o.scenario,
+            track=track,
         )
         wall = time.time() - wall0
         extra = {
@@ -233,6 +237,7 @@ class GroundStation:
             "settle_s": self._o.scenario.settle_s,
             "wall_time_s": round(wall, 3),
             "real_time_factor": round(self.now_s / wall, 3) if wall > 0 else None,
+            "agent_timing": timing_metrics(track, read_events(report / "events.jsonl")),
         }
         return write_report(
             self._o.report_dir,

@@ -6,6 +6,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from gcs.agent_timing import summary_lines as timing_summary
+
 
 def _fmt(value: Any, unit: str = "", digits: int = 3) -> str:
     if value is None:
@@ -52,6 +54,7 @@ def summary_lines(metrics: dict[str, Any], files: Sequence[Path]) -> list[str]:
             f"peak error {_fmt(rc.get('peak_centroid_error_m'), ' m', 2)} / "
             f"{_fmt(rc.get('peak_shape_error_m2'), ' m2', 2)}"
         )
+    lines += timing_summary(metrics.get("agent_timing"))
     lines.append("('steady' leaves out the 10 s after each drone loss; 'all' keeps them)")
     lines.append("report: " + ", ".join(str(f) for f in files))
     return lines

@@ -25,10 +25,13 @@ _LINK_SMOOTHING = 0.1
 
 def text_kind(severity: int, text: str) -> str:
     """The event kind of a vehicle's STATUSTEXT: ``crash`` (MAV_SEVERITY_EMERGENCY, motors off,
-    destroyed), ``failsafe`` or ``vehicle_text``."""
+    destroyed), ``failsafe``, ``overload`` (its agent answers too few ticks in time, realtime:
+    sitl_sim/tick_answers.py) or ``vehicle_text``."""
     lower = text.lower()
     if severity == _SEVERITY_EMERGENCY or any(w in lower for w in _CRASH_WORDS):
         return "crash"
+    if lower.startswith("agent late"):
+        return "overload"
     return "failsafe" if "failsafe" in lower else "vehicle_text"
 
 

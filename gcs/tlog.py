@@ -197,6 +197,8 @@ class VehicleTrack:
       ``status`` (S, AGENT_STATUS_VALUES): estimate (9), neighbours, mode, armed (empty if none).
     - ``heartbeat_t_s`` (H,): record times of the autopilot's HEARTBEATs, s; ``armed`` (H,) its
       armed flag; ``custom_mode`` (H,) its PX4 custom mode (protocols/mavlink_conventions.py).
+    - ``named`` : NAMED_VALUE_FLOAT name -> (K, 2) rows of (time_boot_ms / 1000 s, value), e.g.
+      the simulator's ``agt_intime`` and ``agt_lag_ms`` (sitl_sim/messages.py).
     Samples are sorted by time.
     """
 
@@ -213,6 +215,7 @@ class VehicleTrack:
     heartbeat_t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
     armed: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
     custom_mode: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    named: dict[str, FloatArray] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -270,6 +273,7 @@ def read_tlog(path: str | Path, epoch_offset_s: float = 0.0) -> TlogTrack:
     act: dict[int, list[tuple[float, ...]]] = {}
     agent: dict[int, list[tuple[float, ...]]] = {}
     beats: dict[int, list[tuple[float, ...]]] = {}
+    named: dict[int, dict[str, list[tuple[float, float]]]] = {}
     texts: list[StatusText] = []
     chunks: dict[tuple[int, int], list[bytes]] = {}
     bad, resyncing = 0, False
@@ -311,6 +315,9 @@ def read_tlog(path: str | Path, epoch_offset_s: float = 0.0) -> TlogTrack:
         elif mtype == "HEARTBEAT" and msg.get_srcComponent() == _AUTOPILOT_COMPONENT:
             armed = float(bool(msg.base_mode & common.MAV_MODE_FLAG_SAFETY_ARMED))
             beats.setdefault(sysid, []).append((t_rec * 1000.0, armed, float(msg.custom_mode)))
+        elif mtype == "NAMED_VALUE_FLOAT":
+            rows = named.setdefault(sysid, {}).setdefault(_name(msg.name), [])
+            rows.append((msg.time_boot_ms / 1000.0, float(msg.value)))
         elif mtype == "STATUSTEXT":
             text = _statustext(msg, sysid, chunks)
             if text is not None:
@@ -321,6 +328,11 @@ def read_tlog(path: str | Path, epoch_offset_s: float = 0.0) -> TlogTrack:
         )
         for s in sorted(set(pos) | set(att) | set(act) | set(agent))
     }
+    for s, values in named.items():
+        if s in vehicles:
+            vehicles[s].named = {
+                name: _by_time([tuple(r) for r in rows], 2) for name, rows in values.items()
+            }
     return TlogTrack(vehicles, texts, bad)
 
 

@@ -29,6 +29,7 @@ from sitl_sim.lockstep import LockstepBarrier
 from sitl_sim.messages import RxCounters
 from sitl_sim.setpoint import Rejection, validate_attitude_target
 from sitl_sim.streams import StreamTable
+from sitl_sim.tick_answers import TickAnswers
 from sitl_sim.tunables import SetStatus, Tunables
 from sitl_sim.world import World
 
@@ -59,6 +60,7 @@ class Dispatcher:
         barrier: LockstepBarrier | None,
         report: Callable[[list[VehicleEvent]], None],
         on_new_peer: Callable[[int], None],
+        answers: TickAnswers | None = None,
     ) -> None:
         self.world = world
         self.sysids = list(sysids)
@@ -67,6 +69,7 @@ class Dispatcher:
         self.commands = commands
         self.agent, self.gcs = agent, gcs
         self.barrier = barrier
+        self.answers = answers
         self.report = report
         self.on_new_peer = on_new_peer
         self.counters = [RxCounters() for _ in self.sysids]
@@ -134,8 +137,12 @@ class Dispatcher:
             self.counters[i].rx -= 1
             self.counters[i].wrong_target += 1
             return
-        if from_agent and self.barrier is not None:
-            self.barrier.echo(i, self.world.tick_of_ms(int(msg.time_boot_ms)))
+        if from_agent:
+            tick = self.world.tick_of_ms(int(msg.time_boot_ms))
+            if self.barrier is not None:
+                self.barrier.echo(i, tick)
+            if self.answers is not None:
+                self.answers.echo(i, tick)
         sp = validate_attitude_target(msg.q, msg.thrust, int(msg.type_mask))
         if isinstance(sp, Rejection):
             self.counters[i].setpoint_rejected += 1

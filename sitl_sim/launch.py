@@ -164,12 +164,21 @@ def start_line(config: SimConfig) -> str:
 
 
 def status_line(s: Status) -> str:
-    """The one-line status printed every second."""
+    """The one-line status printed every second; in realtime how well the agents keep up, and
+    a warning with what to do when they do not."""
     lockstep = "" if s.lockstep_members is None else f" | lockstep {s.lockstep_members} agents"
+    timing = ""
+    if s.in_time is not None:
+        timing = f" | agents in time {s.in_time:6.1%} lag {s.worst_lag_ms or 0.0:.0f} ms"
+        if s.overloaded:
+            timing += (
+                " | OVERLOAD: the agents cannot keep up in realtime on this machine;"
+                " vehicles may fail safe (try --clock lockstep, or fewer processes)"
+            )
     return (
         f"sim {s.sim_s:9.2f} s | wall {s.wall_s:8.1f} s | rtf {s.rtf:5.2f} | armed {s.armed} "
         f"flying {s.flying} failsafe {s.failsafe} crashed {s.crashed} | rx {s.rx} tx {s.tx} "
-        f"rejected {s.rejected}{lockstep}"
+        f"rejected {s.rejected}{lockstep}{timing}"
     )
 
 

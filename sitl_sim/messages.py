@@ -13,6 +13,10 @@ truncated), ``errors_count2`` = rejected setpoints (NaN/inf/out of range), ``err
 signature failures, ``errors_count4`` = wrong target system; ``drop_rate_comm`` the rejected share
 (c%), ``load`` the simulator's busy share of wall time (d%). Counters saturate at 65535.
 
+NAMED_VALUE_FLOAT ``agt_intime`` and ``agt_lag_ms`` (realtime only, to the GCS, once per status
+interval, per vehicle whose agent answered in it): the share of control ticks its agent answered
+in time and its worst lag (ms), see :mod:`sitl_sim.tick_answers`.
+
 ACTUATOR_OUTPUT_STATUS carries the rotor outputs (protocols/mavlink_conventions.py): the force
 (N) of rotors 1..4 in ``actuator[0..3]`` in the mixer's order (sitl_sim/mixer.py), ``active`` =
 0b1111, ``time_usec`` the simulated time (µs) of the tick, as ``time_boot_ms`` is in ms. The forces
@@ -179,6 +183,17 @@ def actuator_output_status(t_usec: int, forces_n: FloatArray) -> Any:
     actuator = [float(f) for f in forces_n[:ACTUATOR_ROTORS]]
     actuator += [0.0] * (32 - len(actuator))
     return mavlink.MAVLink_actuator_output_status_message(t_usec, ACTUATOR_ROTORS_ACTIVE, actuator)
+
+
+#: NAMED_VALUE_FLOAT names of an agent's timing, sent to the GCS once per status interval in
+#: realtime: the share of control ticks answered in time (0..1) and the worst lag (ms).
+AGENT_IN_TIME = "agt_intime"
+AGENT_LAG_MS = "agt_lag_ms"
+
+
+def named_value(time_boot_ms: int, name: str, value: float) -> Any:
+    """NAMED_VALUE_FLOAT ``name`` (at most 10 characters) = ``value`` at ``time_boot_ms``."""
+    return mavlink.MAVLink_named_value_float_message(time_boot_ms, name.encode("ascii"), value)
 
 
 def statustext(severity: int, text: str) -> Any:

@@ -43,6 +43,7 @@ from sitl_sim.streams import (
     SYS_STATUS,
     StreamTable,
 )
+from sitl_sim.tick_answers import AnswerStats, TickAnswers
 from sitl_sim.tunables import Tunables
 from sitl_sim.world import Snapshot, World
 
@@ -67,6 +68,10 @@ class Status:
     tx: int
     rejected: int
     lockstep_members: int | None
+    #: realtime: share of the active agents' ticks answered in time, their worst lag (ms)
+    in_time: float | None = None
+    worst_lag_ms: float | None = None
+    overloaded: bool = False
 
 
 class SimServer:
@@ -97,9 +102,10 @@ class SimServer:
         self.barrier = LockstepBarrier(clock.drop_timeout_s) if lockstep else None
         self.pacer = Pacer(1.0 / control_hz, clock.speedup)
         self.commands = CommandHandler(world, network.sysids, self.build)
+        self.answers = None if lockstep else TickAnswers(n, 1000.0 / control_hz)
         self.dispatch = Dispatcher(
             world, network.sysids, tunables, self.commands, self.agent, self.gcs,
-            self.barrier, self.report, self._new_peer,
+            self.barrier, self.report, self._new_peer, self.answers,
         )  # fmt: skip
         self._builders: dict[int, Callable[[int], Any]] = {
             HEARTBEAT: lambda i: messages.heartbeat(world.autopilot, i),
@@ -165,6 +171,8 @@ class SimServer:
         next_status = start + self.status_interval_s
         self.pacer.rebase(self.world.tick, start)
         sent_to = self._emit()
+        if self.answers is not None:
+            self.answers.sent(self.world.tick, sent_to)
         join_deadline = start + self.clock.join_timeout_s
         if self.barrier is None and self.clock.wait_agents > 0:
             self._await_agents(join_deadline)
@@ -181,6 +189,8 @@ class SimServer:
                 break
             self._step()
             sent_to = self._emit()
+            if self.answers is not None:
+                self.answers.sent(self.world.tick, sent_to)
             now = self.wall()
             self.pacer.keep_up(self.world.tick, now)
             if now >= next_status:
@@ -335,11 +345,38 @@ class SimServer:
         self._load = max(0.0, min(1.0, 1.0 - self._idle_s / interval))
         self._idle_s = 0.0
         rtf = meter.sample(self.world.t_s, now)
+        stats = None if self.answers is None else self.answers.interval()
+        if stats is not None:
+            self._report_timing(stats)
         if self.on_status is not None:
-            self.on_status(self.status(rtf, now - start))
+            self.on_status(self.status(rtf, now - start, stats))
 
-    def status(self, rtf: float = 0.0, wall_s: float = 0.0) -> Status:
-        """The counters now."""
+    def _report_timing(self, stats: AnswerStats) -> None:
+        """Realtime: each active agent's share of ticks answered in time and worst lag to the
+        GCS (NAMED_VALUE_FLOAT), and a STATUSTEXT on every link of a vehicle whose agent fell
+        behind (:meth:`AnswerStats.late`), so that its failsafe, if it comes, is explained."""
+        boot_ms = self.world.time_boot_ms()
+        late: list[VehicleEvent] = []
+        for i in np.flatnonzero(stats.active):
+            share = stats.share(int(i))
+            if share is None:
+                continue
+            lag_ms = stats.lag_ms(int(i))
+            channel = self.gcs.channels[i]
+            if channel.active:
+                channel.send(messages.named_value(boot_ms, messages.AGENT_IN_TIME, share))
+                channel.send(messages.named_value(boot_ms, messages.AGENT_LAG_MS, lag_ms))
+            if stats.late(int(i)):
+                text = f"Agent late: {share:.0%} of ticks in time, lag {lag_ms:.0f} ms"
+                late.append(VehicleEvent(int(i), Severity.WARNING, text))
+        if late:
+            self.report(late)
+        self.net.flush()
+
+    def status(
+        self, rtf: float = 0.0, wall_s: float = 0.0, stats: AnswerStats | None = None
+    ) -> Status:
+        """The counters now; ``stats``: the agents' timing of the last interval (realtime)."""
         ap = self.world.autopilot
         counters = [*self.dispatch.counters, self.dispatch.gcs_counters]
         tx = sum(c.tx for c in self.agent.channels) + sum(c.tx for c in self.gcs.channels)
@@ -355,4 +392,7 @@ class SimServer:
             tx=tx,
             rejected=sum(c.rejected for c in counters),
             lockstep_members=None if self.barrier is None else len(self.barrier.members),
+            in_time=None if stats is None else stats.swarm_share,
+            worst_lag_ms=None if stats is None else stats.worst_lag * stats.period_ms,
+            overloaded=stats is not None and stats.overloaded,
         )

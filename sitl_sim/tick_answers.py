@@ -9,7 +9,10 @@ offboard timeout, fails safe. This tracker makes that visible:
 - a tick is *answered in time* when its echo arrives before the next tick's state goes out;
   ticks left unanswered count as missed once the agent answers again (a silence that never ends
   is an agent that died, a drop-out, not an overload);
-- the *lag* of an answer is how many ticks newer than the echoed one had already been sent;
+- the *lag* of an agent is how many ticks its vehicle has gone without a fresh answer: sampled
+  as each tick goes out (the newest tick sent, minus the newest tick echoed, minus one: 0 for an
+  agent that answered the previous tick), and, like the misses, counted once the agent answers
+  again;
 - only *active* agents count: those that echoed at least once in the interval.
 
 :meth:`TickAnswers.interval` returns the figures of the interval since the last call and starts a
@@ -27,8 +30,11 @@ import numpy.typing as npt
 
 IntArray = npt.NDArray[np.int64]
 
-#: Below this share of ticks answered in time the swarm is overloaded (status line, events).
-OVERLOAD_SHARE = 0.99
+#: An agent (or the swarm) that answers fewer ticks in time than this, or whose vehicle went
+#: this long (ms) without a fresh answer, is late / overloaded: a risk of failsafes (the offboard
+#: timeout is 500 ms). A well-fed swarm answers > 99 % in time with a lag of one tick or less.
+OVERLOAD_SHARE = 0.9
+OVERLOAD_LAG_MS = 200.0
 
 
 @dataclass(frozen=True)
@@ -40,6 +46,7 @@ class AnswerStats:
     in_time: IntArray
     worst_lag_ticks: IntArray
     active: npt.NDArray[np.bool_]
+    period_ms: float = 20.0
 
     def share(self, vehicle: int) -> float | None:
         """Share of vehicle ``vehicle``'s ticks answered in time; None if it had none."""
@@ -58,21 +65,37 @@ class AnswerStats:
         """The worst lag (ticks) of any active agent."""
         return int(self.worst_lag_ticks[self.active].max(initial=0))
 
+    def lag_ms(self, vehicle: int) -> float:
+        return float(self.worst_lag_ticks[vehicle]) * self.period_ms
+
+    def late(self, vehicle: int) -> bool:
+        """Vehicle ``vehicle``'s agent answered too few ticks in time or left it too long."""
+        share = self.share(vehicle)
+        if share is None:
+            return False
+        return share < OVERLOAD_SHARE or self.lag_ms(vehicle) >= OVERLOAD_LAG_MS
+
     @property
     def overloaded(self) -> bool:
+        """The active agents together answered too few ticks in time, or one lagged too long."""
         share = self.swarm_share
-        return share is not None and share < OVERLOAD_SHARE
+        if share is None:
+            return False
+        return share < OVERLOAD_SHARE or self.worst_lag * self.period_ms >= OVERLOAD_LAG_MS
 
 
 class TickAnswers:
     """The answer bookkeeping of ``n`` vehicles (see the module doc)."""
 
-    def __init__(self, n: int) -> None:
+    def __init__(self, n: int, period_ms: float = 20.0) -> None:
         self.n = n
+        self.period_ms = period_ms
         self._current = np.full(n, -1, dtype=np.int64)  # the tick each vehicle awaits an echo of
         self._answered = np.zeros(n, dtype=bool)  # ... and whether it came in time
         self._missed = np.zeros(n, dtype=np.int64)  # ticks gone unanswered since the last echo
+        self._pending_lag = np.zeros(n, dtype=np.int64)  # worst lag since the last echo
         self._newest_sent = np.full(n, -1, dtype=np.int64)
+        self._newest_echo = np.full(n, -1, dtype=np.int64)
         self._reset()
 
     def _reset(self) -> None:
@@ -92,16 +115,21 @@ class TickAnswers:
         self._current[idx] = tick
         self._answered[idx] = False
         self._newest_sent[idx] = tick
+        known = idx[self._newest_echo[idx] >= 0]
+        lag = tick - self._newest_echo[known] - 1
+        self._pending_lag[known] = np.maximum(self._pending_lag[known], lag)
 
     def echo(self, vehicle: int, tick: int | None) -> None:
         """Vehicle ``vehicle``'s agent echoed ``tick`` (None: not a tick stamp)."""
         if tick is None or not 0 <= vehicle < self.n or tick > self._newest_sent[vehicle]:
             return
         self._active[vehicle] = True
-        self._lag[vehicle] = max(self._lag[vehicle], self._newest_sent[vehicle] - tick)
-        # the agent is alive: the ticks it let pass were missed
+        self._newest_echo[vehicle] = max(self._newest_echo[vehicle], tick)
+        # the agent is alive: the ticks it let pass were missed, the lag it built up was real
         self._expected[vehicle] += self._missed[vehicle]
         self._missed[vehicle] = 0
+        self._lag[vehicle] = max(self._lag[vehicle], self._pending_lag[vehicle])
+        self._pending_lag[vehicle] = 0
         if tick == self._current[vehicle] and not self._answered[vehicle]:
             self._answered[vehicle] = True
             self._expected[vehicle] += 1
@@ -110,7 +138,11 @@ class TickAnswers:
     def interval(self) -> AnswerStats:
         """The figures since the last call; starts a new interval."""
         stats = AnswerStats(
-            self._expected.copy(), self._in_time.copy(), self._lag.copy(), self._active.copy()
+            self._expected.copy(),
+            self._in_time.copy(),
+            self._lag.copy(),
+            self._active.copy(),
+            self.period_ms,
         )
         self._reset()
         return stats

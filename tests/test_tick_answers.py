@@ -27,7 +27,7 @@ def test_a_slow_agent_answers_late_and_skips_ticks() -> None:
     stats = t.interval()
     assert stats.share(0) == 1.0
     assert stats.share(1) == 0.0  # never in time
-    assert stats.worst_lag_ticks[1] == 1
+    assert stats.worst_lag_ticks[1] == 2  # its newest answer is up to two ticks behind
     assert stats.expected[1] >= 98
     assert stats.overloaded and stats.swarm_share is not None and stats.swarm_share < 0.6
 
@@ -41,6 +41,7 @@ def test_an_agent_that_dies_is_a_drop_out_not_an_overload() -> None:
             t.echo(1, k)
     stats = t.interval()
     assert stats.share(1) == 1.0 and not stats.overloaded
+    assert stats.worst_lag_ticks[1] == 0  # a silence that has not ended is not a lag
     for k in range(50, 100):
         t.sent(k, [0, 1])
         t.echo(0, k)
@@ -57,7 +58,7 @@ def test_a_stalled_agent_that_comes_back_counts_what_it_missed() -> None:
         t.sent(k, [0])
     t.echo(0, 12)  # a stale answer
     stats = t.interval()
-    assert stats.worst_lag == 27
+    assert stats.worst_lag == 29  # ticks 10..39 went out with tick 9 the newest answer
     assert stats.in_time[0] == 10 and stats.expected[0] == 39  # tick 39 still awaited
     assert t.interval().expected[0] == 0  # the new interval starts empty
 
