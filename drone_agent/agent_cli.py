@@ -22,7 +22,7 @@ from drone_agent.transport import AgentTransport, Bus, Position
 from drone_agent.transport_link import AgentLink, LinkSettings
 from drone_agent.vehicle_link import VehicleLink
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, tcp_listen_free
-from protocols.mavlink_conventions import DEFAULT_BASE_PORT
+from protocols.mavlink_conventions import vehicle_port
 from protocols.mavlink_signing import SigningKeyError, load_signing_key
 from protocols.scenario import Scenario, ScenarioError, load_scenario
 
@@ -56,14 +56,15 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument(
         "--vehicle",
         metavar="udp:HOST:PORT",
-        help="the vehicle's MAVLink endpoint (one drone only; default "
-        f"udp:127.0.0.1:{DEFAULT_BASE_PORT}+I)",
+        help="the vehicle's MAVLink endpoint (one drone only; default udp:127.0.0.1 at the "
+        "vehicle's port, see --base-port)",
     )
     p.add_argument(
         "--base-port",
         type=int,
-        default=DEFAULT_BASE_PORT,
-        help="vehicle I listens on BASE+I (default %(default)s)",
+        default=None,
+        help="vehicle I listens on BASE+I (default: as swarm sim: drones 0-9 on 14540-14549, "
+        "10-249 on 14560-14799)",
     )
     p.add_argument("--swarm-id", default="swarm", help="swarm name on Zenoh (default %(default)s)")
     p.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer")
@@ -187,7 +188,10 @@ def run(args: argparse.Namespace) -> int:
     links = []
     try:
         for d in drones:
-            address = _endpoint(args.vehicle) if args.vehicle else ("127.0.0.1", args.base_port + d)
+            if args.vehicle:
+                address = _endpoint(args.vehicle)
+            else:
+                address = ("127.0.0.1", vehicle_port(d, args.base_port))
             links.append(VehicleLink(d, address[0], address[1], signing_key=key))
     except OSError as exc:
         raise AgentCliError(f"cannot open the vehicle link: {exc}") from None

@@ -25,11 +25,11 @@ from protocols.frames import FloatArray
 from protocols.mavlink_conventions import (
     AGENT_COMPID,
     AUTOPILOT_COMPID,
-    DEFAULT_BASE_PORT,
     MODE_OFFBOARD,
     Px4AutoSubMode,
     Px4MainMode,
     sysid_of,
+    vehicle_port,
 )
 from protocols.mavlink_signing import setup_signing
 
@@ -87,7 +87,7 @@ class VehicleLink:
     ) -> None:
         self.index = index
         self.sysid = sysid_of(index)
-        self.address = (host, DEFAULT_BASE_PORT + index if port is None else port)
+        self.address = (host, vehicle_port(index) if port is None else port)
         self._mav = common.MAVLink(None, srcSystem=self.sysid, srcComponent=AGENT_COMPID)
         self._mav.robust_parsing = True
         if signing_key is not None:

@@ -120,9 +120,9 @@ def rendezvous_port() -> int:
     return RENDEZVOUS_PORT if tcp_listen_free(RENDEZVOUS_PORT) else free_tcp_port()
 
 
-def check_udp_ports(first: int, count: int, what: str) -> None:
-    """SupervisorError naming the port if any of ``count`` UDP ports from ``first`` is taken."""
-    for port in range(first, first + count):
+def check_udp_ports(ports: list[int], what: str) -> None:
+    """SupervisorError naming the port if any of ``ports`` (UDP) is taken."""
+    for port in ports:
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             try:
                 s.bind(("127.0.0.1", port))

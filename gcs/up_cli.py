@@ -22,7 +22,7 @@ from gcs.supervisor import (
     supervise,
     swarm_argv,
 )
-from protocols.mavlink_conventions import DEFAULT_BASE_PORT, DEFAULT_GCS_PORT
+from protocols.mavlink_conventions import DEFAULT_GCS_PORT, port_clash, vehicle_ports
 from protocols.scenario import ScenarioError, load_scenario
 
 #: The paper's flight, shipped with the project (so `swarm demo` works from any folder).
@@ -83,7 +83,11 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--swarm-id", default="swarm", help="swarm name on Zenoh")
     p.add_argument(
-        "--base-port", type=int, default=DEFAULT_BASE_PORT, help="vehicle i on UDP BASE+i"
+        "--base-port",
+        type=int,
+        default=None,
+        help="vehicle i on UDP BASE+i (default: vehicles 0-9 on 14540-14549 as PX4 SITL, "
+        "10-249 on 14560-14799, never the GCS port)",
     )
     p.add_argument("--gcs-port", type=int, default=DEFAULT_GCS_PORT, help="telemetry to the GCS")
     p.add_argument("--duration-s", type=float, metavar="S", help="fly only the first S seconds")
@@ -101,8 +105,12 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
     duration = scenario.duration_s if args.duration_s is None else args.duration_s
     if not 0 < duration <= scenario.duration_s:
         raise SupervisorError(f"--duration-s must be in (0, {scenario.duration_s:g}]")
-    check_udp_ports(args.base_port, n, "vehicle ports")
-    check_udp_ports(args.gcs_port, 1, "ground station")
+    ports = vehicle_ports(n, args.base_port)
+    clash = port_clash(ports, args.gcs_port)
+    if clash is not None:
+        raise SupervisorError(clash)
+    check_udp_ports(ports, "vehicle ports")
+    check_udp_ports([args.gcs_port], "ground station")
     report: Path = args.report
     logs = report / "logs"
     try:
@@ -148,7 +156,7 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
             ("--speedup", args.speedup),
             ("--wait-agents", n),
             ("--join-timeout", 120),
-            ("--base-port", args.base_port),
+            ("--base-port", args.base_port),  # None (the default layout) is left out
             ("--gcs", f"udp:127.0.0.1:{args.gcs_port}"),
             ("--gcs-rate-hz", TELEMETRY_HZ),
             ("--duration-s", duration),
@@ -164,8 +172,7 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
                 "--drone-id",
                 ids,
                 *common,
-                "--base-port",
-                str(args.base_port),
+                *flags([("--base-port", args.base_port)]),
                 "--swarm-id",
                 args.swarm_id,
                 "--quiet",

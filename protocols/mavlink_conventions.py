@@ -4,8 +4,11 @@ Identities (SPEC.md "Conventions"): vehicle index i = 0..N-1 is MAVLink system i
 component 1 (autopilot). Its agent speaks as the same system id with component 191 (onboard
 computer). The ground station is system 255, component 190.
 
-Ports (PX4 SITL habit): vehicle i serves its agent on UDP ``base_port + i`` (default 14540) and the
-simulator sends the telemetry of every vehicle to the GCS at UDP 14550. The simulator *listens* on
+Ports (:func:`vehicle_port`): by default vehicles 0..9 serve their agents on UDP 14540..14549 (the
+PX4 SITL habit) and vehicles 10..249 on 14560..14799, so that no vehicle ever lands on the GCS
+port 14550 (where the simulator sends the telemetry of every vehicle; QGroundControl listens there)
+whatever the number of drones. With an explicit ``--base-port B`` vehicle i is on ``B + i``, and a
+clash with the GCS port is an error (:func:`port_clash`). The simulator *listens* on
 the agent ports and answers the address a packet last came from; it *sends* to the GCS address and
 answers GCS commands arriving on that same socket.
 
@@ -70,6 +73,9 @@ AGENT_STATUS_VALUES = 12
 
 DEFAULT_BASE_PORT = 14540
 DEFAULT_GCS_PORT = 14550
+#: The default layout's second block: vehicles 10.. on 14560 + (i - 10), clear of 14550..14559.
+DEFAULT_SECOND_BASE_PORT = 14560
+PX4_PORT_BLOCK = 10
 MAX_VEHICLES = 250  # system ids 1..250; 251..255 stay free for ground stations
 
 #: MAVLink 2 signing: link id used by the simulator's outgoing telemetry.
@@ -78,6 +84,59 @@ SIGNING_LINK_ID = 0
 #: ACTUATOR_OUTPUT_STATUS: rotors in ``actuator[0..ACTUATOR_ROTORS-1]`` (forces, N), their bits.
 ACTUATOR_ROTORS = 4
 ACTUATOR_ROTORS_ACTIVE = (1 << ACTUATOR_ROTORS) - 1
+
+
+def vehicle_port(index: int, base_port: int | None = None) -> int:
+    """UDP port of vehicle ``index``'s agent link: ``base_port + index`` when a base is given,
+    else the default layout (module doc): never the default GCS port, for any number of drones."""
+    if base_port is not None:
+        return base_port + index
+    if index < PX4_PORT_BLOCK:
+        return DEFAULT_BASE_PORT + index
+    return DEFAULT_SECOND_BASE_PORT + index - PX4_PORT_BLOCK
+
+
+def vehicle_ports(n: int, base_port: int | None = None) -> list[int]:
+    """The agent-link ports of vehicles 0..n-1."""
+    return [vehicle_port(i, base_port) for i in range(n)]
+
+
+def port_clash(
+    ports: list[int], gcs_port: int | None, base_flag: str = "--base-port"
+) -> str | None:
+    """Why this port layout cannot work (one line naming the clash), or None: every port in
+    1..65535, no two vehicles on one port, no vehicle on the GCS port."""
+    for i, port in enumerate(ports):
+        if not 1 <= port <= 65535:
+            return (
+                f"{base_flag} {ports[0]}: vehicle {i} (system id {sysid_of(i)}) would listen on "
+                f"UDP {port}, outside 1..65535"
+            )
+    seen: dict[int, int] = {}
+    for i, port in enumerate(ports):
+        if port in seen:
+            return f"vehicles {seen[port]} and {i} would both listen on UDP {port}"
+        seen[port] = i
+    if gcs_port is not None and gcs_port in seen:
+        i = seen[gcs_port]
+        return (
+            f"vehicle {i} (system id {sysid_of(i)}) would listen on UDP {gcs_port}, the ground "
+            f"station's port: choose {base_flag} so that the {len(ports)} vehicle ports "
+            f"{ports[0]}..{ports[-1]} leave {gcs_port} out, or another --gcs-port (or leave "
+            f"both to their defaults, which never collide)"
+        )
+    return None
+
+
+def describe_ports(ports: list[int]) -> str:
+    """Ports as ranges, e.g. ``14540-14549, 14560-14561``."""
+    ranges: list[list[int]] = []
+    for port in ports:
+        if ranges and port == ranges[-1][1] + 1:
+            ranges[-1][1] = port
+        else:
+            ranges.append([port, port])
+    return ", ".join(f"{a}-{b}" if a != b else f"{a}" for a, b in ranges)
 
 
 def sysid_of(index: int) -> int:

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from protocols.frames import FloatArray
+from protocols.mavlink_conventions import describe_ports, vehicle_ports
 from sitl_sim.attitude_control import AttitudeGains
 from sitl_sim.autopilot import AutopilotConfig
 from sitl_sim.failsafe import FailsafeConfig
@@ -67,7 +68,10 @@ def build_config(args: argparse.Namespace) -> SimConfig:
     control_hz = args.control_hz if args.control_hz is not None else v.control_hz
     check_rates(physics_hz, control_hz)
     _check_numbers(args)
-    check_ports(args.base_port, n)
+    gcs = parse_gcs_url(args.gcs)
+    # a GCS on this machine must not share a port with a vehicle
+    local_gcs = gcs is not None and (gcs[0].startswith("127.") or gcs[0] == args.bind)
+    check_ports(args.base_port, n, gcs[1] if gcs is not None and local_gcs else None)
     autopilot = AutopilotConfig(failsafe=FailsafeConfig(offboard_timeout_s=args.offboard_timeout))
     return SimConfig(
         sysids=parse_sysids(args.sysids, n),
@@ -79,7 +83,7 @@ def build_config(args: argparse.Namespace) -> SimConfig:
         net=NetConfig(
             bind_host=args.bind,
             base_port=args.base_port,
-            gcs=parse_gcs_url(args.gcs),
+            gcs=gcs,
             signing_key=read_signing_key(args.signing_key),
             agent_rates_hz=_rates(AGENT_RATES_HZ, AGENT_STATE_STREAMS, args.agent_rate_hz),
             gcs_rates_hz=_rates(GCS_RATES_HZ, GCS_STATE_STREAMS, args.gcs_rate_hz),
@@ -151,8 +155,7 @@ def build_world(config: SimConfig) -> tuple[World, Tunables]:
 def start_line(config: SimConfig) -> str:
     """What is listening where, printed once at start-up."""
     net, clock = config.net, config.clock
-    last = net.base_port + config.n - 1
-    ports = f"{net.bind_host}:{net.base_port}" + (f"-{last}" if config.n > 1 else "")
+    ports = f"{net.bind_host}:{describe_ports(vehicle_ports(config.n, net.base_port))}"
     gcs = "none" if net.gcs is None else f"udp:{net.gcs[0]}:{net.gcs[1]}"
     ids = f"{config.sysids[0]}..{config.sysids[-1]}" if config.n > 1 else str(config.sysids[0])
     signed = ", signed" if net.signing_key is not None else ""

@@ -1,10 +1,10 @@
 """The simulator's sockets: one UDP endpoint per vehicle for its agent, one for the ground station.
 
-Vehicle ``i`` listens on ``bind_host:base_port + i``. The GCS endpoint is bound to an ephemeral
-port (of ``bind_host``, or of every interface when the ground station is on another host) and
-sends to the ``--gcs`` address (MAVProxy and QGroundControl answer the
-port telemetry comes from). Opening refuses clashes with one line naming the port and the vehicle;
-closing is idempotent. Use as a context manager.
+Vehicle ``i`` listens on ``bind_host`` at its port (protocols/mavlink_conventions.vehicle_port).
+The GCS endpoint is bound to an ephemeral port (of ``bind_host``, or of every interface when the
+ground station is on another host) and sends to the ``--gcs`` address (MAVProxy and
+QGroundControl answer the port telemetry comes from). Opening refuses clashes with one line naming
+the port and the vehicle; closing is idempotent. Use as a context manager.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import socket
 from collections.abc import Sequence
 from types import TracebackType
 
+from protocols.mavlink_conventions import vehicle_port
 from sitl_sim.channel import Channel, Endpoint, new_codec
 from sitl_sim.sim_config import NetConfig, SimConfigError
 
@@ -76,7 +77,7 @@ class Network:
         cfg, key = self.config, self.config.signing_key
         try:
             for i, sysid in enumerate(self.sysids):
-                port = cfg.base_port + i
+                port = vehicle_port(i, cfg.base_port)
                 sock = bind_udp(cfg.bind_host, port, f"vehicle {i}, system id {sysid}")
                 endpoint = Endpoint(sock, new_codec(sysid, 1, key), None, self.outbox)
                 self.agent_endpoints.append(endpoint)

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
-from protocols.mavlink_conventions import DEFAULT_BASE_PORT, DEFAULT_GCS_PORT, MAX_VEHICLES
+from protocols.mavlink_conventions import DEFAULT_GCS_PORT, MAX_VEHICLES
 
 DESCRIPTION = (
     "Simulate N quadcopters behind real MAVLink 2 UDP endpoints, as PX4 SITL does: vehicle i "
@@ -63,9 +63,10 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument(
         "--base-port",
         type=int,
-        default=DEFAULT_BASE_PORT,
+        default=None,
         metavar="PORT",
-        help=f"vehicle i listens on UDP PORT+i (default {DEFAULT_BASE_PORT})",
+        help="vehicle i listens on UDP PORT+i (default: vehicles 0-9 on 14540-14549 as PX4 SITL, "
+        "10-249 on 14560-14799, never the GCS port 14550)",
     )
     p.add_argument(
         "--bind",

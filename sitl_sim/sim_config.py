@@ -17,7 +17,12 @@ import numpy as np
 
 from protocols.faults import Crash
 from protocols.frames import FloatArray
-from protocols.mavlink_conventions import DEFAULT_BASE_PORT, DEFAULT_GCS_PORT, MAX_VEHICLES
+from protocols.mavlink_conventions import (
+    DEFAULT_GCS_PORT,
+    MAX_VEHICLES,
+    port_clash,
+    vehicle_ports,
+)
 from protocols.mavlink_signing import SigningKeyError, load_signing_key
 from protocols.scenario import ScenarioError, load_scenario
 from sitl_sim.attitude_control import AttitudeGains
@@ -37,11 +42,12 @@ class SimConfigError(ValueError):
 
 @dataclass(frozen=True)
 class NetConfig:
-    """Where the vehicles listen (``bind_host``, ``base_port + i``), where telemetry for the
+    """Where the vehicles listen (``bind_host``, :func:`~protocols.mavlink_conventions.
+    vehicle_port` of ``base_port``: None is the default layout), where telemetry for the
     ground station goes (None: nowhere), the signing key and the default stream rates (Hz)."""
 
     bind_host: str = "127.0.0.1"
-    base_port: int = DEFAULT_BASE_PORT
+    base_port: int | None = None
     gcs: Address | None = ("127.0.0.1", DEFAULT_GCS_PORT)
     signing_key: bytes | None = None
     agent_rates_hz: Mapping[int, float] = field(default_factory=lambda: dict(AGENT_RATES_HZ))
@@ -161,12 +167,11 @@ def parse_gcs_url(text: str) -> Address | None:
     return str(info[0][4][0]), port
 
 
-def check_ports(base_port: int, n: int) -> None:
-    """Ports base_port .. base_port + n - 1 must exist."""
-    if base_port < 1 or base_port + n - 1 > 65535:
-        raise SimConfigError(
-            f"--base-port {base_port}: ports {base_port}..{base_port + n - 1} must be in 1..65535"
-        )
+def check_ports(base_port: int | None, n: int, gcs_port: int | None = None) -> None:
+    """The n vehicle ports must exist, differ, and leave the GCS port free."""
+    clash = port_clash(vehicle_ports(n, base_port), gcs_port)
+    if clash is not None:
+        raise SimConfigError(clash)
 
 
 def read_signing_key(path: str | Path | None) -> bytes | None:

@@ -1,0 +1,103 @@
+"""The UDP port layout (protocols/mavlink_conventions.vehicle_port): defaults that never collide
+for any number of drones (PX4's ports kept for the first ten), explicit clashes refused with one
+line before anything starts, and a 12-drone swarm started with every default flies."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+from agent_harness import write_scenario
+from sitl_client import ENV, ROOT, swarm_command
+from test_drill_flight import _default_ports_lock
+
+from gcs.tlog import read_tlog
+from protocols.mavlink_conventions import (
+    DEFAULT_GCS_PORT,
+    MAX_VEHICLES,
+    describe_ports,
+    port_clash,
+    vehicle_port,
+    vehicle_ports,
+)
+
+
+def test_the_default_layout_never_collides_and_keeps_px4_ports_for_ten() -> None:
+    assert vehicle_ports(10) == list(range(14540, 14550))
+    for n in range(1, MAX_VEHICLES + 1):
+        ports = vehicle_ports(n)
+        assert port_clash(ports, DEFAULT_GCS_PORT) is None, n
+        assert all(p < 14550 or p >= 14560 for p in ports)  # 14550-14559: ground stations
+    assert vehicle_port(10) == 14560 and vehicle_port(249) == 14799
+    assert describe_ports(vehicle_ports(12)) == "14540-14549, 14560-14561"
+    assert vehicle_ports(3, 20000) == [20000, 20001, 20002]  # an explicit base: contiguous
+
+
+def test_clashes_are_named() -> None:
+    clash = port_clash(vehicle_ports(12, 14540), 14550)
+    assert clash is not None
+    assert clash.startswith("vehicle 10 (system id 11) would listen on UDP 14550, the ground")
+    assert "--base-port" in clash and "defaults" in clash
+    bad = port_clash(vehicle_ports(3, 65534), None)
+    assert bad is not None and "65536" in bad and "outside 1..65535" in bad
+    assert port_clash([15000, 15000], None) == "vehicles 0 and 1 would both listen on UDP 15000"
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ("sim", "--drones", "12", "--base-port", "14540"),
+        ("up", "SCENARIO", "--base-port", "14540"),
+    ],
+)
+def test_a_clash_the_user_picked_stops_before_anything_starts(
+    tmp_path: Path, argv: tuple[str, ...]
+) -> None:
+    scenario = write_scenario(
+        tmp_path / "twelve.toml", _grid(12), centre=(2.0, 2.5, -2.0), spread=(1.6, 1.7, 0.0)
+    )
+    args = [str(scenario) if a == "SCENARIO" else a for a in argv]
+    out = subprocess.run(
+        swarm_command(*args, "--report", str(tmp_path / "r")) if argv[0] == "up"
+        else swarm_command(*args),
+        capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=60,
+    )  # fmt: skip
+    assert out.returncode == 2, out.stdout + out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "vehicle 10 (system id 11) would listen on UDP 14550" in lines[0]
+    assert "Traceback" not in out.stderr
+    assert not (tmp_path / "r" / "logs" / "run.json").exists()  # nothing was started
+
+
+def _grid(n: int) -> list[tuple[float, float, float]]:
+    return [(2.0 * (i // 4), 2.0 * (i % 4), 0.0) for i in range(n)]
+
+
+@pytest.mark.slow
+def test_twelve_drones_with_every_default_fly(tmp_path: Path) -> None:
+    """``swarm up twelve.toml`` as a newcomer types it (default ports, endpoint and report):
+    vehicles 10 and 11 are on 14560-14561, the ground station gets every vehicle's telemetry on
+    14550, and all twelve fly."""
+    scenario = write_scenario(
+        tmp_path / "twelve.toml",
+        _grid(12),
+        centre=(2.0, 3.0, -2.0),
+        spread=(1.63, 2.24, 0.0),
+        duration_s=14.0,
+        settle_s=8.0,
+    )
+    with _default_ports_lock():
+        out = subprocess.run(
+            swarm_command("up", str(scenario), "--agents-per-process", "12"),
+            capture_output=True, text=True, env=ENV, cwd=tmp_path, timeout=240,
+        )  # fmt: skip
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    sim_log = (tmp_path / "report" / "logs" / "sim.log").read_text()
+    assert "UDP 127.0.0.1:14540-14549, 14560-14561, GCS udp:127.0.0.1:14550" in sim_log
+    assert json.loads((tmp_path / "report" / "logs" / "run.json").read_text())["agents"]
+    track = read_tlog(tmp_path / "report" / "flight.tlog")
+    assert set(track.vehicles) == set(range(1, 13))
+    for sysid, v in track.vehicles.items():
+        assert -v.position_ned_m[-1, 2] > 1.5, (sysid, v.position_ned_m[-1])
