@@ -29,11 +29,10 @@ from sitl_sim.dynamics import (
     RATES,
     VEL,
     initial_state,
-    step_with_contact,
     wrench_from_rotor_speeds,
 )
 from sitl_sim.failsafe import FailsafeConfig, failsafe_command
-from sitl_sim.inner_loop import inner_loop
+from sitl_sim.physics_kernel import PhysicsKernel
 
 AIRBORNE_ALTITUDE_M = 0.1
 HARD_LANDING_M_S = 2.0
@@ -232,17 +231,17 @@ class ReferenceFlight:
                 self.failsafe,
             )
             attitude[:, stale], thrust[stale] = att, thr
-        self.rotor_speed = inner_loop(
-            self.state, attitude, thrust, self.params, self.att_gains, self.armed
+        # inner_loop + step_with_contact, fused (same arithmetic: sitl_sim.physics_kernel)
+        kernel: PhysicsKernel | None = getattr(self, "_physics_kernel", None)
+        if kernel is None:
+            kernel = PhysicsKernel(self.params, self.n, self.dt / self.substeps, self.att_gains)
+            self._physics_kernel = kernel
+        self.state, self.rotor_speed, impact = kernel.substep(
+            self.state, attitude, thrust, self.armed
         )
-        result = step_with_contact(
-            self.state, self.rotor_speed, self.params, self.dt / self.substeps
-        )
-        self.state = result.state
-        for i in np.flatnonzero(result.impact_speed_m_s > HARD_LANDING_M_S):
-            self._event(
-                "hard_landing", drone=int(i), impact_m_s=round(float(result.impact_speed_m_s[i]), 2)
-            )
+        if impact is not None:
+            for i in np.flatnonzero(impact > HARD_LANDING_M_S):
+                self._event("hard_landing", drone=int(i), impact_m_s=round(float(impact[i]), 2))
         landed = self.in_failsafe & self.armed & (self.state[2] >= -1e-6)
         for i in np.flatnonzero(landed):
             self.armed[i] = False

@@ -4,8 +4,9 @@ One :meth:`World.step` advances simulated time by one control period ``1 / contr
 physics step (``physics_hz``) each vehicle's autopilot command (:mod:`sitl_sim.guidance`) goes
 through its inner loop (attitude controller + mixer, :func:`sitl_sim.inner_loop.inner_loop`), dead
 motors are stopped, and the vectorised 6-DOF dynamics with ground contact advance the state
-(:func:`sitl_sim.dynamics.step_with_contact`). Then the autopilots update (failsafes, touchdowns,
-crashes) and scheduled crashes (a scenario's fault timeline) fire.
+(:func:`sitl_sim.dynamics.step_with_contact`): :class:`sitl_sim.physics_kernel.PhysicsKernel` does
+the three in one fused call, with the same arithmetic. Then the autopilots update (failsafes,
+touchdowns, crashes) and scheduled crashes (a scenario's fault timeline) fire.
 
 Time is the control tick ``k``: ``t_s = k / control_hz``. The only randomness is the optional
 position noise of the telemetry, drawn from the injected generator every tick for all vehicles,
@@ -21,9 +22,9 @@ import numpy as np
 from protocols.frames import FloatArray
 from sitl_sim.attitude_control import euler_from_quat_batch
 from sitl_sim.autopilot import Autopilot, AutopilotConfig, VehicleEvent
-from sitl_sim.dynamics import POS, QUAT, RATES, VEL, initial_state, step_with_contact
+from sitl_sim.dynamics import POS, QUAT, RATES, VEL, initial_state
 from sitl_sim.guidance import Guidance
-from sitl_sim.inner_loop import inner_loop
+from sitl_sim.physics_kernel import PhysicsKernel
 from sitl_sim.tunables import FleetAttitudeGains
 from sitl_sim.vehicle_params import VehicleParams
 
@@ -91,6 +92,8 @@ class World:
         self.tick = 0
         #: rotor speeds (4, N) rad/s applied in the last physics step (0 before the first)
         self.rotor_speed_rad_s = np.zeros((4, self.n))
+        #: the physics sub-step (inner loop + RK4 + contact), fused
+        self.kernel = PhysicsKernel(params, self.n, self.dt_physics_s, gains)
         self._crashes = sorted(config.crashes)
         self.pending_events: list[VehicleEvent] = self.autopilot.update(
             0.0, self.state[2], np.zeros(self.n)
@@ -112,19 +115,18 @@ class World:
 
     def step(self) -> list[VehicleEvent]:
         """Advance one control period; the events of the period (plus any pending ones)."""
-        ap, params = self.autopilot, self.params
+        ap, kernel = self.autopilot, self.kernel
         self.guidance.prepare(self.state)
+        kernel.use_gains(self.gains.kp_col(), self.gains.kd_col())
+        enable = ap.armed & ap.motor_ok  # (4, N): disarmed vehicles and dead motors stopped
         impact = np.zeros(self.n)
-        state = self.state
+        state, rotor = self.state, self.rotor_speed_rad_s
         for _ in range(self.substeps):
             euler, thrust = self.guidance.command(state)
-            rotor = inner_loop(state, euler, thrust, params, self.gains, ap.armed)
-            if not ap.motor_ok.all():
-                rotor[~ap.motor_ok] = 0.0
-            result = step_with_contact(state, rotor, params, self.dt_physics_s)
-            self.rotor_speed_rad_s = rotor
-            state = result.state
-            np.maximum(impact, result.impact_speed_m_s, out=impact)
+            state, rotor, touchdown = kernel.substep(state, euler, thrust, enable)
+            if touchdown is not None:
+                np.maximum(impact, touchdown, out=impact)
+        self.rotor_speed_rad_s = rotor
         self.state = state
         self.tick += 1
         events, self.pending_events = self.pending_events, []
