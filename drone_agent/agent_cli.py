@@ -141,6 +141,7 @@ def _default_config(control_hz: int = 50) -> AgentConfig:
     stub = parse_scenario(
         {
             "version": 1,
+            "duration_s": 1.0,  # unused: only the defaults of gains, limits and rates are taken
             "drones": [{"position_ned_m": [0, 0, 0]}, {"position_ned_m": [2, 0, 0]}],
             "rates": {"control_hz": control_hz, "physics_hz": 500},
             "trajectory": {
