@@ -175,9 +175,9 @@ class DescriptorTrajectory:
         """The C2 plan through ``waypoints``: a quintic Hermite segment between consecutive ones.
 
         Each segment matches value, rate and acceleration at both of its ends. A waypoint without
-        ``rate``/``accel`` takes them from a C2 cubic spline through the values, clamped to the
-        first and last waypoints' rates (zero when not given); the first and last waypoints
-        default to zero acceleration, so two bare waypoints give a minimum-jerk rest-to-rest move.
+        ``rate``/``accel`` takes shape-preserving ones (:func:`_derived_rates`: no overshoot, a
+        value repeated at consecutive waypoints is held); the first and last waypoints default to
+        rest, so two bare waypoints give a minimum-jerk rest-to-rest move.
         A single waypoint gives a constant segment of HOLD_SEGMENT_S (a hold).
 
         Raises:
@@ -259,24 +259,33 @@ class DescriptorTrajectory:
 def _derived_rates(
     wps: Sequence[Waypoint], t: FloatArray, p: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """Rates and accelerations (K, 9) at the waypoints: given ones, else from a clamped spline."""
-    if all(wp.rate is not None and wp.accel is not None for wp in wps):
-        return np.array([wp.rate for wp in wps]), np.array([wp.accel for wp in wps])
-    from scipy.interpolate import CubicSpline  # imported here: scipy costs ~1 s per process start
+    """Rates and accelerations (K, 9) at the waypoints: the given ones, else shape-preserving.
 
-    zero = np.zeros(N_DESCRIPTORS)
-    first_rate = wps[0].rate if wps[0].rate is not None else zero
-    last_rate = wps[-1].rate if wps[-1].rate is not None else zero
-    spline = CubicSpline(t, p, axis=0, bc_type=((1, first_rate), (1, last_rate)))
-    v = spline(t, 1)
-    acc = spline(t, 2)
-    v[0], v[-1] = first_rate, last_rate
-    acc[0] = acc[-1] = 0.0  # ends at rest unless told otherwise
-    for k, wp in enumerate(wps):
+    A waypoint without a rate takes, per descriptor, the harmonic mean of the slopes of its two
+    segments when they have the same sign, and 0 otherwise (Fritsch-Butland, as PCHIP): a value
+    equal at two consecutive waypoints stays there, a local extremum is a waypoint, and between
+    monotone waypoints the plan is monotone (a quintic Hermite segment at zero end accelerations
+    is monotone while both end slopes are within [0, 2] times its mean slope, and this mean is at
+    most twice the smaller slope). Without an acceleration a waypoint takes 0. The first and last
+    waypoints default to rest (zero rate and acceleration): two bare waypoints give a
+    minimum-jerk rest-to-rest move. (A C2 cubic spline used to give the rates: it overshot, e.g.
+    a heading held at 45 deg at two waypoints flew 65 deg between them.)
+    """
+    k = len(wps)
+    slope = np.diff(p, axis=0) / np.diff(t)[:, None]  # (K-1, 9)
+    v = np.zeros((k, N_DESCRIPTORS))
+    if k > 2:
+        left, right = slope[:-1], slope[1:]
+        same = left * right > 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            harmonic = 2.0 * left * right / (left + right)
+        v[1:-1] = np.where(same, harmonic, 0.0)
+    acc = np.zeros((k, N_DESCRIPTORS))
+    for i, wp in enumerate(wps):
         if wp.rate is not None:
-            v[k] = wp.rate
+            v[i] = wp.rate
         if wp.accel is not None:
-            acc[k] = wp.accel
+            acc[i] = wp.accel
     return v, acc
 
 

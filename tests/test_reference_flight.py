@@ -132,25 +132,26 @@ def test_delay_delivers_every_message_late_and_leaves_no_lasting_error() -> None
 def test_a_partition_splits_the_groups_estimates_until_it_heals() -> None:
     """Groups {0, 1} and {2, 3, 4} for 4 s while the formation moves 1 m north: each group keeps
     integrating inside itself (its edges to the other group frozen), so the two groups' estimates
-    drift apart; after the heal they agree again and the flight has no lasting error."""
+    drift apart; after the heal they agree again and the flight has no lasting error. The
+    partition comes at 14 s, once the estimates have settled from the take-off (within 1 mm)."""
+    t_p = 14.0
     moved = {**HOVER, "centre_ned_m": [2.5, 1.5, -3.0]}
-    fault = {"t_s": FAULT_T_S, "kind": "partition", "groups": [[0, 1], [2, 3, 4]],
-             "duration_s": 4.0}  # fmt: skip
+    fault = {"t_s": t_p, "kind": "partition", "groups": [[0, 1], [2, 3, 4]], "duration_s": 4.0}
     flight = ReferenceFlight(
-        _scenario([fault], then=[{"t_s": FAULT_T_S, **HOVER}, {"t_s": 14.0, **moved}])
+        _scenario([fault], then=[{"t_s": t_p, **HOVER}, {"t_s": t_p + 4.0, **moved}])
     )
     arrivals = _arrivals(flight)
     rec = flight.run()
     assert [e.kind for e in flight.events if e.kind.startswith("fault")] == ["fault", "fault_end"]
     t = rec.t_s
     a_group, b_group = [0, 1], [2, 3, 4]
-    during = (t > FAULT_T_S + 0.2) & (t < 14.0)
-    healed = t >= 16.0
+    during = (t > t_p + 0.2) & (t < t_p + 4.0)
+    healed = t >= t_p + 6.0
     # nothing crossed between the groups while partitioned (and messages cross again after)
     crossing = [
-        r for r, j, i, _ in arrivals if (i in a_group) != (j in a_group) and r > FAULT_ROUND
+        r for r, j, i, _ in arrivals if (i in a_group) != (j in a_group) and r > round(t_p / DT_S)
     ]
-    assert crossing and min(crossing) > round(14.0 / DT_S), min(crossing)
+    assert crossing and min(crossing) > round((t_p + 4.0) / DT_S), min(crossing)
     assert np.all(rec.neighbours[during][:, a_group] == 1)
     assert np.all(rec.neighbours[during][:, b_group] == 2)
     assert np.all(rec.neighbours[healed] == 4)
@@ -160,15 +161,15 @@ def test_a_partition_splits_the_groups_estimates_until_it_heals() -> None:
         e = rec.estimate
         return np.abs(e[:, g, None, part] - e[:, None, h, part]).max(axis=(1, 2, 3))
 
-    for part, split, agreed in ((slice(0, 3), 0.005, 0.001), (slice(6, 9), 0.05, 0.01)):
+    for part, split, agreed in ((slice(0, 3), 0.003, 0.001), (slice(6, 9), 0.05, 0.01)):
         between = disagreement(a_group, b_group, part)
         within = np.maximum(
             disagreement(a_group, a_group, part), disagreement(b_group, b_group, part)
         )
-        # measured: centre 17 mm apart (within a group 1.7 mm), shape 0.17 m^2 (0.009 m^2);
-        # without the partition the same flight keeps them within 0.8 mm / 0.01 m^2
+        # measured (a minimum-jerk 1 m move): centre 5.4 mm apart (within a group 1.0 mm),
+        # shape 0.21 m^2 (0.013 m^2); after the heal 0.08 mm / 0.0014 m^2
         assert between[during].max() > split, between[during].max()
-        assert between[during].max() > 5.0 * within[during].max()
+        assert between[during].max() > 3.0 * within[during].max()
         assert between[healed].max() < agreed, between[healed].max()
     _no_lasting_error(rec)
 

@@ -286,3 +286,64 @@ def test_append_rejects_waypoints_not_after_the_join() -> None:
         old.append([Waypoint(3.0, ZERO)], t_start_s=3.0)
     with pytest.raises(ValueError, match="at least one waypoint"):
         old.append([], t_start_s=3.0)
+
+
+def test_a_heading_and_altitude_held_at_two_waypoints_stay_there() -> None:
+    """The case that flew 65 deg: yaw 45 deg and 5 m at t = 50 s and again at t = 120 s."""
+    up = np.array([0, 0, -5.0, 0, 0, math.radians(45), 9.0, 4.0, 0])
+    wps = [
+        Waypoint(0.0, np.array([0, 0, 0.0, 0, 0, 0, 9.0, 4.0, 0])),
+        Waypoint(50.0, up),
+        Waypoint(120.0, up),
+        Waypoint(150.0, np.array([0, 0, -5.0, 0, 0, 0, 9.0, 4.0, 0])),
+    ]
+    plan = DescriptorTrajectory.from_waypoints(wps)
+    a, rate, _ = plan.evaluate_many(np.linspace(50.0, 120.0, 701))
+    np.testing.assert_allclose(a[:, 5], math.radians(45), atol=1e-12)
+    np.testing.assert_allclose(a[:, 2], -5.0, atol=1e-12)
+    np.testing.assert_allclose(rate, 0.0, atol=1e-12)
+    b, _, _ = plan.evaluate_many(np.linspace(0.0, 50.0, 501))
+    assert b[:, 5].max() <= math.radians(45) + 1e-12 and b[:, 2].min() >= -5.0 - 1e-12
+
+
+_values = st.lists(
+    st.floats(-50.0, 50.0, allow_nan=False, allow_infinity=False), min_size=2, max_size=7
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(values=_values, gaps=st.lists(st.floats(0.5, 30.0), min_size=6, max_size=6))
+def test_bare_waypoints_never_overshoot(values: list[float], gaps: list[float]) -> None:
+    """Between two consecutive bare waypoints every descriptor stays between their values (so it
+    is monotone where they differ and constant where they are equal)."""
+    t = np.concatenate([[0.0], np.cumsum(gaps[: len(values) - 1])])
+    rows = [np.full(9, v) for v in values]
+    plan = DescriptorTrajectory.from_waypoints(
+        [Waypoint(ti, r) for ti, r in zip(t, rows, strict=True)]
+    )
+    for k in range(len(values) - 1):
+        lo, hi = sorted((values[k], values[k + 1]))
+        a, rate, _ = plan.evaluate_many(np.linspace(t[k], t[k + 1], 200))
+        assert a[:, 0].min() >= lo - 1e-9 * (1 + abs(lo)) and a[:, 0].max() <= hi + 1e-9 * (
+            1 + abs(hi)
+        )
+        if values[k] == values[k + 1]:
+            np.testing.assert_allclose(a[:, 0], values[k], atol=1e-12)
+        else:  # monotone: the rate never changes sign
+            sign = np.sign(values[k + 1] - values[k])
+            assert (sign * rate[:, 0]).min() >= -1e-9 * (1 + abs(values[k + 1] - values[k]))
+
+
+@settings(max_examples=50, deadline=None)
+@given(values=_values, rate=st.floats(-3.0, 3.0), accel=st.floats(-1.0, 1.0))
+def test_given_rates_and_accelerations_are_still_honoured(
+    values: list[float], rate: float, accel: float
+) -> None:
+    wps = [Waypoint(10.0 * k, np.full(9, v)) for k, v in enumerate(values)]
+    k = len(wps) // 2
+    wps[k] = Waypoint(wps[k].t_s, wps[k].value, np.full(9, rate), np.full(9, accel))
+    plan = DescriptorTrajectory.from_waypoints(wps)
+    a, r, acc = plan.evaluate(wps[k].t_s)
+    np.testing.assert_allclose(a, values[k], atol=1e-9)
+    np.testing.assert_allclose(r, rate, atol=1e-9)
+    np.testing.assert_allclose(acc, accel, atol=1e-9)
