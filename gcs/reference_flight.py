@@ -211,7 +211,7 @@ class ReferenceFlight:
     def _physics_step(self, t_s: float) -> None:
         attitude, thrust = self.attitude_sp, self.thrust_sp
         stale = self.armed & (t_s - self.last_setpoint_s > self.failsafe.offboard_timeout_s)
-        if np.any(stale):
+        if stale.any():
             attitude, thrust = attitude.copy(), thrust.copy()
             for i in np.flatnonzero(stale & ~self.in_failsafe):
                 self.in_failsafe[i] = True
@@ -242,6 +242,8 @@ class ReferenceFlight:
         if impact is not None:
             for i in np.flatnonzero(impact > HARD_LANDING_M_S):
                 self._event("hard_landing", drone=int(i), impact_m_s=round(float(impact[i]), 2))
+        if not self.in_failsafe.any():
+            return
         landed = self.in_failsafe & self.armed & (self.state[2] >= -1e-6)
         for i in np.flatnonzero(landed):
             self.armed[i] = False

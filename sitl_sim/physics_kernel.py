@@ -21,6 +21,7 @@ takes the state and returns a new array.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -32,10 +33,11 @@ from sitl_sim.dynamics import _euler_coeffs
 from sitl_sim.mixer import mix
 from sitl_sim.vehicle_params import VehicleParams
 
-#: The extended RK4 state (19, N): pos 0:3, vel 3:6, ``w w w`` 6:9, ``x y z`` 9:12, ``x y`` 12:14,
-#: ``p q r`` 14:17, ``p q`` 17:19, so that ``w w w``, ``x y z``, ``y z x``, ``z x y``,
-#: ``p q r``, ``q r p`` and ``r p q`` are all contiguous row slices.
-_EXT_ROWS = 19
+#: The extended RK4 state (22, N): pos 0:3, vel 3:6, then ``z z w w w x y z x y x`` 6:17 (the
+#: quaternion ``w x y z`` is 10:14) and ``p q r p q`` 17:22, so that ``z z``, ``w w``, ``w w w``,
+#: ``x y``, ``y x``, ``x y z``, ``y z x``, ``z x y``, ``p q r``, ``q r p`` and ``r p q`` are all
+#: contiguous row slices.
+_EXT_ROWS = 22
 
 Enable = FloatArray | npt.NDArray[np.bool_] | None
 #: ``substep(state, euler_des, thrust_normalised, enable) -> (state, rotor_speed, impact)``
@@ -118,7 +120,7 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
     arctan2, arcsin, sin, cos, rem = np.arctan2, np.arcsin, np.sin, np.cos, np.remainder
     einsum, empty, copyto = np.einsum, np.empty, np.copyto
     greater, greater_equal, less, invert = np.greater, np.greater_equal, np.less, np.invert
-    logical_and, logical_or = np.logical_and, np.logical_or
+    logical_and, logical_or, flatnonzero = np.logical_and, np.logical_or, np.flatnonzero
 
     def c0(x: float) -> FloatArray:
         return np.array(x, dtype=np.float64)
@@ -135,7 +137,8 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
     inv_c, thrust_coeff = c0(1.0 / params.thrust_coeff), c0(params.thrust_coeff)
     arm, yaw_k = c0(params.arm_m), c0(params.yaw_moment_per_thrust_m)
     inv_mass = c0(1.0 / params.mass_kg)
-    weight_0d = c0(params.weight_n)
+    weight = params.weight_n
+    weight_0d = c0(weight)
     span = f_max - f_min
     arm_limit, yaw_limit = span * params.arm_m, 2.0 * span * params.yaw_moment_per_thrust_m
     lim3 = _full(np.array([arm_limit, arm_limit, yaw_limit]), 3, n)
@@ -155,20 +158,23 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
     den_roll, den_yaw = den2
     eta = empty((3, n))
     roll, pitch, yaw = eta
-    roll_pitch = eta[0:2]
-    trig = empty((5, n))  # sin roll, sin pitch, cos roll, cos pitch, cos roll
-    s_phi, s_th, c_phi, c_th, c_phi_2 = trig
-    sin_rows, cos_rows, s_rows, c_th_phi = trig[0:2], trig[2:4], trig[0:2], trig[3:5]
+    # roll: -s c s c -s, so that [c s], [-s c], [s c] and [c -s] are row pairs; pitch: s s c c
+    phi5, theta4 = empty((5, n)), empty((4, n))
+    neg_s_phi, c_phi, s_phi, c_phi_b, neg_s_phi_b = phi5
+    cs_phi, ns_c_phi, sc_phi, c_ns_phi = phi5[1:3], phi5[0:2], phi5[2:4], phi5[3:5]
+    s_th, s_th_b, c_th, c_th_b = theta4
+    ss_th, cc_th = theta4[0:2], theta4[2:4]
     eta_dot = empty((3, n))
     phid, thd, psid = eta_dot
+    thd_qr = eta_dot[1:3]  # [theta', (s_phi q + c_phi r)] before psi' = (...) / cos(theta)
     err, tau, tmp3, od = empty((3, n)), empty((3, n)), empty((3, n)), empty((3, n))
     e_yaw_err = err[2]
     tau0, tau1, tau2 = tau
-    od0, od1, od2 = od
-    p1 = empty((2, n))  # s_phi c_th, s_th c_phi
-    s_phi_c_th, c_phi_s_th = p1
-    s_phi_s_th, c_phi_c_th = empty(n), empty(n)
-    a, b, c, qr, ctc, tth = (empty(n) for _ in range(6))
+    od0, od12 = od[0], od[1:3]
+    # two-row copies for the two rows of omega' that share their form
+    qq, rr, t1t1, t2t2, ph2, th2, ps2 = (empty((2, n)) for _ in range(7))
+    a2, b2, c2, sc_cth, sc_sth, c_ns_cth = (empty((2, n)) for _ in range(6))
+    a, b, ctc, tth = (empty(n) for _ in range(4))
     mom, cp = empty((3, n)), empty((3, n))
     cp_qr, cp_pr, cp_pq = cp
     t1, qt = empty(n), empty(n)
@@ -186,40 +192,40 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
     moments = empty((3, n))
     mom_lm, mom_n = moments[0:2], moments[2]
     alpha = empty((3, n))
-    t_m, two_t_m, neg_two_t_m, gmt = empty(n), empty(n), empty(n), empty(n)
+    t_m, two_t_m, gmt = empty(n), empty(n), empty(n)
+    neg_two_t_m2 = empty((2, n))
+    sign2 = _full(np.array([1.0, -1.0]), 2, n)
     xs = [empty((_EXT_ROWS, n)) for _ in range(4)]
     ks = [empty((_EXT_ROWS, n)) for _ in range(4)]
-    d_h5, d_s2 = empty((5, n)), empty((2, n))
+    d_h5, d_s2, d_a2, d_b2 = empty((5, n)), empty((2, n)), empty((2, n)), empty((2, n))
     d_p3, d_wh3, d_bb3, d_cc3, d_cp3 = (empty((3, n)) for _ in range(5))
     h_pqr, h_rpq, h_qrp = d_h5[0:3], d_h5[2:5], d_h5[1:4]
     d_p0, d_p1, d_p2 = d_p3
     d_s0, d_s1 = d_s2
-    d_t, d_u, norm = empty(n), empty(n), empty(n)
+    d_t, norm = empty(n), empty(n)
 
     def views(x: FloatArray, k: FloatArray) -> tuple[FloatArray, ...]:
         return (
-            x[3:6], k[0:3], x[8], x[9], x[10], x[11], x[9:11], k[3], k[4], k[5],
-            x[14:19], x[9:12], x[6:9], x[10:13], x[11:14],
-            k[6], k[7:9], k[9:12], k[12:14], k[9:11],
-            x[15:18], x[16:19], k[14:17], k[17:19], k[14:16],
+            x[3:6], k[0:3], x[11:13], x[6:8], x[8:10], x[15:17], k[3:5], k[5],
+            x[17:22], x[11:14], x[8:11], x[12:15], x[13:16],
+            k[10], k[8:10], k[11:14], k[13], k[6:8], k[11:13], k[14:16], k[11], k[16],
+            x[18:21], x[19:22], k[17:20], k[17:19], k[20:22],
         )  # fmt: skip
 
     stage_views = [views(x, k) for x, k in zip(xs, ks, strict=True)]
 
     def derivative(v: tuple[FloatArray, ...]) -> None:
         """The derivative of one extended stage state (dynamics._derivative_into)."""
-        (vel, k_pos, w, x, y, z, xy, k_v0, k_v1, k_v2, pqr5, xyz, www, yzx, zxy,
-         k_w, k_w2, k_xyz, k_xy2, k_xy, qrp, rpq, k_pqr, k_pq2, k_pq) = v  # fmt: skip
+        (vel, k_pos, xy, zz, ww, yx, k_v01, k_v2, pqr5, xyz, www, yzx, zxy,
+         k_w, k_ww, k_xyz, k_z, k_zz, k_xy, k_xy2, k_x, k_x2,
+         qrp, rpq, k_pqr, k_pq, k_pq2) = v  # fmt: skip
         k_pos[...] = vel
         # velocity: -2 T/m (xz + wy), -2 T/m (yz - wx), g - T/m + 2 T/m (x^2 + y^2)
-        mul(x, z, d_t)
-        mul(w, y, d_u)
-        add(d_t, d_u, d_t)
-        mul(neg_two_t_m, d_t, k_v0)
-        mul(y, z, d_t)
-        mul(w, x, d_u)
-        sub(d_t, d_u, d_t)
-        mul(neg_two_t_m, d_t, k_v1)
+        mul(xy, zz, d_a2)
+        mul(ww, yx, d_b2)
+        mul(d_b2, sign2, d_b2)
+        add(d_a2, d_b2, d_a2)
+        mul(neg_two_t_m2, d_a2, k_v01)
         mul(xy, xy, d_s2)
         add(d_s0, d_s1, d_t)
         mul(two_t_m, d_t, d_t)
@@ -230,13 +236,15 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
         add(d_p0, d_p1, d_t)
         add(d_t, d_p2, d_t)
         neg(d_t, k_w)
-        k_w2[...] = k_w
+        k_ww[...] = k_w
         mul(www, h_pqr, d_wh3)
         mul(yzx, h_rpq, d_bb3)
         mul(zxy, h_qrp, d_cc3)
         add(d_wh3, d_bb3, d_wh3)
         sub(d_wh3, d_cc3, k_xyz)
+        k_zz[...] = k_z
         k_xy2[...] = k_xy
+        k_x2[...] = k_x
         # body rates: Euler's equations
         mul(qrp, rpq, d_cp3)
         mul(euler_coef3, d_cp3, d_cp3)
@@ -247,19 +255,21 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
     k1, k2, k3, k4 = ks
     v1, v2, v3, v4 = stage_views
     # stage 1 is the state itself: the inner loop reads it
-    x1_pos_vel, x1_www, x1_xyz, x1_xy = x1[0:6], x1[6:9], x1[9:12], x1[12:14]
-    x1_pqr, x1_pq, x1_yzx, x1_zxy = x1[14:17], x1[17:19], x1[10:13], x1[11:14]
-    k2_pos_vel, k2_quat, k2_pqr = k2[0:6], k2[8:12], k2[14:17]
-    p_row, q_row, r_row = x1[14], x1[15], x1[16]
+    x1_pos_vel, x1_zz, x1_www, x1_xyz, x1_xy = x1[0:6], x1[6:8], x1[8:11], x1[11:14], x1[14:16]
+    x1_x, x1_pqr, x1_pq, x1_yzx, x1_zxy = x1[16], x1[17:20], x1[20:22], x1[12:15], x1[13:16]
+    k2_pos_vel, k2_quat, k2_pqr = k2[0:6], k2[10:14], k2[17:20]
+    p_row, q_row, r_row = x1[17], x1[18], x1[19]
 
     def substep(
         state: FloatArray, euler_des: FloatArray, thrust_normalised: FloatArray, enable: Enable
     ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
         kp, kd = gains
         x1_pos_vel[...] = state[0:6]
+        x1_zz[...] = state[9]
         x1_www[...] = state[6]
         x1_xyz[...] = state[7:10]
         x1_xy[...] = state[7:9]
+        x1_x[...] = state[7]
         x1_pqr[...] = state[10:13]
         x1_pq[...] = state[10:12]
         # --- attitude controller (attitude_control.attitude_moments) --------------------------
@@ -278,21 +288,26 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
         maximum(e_pitch, minus_one, out=a)
         minimum(a, one, out=a)
         arcsin(a, pitch)
-        sin(roll_pitch, sin_rows)
-        cos(roll_pitch, cos_rows)
-        c_phi_2[...] = c_phi
+        sin(roll, s_phi)
+        cos(roll, c_phi)
+        neg(s_phi, neg_s_phi)
+        c_phi_b[...] = c_phi
+        neg_s_phi_b[...] = neg_s_phi
+        sin(pitch, s_th)
+        cos(pitch, c_th)
+        s_th_b[...] = s_th
+        c_th_b[...] = c_th
         # Euler-angle rates from body rates (eq. 20)
+        qq[...] = q_row
+        rr[...] = r_row
+        mul(cs_phi, qq, a2)
+        mul(ns_c_phi, rr, b2)
+        add(a2, b2, thd_qr)  # c_phi q - s_phi r, s_phi q + c_phi r
         maximum(c_th, eps_cos, out=ctc)
         div(s_th, ctc, tth)
-        mul(s_phi, q_row, a)
-        mul(c_phi, r_row, b)
-        add(a, b, qr)
-        mul(tth, qr, a)
+        mul(tth, psid, a)
         add(p_row, a, phid)
-        mul(c_phi, q_row, a)
-        mul(s_phi, r_row, b)
-        sub(a, b, thd)
-        div(qr, ctc, psid)
+        div(psid, ctc, psid)
         # PD on the Euler angles, yaw error wrapped
         sub(euler_des, eta, err)
         add(e_yaw_err, pi, e_yaw_err)
@@ -307,32 +322,29 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
         mul(c_th, thd, b)
         mul(b, psid, b)
         sub(a, b, od0)
-        mul(s_rows, c_th_phi, p1)  # s_phi c_th, s_th c_phi
-        mul(s_phi, s_th, s_phi_s_th)
-        mul(c_phi, c_th, c_phi_c_th)
-        mul(c_phi, tau1, a)
-        mul(s_phi_c_th, tau2, b)
-        add(a, b, a)
-        mul(s_phi, phid, b)
-        mul(b, thd, b)
-        sub(a, b, a)
-        mul(c_phi_c_th, phid, b)
-        mul(s_phi_s_th, thd, c)
-        sub(b, c, b)
-        mul(b, psid, b)
-        add(a, b, od1)
-        neg(s_phi, a)
-        mul(a, tau1, a)
-        mul(c_phi_c_th, tau2, b)
-        add(a, b, a)
-        mul(c_phi, phid, b)
-        mul(b, thd, b)
-        sub(a, b, a)
-        mul(s_phi_c_th, phid, b)
-        mul(c_phi_s_th, thd, c)
-        add(b, c, b)
-        mul(b, psid, b)
-        sub(a, b, od2)
+        # rows 1 and 2 together, A tau1 + B tau2 - C phi' theta' + (D phi' - E theta') psi'
+        # with A = [c, -s], B = [s c_th, c c_th], C = [s, c], D = [c c_th, -s c_th],
+        # E = [s s_th, c s_th] (s, c of roll): the reference's second row is this one negated
+        # term by term, which IEEE arithmetic gives exactly
+        t1t1[...] = tau1
+        t2t2[...] = tau2
+        ph2[...] = phid
+        th2[...] = thd
+        ps2[...] = psid
+        mul(sc_phi, cc_th, sc_cth)
+        mul(sc_phi, ss_th, sc_sth)
+        mul(c_ns_phi, cc_th, c_ns_cth)
+        mul(c_ns_phi, t1t1, a2)
+        mul(sc_cth, t2t2, b2)
+        add(a2, b2, a2)
+        mul(sc_phi, ph2, b2)
+        mul(b2, th2, b2)
+        sub(a2, b2, a2)
+        mul(c_ns_cth, ph2, b2)
+        mul(sc_sth, th2, c2)
+        sub(b2, c2, b2)
+        mul(b2, ps2, b2)
+        add(a2, b2, od12)
         # moments (eq. 39)
         mul(inertia3, od, mom)
         mul(q_row, r_row, cp_qr)
@@ -382,7 +394,8 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
         mul(thrust, inv_mass, t_m)
         div(moments, inertia3, alpha)
         add(t_m, t_m, two_t_m)
-        neg(two_t_m, neg_two_t_m)
+        neg(two_t_m, neg_two_t_m2[0])
+        neg_two_t_m2[1] = neg_two_t_m2[0]
         sub(g_m_s2, t_m, gmt)
         # --- RK4 (dynamics._rk4) --------------------------------------------------------------
         derivative(v1)
@@ -424,6 +437,12 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
         columns with masks instead of on the gathered contact columns); touchdown speeds (N,)."""
         z0, vz0, z1, vz1 = prev[2], prev[5], new[2], new[5]
         greater_equal(z1, zero, in_contact)
+        touching = flatnonzero(in_contact)
+        if touching.size <= _FEW_IN_CONTACT:  # a crashed or landed drone or two: one by one
+            impact = np.zeros(n)
+            for i in touching.tolist():
+                impact[i] = _contact_one(new, prev, i, thrust.item(i) < weight)
+            return impact
         # fraction of the step at which the ground was reached (0 if it started on the ground)
         sub(z1, z0, dz)
         greater(dz, zero, dz_pos)
@@ -473,3 +492,30 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
         return impact
 
     return substep
+
+
+#: Up to this many vehicles on the ground, contact is applied one by one (cheaper than masks).
+_FEW_IN_CONTACT = 3
+
+
+def _contact_one(new: FloatArray, prev: FloatArray, i: int, resting: bool) -> float:
+    """Ground contact of vehicle ``i`` (on the ground in ``new``) in Python floats: the same
+    operations as dynamics._ground_contact_inplace on one column; its touchdown speed (m/s)."""
+    z0, vz0, z1, vz1 = prev.item(2, i), prev.item(5, i), new.item(2, i), new.item(5, i)
+    frac = 0.0
+    if z0 < 0.0:
+        dz = z1 - z0
+        frac = min(max(-z0 / (dz if dz > 0.0 else 1.0), 0.0), 1.0)
+    moving_down = vz1 > 0.0
+    impact = max(vz0 + frac * (vz1 - vz0), 0.0) if moving_down else 0.0
+    new[2, i] = 0.0
+    if moving_down or resting:
+        new[3:6, i] = 0.0
+        new[10:13, i] = 0.0
+        if z0 >= 0.0:
+            new[0:2, i] = prev[0:2, i]
+    if resting:  # level, keeping the yaw (dynamics._level_quat; numpy's arctan2, as there)
+        w, x, y, z = new[6:10, i].tolist()
+        yaw = float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+        new[6:10, i] = (math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw))
+    return impact
