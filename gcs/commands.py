@@ -21,6 +21,8 @@ import numpy as np
 
 from gcs.planner import Envelope, PlanRefused, formation_target, goal_of, hold, land, plan_to
 from protocols.descriptor_vector import I_YAW, SHAPE
+from protocols.formation_fit import fit_problem
+from protocols.frames import FloatArray
 from protocols.wire_plan import LAND_HANDOVER_ALTITUDE_M, FlightCommand, PlanMessage
 
 VERSION = 1
@@ -146,10 +148,16 @@ def decode_reply(payload: bytes) -> Reply:
 
 
 def apply_command(
-    request: Request, current: PlanMessage, now_s: float, env: Envelope
+    request: Request,
+    current: PlanMessage,
+    now_s: float,
+    env: Envelope,
+    positions_ned_m: FloatArray | None = None,
 ) -> PlanMessage:
     """The next plan (seq + 1) for a plan-changing ``request``, leaving ``current`` at ``now_s``
-    (simulated s); PlanRefused with the reason if the envelope or the geofence forbid it."""
+    (simulated s); PlanRefused with the reason if the envelope or the geofence forbid it, or if
+    the new shape cannot hold the drones now at ``positions_ned_m`` (N, 3) the envelope's
+    minimum separation apart (not checked without positions)."""
     plan, args = current.trajectory, request.args
     duration = args.get("duration_s")
     goal = goal_of(plan, now_s)
@@ -200,4 +208,8 @@ def apply_command(
         goal[SHAPE] *= factor**2
     else:
         raise PlanRefused(f"{request.name} does not change the plan")
+    if request.name in ("formation", "scale") and positions_ned_m is not None:
+        problem = fit_problem(positions_ned_m, goal, env.min_separation_m)
+        if problem is not None:
+            raise PlanRefused(problem)
     return PlanMessage(plan_to(plan, now_s, goal, env, duration), FlightCommand.FLY)

@@ -294,7 +294,8 @@ class GroundStation:
         if request.name == "gcs-restart":
             return self._restart(now)
         try:
-            plan = apply_command(request, self.plan, now, self._o.envelope)
+            positions = self.watch.positions(self.telemetry.vehicles)
+            plan = apply_command(request, self.plan, now, self._o.envelope, positions)
         except PlanRefused as exc:
             reply = Reply(False, str(exc), self.plan.seq)
         else:

@@ -60,6 +60,7 @@ class Envelope:
     fence_altitude_m: tuple[float, float] = (-0.5, 60.0)
     min_duration_s: float = 1.0
     max_descent_m_s: float = 1.0
+    min_separation_m: float = 1.0
 
 
 def _limits(env: Envelope) -> list[tuple[slice, float, float, str]]:

@@ -108,15 +108,20 @@ class SwarmWatch:
             self.failsafes[drone] = self.failsafes.get(drone, 0) + 1
         return kind
 
-    def truth(self, vehicles: Mapping[int, VehicleState]) -> np.ndarray | None:
-        """True descriptors (9,) of the alive drones' vehicles (every vehicle before any agent
-        joined); None with fewer than two positions."""
+    def positions(self, vehicles: Mapping[int, VehicleState]) -> np.ndarray | None:
+        """Positions (N, 3) NED m of the alive drones' vehicles (every vehicle before any agent
+        joined); None with fewer than two."""
         positions = [
             v.position_ned_m
             for i, v in sorted(vehicles.items())
             if v.position_ned_m is not None and (i in self.alive or not self.alive)
         ]
-        return descriptors(np.array(positions)) if len(positions) >= 2 else None
+        return np.array(positions, dtype=float) if len(positions) >= 2 else None
+
+    def truth(self, vehicles: Mapping[int, VehicleState]) -> np.ndarray | None:
+        """True descriptors (9,) of :meth:`positions`; None with fewer than two positions."""
+        positions = self.positions(vehicles)
+        return None if positions is None else descriptors(positions)
 
     def table(self, vehicles: Mapping[int, VehicleState]) -> list[dict[str, Any]]:
         """One row per drone heard: mode, armed, position (NED m), centre estimate error (m),

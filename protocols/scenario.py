@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from protocols.faults import Crash, Dropout, Fault, LinkCut, LinkDelay, PacketLoss, Partition
+from protocols.formation_fit import fit_problem
 from protocols.frames import FloatArray
 from protocols.scenario_schema import ScenarioError, Table
 from protocols.trajectory import DescriptorTrajectory, Waypoint
@@ -120,6 +121,14 @@ class CommsConfig:
 
 
 @dataclass(frozen=True)
+class SafetyConfig:
+    """[safety]: the distance (m) every formation of the plan and of operator commands must keep
+    between drones (protocols/formation_fit.py)."""
+
+    min_separation_m: float = 1.0
+
+
+@dataclass(frozen=True)
 class DroneConfig:
     """One [[drones]] entry: initial position (NED, m; z <= 0) and heading (deg)."""
 
@@ -188,6 +197,7 @@ class Scenario:
     gains: GainsConfig = field(default_factory=GainsConfig)
     consensus: ConsensusConfig = field(default_factory=ConsensusConfig)
     comms: CommsConfig = field(default_factory=CommsConfig)
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
     faults: tuple[Fault, ...] = ()
     version: int = 1
 
@@ -238,7 +248,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         raise top.error(f"{version} is not supported (supported: {_supported()})", "version")
     top.allow(
         ("version", "name", "duration_s", "seed", "settle_s", "vehicle", "rates", "gains",
-         "consensus", "comms", "drones", "trajectory", "faults")
+         "consensus", "comms", "safety", "drones", "trajectory", "faults")
     )  # fmt: skip
     drones = _drones(top)
     waypoints = _waypoints(top.table("trajectory", ("waypoints",)))
@@ -248,6 +258,8 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         duration_s = waypoints[-1].t_s
     else:
         raise top.error("missing (required when the last waypoint is at t = 0)", "duration_s")
+    safety = top.table("safety").section(SafetyConfig, {"min_separation_m": {"ge": 0}})
+    _check_formations(top, drones, waypoints, safety)
     return Scenario(
         source=source,
         name=top.string("name", Path(source).stem),
@@ -261,9 +273,27 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         gains=_gains(top.table("gains")),
         consensus=top.table("consensus").section(ConsensusConfig, _CONSENSUS_BOUNDS),
         comms=top.table("comms").section(CommsConfig, {"range_m": {"gt": 0}}),
+        safety=safety,
         faults=tuple(_fault(t, len(drones), duration_s) for t in top.tables("faults")),
         version=version,
     )
+
+
+def _check_formations(
+    top: Table,
+    drones: tuple[DroneConfig, ...],
+    waypoints: tuple[WaypointConfig, ...],
+    safety: SafetyConfig,
+) -> None:
+    """Every waypoint's formation must hold the drones, from where they start, at least
+    ``safety.min_separation_m`` apart (the cooperative field maps their layout affinely)."""
+    if len(drones) < 2 or safety.min_separation_m <= 0:
+        return
+    start = np.array([d.position_ned_m for d in drones], dtype=float)
+    for k, w in enumerate(waypoints):
+        problem = fit_problem(start, w.waypoint().value, safety.min_separation_m)
+        if problem is not None:
+            raise top.error(f"at t = {w.t_s:g} s {problem}", f"trajectory.waypoints[{k}]")
 
 
 def _supported() -> str:

@@ -58,6 +58,19 @@ class Run:
         assert "accepted" in out.stdout, out.stdout
         return out.stdout
 
+    def refused(self, *words: str) -> str:
+        """An operator command the ground station must refuse (exit 1); its output."""
+        out = subprocess.run(
+            swarm_command(*words, *self.args),
+            capture_output=True,
+            text=True,
+            env=ENV,
+            cwd=ROOT,
+            timeout=30,
+        )
+        assert out.returncode == 1 and "refused" in out.stdout, out.stdout + out.stderr
+        return out.stdout
+
     def now_s(self) -> float:
         """The newest simulated time an agent reported."""
         return max((s.t_s for s in self.obs.statuses().values()), default=-1.0)
@@ -241,6 +254,9 @@ def test_every_operator_command_flies_as_typed(tmp_path: Path, clock: str) -> No
             for t_s, words in SEQUENCE:
                 run.wait_t(t_s)
                 run.command(*words)
+                if words[0] == "takeoff":  # a shape too tight for nine drones 1 m apart
+                    tight = run.refused("formation", "--length-m", "0.5", "--width-m", "0.5")
+                    assert "cannot hold 9 drones 1 m apart" in tight, tight
             run.wait_modes(range(9), AgentMode.LANDED, 60.0)
             landed_at = run.now_s()
             run.command("takeoff", "--altitude-m", str(TAKEOFF_AGAIN_ALTITUDE_M))
@@ -248,6 +264,8 @@ def test_every_operator_command_flies_as_typed(tmp_path: Path, clock: str) -> No
         finally:
             _stop(run)
     assert_no_crash(events)
+    refusals = [e for e in events if e["kind"] == "command" and not e["accepted"]]
+    assert [e["command"] for e in refusals] == ["formation"], refusals
     c0 = GRID_CENTRE
     l0, w0 = GRID_SPREAD[0], GRID_SPREAD[1]
     # takeoff to 6 m: the centre climbs, nothing else changes
