@@ -20,6 +20,7 @@ import numpy as np
 
 from bench.end_to_end import end_to_end
 from bench.physics import physics_step
+from bench.physics_tick import physics_tick
 from bench.sitl import sitl_rtf
 from bench.zenoh_latency import zenoh_latency
 
@@ -27,6 +28,7 @@ Benchmark = Callable[[], dict[str, Any]]
 
 BENCHMARKS: dict[str, Benchmark] = {
     "physics_step": physics_step,
+    "physics_tick": physics_tick,
     "zenoh_latency": zenoh_latency,
     "sitl": sitl_rtf,
     "end_to_end": end_to_end,

@@ -120,6 +120,7 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
     arctan2, arcsin, sin, cos, rem = np.arctan2, np.arcsin, np.sin, np.cos, np.remainder
     einsum, empty, copyto = np.einsum, np.empty, np.copyto
     greater, greater_equal, less, invert = np.greater, np.greater_equal, np.less, np.invert
+    isnan = np.isnan
     logical_and, logical_or, flatnonzero = np.logical_and, np.logical_or, np.flatnonzero
 
     def c0(x: float) -> FloatArray:
@@ -183,6 +184,12 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
     lim_mom = empty((3, n))
     lim_lm, lim_n = lim_mom[0:2], lim_mom[2]
     base, total, forces = empty((4, n)), empty((4, n)), empty((4, n))
+    yaw4, room, mag, safe = empty((4, n)), empty((4, n)), empty((4, n)), empty((4, n))
+    yaw4_01, yaw4_23 = yaw4[0:2], yaw4[2:4]
+    room_0, room_1, room_2, room_3 = room
+    yaw_up, mag_big = np.empty((4, n), dtype=bool), np.empty((4, n), dtype=bool)
+    scale = empty(n)
+    c_tol = c0(tol)
     base_01, base_23, total_01, total_23 = base[0:2], base[2:4], total[0:2], total[2:4]
     # --- wrench and dynamics --------------------------------------------------------------
     f4 = empty((4, n))
@@ -369,12 +376,37 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
         neg(y_plus, y_minus)
         add(base_01, y2, total_01)
         add(base_23, y2, total_23)
-        if total.min() >= fit_lo and total.max() <= fit_hi:
+        finite = True
+        if total.min() >= fit_lo and total.max() <= fit_hi:  # the whole yaw share fits
             maximum(total, c_f_min, out=forces)
+        elif not isnan(lim_mom).any():  # scale the yaw share down (mixer._yaw_scale)
+            yaw4_01[...] = y2
+            yaw4_23[...] = y2
+            greater(yaw4, zero, yaw_up)
+            sub(c_f_max, base, room)
+            sub(base, c_f_min, forces)
+            copyto(room, forces, where=~yaw_up)
+            np.abs(yaw4, mag)
+            greater(mag, c_tol, mag_big)
+            safe.fill(1.0)
+            copyto(safe, mag, where=mag_big)
+            div(room, safe, room)
+            copyto(room, np.inf, where=~mag_big)
+            minimum(room_0, room_1, out=scale)
+            minimum(scale, room_2, out=scale)
+            minimum(scale, room_3, out=scale)
+            maximum(scale, zero, out=scale)
+            minimum(scale, one, out=scale)
+            mul(scale, yaw4, forces)
+            add(base, forces, forces)
+            maximum(forces, c_f_min, out=forces)
+        else:  # a moment demand that is not a number: the reference mixer (it counts it as 0)
+            finite = False
+        if finite:
             minimum(forces, c_f_max, out=forces)
             mul(forces, inv_c, forces)
             rotor = sqrt(forces)
-        else:  # the yaw share does not fit, or a demand is not finite: the reference mixer
+        else:
             thrust_n = np.clip(np.asarray(thrust_normalised, dtype=np.float64), 0.0, 1.0)
             rotor = mix(thrust_n * params.max_thrust_n, mom, params)
         if enable is not None:
