@@ -1,7 +1,9 @@
 """Throughput of the vectorised physics: drone-steps per second of ``sitl_sim.dynamics.step``.
 
-Measures RK4 and semi-implicit Euler steps alone, and the inner loop (attitude controller +
-mixer) followed by an RK4 step, for N = 1, 10, 100, 1000 hovering vehicles. Each figure is the
+Measures RK4 and semi-implicit Euler steps alone, the inner loop (attitude controller +
+mixer) followed by an RK4 step, and the same through the fused
+:class:`sitl_sim.physics_kernel.PhysicsKernel` (``kernel``: inner loop, RK4 and ground contact, as
+the simulator runs them), for N = 1, 10, 100, 1000 hovering vehicles. Each figure is the
 best of a few repeats, each at least ``MIN_SECONDS`` long.
 """
 
@@ -16,6 +18,7 @@ import numpy as np
 from protocols.frames import FloatArray
 from sitl_sim import dynamics
 from sitl_sim.inner_loop import inner_loop
+from sitl_sim.physics_kernel import PhysicsKernel
 from sitl_sim.vehicle_params import VehicleParams
 
 SIZES = (1, 10, 100, 1000)
@@ -67,7 +70,12 @@ def _variants(
     def inner_loop_rk4(s: FloatArray) -> FloatArray:
         return dynamics.step(s, inner_loop(s, level, hover, params), params, DT_S, "rk4")
 
-    return {"rk4": rk4, "euler": euler, "inner_loop+rk4": inner_loop_rk4}
+    kernel = PhysicsKernel(params, n, DT_S)
+
+    def fused(s: FloatArray) -> FloatArray:
+        return kernel.substep(s, level, hover)[0]
+
+    return {"rk4": rk4, "euler": euler, "inner_loop+rk4": inner_loop_rk4, "kernel": fused}
 
 
 def physics_step() -> dict[str, Any]:
