@@ -19,6 +19,7 @@ import os
 os.environ["MAVLINK20"] = "1"  # before any pymavlink import (DEPENDENCIES.md)
 
 import socket
+import sys
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,6 +32,21 @@ Address = tuple[str, int]
 #: Largest datagram the simulator sends (bytes): below the loopback and Ethernet MTUs.
 MAX_DATAGRAM_BYTES = 1200
 _RECV_BYTES = 65535
+#: Linux's IP_RECVERR (not exported by the socket module): ICMP errors on an unconnected UDP
+#: socket are reported, with the address they concern, on its error queue.
+IP_RECVERR = 11
+
+
+def report_unreachable(sock: socket.socket) -> bool:
+    """Ask the kernel to report ICMP errors (port unreachable: the peer's socket closed) on
+    ``sock``; False where the platform cannot (then a dead peer is noticed by timeouts only)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        sock.setsockopt(socket.IPPROTO_IP, IP_RECVERR, 1)
+    except OSError:
+        return False
+    return True
 _SIGNATURE_REASON = "Invalid signature"
 #: How far (10 µs units: one minute) a new signed stream may lag our timestamp (as pymavlink).
 _NEW_STREAM_SLACK = 6_000_000
@@ -81,7 +97,9 @@ class Endpoint:
     """A bound, non-blocking UDP socket with a receive codec and a batching send queue.
 
     ``outbox``: a set shared by the endpoints of a simulator; an endpoint with queued frames puts
-    itself in it, so a flush visits only those.
+    itself in it, so a flush visits only those. ``peer_gone``: the peer's port was reported
+    closed (ICMP port unreachable, with :func:`report_unreachable` on the socket): the peer is
+    forgotten until it speaks again; the owner resets the flag once it has acted on it.
     """
 
     def __init__(
@@ -98,6 +116,7 @@ class Endpoint:
         self.peer = peer
         self.tx_datagrams = 0
         self.tx_errors = 0
+        self.peer_gone = False
         self._batches: list[bytearray] = []
 
     def fileno(self) -> int:
@@ -117,10 +136,24 @@ class Endpoint:
                 data, addr = recv(_RECV_BYTES)
             except (BlockingIOError, InterruptedError):
                 break
-            except OSError:  # e.g. ICMP port unreachable reported on the socket
+            except ConnectionRefusedError:  # ICMP port unreachable: whose port?
+                self._unreachable()
+                continue
+            except OSError:
                 continue
             out.append((data, addr))
         return out
+
+    def _unreachable(self) -> None:
+        """Read the error queue: if the closed port is the peer's, the peer is gone."""
+        for _ in range(64):
+            try:
+                _, _, _, addr = self.sock.recvmsg(1, 512, socket.MSG_ERRQUEUE)
+            except OSError:
+                return
+            if addr == self.peer:
+                self.peer = None
+                self.peer_gone = True
 
     def queue(self, packet: bytes) -> None:
         """Queue one encoded frame for the next :meth:`flush`."""

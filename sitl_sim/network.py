@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from types import TracebackType
 
 from protocols.mavlink_conventions import vehicle_port
-from sitl_sim.channel import Channel, Endpoint, new_codec
+from sitl_sim.channel import Channel, Endpoint, new_codec, report_unreachable
 from sitl_sim.sim_config import NetConfig, SimConfigError
 
 _GCS_BUFFER_BYTES = 1 << 21
@@ -79,6 +79,7 @@ class Network:
             for i, sysid in enumerate(self.sysids):
                 port = vehicle_port(i, cfg.base_port)
                 sock = bind_udp(cfg.bind_host, port, f"vehicle {i}, system id {sysid}")
+                report_unreachable(sock)  # an agent whose process died is noticed at once
                 endpoint = Endpoint(sock, new_codec(sysid, 1, key), None, self.outbox)
                 self.agent_endpoints.append(endpoint)
                 self.agent_channels.append(Channel(endpoint, sysid, key))

@@ -139,8 +139,12 @@ class SimServer:
         return None if builder is None else builder(i)
 
     def report(self, events: list[VehicleEvent]) -> None:
-        """Send each event as a STATUSTEXT on every link of its vehicle."""
+        """Send each event as a STATUSTEXT on every link of its vehicle, then a HEARTBEAT of
+        each vehicle concerned: an event may have changed its armed state or mode (armed,
+        landed, crashed, failsafe), which its agent and the GCS then learn at once rather than
+        at the next 1 Hz heartbeat (a crashed vehicle may go silent before it)."""
         silent = self.world.autopilot.silent
+        concerned: list[int] = []
         for event in events:
             if silent[event.vehicle]:
                 continue
@@ -149,6 +153,13 @@ class SimServer:
                 channel = side.channels[event.vehicle]
                 if channel.active:
                     channel.send(msg)
+            if event.vehicle not in concerned:
+                concerned.append(event.vehicle)
+        for i in concerned:
+            beat = self._builders[HEARTBEAT](i)
+            for side in (self.agent, self.gcs):
+                if side.channels[i].active:
+                    side.channels[i].send(beat)
 
     def run(self) -> None:
         """Run until stopped or ``clock.duration_s`` of simulated time has passed."""
@@ -253,6 +264,16 @@ class SimServer:
                 next_resend = now + RESEND_S
             self._poll(min(deadline, next_resend) - now)
 
+    def _agent_gone(self, vehicle: int) -> None:
+        """Vehicle ``vehicle``'s agent closed its port (its process ended): nobody waits for it
+        any more; it rejoins the barrier with its next echo, from whatever address."""
+        text = "Agent gone: its port closed"
+        if self.barrier is not None and vehicle in self.barrier.members:
+            self.barrier.leave(vehicle)
+            text = "Lockstep: agent gone, left the barrier"
+        self.report([VehicleEvent(vehicle, Severity.WARNING, text)])
+        self.net.flush()
+
     def _dropped(self, vehicles: list[int]) -> None:
         timeout = self.clock.drop_timeout_s
         text = f"Lockstep: agent silent {timeout:g} s, left the barrier"
@@ -286,8 +307,12 @@ class SimServer:
                 for data, _addr in endpoint.receive():
                     dispatch.gcs_datagram(data, endpoint.rx_codec)
             else:
-                for data, addr in self.net.agent_endpoints[vehicle].receive():
+                agent_endpoint = self.net.agent_endpoints[vehicle]
+                for data, addr in agent_endpoint.receive():
                     dispatch.agent_datagram(vehicle, data, addr)
+                if agent_endpoint.peer_gone:
+                    agent_endpoint.peer_gone = False
+                    self._agent_gone(vehicle)
         self.net.flush()
 
     # -- telemetry -----------------------------------------------------------------------------
