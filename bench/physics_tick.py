@@ -16,14 +16,17 @@ each with every vehicle airborne (``airborne``) and with one vehicle resting on 
 off, as a crashed drone does for the rest of a flight (``one_down``: ground contact every step).
 
 Timing: each figure is the **median of ``REPEATS`` repeats**, a repeat being the mean over
-``TICKS`` control ticks; the minimum is reported too. The machine has 2 cores that other engineers
-use at the same time, so single runs are noisy: compare medians.
+``TICKS`` control ticks (the variants take turns within a repeat); the minimum is reported too.
+The machine has 2 cores that other engineers use at the same time, so single runs are noisy:
+compare medians. The JSON goes to ``bench/results_physics_tick.json`` (``bench/run.py``: into its
+``--out`` file).
 
-``profile()`` also times one control tick of ``swarm simulate`` per part (agents, physics, the
-rest) at N = 9 (the paper scenario, its first 40 s: take-off, link cuts, the crash at 30 s) and
-N = 100 (a 10 x 10 grid 2.5 m apart hovering at 3 m, range 6 m; its first 6 s), with the physics
-sub-step as it was (the reference functions) and with the kernel; :func:`main` writes it to
-``bench/physics_tick_profile.txt`` beside the JSON.
+:func:`profile` also times, before/after, one control tick per part of ``swarm simulate``
+(agents, physics, the rest) at N = 9 (the paper scenario, its first 40 s: take-off, link cuts,
+the crash at 30 s) and N = 100 (a 10 x 10 grid 2.5 m apart hovering at 3 m, range 6 m; its first
+6 s), and of ``swarm sim`` (World.step, telemetry out, MAVLink in) at N = 9 and 100 flat out
+next to bench/sitl.py's agent-playing client; the text goes to ``bench/physics_tick_profile.txt``
+and into the JSON. All of it takes about 2 minutes.
 """
 
 from __future__ import annotations
@@ -136,6 +139,9 @@ def reference_world_step(w: World) -> list[VehicleEvent]:
     w.tick += 1
     events, w.pending_events = w.pending_events, []
     events += ap.update(w.t_s, state[2], impact)
+    while w._crashes and w._crashes[0][0] <= w.t_s + 1e-9:
+        _, vehicle = w._crashes.pop(0)
+        events += ap.motor_failure(vehicle, None, off=True)
     return events
 
 
@@ -390,7 +396,125 @@ def profile() -> str:
         rtf = [f"{d[_RTF]:9.2f}" for d in (before, after)]
         lines.append(f"  {_RTF:52s} {rtf[0]} {rtf[1]}")
         lines.append("")
+    lines += [
+        "Where one control tick of `swarm sim` goes (the simulator process, realtime clock flat",
+        "out at --speedup 1000, bench/sitl.py's client playing the agents: SET_ATTITUDE_TARGET at",
+        "50 Hz wall per vehicle, so at 5-25x real time only some ticks carry a setpoint; in",
+        "lockstep every tick carries N). 'before': World.step through the reference functions;",
+        f"'after': with the kernel. {SERVER_MEASURE_S:g} s measured after {SERVER_WARMUP_S:g} s; "
+        "the faster of",
+        "two runs each (a run that shares the cores with another job reads up to 3x slower).",
+        "",
+    ]
+    for n in (9, 100):
+        runs = [(_server_parts(n, True), _server_parts(n, False)) for _ in range(2)]
+        before = min((r[0] for r in runs), key=lambda d: d[_WHOLE])
+        after = min((r[1] for r in runs), key=lambda d: d[_WHOLE])
+        lines.append(f"N = {n}:")
+        lines.append(f"  {'µs per control tick':52s} {'before':>9s} {'after':>9s}")
+        for key in _SERVER_ROWS:
+            cells = [f"{d[key]:9.0f}" if key in d else " " * 9 for d in (before, after)]
+            lines.append(f"  {key:52s} {cells[0]} {cells[1]}")
+        rtf = [f"{d[_RTF]:9.2f}" for d in (before, after)]
+        lines.append(f"  {_RTF:52s} {rtf[0]} {rtf[1]}")
+        lines.append("")
     return "\n".join(lines)
+
+
+SERVER_WARMUP_S = 8.0
+SERVER_MEASURE_S = 8.0
+_S_WORLD = "World.step (guidance, 10 sub-steps, autopilot)"
+_S_OUT = "telemetry out (snapshot, build, encode, send)"
+_S_IN = "agent MAVLink in (decode, validate, apply)"
+_S_REST = "the rest (select, pacing, GCS input, flush)"
+_SERVER_ROWS = (_WHOLE, _S_WORLD, _S_OUT, _S_IN, _S_REST)
+
+
+def _server_parts(n: int, reference: bool) -> dict[str, float]:
+    """Run ``swarm sim --drones n --speedup 1000`` in this process next to the client process of
+    bench/sitl.py; wall µs per control tick per part over SERVER_MEASURE_S."""
+    import io
+    import os
+    import subprocess
+    import sys
+    import threading
+
+    from bench.sitl import _free_block
+    from sitl_sim import dispatch, server, sim_cli
+
+    parts: dict[str, float] = {}
+    undo: list[tuple[Any, str, Any]] = []
+
+    def wrap(owner: Any, name: str, key: str) -> None:
+        original = owner.__dict__[name]
+
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            t0 = time.perf_counter()
+            try:
+                return original(*args, **kwargs)
+            finally:
+                parts[key] = parts.get(key, 0.0) + time.perf_counter() - t0
+
+        undo.append((owner, name, original))
+        setattr(owner, name, timed)
+
+    if reference:
+        undo.append((World, "step", World.__dict__["step"]))
+        World.step = reference_world_step  # type: ignore[method-assign, assignment]
+    wrap(World, "step", _S_WORLD)
+    wrap(server.SimServer, "_emit", _S_OUT)
+    wrap(dispatch.Dispatcher, "agent_datagram", _S_IN)
+    servers: list[server.SimServer] = []
+    undo.append((server.SimServer, "__init__", server.SimServer.__dict__["__init__"]))
+    original_init = server.SimServer.__init__
+
+    def init(self: server.SimServer, *args: Any, **kwargs: Any) -> None:
+        original_init(self, *args, **kwargs)
+        servers.append(self)
+
+    server.SimServer.__init__ = init  # type: ignore[method-assign]
+    base, gcs = _free_block(n), _free_block(1)
+    parser = argparse.ArgumentParser()
+    sim_cli.add_sim_parser(parser.add_subparsers())
+    sim_argv = ["sim", "--drones", str(n), "--base-port", str(base), "--gcs",
+                f"udp:127.0.0.1:{gcs}", "--offboard-timeout", "2", "--speedup", "1000"]  # fmt: skip
+    args = parser.parse_args(sim_argv)
+    seconds = SERVER_WARMUP_S + SERVER_MEASURE_S + 2.0
+    client_argv = [sys.executable, "-m", "bench.sitl", "client", "--drones", str(n), "--base-port",
+                   str(base), "--gcs-port", str(gcs), "--seconds", str(seconds)]  # fmt: skip
+    client = subprocess.Popen(
+        client_argv,
+        stdout=subprocess.DEVNULL,
+        env={**os.environ, "MAVLINK20": "1"},
+        cwd=ROOT,
+    )
+    measured: dict[str, float] = {}
+
+    def measure() -> None:
+        while not servers:
+            time.sleep(0.05)
+        sim = servers[0]
+        time.sleep(SERVER_WARMUP_S)
+        parts.clear()
+        t0, k0 = time.perf_counter(), sim.world.tick
+        time.sleep(SERVER_MEASURE_S)
+        spent, wall, ticks = dict(parts), time.perf_counter() - t0, sim.world.tick - k0
+        measured.update({key: value / ticks * 1e6 for key, value in spent.items()})
+        measured[_WHOLE] = wall / ticks * 1e6
+        measured[_S_REST] = measured[_WHOLE] - sum(spent.values()) / ticks * 1e6
+        measured[_RTF] = ticks / sim.world.config.control_hz / wall
+        sim.stop()
+
+    thread = threading.Thread(target=measure, daemon=True)
+    thread.start()
+    try:
+        sim_cli.run_sim(args, out=io.StringIO())
+    finally:
+        for owner, name, original in reversed(undo):
+            setattr(owner, name, original)
+        client.wait(60)
+    thread.join(5)
+    return measured
 
 
 def main(argv: Sequence[str] | None = None) -> int:
