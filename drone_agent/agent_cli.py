@@ -306,7 +306,9 @@ def _status_line(host: AgentHost, period_s: float) -> str:
     mode_text = ", ".join(f"{n} {m}" for m, n in sorted(modes.items())) or "waiting for vehicles"
     neighbours = [len(a.last_output.active_neighbours) for a in agents if a.last_output]
     nb = f"{min(neighbours)}-{max(neighbours)}" if neighbours else "-"
+    planless = sum(1 for a in agents if a.fallback_plan is None and a.transport.plan() is None)
+    waiting = f"; {planless} waiting for the ground station's plan" if planless else ""
     return (
-        f"agents t={tick * period_s:7.2f}s  {len(agents)} joined: {mode_text}; neighbours {nb}; "
-        f"{time.strftime('%H:%M:%S')}"
+        f"agents t={tick * period_s:7.2f}s  {len(agents)} joined: {mode_text}; neighbours {nb}"
+        f"{waiting}; {time.strftime('%H:%M:%S')}"
     )
