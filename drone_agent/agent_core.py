@@ -51,7 +51,8 @@ class Setpoint:
 @dataclass(frozen=True)
 class AgentOutput:
     """One tick's result. ``setpoint`` is None while the agent must not fly (warm-up, or a bad
-    command that failed its checks); ``estimate`` (9,) is its view of the swarm descriptors."""
+    command that failed its checks); ``estimate`` (9,) is its view of the swarm descriptors;
+    ``desired`` (9,) the plan's descriptors this tick (None where not given)."""
 
     message: ConsensusMessage
     estimate: FloatArray
@@ -60,6 +61,7 @@ class AgentOutput:
     active_neighbours: tuple[int, ...]
     ready_to_fly: bool
     disagreement: float = 0.0
+    desired: FloatArray | None = None
 
 
 class AgentCore:
@@ -97,7 +99,14 @@ class AgentCore:
             )
             setpoint = self._setpoint(attitude_thrust(v, float(a_d[I_YAW]), self.config.limits))
         return AgentOutput(
-            out.message, estimate, moments, setpoint, out.active_neighbours, ready, out.disagreement
+            out.message,
+            estimate,
+            moments,
+            setpoint,
+            out.active_neighbours,
+            ready,
+            out.disagreement,
+            a_d,
         )
 
     def _setpoint(self, command: AttitudeThrust) -> Setpoint | None:

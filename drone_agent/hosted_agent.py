@@ -193,7 +193,8 @@ class HostedAgent:
         self.last_output = out
         self.transport.publish_consensus(out.message, sample.position_ned_m)
         self.settling.update(out, self.transport.members())
-        commanded_altitude = -float(plan.evaluate(t_s)[0][CENTRE][2])
+        assert out.desired is not None  # the core gives the plan's value of the tick
+        commanded_altitude = -float(out.desired[CENTRE][2])
         self._carry_out(self._decide(command, out.setpoint, commanded_altitude, sample), sample)
 
     def _decide(
