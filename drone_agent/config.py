@@ -23,6 +23,7 @@ def agent_config(scenario: Scenario) -> AgentConfig:
         degree_normalised=c.degree_normalised,
         heard_timeout_ticks=c.heard_timeout_ticks,
         history_ticks=max(25, c.heard_timeout_ticks + c.delay_ticks + 5),
+        max_step_gain=c.max_step_gain,
     )
     gains = CooperativeGains(
         kp=tuple(g.kp),

@@ -21,6 +21,18 @@ made safe for a real network by the rules of ALGORITHM.md §3:
 6. The discrete-time step bound ``f rho c dt lambda_max(L) <= 0.7``, or a degree-normalised gain
    ``rho_e = rho / max(d_i, d_j)`` (both ends use the degrees advertised for the round).
 
+Not in ALGORITHM.md: *a step cap that scales*. Linearised, one round maps ``gamma`` to
+``(I - f c dt L_rho) gamma`` (``L_rho``: the Laplacian weighted by the edge gains), which diverges
+once ``f c dt lambda_max(L_rho) > 2``. A fixed ``rho`` meets rule 6 on the paper's 9 drones but not
+on a larger, denser radio graph: measured (bench/settling.py, 2.5 m grid, rho = 2), at range 6 m
+(degree up to 20, step gain 1.87) N = 100 settles in 5 s only because it sits just under 2, and at
+range 10 m (degree 44, step gain 3.8) N = 49 and N = 100 never settle. So each edge's gain is
+capped: ``rho_e = min(rho, rho_cap / max(d_i, d_j))`` with ``rho_cap = max_step_gain / (2 f c dt)``.
+Every row of ``L_rho`` then sums to at most ``rho_cap``, so by Gershgorin ``f c dt lambda_max <=
+max_step_gain`` (default 1.4, 30 % inside the stability limit) on any graph. The cap binds only
+where the degree exceeds ``rho_cap / rho`` (8.75 at the defaults: never on the paper's 9 drones,
+whose gains are unchanged); where it binds, the cap is the largest gain the bound allows.
+
 Not in ALGORITHM.md: *delay-scaled gain*. The increment for round q made at round r is divided by
 the lag ``r - q`` (1 with the normal one-tick delay). A message delay lengthens the feedback loop
 and the fixed gain then oscillates (measured on 9 drones, full graph: unstable from 40 ms extra
@@ -55,6 +67,7 @@ class ConsensusParams:
     degree_normalised: bool = False
     heard_timeout_ticks: int = 5
     history_ticks: int = 25
+    max_step_gain: float = 1.4
 
     def validate(self) -> None:
         """Raise ValueError naming the first bad field."""
@@ -62,10 +75,22 @@ class ConsensusParams:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"consensus.{name} must be a positive number, got {value!r}")
+        if not (np.isfinite(self.max_step_gain) and 0 <= self.max_step_gain < 2):
+            raise ValueError(
+                f"consensus.max_step_gain must be in [0, 2), got {self.max_step_gain!r}"
+            )
         if self.heard_timeout_ticks < 1:
             raise ValueError("consensus.heard_timeout_ticks must be at least 1")
         if self.history_ticks < self.heard_timeout_ticks:
             raise ValueError("consensus.history_ticks must be at least heard_timeout_ticks")
+
+    @property
+    def rho_cap(self) -> float:
+        """``rho_e * max(d_i, d_j)`` never exceeds this (the step cap of the module doc); inf
+        without a cap (``max_step_gain`` 0)."""
+        if self.max_step_gain <= 0:
+            return float("inf")
+        return self.max_step_gain / (2.0 * self.f * self.c * self.dt_s)
 
     def step_gain(self, lambda_max: float) -> float:
         """``f rho c dt lambda_max(L)`` of the fixed-gain update on a graph with that largest
@@ -87,7 +112,8 @@ class ConsensusMessage:
 
     ``gamma`` (18,): the sender's estimate in this round; ``edge_sums``: the running sums
     ``Q_sender,j`` of the sender's increments per neighbour j; ``heard``: who the sender heard
-    recently (as of this round); ``degree``: ``len(heard)``, for the degree-normalised gain.
+    recently (as of this round); ``degree``: ``len(heard)``, for the degree-normalised gain;
+    ``ready_hops``: the sender's settled level (drone_agent.flight_phase.SwarmSettled).
     """
 
     sender: int
@@ -96,6 +122,7 @@ class ConsensusMessage:
     edge_sums: Mapping[int, FloatArray]
     heard: frozenset[int]
     degree: int
+    ready_hops: int = 0
 
 
 @dataclass
@@ -228,6 +255,7 @@ class ConsensusEstimator:
             rho = self.params.rho
             if self.params.degree_normalised:
                 rho = rho / max(degree_i, degree_j, 1)
+            rho = min(rho, self.params.rho_cap / max(degree_i, degree_j, 1))
             rho = rho / max(round_ - q, 1)  # delay-scaled gain (module doc)
             diff = gamma_i - gamma_j
             scale = 1.0 + max(float(np.abs(gamma_i).max()), float(np.abs(gamma_j).max()))

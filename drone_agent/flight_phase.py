@@ -27,10 +27,12 @@ station's crash drill, MAV_CMD_INJECT_FAILURE, or a forced disarm), never an age
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import Enum
 
 from drone_agent.agent_core import AgentConfig, AgentOutput, Setpoint
+from drone_agent.consensus import ConsensusMessage
 from drone_agent.thrust_attitude import ThrustLimits
 from protocols.frames import G_M_S2
 from protocols.wire_plan import LAND_HANDOVER_ALTITUDE_M, FlightCommand
@@ -108,6 +110,89 @@ class Settling:
         self.calm_ticks = self.calm_ticks + 1 if calm else 0
         self.settled = out.ready_to_fly and self.calm_ticks >= self.ticks
         return self.settled
+
+
+class SwarmSettled:
+    """Climb together: whether every agent of the swarm has settled, known to each agent from its
+    radio neighbours alone (a flood of settled levels over the consensus messages).
+
+    Each tick an agent advertises a level on its consensus message (``ready_hops``)::
+
+        level_i = 0                                   if i has not settled
+                = min(cap, 1 + min_j level_j)         otherwise (j: neighbours heard recently)
+
+    with ``cap`` the number of live members. ``level_i >= h`` means every agent within ``h - 1``
+    hops of i had settled within the last ``h`` ticks; since no radio graph of ``cap`` drones has a
+    diameter of ``cap`` hops or more, ``level_i == cap`` means the whole (connected) swarm has
+    settled. Once the last agent settles, every level rises by one per tick, so all agents reach
+    the cap within the graph's diameter in ticks of each other (a 10 x 10 grid at range 6 m: 6
+    ticks, 0.12 s) and ``cap`` ticks after that last agent (2 s at N = 100, 50 Hz): the swarm leaves
+    the ground together instead of drone by drone as each settles (measured before this rule on a
+    sparse 5-drone line: the centre armed at 3.0 s, the ends at 6.2 s).
+
+    An agent that already flies (``committed``) counts as settled, so a late joiner waits only for
+    itself and is not held on the ground by a formation manoeuvring above it. An agent with no
+    neighbour (alone, or cut off) reaches the cap on its own settling.
+    """
+
+    def __init__(self, heard_timeout_ticks: int) -> None:
+        self.timeout = heard_timeout_ticks
+        self.level = 0
+        self._latest: dict[int, tuple[int, int]] = {}  # sender -> (round, level)
+
+    def update(
+        self,
+        round_: int,
+        settled: bool,
+        inbox: Iterable[ConsensusMessage],
+        members: frozenset[int],
+    ) -> bool:
+        """Take this tick's own settled flag, the neighbour messages that arrived and the live
+        membership; whether the whole swarm has settled (this agent's new level is the cap)."""
+        for msg in inbox:
+            seen = self._latest.get(msg.sender)
+            if seen is None or msg.round > seen[0]:
+                self._latest[msg.sender] = (msg.round, msg.ready_hops)
+        recent = round_ - 1 - self.timeout
+        for j in [j for j, (r, _) in self._latest.items() if j not in members or r < recent]:
+            del self._latest[j]
+        cap = max(len(members), 1)
+        if not settled:
+            self.level = 0
+        else:
+            lowest = min((lvl for _, lvl in self._latest.values()), default=cap)
+            self.level = min(cap, 1 + lowest)
+        return self.level >= cap
+
+
+class Readiness:
+    """The one rule for leaving the ground, used by ``swarm simulate`` and every ``swarm agent``:
+    the agent's own estimate has settled (:class:`Settling`) and so has every agent's
+    (:class:`SwarmSettled`). Call :meth:`update` once per tick after the core; put :attr:`level`
+    on the tick's consensus message."""
+
+    def __init__(self, config: AgentConfig) -> None:
+        self.settling = Settling(config)
+        self.swarm = SwarmSettled(config.consensus.heard_timeout_ticks)
+        self.ready = False
+
+    @property
+    def level(self) -> int:
+        """This agent's settled level, advertised as ``ConsensusMessage.ready_hops``."""
+        return self.swarm.level
+
+    def update(
+        self,
+        out: AgentOutput,
+        inbox: Iterable[ConsensusMessage],
+        members: frozenset[int],
+        committed: bool,
+    ) -> bool:
+        """This tick's core output, the inbox it was computed from, the live membership and
+        whether the agent already flies; whether the swarm is ready to leave the ground."""
+        own = self.settling.update(out, members)
+        self.ready = self.swarm.update(out.message.round, own or committed, inbox, members)
+        return self.ready
 
 
 class FlightPhase:

@@ -8,7 +8,8 @@ echoing the tick (also on the ground, for lockstep). For reproducible consensus 
 ``neighbour_wait_s`` of wall time, until every neighbour heard recently has sent its message of
 the previous round.
 
-Safety: it arms only once the plan says fly and its estimator has settled; an airborne vehicle is
+Safety: it arms only once the plan says fly and every agent's estimate has settled (flight_phase's
+Readiness: the swarm leaves the ground together); an airborne vehicle is
 never sent less than the minimum thrust (flight_phase's invariant); it leaves the swarm (drops its
 liveliness token) when its vehicle falls silent (``vehicle_timeout_s``, longer than the
 simulator's lockstep timeout, during which a stalled barrier legitimately sends nothing) or says
@@ -19,13 +20,13 @@ the formation); the core checks every setpoint for NaN and limits before it is s
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from drone_agent.agent_core import AgentCore, AgentOutput, Setpoint
 from drone_agent.consensus import ConsensusMessage
-from drone_agent.flight_phase import FlightPhase, Order, Request, Settling, VehicleView
+from drone_agent.flight_phase import FlightPhase, Order, Readiness, Request, VehicleView
 from drone_agent.transport import AgentTransport
 from drone_agent.vehicle_link import VehicleLink, VehicleSample
 from protocols.descriptor_vector import CENTRE
@@ -80,7 +81,7 @@ class HostedAgent:
         self._last_sample_wall = wall_clock()
         self._last_heartbeat = -1e9
         self._last_command = -1e9
-        self.settling = Settling(core.config)
+        self.readiness = Readiness(core.config)
         self.phase = FlightPhase(core.config.limits)
         self.left = False
         self.leave_reason = ""
@@ -191,8 +192,9 @@ class HostedAgent:
             self.transport.members(),
         )
         self.last_output = out
-        self.transport.publish_consensus(out.message, sample.position_ned_m)
-        self.settling.update(out, self.transport.members())
+        self.readiness.update(out, inbox, self.transport.members(), self.phase.committed)
+        message = replace(out.message, ready_hops=self.readiness.level)
+        self.transport.publish_consensus(message, sample.position_ned_m)
         assert out.desired is not None  # the core gives the plan's value of the tick
         commanded_altitude = -float(out.desired[CENTRE][2])
         self._carry_out(self._decide(command, out.setpoint, commanded_altitude, sample), sample)
@@ -248,9 +250,10 @@ class HostedAgent:
 
     @property
     def converged(self) -> bool:
-        """The estimate has settled (:class:`Settling`); latched once the agent has decided to
-        fly (the neighbours' take-off must not send it back to the ground half-armed)."""
-        return self.phase.committed or self.settling.settled
+        """Its estimate and the whole swarm's have settled (:class:`Readiness`); latched once the
+        agent has decided to fly (the neighbours' take-off must not send it back to the ground
+        half-armed)."""
+        return self.phase.committed or self.readiness.ready
 
     def _publish_status(self) -> None:
         out = self.last_output

@@ -9,18 +9,20 @@ system is measured against, and a fast tuning tool. Deterministic for a given se
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from drone_agent.agent_core import AgentCore
+from drone_agent.agent_core import AgentCore, AgentOutput
 from drone_agent.config import agent_config
+from drone_agent.flight_phase import FlightPhase, Readiness, Request, VehicleView
 from drone_agent.link_faults import LinkFaults
 from gcs.fault_timeline import TimedAction, link_faults, timeline
 from gcs.flight_record import FlightRecord
 from gcs.inprocess_network import InProcessNetwork
 from protocols.scenario import Scenario
+from protocols.wire_plan import FlightCommand
 from sitl_sim.attitude_control import euler_from_quat_batch
 from sitl_sim.config import attitude_gains, vehicle_params
 from sitl_sim.dynamics import (
@@ -85,6 +87,8 @@ class ReferenceFlight:
         yaw0 = np.radians([d.yaw_deg for d in scenario.drones])
         self.state = initial_state(scenario.positions_ned_m(), yaw0)
         self.agents: dict[int, AgentCore] = {i: AgentCore(i, self.config) for i in range(self.n)}
+        self.readiness = [Readiness(self.config) for _ in range(self.n)]
+        self.phases = [FlightPhase(self.config.limits) for _ in range(self.n)]
         delay = max(1, scenario.consensus.delay_ticks)
         self.network = InProcessNetwork(self.n, scenario.comms.range_m, self.rng, delay)
         self.failsafe = FailsafeConfig()
@@ -182,20 +186,17 @@ class ReferenceFlight:
         members = frozenset(self.agents)
         inboxes = self.network.receive(k)
         messages = []
+        euler = euler_from_quat_batch(self.state[QUAT])
         for i, agent in self.agents.items():
             out = agent.tick(k, self.t_s, pos[i], vel[i], self.plan, inboxes[i], members)
-            messages.append(out.message)
+            phase, readiness = self.phases[i], self.readiness[i]
+            ready = readiness.update(out, inboxes[i], members, phase.committed)
+            messages.append(replace(out.message, ready_hops=readiness.level))
             rec.estimate[k, i] = out.estimate
             rec.neighbours[k, i] = len(out.active_neighbours)
-            sp = out.setpoint
-            if sp is None or self.crashed[i]:
+            if self.crashed[i]:
                 continue
-            if not self.armed[i] and not self.in_failsafe[i]:
-                self.armed[i] = True
-                self._event("armed", drone=i)
-            self.attitude_sp[:, i] = (sp.roll_rad, sp.pitch_rad, sp.yaw_rad)
-            self.thrust_sp[i] = sp.thrust_normalised
-            self.last_setpoint_s[i] = self.t_s
+            self._carry_out(i, out, phase.committed or ready, -float(pos[i, 2]), euler[2, i])
         self.network.send(k, messages, self.network.in_range(pos))
         thrust, moments = wrench_from_rotor_speeds(self.rotor_speed, self.params)
         rec.t[k] = self.t_s
@@ -207,6 +208,35 @@ class ReferenceFlight:
         rec.member[k] = self.member
         rec.airborne[k] = -pos[:, 2] > AIRBORNE_ALTITUDE_M
         rec.armed[k] = self.armed
+
+    def _carry_out(
+        self, i: int, out: AgentOutput, ready: bool, altitude_m: float, yaw_rad: float
+    ) -> None:
+        """What the agent's flight phase decides for its vehicle (drone_agent/flight_phase.py,
+        the same decision as every ``swarm agent``). The scenario's plan always says FLY. The
+        vehicle here has no flight modes: arming takes the offboard setpoints at once, and a
+        hold (no valid setpoint in the air) flies the order's level hover setpoint."""
+        arming = not self.armed[i] and not self.in_failsafe[i]
+        vehicle = VehicleView(
+            armed=bool(self.armed[i]),
+            in_offboard=bool(self.armed[i]),
+            in_land=bool(self.in_failsafe[i]),
+            in_hold=False,
+            altitude_m=altitude_m,
+        )
+        assert out.desired is not None
+        order = self.phases[i].decide(
+            FlightCommand.FLY, True, ready, out.setpoint, -float(out.desired[2]), vehicle, yaw_rad
+        )
+        if order.request == Request.ARM_OFFBOARD and arming:
+            self.armed[i] = True
+            self._event("armed", drone=i)
+        if not self.armed[i]:
+            return
+        sp = order.setpoint
+        self.attitude_sp[:, i] = (sp.roll_rad, sp.pitch_rad, sp.yaw_rad)
+        self.thrust_sp[i] = sp.thrust_normalised
+        self.last_setpoint_s[i] = self.t_s
 
     def _physics_step(self, t_s: float) -> None:
         attitude, thrust = self.attitude_sp, self.thrust_sp

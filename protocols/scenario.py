@@ -101,7 +101,8 @@ class GainsConfig:
 class ConsensusConfig:
     """[consensus]: gain rho, tanh slope c, coupling f (ALGORITHM.md §3); degree-normalised rho;
     heard-set timeout (control ticks); partner-dead timeout (s); ground warm-up before arming (s);
-    message delay (control ticks)."""
+    message delay (control ticks); the step cap that keeps large, dense radio graphs stable
+    (``max_step_gain``, drone_agent/consensus.py; 0 turns it off)."""
 
     rho: float = 2.0
     c: float = 1.0
@@ -111,6 +112,7 @@ class ConsensusConfig:
     dead_timeout_s: float = 0.5
     warmup_s: float = 3.0
     delay_ticks: int = 1
+    max_step_gain: float = 1.4
 
 
 @dataclass(frozen=True)
@@ -316,6 +318,7 @@ _CONSENSUS_BOUNDS = {
     "dead_timeout_s": {"gt": 0},
     "warmup_s": {"ge": 0},
     "delay_ticks": {"ge": 0},
+    "max_step_gain": {"ge": 0, "lt": 2},
 }
 
 

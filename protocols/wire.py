@@ -14,6 +14,7 @@ The consensus body (Kind.CONSENSUS) follows the header::
     u32 round          control-tick number of the vehicles' common simulated time
     u16 sender         drone index
     u16 degree         the sender's degree for the degree-normalised gain
+    u16 ready_hops     the sender's settled level (drone_agent.flight_phase.SwarmSettled)
     3 x f32 position   the sender's position, NED, m (receivers apply the radio range)
     u16 n_heard, u16 n_edges
     n_heard x u16      heard-set, strictly increasing
@@ -49,14 +50,14 @@ from protocols.frames import FloatArray
 from protocols.keys import MAX_DRONE_ID, validate_swarm_id
 
 MAGIC = 0x51
-WIRE_VERSION = 1
+WIRE_VERSION = 2
 N_GAMMA = 18
 #: Default largest consensus payload accepted (bytes): about 110 edge sums.
 MAX_CONSENSUS_BYTES = 16 * 1024
 MAX_U32 = 0xFFFF_FFFF
 
 _HEAD = struct.Struct("<BBBB")
-_FIXED = struct.Struct("<IHH3fHH")
+_FIXED = struct.Struct("<IHHH3fHH")
 _FLOATS = N_GAMMA * 8  # bytes of one (18,) float64 block
 
 
@@ -197,6 +198,7 @@ def encode_consensus(
     sender = _uint(message.sender, MAX_DRONE_ID, "sender")
     round_ = _uint(message.round, MAX_U32, "round")
     degree = _uint(message.degree, MAX_DRONE_ID, "degree")
+    ready = _uint(message.ready_hops, MAX_DRONE_ID, "ready_hops")
     heard = uint_ids(message.heard, "heard id")
     neighbours = uint_ids(message.edge_sums, "edge neighbour")
     floats = [message.gamma, *(message.edge_sums[j] for j in neighbours)]
@@ -205,7 +207,13 @@ def encode_consensus(
         (
             encode_header(Kind.CONSENSUS, swarm_id),
             _FIXED.pack(
-                round_, sender, degree, *_position(position_ned_m), len(heard), len(neighbours)
+                round_,
+                sender,
+                degree,
+                ready,
+                *_position(position_ned_m),
+                len(heard),
+                len(neighbours),
             ),
             struct.pack(f"<{len(ids)}H", *ids),
             finite_block(floats, (len(floats), N_GAMMA), "gamma and edge sums"),
@@ -235,7 +243,7 @@ def consensus_origin(
     """The sender and its position (NED, m) from a consensus payload's header and fixed fields,
     without decoding the rest: lets a receiver apply the radio range before paying for a full
     :func:`decode_consensus`. WireError if the header or position is bad."""
-    _, (_, sender, _, px, py, pz, _, _) = _fixed(data, swarm_id, max_bytes)
+    _, (_, sender, _, _, px, py, pz, _, _) = _fixed(data, swarm_id, max_bytes)
     if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
         raise WireError(Reason.NOT_FINITE, "consensus position is NaN or infinite")
     return sender, (px, py, pz)
@@ -248,7 +256,9 @@ def decode_consensus(
 
     The arrays of the returned message are float64 copies, read-only.
     """
-    off, (round_, sender, degree, px, py, pz, n_heard, n_edges) = _fixed(data, swarm_id, max_bytes)
+    off, (round_, sender, degree, ready, px, py, pz, n_heard, n_edges) = _fixed(
+        data, swarm_id, max_bytes
+    )
     n_ids = n_heard + n_edges
     expect_length(data, off + 2 * n_ids + _FLOATS * (1 + n_edges), "consensus")
     ids = struct.unpack_from(f"<{n_ids}H", data, off)
@@ -273,5 +283,6 @@ def decode_consensus(
         edge_sums=dict(zip(neighbours, floats[1:], strict=True)),
         heard=frozenset(heard),
         degree=degree,
+        ready_hops=ready,
     )
     return ConsensusPacket(message, position)

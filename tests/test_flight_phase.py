@@ -4,16 +4,20 @@ command, agent phase and vehicle state, and the landing and take-off sequences."
 from __future__ import annotations
 
 import itertools
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from drone_agent.agent_core import AgentConfig, AgentOutput, Setpoint
+from drone_agent.consensus import ConsensusMessage, ConsensusParams
 from drone_agent.flight_phase import (
     AIRBORNE_ALTITUDE_M,
     FlightPhase,
+    Readiness,
     Request,
     Settling,
+    SwarmSettled,
     VehicleView,
 )
 from drone_agent.thrust_attitude import ThrustLimits
@@ -168,3 +172,75 @@ def test_settling_needs_calm_ticks_with_a_steady_membership() -> None:
     assert not settling.update(_output(0.05), frozenset({0, 1}))  # disagreeing again
     calm_but_warming_up = [settling.update(_output(0.0, ready=False), members) for _ in range(9)]
     assert not any(calm_but_warming_up)
+
+
+def _level_message(sender: int, round_: int, level: int) -> ConsensusMessage:
+    return ConsensusMessage(sender, round_, np.zeros(18), {}, frozenset(), 0, ready_hops=level)
+
+
+def _flood(
+    neighbours: dict[int, list[int]], settled_from: dict[int, int], ticks: int, lost: float = 0.0
+) -> dict[int, int | None]:
+    """Run SwarmSettled on a graph with one-tick message delay; per agent the first tick at which
+    it knows the whole swarm has settled (None if never). ``lost``: share of messages dropped."""
+    rng = np.random.default_rng(3)
+    members = frozenset(neighbours)
+    gates = {i: SwarmSettled(heard_timeout_ticks=5) for i in members}
+    first: dict[int, int | None] = dict.fromkeys(members)
+    sent: dict[int, ConsensusMessage] = {}
+    for k in range(ticks):
+        new = {}
+        for i, gate in gates.items():
+            inbox = [sent[j] for j in neighbours[i] if j in sent and rng.random() >= lost]
+            if gate.update(k, k >= settled_from[i], inbox, members) and first[i] is None:
+                first[i] = k
+            new[i] = _level_message(i, k, gate.level)
+        sent = new
+    return first
+
+
+def test_the_swarm_leaves_the_ground_together_once_the_last_agent_has_settled() -> None:
+    """A line of 8 (diameter 7 hops) whose agents settle one after another, the far end last: no
+    agent goes before every agent has settled, and all go within the diameter of each other."""
+    n = 8
+    line = {i: [j for j in (i - 1, i + 1) if 0 <= j < n] for i in range(n)}
+    settled_from = {i: 10 + 5 * i for i in range(n)}  # agent 7 settles last, at tick 45
+    first = _flood(line, settled_from, 120)
+    ticks = [first[i] for i in range(n)]
+    assert all(t is not None for t in ticks), ticks
+    go = np.array(ticks, dtype=float)
+    assert go.min() >= max(settled_from.values()) + 1  # nobody before the last one settled
+    assert go.max() - go.min() <= n - 1  # together: within the diameter in ticks
+    assert go.max() <= max(settled_from.values()) + n  # and promptly: the cap (N) ticks later
+    # 20 % of the messages lost: the last heard level is kept, the outcome is the same
+    lossy = _flood(line, settled_from, 120, lost=0.2)
+    assert all(t is not None and t > max(settled_from.values()) for t in lossy.values()), lossy
+
+
+def test_one_unsettled_agent_holds_the_whole_swarm_on_the_ground() -> None:
+    n = 6
+    ring = {i: [(i - 1) % n, (i + 1) % n] for i in range(n)}
+    first = _flood(ring, {i: (10 if i != 3 else 10**6) for i in range(n)}, 200)
+    assert all(t is None for t in first.values()), first
+    # a member that is not heard from at all (cut off) does not block the others forever once it
+    # leaves the membership: alone, an agent goes on its own settling
+    alone = SwarmSettled(heard_timeout_ticks=5)
+    assert alone.update(0, True, [], frozenset({0}))
+
+
+def test_readiness_combines_own_settling_and_the_swarm() -> None:
+    config = AgentConfig(  # type: ignore[arg-type]
+        ConsensusParams(), None, LIMITS, settle_ticks=3, settle_tolerance=0.02
+    )
+    readiness = Readiness(config)
+    members = frozenset({0, 1})
+    out = AgentOutput(_level_message(0, 0, 0), np.zeros(9), None, None, (), True, 0.001)  # type: ignore[arg-type]
+    for k in range(10):  # settled, but the neighbour is not: level 1, not ready
+        msg = replace(out.message, round=k)
+        peer_low = [_level_message(1, k - 1, 0)]
+        assert not readiness.update(replace(out, message=msg), peer_low, members, False)
+    assert readiness.level == 1
+    peer_high = [_level_message(1, 10, 2)]
+    msg = replace(out.message, round=10)
+    assert readiness.update(replace(out, message=msg), peer_high, members, False)
+    assert readiness.level == 2

@@ -45,10 +45,11 @@ MESSAGE = ConsensusMessage(
     edge_sums={5: (2.0 ** -np.arange(18)).astype(np.float64), 1: -np.arange(18.0)},
     heard=frozenset({7, 1, 5}),
     degree=3,
+    ready_hops=9,
 )
 POSITION = (1.5, -2.25, -10.0)
 CONSENSUS_HEX = (
-    "5101010464656d6fe8030000020003000000c03f000010c0000020c1030002000100050007000100"
+    "5102010464656d6fe80300000200030009000000c03f000010c0000020c1030002000100050007000100"
     "0500000000000000f0bf000000000000ecbf000000000000e8bf000000000000e4bf000000000000"
     "e0bf000000000000d8bf000000000000d0bf000000000000c0bf0000000000000000000000000000"
     "c03f000000000000d03f000000000000d83f000000000000e03f000000000000e43f000000000000"
@@ -74,7 +75,7 @@ STATUS = AgentStatus(
     plan_seq=7,
 )
 STATUS_HEX = (
-    "5101020464656d6f0200e8030000000000000000344003010f07000000000000000000f03f000000"
+    "5102020464656d6f0200e8030000000000000000344003010f07000000000000000000f03f000000"
     "000000004000000000000024c000000000000000000000000000000000000000000000e03f000000"
     "00000010400000000000000240000000000000f03f64000000000000000100000000000000020000"
     "0000000000030000000000000032000000000000000000000000000000020001000500"
@@ -84,7 +85,7 @@ _COEFFS[0, :, 0] = [0, 0, -10, 0, 0, 0, 4, 4, 1]
 _COEFFS[0, 0, 1] = 0.5
 PLAN = PlanMessage(DescriptorTrajectory(7, np.array([0.0, 10.0]), _COEFFS), FlightCommand.FLY)
 PLAN_HEX = (  # header, seq 7, FLY, 2 knots, knots 0 and 10 s, then 54 coefficients, mostly 0
-    "5101030464656d6f07000000010200"
+    "5102030464656d6f07000000010200"
     + "0000000000000000"
     + "0000000000002440"
     + "0000000000000000" * 1
@@ -103,7 +104,8 @@ PLAN_HEX = (  # header, seq 7, FLY, 2 knots, knots 0 and 10 s, then 54 coefficie
 def same_message(a: ConsensusMessage, b: ConsensusMessage) -> bool:
     """Field by field, floats bit for bit (so -0.0 differs from 0.0)."""
     return (
-        (a.sender, a.round, a.heard, a.degree) == (b.sender, b.round, b.heard, b.degree)
+        (a.sender, a.round, a.heard, a.degree, a.ready_hops)
+        == (b.sender, b.round, b.heard, b.degree, b.ready_hops)
         and np.asarray(a.gamma, dtype=np.float64).tobytes() == b.gamma.tobytes()
         and sorted(a.edge_sums) == sorted(b.edge_sums)
         and all(
@@ -129,7 +131,7 @@ def test_consensus_layout_by_hand() -> None:
     expected = (
         bytes([0x51, WIRE_VERSION, Kind.CONSENSUS, 4])
         + b"demo"
-        + struct.pack("<IHH3fHH", 1000, 2, 3, *POSITION, 3, 2)
+        + struct.pack("<IHHH3fHH", 1000, 2, 3, 9, *POSITION, 3, 2)
         + struct.pack("<3H", 1, 5, 7)
         + struct.pack("<2H", 1, 5)
         + struct.pack("<18d", *GAMMA)
@@ -137,7 +139,7 @@ def test_consensus_layout_by_hand() -> None:
         + struct.pack("<18d", *2.0 ** -np.arange(18))
     )
     assert encode_consensus(MESSAGE, POSITION, SID) == expected
-    assert len(expected) == 474
+    assert len(expected) == 476
 
 
 def test_status_golden_bytes() -> None:
@@ -161,7 +163,7 @@ def test_eight_neighbour_message_is_compact_and_decodes_read_only() -> None:
         degree=8,
     )
     data = encode_consensus(msg, (0.0, 0.0, 0.0), SID)
-    assert len(data) == 8 + 24 + 2 * 16 + 8 * 18 * 9  # 1360 bytes
+    assert len(data) == 8 + 26 + 2 * 16 + 8 * 18 * 9  # 1362 bytes
     packet = decode_consensus(data, SID)
     assert not packet.message.gamma.flags.writeable
     assert not packet.message.edge_sums[3].flags.writeable
@@ -317,10 +319,11 @@ def raw_consensus(
         bytes([magic, version, kind, len(sid) if sid_len is None else sid_len])
         + sid
         + struct.pack(
-            "<IHH3fHH",
+            "<IHHH3fHH",
             7,
             sender,
             len(heard),
+            0,
             *position,
             len(heard) if n_heard is None else n_heard,
             len(edge_ids) if n_edges is None else n_edges,
