@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from gcs.planner import Envelope, PlanRefused, formation_target, goal_of, hold, land, plan_to
+from gcs.planner import Envelope, PlanRefused, formation_target, goal_of, hold, land, plan_move
 from protocols.descriptor_vector import I_YAW, SHAPE
 from protocols.formation_fit import fit_problem
 from protocols.frames import FloatArray
@@ -158,13 +158,29 @@ def apply_command(
     (simulated s); PlanRefused with the reason if the envelope or the geofence forbid it, or if
     the new shape cannot hold the drones now at ``positions_ned_m`` (N, 3) the envelope's
     minimum separation apart (not checked without positions)."""
+    return plan_command(request, current, now_s, env, positions_ned_m)[0]
+
+
+def plan_command(
+    request: Request,
+    current: PlanMessage,
+    now_s: float,
+    env: Envelope,
+    positions_ned_m: FloatArray | None = None,
+) -> tuple[PlanMessage, str]:
+    """As :func:`apply_command`, with a sentence saying when each part of the change arrives
+    (each of centre, orientation and shape moves at its own pace; a part the command leaves
+    alone keeps its course)."""
     plan, args = current.trajectory, request.args
     duration = args.get("duration_s")
     goal = goal_of(plan, now_s)
     if request.name == "land":
         if current.command == FlightCommand.LAND:
             raise PlanRefused("the swarm is already landing")
-        return PlanMessage(land(plan, now_s, env), FlightCommand.LAND)
+        landing = land(plan, now_s, env)
+        return PlanMessage(
+            landing, FlightCommand.LAND
+        ), f"on the ground at t = {landing.end_s:.1f} s"
     if request.name == "hold":
         if current.command == FlightCommand.LAND:
             altitude = -float(plan.evaluate(now_s)[0][2])
@@ -174,8 +190,10 @@ def apply_command(
                     "take off to fly again"
                 )
             # a hold during the descent stops it: the swarm flies on where it stopped
-            return PlanMessage(hold(plan, now_s, env), FlightCommand.FLY)
-        return PlanMessage(hold(plan, now_s, env), current.command)
+            held = hold(plan, now_s, env)
+            return PlanMessage(held, FlightCommand.FLY), f"at rest at t = {held.end_s:.1f} s"
+        held = hold(plan, now_s, env)
+        return PlanMessage(held, current.command), f"at rest at t = {held.end_s:.1f} s"
     if current.command == FlightCommand.LAND and request.name != "takeoff":
         raise PlanRefused("the swarm is landing: take off first")
     if request.name == "takeoff":
@@ -212,4 +230,5 @@ def apply_command(
         problem = fit_problem(positions_ned_m, goal, env.min_separation_m)
         if problem is not None:
             raise PlanRefused(problem)
-    return PlanMessage(plan_to(plan, now_s, goal, env, duration), FlightCommand.FLY)
+    move = plan_move(plan, now_s, goal, env, duration)
+    return PlanMessage(move.trajectory, FlightCommand.FLY), move.describe()

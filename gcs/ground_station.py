@@ -32,7 +32,7 @@ import zenoh
 from drone_agent.transport_link import PlanServer
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
 from gcs.agent_timing import timing_metrics
-from gcs.commands import CommandError, Reply, apply_command, encode_reply, parse_request
+from gcs.commands import CommandError, Reply, encode_reply, parse_request, plan_command
 from gcs.events import EventLog, read_events
 from gcs.gcs_drills import GcsDrills
 from gcs.gcs_report import build_record, write_report
@@ -295,13 +295,12 @@ class GroundStation:
             return self._restart(now)
         try:
             positions = self.watch.positions(self.telemetry.vehicles)
-            plan = apply_command(request, self.plan, now, self._o.envelope, positions)
+            plan, when = plan_command(request, self.plan, now, self._o.envelope, positions)
         except PlanRefused as exc:
             reply = Reply(False, str(exc), self.plan.seq)
         else:
             self._publish(plan, request.name)
-            end = plan.trajectory.end_s
-            reply = Reply(True, f"plan {plan.seq}: arrives at t = {end:.1f} s", plan.seq)
+            reply = Reply(True, f"plan {plan.seq}: {when}", plan.seq)
         self.events.record(
             now,
             "command",

@@ -10,6 +10,7 @@ raises :class:`PlanRefused` with the reason and changes nothing (plans are immut
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -25,7 +26,7 @@ from protocols.descriptor_vector import (
     SHAPE,
 )
 from protocols.frames import FloatArray
-from protocols.trajectory import DescriptorTrajectory, Waypoint
+from protocols.trajectory import DescriptorTrajectory, Waypoint, quintic_hermite
 
 #: Peak speed and acceleration of a rest-to-rest minimum-jerk quintic over distance D and time T
 #: are 1.875 D/T and 5.7735 D/T^2.
@@ -138,16 +139,174 @@ def _rate_violation(plan: DescriptorTrajectory, t0: float, t1: float, env: Envel
     return None
 
 
-def _violation(plan: DescriptorTrajectory, t0: float, t1: float, env: Envelope) -> str | None:
-    """The first limit the plan breaks on [t0, t1], or None."""
-    broken = _rate_violation(plan, t0, t1, env)
-    if broken is not None:
-        return broken
-    t = np.linspace(t0, t1, _SAMPLES)
-    a, _, _ = plan.evaluate_many(t)
-    for k in range(0, _SAMPLES, 10):
-        _check_fence(a[k], env, when=f" on the way (t = {t[k]:.1f} s)")
+#: The descriptor groups that move at their own pace: name, rows.
+GROUPS: tuple[tuple[str, slice], ...] = (
+    ("centre", CENTRE),
+    ("orientation", ORIENTATION),
+    ("shape", SHAPE),
+)
+
+
+@dataclass(frozen=True)
+class Move:
+    """A new plan and, per commanded group (``GROUPS`` names), when it arrives (s); groups left
+    out of ``arrivals`` keep the course of the old plan."""
+
+    trajectory: DescriptorTrajectory
+    arrivals: dict[str, float]
+
+    def describe(self) -> str:
+        """``"orientation arrives at t = 30.2 s, shape at t = 28.1 s; centre keeps its course"``"""
+        parts = [f"{name} at t = {t:.1f} s" for name, t in self.arrivals.items()]
+        text = parts[0].replace(" at ", " arrives at ", 1) + "".join(", " + p for p in parts[1:])
+        kept = [name for name, _ in GROUPS if name not in self.arrivals]
+        if not parts:
+            return "nothing to change: the plan keeps its course"
+        if kept:
+            text += "; " + " and ".join(kept) + (" keeps" if len(kept) == 1 else " keep")
+            text += " its course" if len(kept) == 1 else " their course"
+        return text
+
+
+def _shift(coeffs: FloatArray, s: float) -> FloatArray:
+    """Coefficients (..., 6) of ``u -> p(u + s)`` for the polynomial ``p`` of ``coeffs``."""
+    n = coeffs.shape[-1]
+    basis = np.zeros((n, n))
+    for i in range(n):
+        for m in range(i + 1):
+            basis[i, m] = math.comb(i, m) * s ** (i - m)
+    out: FloatArray = coeffs @ basis
+    return out
+
+
+def _piece(plan: DescriptorTrajectory, t_a: float, rows: slice) -> FloatArray:
+    """The old plan's rows on the segment starting at ``t_a`` (no old knot inside it), as
+    coefficients (rows, 6) in ``tau = t - t_a``; constant after the plan's end."""
+    knots = plan.t_knots_s
+    if t_a >= plan.end_s:
+        out = np.zeros((len(range(9)[rows]), 6))
+        out[:, 0] = plan.evaluate(plan.end_s)[0][rows]
+        return out
+    k = int(np.clip(np.searchsorted(knots, t_a, side="right") - 1, 0, plan.n_segments - 1))
+    return _shift(plan.coeffs[k, rows], t_a - float(knots[k]))
+
+
+def _group_segment(
+    state: tuple[FloatArray, FloatArray, FloatArray], goal: FloatArray, t_s: float
+) -> FloatArray:
+    """The quintic (rows, 6) from the group's state now to rest at ``goal`` in ``t_s``."""
+    p0, v0, a0 = state
+    zero = np.zeros_like(goal)
+    return quintic_hermite(p0, v0, a0, goal, zero, zero, t_s)
+
+
+def _within(coeffs: FloatArray, t_s: float, v_max: float, acc_max: float) -> str | None:
+    """'speed' or 'acceleration' if the group's quintic (rows, 6) breaks its limit, else None."""
+    tau = np.linspace(0.0, t_s, _SAMPLES)
+    rate = np.stack([np.polyval(np.polyder(c[::-1]), tau) for c in coeffs], axis=1)
+    acc = np.stack([np.polyval(np.polyder(c[::-1], 2), tau) for c in coeffs], axis=1)
+    if np.linalg.norm(rate, axis=1).max() > v_max * 1.001:
+        return "speed"
+    if np.linalg.norm(acc, axis=1).max() > acc_max * 1.001:
+        return "acceleration"
     return None
+
+
+def plan_move(
+    plan: DescriptorTrajectory,
+    now_s: float,
+    target: FloatArray,
+    env: Envelope,
+    duration_s: float | None = None,
+) -> Move:
+    """A new plan that leaves ``plan`` at ``now_s`` and brings each group of descriptors the
+    target changes (centre, orientation, shape: those where ``target`` (9,) differs from where
+    the plan is heading) to rest at its target, each in the shortest time its own limits allow
+    (a turn or a stretch completes in seconds while the centre keeps the course of ``plan``).
+
+    With ``duration_s`` every changed group takes exactly that long, or PlanRefused if that is
+    too fast. The heading turns the short way round. The whole formation must stay in the
+    geofence along the new plan (PlanRefused otherwise).
+    """
+    a0, v0, acc0 = plan.evaluate(now_s)
+    goal = np.array(target, dtype=float)
+    goal[I_YAW] = a0[I_YAW] + math.remainder(float(goal[I_YAW] - a0[I_YAW]), 2 * math.pi)
+    check_target(goal, env)
+    if duration_s is not None and not (math.isfinite(duration_s) and duration_s > 0):
+        raise PlanRefused("the duration must be a positive number of seconds")
+    heading_to = goal_of(plan, now_s)
+    heading_to[I_YAW] = a0[I_YAW] + math.remainder(
+        float(heading_to[I_YAW] - a0[I_YAW]), 2 * math.pi
+    )
+    segments: dict[str, tuple[slice, float, FloatArray]] = {}
+    for (name, rows), (_, v_max, acc_max, what) in zip(GROUPS, _limits(env), strict=True):
+        if np.allclose(goal[rows], heading_to[rows], rtol=0.0, atol=1e-12):
+            continue
+        d = float(np.linalg.norm(goal[rows] - a0[rows]))
+        t_min = max(
+            env.min_duration_s, _PEAK_SPEED * d / v_max, math.sqrt(_PEAK_ACCEL * d / acc_max)
+        )
+        if duration_s is not None and duration_s < t_min - 1e-9:
+            raise PlanRefused(
+                f"too fast: this change needs at least {t_min:.1f} s within the "
+                f"envelope, {duration_s:g} s was asked"
+            )
+        t = duration_s if duration_s is not None else t_min
+        state = (a0[rows], v0[rows], acc0[rows])
+        for _ in range(_MAX_TRIES):
+            coeffs = _group_segment(state, goal[rows], t)
+            broken = _within(coeffs, t, v_max, acc_max)
+            if broken is None:
+                break
+            if duration_s is not None:
+                raise PlanRefused(
+                    f"in {duration_s:g} s the move would break the {what} {broken} limit; "
+                    "give more time"
+                )
+            t *= 1.2
+        else:
+            raise PlanRefused(f"no duration keeps the {name} within the envelope")
+        segments[name] = (rows, t, coeffs)
+    trajectory = _compose(plan, now_s, goal, segments)
+    horizon = max([trajectory.end_s, now_s + env.min_duration_s])
+    times = np.linspace(now_s, horizon, _SAMPLES)
+    a, _, _ = trajectory.evaluate_many(times)
+    for k in (*range(0, _SAMPLES, 10), _SAMPLES - 1):
+        _check_fence(a[k], env, when=f" on the way (t = {times[k]:.1f} s)")
+    arrivals = {name: now_s + seg[1] for name, seg in segments.items()}
+    return Move(trajectory, arrivals)
+
+
+def _compose(
+    plan: DescriptorTrajectory,
+    now_s: float,
+    goal: FloatArray,
+    segments: dict[str, tuple[slice, float, FloatArray]],
+) -> DescriptorTrajectory:
+    """``plan`` up to ``now_s``; then each changed group on its own quintic (and at rest at its
+    goal after it), every other row on the old plan's course."""
+    ends = [now_s + t for _, t, _ in segments.values()]
+    later = [float(k) for k in plan.t_knots_s if k > now_s + 1e-9]
+    knots = sorted({now_s, *ends, *later})
+    if len(knots) == 1:
+        knots.append(now_s + 1.0)  # nothing left to change: one constant segment
+    coeffs = np.zeros((len(knots) - 1, 9, 6))
+    for i, (t_a, t_b) in enumerate(itertools.pairwise(knots)):
+        for name, rows in GROUPS:
+            if name in segments:
+                _, t_g, c = segments[name]
+                if t_b <= now_s + t_g + 1e-9:
+                    coeffs[i, rows] = _shift(c, t_a - now_s)
+                else:
+                    coeffs[i, rows, 0] = goal[rows]
+            else:
+                coeffs[i, rows] = _piece(plan, t_a, rows)
+    head_knots, head_coeffs = plan._head(now_s)
+    return DescriptorTrajectory(
+        plan.seq + 1,
+        np.concatenate([head_knots, knots]),
+        np.concatenate([head_coeffs, coeffs]),
+    )
 
 
 def plan_to(
@@ -157,36 +316,8 @@ def plan_to(
     env: Envelope,
     duration_s: float | None = None,
 ) -> DescriptorTrajectory:
-    """A new plan that leaves ``plan`` at ``now_s`` and arrives at rest at ``target`` (9,).
-
-    Without ``duration_s`` the move takes the shortest time within the envelope; with it, exactly
-    that long, or PlanRefused if that is too fast. The heading turns the short way round.
-    """
-    a0, _, _ = plan.evaluate(now_s)
-    goal = np.array(target, dtype=float)
-    goal[I_YAW] = a0[I_YAW] + math.remainder(float(goal[I_YAW] - a0[I_YAW]), 2 * math.pi)
-    check_target(goal, env)
-    if duration_s is not None and not (math.isfinite(duration_s) and duration_s > 0):
-        raise PlanRefused("the duration must be a positive number of seconds")
-    t_min = _min_duration(a0, goal, env)
-    if duration_s is not None and duration_s < t_min - 1e-9:
-        raise PlanRefused(
-            f"too fast: this change needs at least {t_min:.1f} s within the "
-            f"envelope, {duration_s:g} s was asked"
-        )
-    t = duration_s if duration_s is not None else t_min
-    zero = np.zeros(9)
-    for _ in range(_MAX_TRIES):
-        candidate = plan.append([Waypoint(now_s + t, goal, zero, zero)], t_start_s=now_s)
-        broken = _violation(candidate, now_s, now_s + t, env)
-        if broken is None:
-            return candidate
-        if duration_s is not None:
-            raise PlanRefused(
-                f"in {duration_s:g} s the move would break the {broken}; give more time"
-            )
-        t *= 1.2
-    raise PlanRefused(f"no duration keeps the move within the envelope ({broken})")
+    """The trajectory of :func:`plan_move`."""
+    return plan_move(plan, now_s, target, env, duration_s).trajectory
 
 
 def goal_of(plan: DescriptorTrajectory, now_s: float) -> FloatArray:

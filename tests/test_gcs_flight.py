@@ -148,7 +148,8 @@ def test_gcs_flies_a_formation_change_refuses_the_fence_and_writes_the_report(
             assert "accepted" in done.stdout
             # operator commands answer within a second, a flying swarm's planning included
             assert _answer_s(done.stdout, "formation", "accepted") < 1.0
-            arrives = float(re.findall(r"arrives at t = ([0-9.]+) s", done.stdout)[0])
+            # each part (orientation, shape) says when it arrives: wait for the last
+            arrives = max(float(t) for t in re.findall(r"at t = ([0-9.]+) s", done.stdout))
             fence = _operator(endpoint, "move", "--north-m", "5000")
             assert fence.returncode == 1, fence.stdout + fence.stderr
             assert "refused" in fence.stdout and "geofence" in fence.stdout

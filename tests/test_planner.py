@@ -7,7 +7,16 @@ import math
 import numpy as np
 import pytest
 
-from gcs.planner import Envelope, PlanRefused, formation_target, goal_of, hold, land, plan_to
+from gcs.planner import (
+    Envelope,
+    PlanRefused,
+    formation_target,
+    goal_of,
+    hold,
+    land,
+    plan_move,
+    plan_to,
+)
 from protocols.trajectory import DescriptorTrajectory, Waypoint
 
 ENV = Envelope(fence_north_m=(-50.0, 50.0), fence_east_m=(-50.0, 50.0))
@@ -124,3 +133,60 @@ def test_land_is_never_refused_even_outside_the_fence() -> None:
     )
     landing = land(far, 3.0, ENV)
     assert landing.evaluate(landing.end_s)[0][2] == pytest.approx(0.0, abs=1e-9)
+
+
+CRUISE_ENV = Envelope(fence_north_m=(-50.0, 250.0), fence_east_m=(-50.0, 50.0))
+
+
+def _paper_like_plan() -> DescriptorTrajectory:
+    """The centre cruises 1 m/s north from t = 0 to t = 200 s, the formation 4 x 3 m."""
+    start = np.array([0.0, 0.0, -5.0, 0.0, 0.0, 0.0, 10.0, 8.0, 0.0])
+    cruise = np.r_[1.0, 0, 0, 0, 0, 0, 0, 0, 0]
+    return DescriptorTrajectory.from_waypoints(
+        [Waypoint(t, start + t * cruise, cruise, np.zeros(9)) for t in (0.0, 100.0, 200.0)]
+    )
+
+
+def test_a_turn_and_a_stretch_arrive_at_their_own_pace_while_the_centre_keeps_its_course() -> None:
+    """Found in the paper flight: ``formation --heading-deg 30 --length-m 4`` at t = 23 s was one
+    rest-to-rest move of all nine descriptors to the old plan's end, 160 m away: the turn took
+    166 s. Now the turn and the stretch each take the time their own limits allow, and the
+    centre flies on exactly as before."""
+    plan = _paper_like_plan()
+    now = 23.0
+    target = formation_target(plan, now, heading_deg=30.0, spread_m=np.array([4.0, 8**0.5, 0.0]))
+    move = plan_move(plan, now, target, CRUISE_ENV)
+    assert set(move.arrivals) == {"orientation", "shape"}
+    assert move.arrivals["orientation"] - now < 15.0 and move.arrivals["shape"] - now < 15.0
+    text = move.describe()
+    assert "orientation arrives at t = " in text and "centre keeps its course" in text, text
+    new = move.trajectory
+    t = np.linspace(now, 200.0, 500)
+    a_new, rate_new, _ = new.evaluate_many(t)
+    a_old, rate_old, _ = plan.evaluate_many(t)
+    np.testing.assert_allclose(a_new[:, :3], a_old[:, :3], atol=1e-9)  # the centre's course
+    np.testing.assert_allclose(rate_new[:, :3], rate_old[:, :3], atol=1e-9)
+    after = t >= max(move.arrivals.values())
+    np.testing.assert_allclose(a_new[after, 5], math.radians(30.0), atol=1e-9)
+    np.testing.assert_allclose(a_new[after, 6], 16.0, atol=1e-9)
+    # smooth at the join and within each group's own limits
+    for k, (x, y) in enumerate(zip(plan.evaluate(now), new.evaluate(now + 1e-9), strict=True)):
+        np.testing.assert_allclose(x, y, atol=1e-6, err_msg=f"derivative {k}")
+    turn, turn_acc = _max_rate(new, now, 200.0, slice(3, 6))
+    assert turn <= math.radians(ENV.max_yaw_rate_deg_s) * 1.001
+    assert turn_acc <= math.radians(ENV.max_yaw_accel_deg_s2) * 1.001
+    shape, shape_acc = _max_rate(new, now, 200.0, slice(6, 9))
+    assert shape <= ENV.max_variance_rate_m2_s * 1.001
+    assert shape_acc <= ENV.max_variance_accel_m2_s2 * 1.001
+
+
+def test_a_stretch_whose_course_leaves_the_fence_later_is_refused() -> None:
+    """The centre's course is checked with the new shape: a formation that fits now but would
+    cross the fence as the centre flies on is refused."""
+    plan = _paper_like_plan()
+    fence = Envelope(fence_north_m=(-50.0, 210.0), fence_east_m=(-50.0, 50.0))
+    ok = formation_target(plan, 23.0, spread_m=np.array([4.0, 2.0, 0.0]))
+    plan_move(plan, 23.0, ok, fence)
+    wide = formation_target(plan, 23.0, spread_m=np.array([10.0, 2.0, 0.0]))
+    with pytest.raises(PlanRefused, match="geofence"):
+        plan_move(plan, 23.0, wide, fence)
