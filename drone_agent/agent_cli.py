@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import time
@@ -265,14 +266,15 @@ def _current_round(host: AgentHost) -> int:
 
 
 class _Drills:
-    """Applies the scenario's link faults (cuts, loss, delay, partitions) on the receive side as
-    simulated time passes; drone drop-outs and crashes belong to the supervisor and simulator."""
+    """Applies the scenario's timeline as simulated time passes: link faults (cuts, loss, delay,
+    partitions) on the receive side, and the drop-out of a hosted drone's agent. Crashes are the
+    simulator's."""
 
     def __init__(self, scenario: Scenario, faults: LinkFaults, host: AgentHost) -> None:
         from gcs.fault_timeline import timeline
 
-        self._actions = [a for a in timeline(scenario) if a.fault_kind not in ("dropout", "crash")]
-        self._target = _FaultsOnly(faults)
+        self._actions = [a for a in timeline(scenario) if a.fault_kind != "crash"]
+        self._target = _HostFaults(faults, host)
         self._host = host
         self._period_s = scenario.rates.dt_control_s
 
@@ -282,16 +284,28 @@ class _Drills:
             self._actions.pop(0).apply(self._target)
 
 
-class _FaultsOnly:
-    def __init__(self, faults: LinkFaults) -> None:
+class _HostFaults:
+    """The fault target of one agent process (gcs.fault_timeline.FaultTarget)."""
+
+    def __init__(self, faults: LinkFaults, host: AgentHost) -> None:
         self._faults = faults
+        self._host = host
 
     @property
     def conditions(self) -> LinkFaults:
         return self._faults
 
-    def kill_agent(self, drone: int) -> None:  # not an agent's job
-        pass
+    def kill_agent(self, drone: int) -> None:
+        """A scenario drop-out: the agent dies at its time as the ``dropout`` drill kills it. A
+        process hosting only this drone dies (SIGKILL, nothing said to anyone); a process hosting
+        several drops only this agent, abruptly (its liveliness token goes, it sends nothing
+        more), and the others fly on."""
+        if drone not in self._host.drones:
+            return
+        print(f"agents: drone {drone}: scenario drop-out", file=sys.stderr, flush=True)
+        if len(self._host.drones) == 1:
+            os.kill(os.getpid(), signal.SIGKILL)
+        self._host.kill(drone, "scenario drop-out")
 
     def crash_vehicle(self, drone: int) -> None:  # the simulator's job
         pass

@@ -92,6 +92,24 @@ class AgentHost:
             self._selector.register(slot.link, selectors.EVENT_READ, slot)
 
     @property
+    def drones(self) -> list[int]:
+        """The drones this process hosts."""
+        return [s.drone for s in self._slots]
+
+    def kill(self, drone: int, reason: str) -> None:
+        """Drone ``drone``'s agent dies now (a scenario drop-out): it leaves the swarm at once
+        (liveliness token dropped) and never serves its vehicle again, which fails safe."""
+        for slot in self._slots:
+            if slot.drone == drone:
+                if slot.agent is None:  # not joined yet: it never will
+                    slot.link.close()
+                    self._selector.unregister(slot.link)
+                    self._slots.remove(slot)
+                else:
+                    slot.agent.leave(reason)
+                return
+
+    @property
     def agents(self) -> list[HostedAgent]:
         """The agents that have joined so far."""
         return [s.agent for s in self._slots if s.agent is not None]

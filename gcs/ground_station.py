@@ -34,6 +34,7 @@ from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
 from gcs.agent_timing import timing_metrics
 from gcs.commands import CommandError, Reply, encode_reply, parse_request, plan_command
 from gcs.events import EventLog, read_events
+from gcs.fault_timeline import TimedAction, timeline
 from gcs.gcs_drills import GcsDrills
 from gcs.gcs_report import build_record, write_report
 from gcs.planner import Envelope, PlanRefused
@@ -114,6 +115,7 @@ class GroundStation:
                 self.bus.watch_liveliness(self._keys.alive_all(), self._on_alive),
             ):
                 self._closers.append(sub.close)
+            self._faults: list[TimedAction] | None = None
             self.drills = GcsDrills(self.bus, options.swarm_id, self.events, self.telemetry)
             self._closers.append(self.drills.close)
             handler: zenoh.handlers.FifoChannel[zenoh.Query] = zenoh.handlers.FifoChannel(64)
@@ -185,6 +187,22 @@ class GroundStation:
             self.now_s, "plan_published", seq=plan.seq, command=plan.command.name, reason=why
         )
 
+    def _scenario_faults(self) -> None:
+        """Record each fault of the scenario's timeline as its time passes ("fault" and
+        "fault_end" events, as ``swarm simulate`` records them). The agents and the simulator
+        carry them out; a restarted station records only those still to come."""
+        if self._faults is None:
+            now = self.now_s
+            self._faults = [a for a in timeline(self._o.scenario) if a.t_s > now or not now]
+        while self._faults and self._faults[0].t_s <= self.now_s + 1e-9:
+            action = self._faults.pop(0)
+            self.events.record(
+                action.t_s,
+                "fault" if action.starts else "fault_end",
+                fault=action.fault_kind,
+                description=action.description,
+            )
+
     def run(self) -> list[Path]:
         """Run until :meth:`stop` or the end time; then write and return the report files."""
         end_s = self._o.duration_s or self._o.scenario.duration_s
@@ -206,6 +224,7 @@ class GroundStation:
                 self._vehicle_text(text.t_s, text.drone, text.severity, text.text)
             self._drain_zenoh()
             self.drills.drain(self.now_s)
+            self._scenario_faults()
             self._answer_commands()
             if time.monotonic() >= next_line:
                 next_line += 1.0
@@ -251,7 +270,7 @@ class GroundStation:
 
     def _vehicle_text(self, t_s: float, drone: int, severity: int, text: str) -> None:
         """Log a vehicle's STATUSTEXT as a crash, a failsafe or a plain text."""
-        kind = self.watch.on_vehicle_text(drone, severity, text)
+        kind = self.watch.on_vehicle_text(drone, severity, text, t_s)
         self.events.record(t_s, kind, drone=drone, severity=severity, text=text)
 
     def _drain_zenoh(self) -> None:
@@ -265,7 +284,7 @@ class GroundStation:
         while self._liveliness:
             key, alive = self._liveliness.popleft()
             drone = self._keys.drone_of(key)
-            if drone is not None and (kind := self.watch.on_liveliness(drone, alive)):
+            if drone is not None and (kind := self.watch.on_liveliness(drone, alive, self.now_s)):
                 self.events.record(self.now_s, kind, drone=drone)
 
     def _answer_commands(self) -> None:

@@ -166,6 +166,12 @@ def format_reply(name: str, reply: Reply, elapsed_s: float | None = None) -> lis
                 f"{r.get('rx', 0):>8} {r.get('tx', 0):>8} "
                 f"{r.get('rx_dropped', 0):>7}"
             )
+        for r in reply.table:
+            lost = r.get("lost")
+            if isinstance(lost, dict):
+                t = lost.get("t_s")
+                when = f" at t = {t:.1f} s" if isinstance(t, int | float) and t == t else ""
+                lines.append(f"drone {r.get('drone')} lost{when}: {lost.get('reason')}")
     return lines
 
 

@@ -47,6 +47,9 @@ class SwarmWatch:
     failsafes: dict[int, int] = field(default_factory=dict)
     #: the radio's communication range (m); None: expect only the neighbours the agent lists
     range_m: float | None = None
+    #: drone -> (simulated time s, why): drones lost to a crash or whose agent went away; they
+    #: keep their row in the table with this
+    lost: dict[int, tuple[float, str]] = field(default_factory=dict)
     _smoothed_share: dict[int, float] = field(default_factory=dict, repr=False)
 
     def on_status(
@@ -90,22 +93,28 @@ class SwarmWatch:
             and math.dist(here, v.position_ned_m) < self.range_m
         )
 
-    def on_liveliness(self, drone: int, alive: bool) -> str | None:
-        """A liveliness change; the event to log (``agent_joined``, ``dropout_detected``) or
-        None if nothing changed."""
+    def on_liveliness(self, drone: int, alive: bool, t_s: float = math.nan) -> str | None:
+        """A liveliness change at simulated time ``t_s``; the event to log (``agent_joined``,
+        ``dropout_detected``) or None if nothing changed. A drone whose agent goes is marked
+        lost (unless it already is, e.g. by its crash); one that comes back is not."""
         if alive and drone not in self.alive:
             self.alive.add(drone)
+            self.lost.pop(drone, None)
             return "agent_joined"
         if not alive and drone in self.alive:
             self.alive.discard(drone)
+            self.lost.setdefault(drone, (t_s, "its agent left the swarm"))
             return "dropout_detected"
         return None
 
-    def on_vehicle_text(self, drone: int, severity: int, text: str) -> str:
-        """A vehicle's STATUSTEXT; its event kind (:func:`text_kind`), failsafes counted."""
+    def on_vehicle_text(self, drone: int, severity: int, text: str, t_s: float = math.nan) -> str:
+        """A vehicle's STATUSTEXT at ``t_s``; its event kind (:func:`text_kind`), failsafes
+        counted, a crash marks the drone lost."""
         kind = text_kind(severity, text)
         if kind == "failsafe":
             self.failsafes[drone] = self.failsafes.get(drone, 0) + 1
+        if kind == "crash":
+            self.lost[drone] = (t_s, f"vehicle crashed: {text}")
         return kind
 
     def positions(self, vehicles: Mapping[int, VehicleState]) -> np.ndarray | None:
@@ -125,19 +134,23 @@ class SwarmWatch:
 
     def table(self, vehicles: Mapping[int, VehicleState]) -> list[dict[str, Any]]:
         """One row per drone heard: mode, armed, position (NED m), centre estimate error (m),
-        neighbours, link quality (0..1), failsafes reported by its vehicle, message counters."""
+        neighbours, link quality (0..1), failsafes reported by its vehicle, message counters. A
+        lost drone keeps its row: mode ``LOST`` and ``lost`` = {t_s, reason}."""
         truth = self.truth(vehicles)
         rows = []
         for i in sorted(set(vehicles) | set(self.latest)):
             v, s = vehicles.get(i), self.latest.get(i)
             err = None
-            if s is not None and truth is not None:
+            lost = self.lost.get(i) if i not in self.alive else None
+            if s is not None and truth is not None and lost is None:
                 err = float(np.linalg.norm(s.estimate[:3] - truth[:3]))
+            mode = "LOST" if lost is not None else s.mode.name if s is not None else None
             rows.append(
                 {
                     "drone": i,
                     "alive": i in self.alive,
-                    "mode": s.mode.name if s is not None else None,
+                    "mode": mode,
+                    "lost": None if lost is None else {"t_s": lost[0], "reason": lost[1]},
                     "armed": v.armed if v is not None else (s.armed if s else None),
                     "position_ned_m": list(v.position_ned_m) if v and v.position_ned_m else None,
                     "estimate_error_m": err if err is None or math.isfinite(err) else None,

@@ -104,3 +104,26 @@ def test_link_quality_of_a_clean_link_is_full_though_messages_straddle_statuses(
         rx += 14 if k % 2 else 18
         watch.on_status(_status(0, 2 * k, rx, tuple(range(1, 9))))
     assert watch.link_quality[0] > 0.99
+
+
+def test_crashed_and_departed_drones_keep_their_row_with_the_reason_and_time() -> None:
+    from gcs.commands import Reply
+    from gcs.operator_cli import format_reply
+
+    watch = SwarmWatch()
+    for i in range(3):
+        watch.on_liveliness(i, True, 0.5)
+        watch.on_status(_status(i, 50, 0, ()))
+    assert watch.on_vehicle_text(1, 0, "Crashed: all motors off", 30.0) == "crash"
+    watch.on_liveliness(1, False, 30.1)  # its agent leaves after the crash: the crash is why
+    assert watch.on_liveliness(2, False, 41.0) == "dropout_detected"
+    rows = {r["drone"]: r for r in watch.table({})}
+    assert rows[0]["mode"] == "FLYING" and rows[0]["lost"] is None
+    assert rows[1]["mode"] == "LOST"
+    assert rows[1]["lost"] == {"t_s": 30.0, "reason": "vehicle crashed: Crashed: all motors off"}
+    assert rows[2]["mode"] == "LOST" and rows[2]["lost"]["t_s"] == 41.0
+    lines = format_reply("status", Reply(True, "t = 50.00 s", 1, tuple(rows.values())))
+    assert "drone 1 lost at t = 30.0 s: vehicle crashed: Crashed: all motors off" in lines
+    assert "drone 2 lost at t = 41.0 s: its agent left the swarm" in lines
+    watch.on_liveliness(2, True, 45.0)  # restarted: back in the swarm
+    assert {r["drone"]: r for r in watch.table({})}[2]["lost"] is None
