@@ -88,6 +88,9 @@ class ConsensusMessage:
     ``gamma`` (18,): the sender's estimate in this round; ``edge_sums``: the running sums
     ``Q_sender,j`` of the sender's increments per neighbour j; ``heard``: who the sender heard
     recently (as of this round); ``degree``: ``len(heard)``, for the degree-normalised gain.
+    ``position_ned_m`` (3,) and ``velocity_ned_m_s`` (3,): where the sender was and how fast it
+    moved in this round (NED), for the receivers' separation layer (drone_agent/separation.py);
+    None when not known (set by the wire decoder; the estimator does not use them).
     """
 
     sender: int
@@ -96,6 +99,8 @@ class ConsensusMessage:
     edge_sums: Mapping[int, FloatArray]
     heard: frozenset[int]
     degree: int
+    position_ned_m: FloatArray | None = None
+    velocity_ned_m_s: FloatArray | None = None
 
 
 @dataclass

@@ -4,10 +4,16 @@ All integers and floats are little-endian, with no padding. Every payload starts
 
     offset  size  field
     0       1     magic 0x51 ('Q')
-    1       1     schema version (WIRE_VERSION)
+    1       1     schema version of the kind (WIRE_VERSION; CONSENSUS_VERSION for consensus)
     2       1     message kind (Kind)
     3       1     swarm id length L (1..32)
     4       L     swarm id (ASCII, protocols.keys rules)
+
+Versions are per kind: status, plan and fault payloads are at WIRE_VERSION (1); consensus
+payloads are sent at CONSENSUS_VERSION (2), which added the sender's velocity, and version 1 is
+still decoded (its message's ``velocity_ned_m_s`` is None: the sender's velocity is unknown).
+Bumping only the consensus kind keeps every other payload, and their golden bytes, unchanged; a
+build that speaks only version 1 counts a version-2 consensus payload as ``wrong_version``.
 
 The consensus body (Kind.CONSENSUS) follows the header::
 
@@ -15,6 +21,7 @@ The consensus body (Kind.CONSENSUS) follows the header::
     u16 sender         drone index
     u16 degree         the sender's degree for the degree-normalised gain
     3 x f32 position   the sender's position, NED, m (receivers apply the radio range)
+    3 x f32 velocity   the sender's velocity, NED, m/s (version 2 only; for the separation layer)
     u16 n_heard, u16 n_edges
     n_heard x u16      heard-set, strictly increasing
     n_edges x u16      edge neighbours j, strictly increasing
@@ -24,7 +31,9 @@ The consensus body (Kind.CONSENSUS) follows the header::
 
 The (neighbour, edge sum) pairs are stored as columns, ids first, so that all floats form one
 block (one finiteness check, one copy). Gamma and edge sums are float64 because the estimator
-needs them exact: a decoded message equals the sent one bit for bit.
+needs them exact: a decoded message equals the sent one bit for bit. Position and velocity are
+float32 (ample for the radio range and the separation layer): the decoded message carries them in
+its ``position_ned_m`` and ``velocity_ned_m_s`` fields.
 
 Decoders raise only :class:`WireError`, whose ``reason`` says why (callers count drops by
 reason); encoders raise ValueError for a message that cannot be sent.
@@ -50,13 +59,18 @@ from protocols.keys import MAX_DRONE_ID, validate_swarm_id
 
 MAGIC = 0x51
 WIRE_VERSION = 1
+#: Schema version of consensus payloads sent (version 1, without the velocity, still decodes).
+CONSENSUS_VERSION = 2
+CONSENSUS_VERSIONS = (1, 2)
 N_GAMMA = 18
 #: Default largest consensus payload accepted (bytes): about 110 edge sums.
 MAX_CONSENSUS_BYTES = 16 * 1024
 MAX_U32 = 0xFFFF_FFFF
 
 _HEAD = struct.Struct("<BBBB")
-_FIXED = struct.Struct("<IHH3fHH")
+_FIXED_V1 = struct.Struct("<IHH3fHH")
+_FIXED_V2 = struct.Struct("<IHH3f3fHH")
+_FIXED = {1: _FIXED_V1, 2: _FIXED_V2}
 _FLOATS = N_GAMMA * 8  # bytes of one (18,) float64 block
 
 
@@ -93,10 +107,16 @@ class WireError(ValueError):
 
 @dataclass(frozen=True, eq=False)
 class ConsensusPacket:
-    """A decoded consensus payload: the message and the sender's position (3,) NED, m."""
+    """A decoded consensus payload: the message and the sender's position (3,) NED, m (also
+    the message's ``position_ned_m``)."""
 
     message: ConsensusMessage
     position_ned_m: FloatArray
+
+    @property
+    def velocity_ned_m_s(self) -> FloatArray | None:
+        """The sender's velocity (3,) NED, m/s; None from a version-1 sender."""
+        return self.message.velocity_ned_m_s
 
 
 @lru_cache(maxsize=64)
@@ -105,35 +125,45 @@ def _sid(swarm_id: str) -> bytes:
 
 
 @lru_cache(maxsize=256)
-def encode_header(kind: Kind, swarm_id: str) -> bytes:
-    """The common header of a payload of ``kind`` for swarm ``swarm_id``."""
+def encode_header(kind: Kind, swarm_id: str, version: int = WIRE_VERSION) -> bytes:
+    """The common header of a payload of ``kind`` (schema ``version``) for swarm ``swarm_id``."""
     sid = _sid(swarm_id)
-    return _HEAD.pack(MAGIC, WIRE_VERSION, int(kind), len(sid)) + sid
+    return _HEAD.pack(MAGIC, version, int(kind), len(sid)) + sid
 
 
 def open_payload(data: bytes, kind: Kind, swarm_id: str, max_bytes: int) -> int:
-    """Check the header of ``data`` and return the offset of its body; WireError otherwise."""
+    """Check the header of ``data`` (schema WIRE_VERSION) and return the offset of its body;
+    WireError otherwise."""
+    return open_versioned(data, kind, swarm_id, max_bytes, (WIRE_VERSION,))[0]
+
+
+def open_versioned(
+    data: bytes, kind: Kind, swarm_id: str, max_bytes: int, versions: tuple[int, ...]
+) -> tuple[int, int]:
+    """Check the header of ``data``, whose schema version must be one of ``versions`` (the
+    newest last), and return the offset of its body and its version; WireError otherwise."""
     if len(data) > max_bytes:
         raise WireError(Reason.OVERSIZED, f"{len(data)} bytes, at most {max_bytes} accepted")
-    header = encode_header(kind, swarm_id)
+    header = encode_header(kind, swarm_id, versions[-1])
     if data[: len(header)] == header:  # the usual case, in one comparison
-        return len(header)
+        return len(header), versions[-1]
     if len(data) < _HEAD.size:
         raise WireError(Reason.TRUNCATED, f"{len(data)} bytes, shorter than the header")
     magic, version, got_kind, sid_len = _HEAD.unpack_from(data)
     if magic != MAGIC:
         raise WireError(Reason.BAD_MAGIC, f"magic 0x{magic:02x}, expected 0x{MAGIC:02x}")
-    if version != WIRE_VERSION:
-        raise WireError(Reason.BAD_VERSION, f"version {version}, this build speaks {WIRE_VERSION}")
-    if got_kind != kind:
+    if got_kind != kind:  # before the version: versions are per kind
         raise WireError(Reason.WRONG_KIND, f"kind {got_kind}, expected {int(kind)} ({kind.name})")
+    if version not in versions:
+        speaks = " or ".join(str(v) for v in versions)
+        raise WireError(Reason.BAD_VERSION, f"version {version}, this build speaks {speaks}")
     end = _HEAD.size + sid_len
     if len(data) < end:
         raise WireError(Reason.TRUNCATED, f"{len(data)} bytes, swarm id needs {end}")
     if data[_HEAD.size : end] != _sid(swarm_id):
         other = bytes(data[_HEAD.size : end]).decode("ascii", "replace")
         raise WireError(Reason.WRONG_SWARM, f"swarm {other!r}, expected {swarm_id!r}")
-    return end
+    return end, version
 
 
 def expect_length(data: bytes, expected: int, what: str) -> None:
@@ -189,7 +219,10 @@ def encode_consensus(
     *,
     max_bytes: int = MAX_CONSENSUS_BYTES,
 ) -> bytes:
-    """The payload of ``message`` sent from ``position_ned_m`` (3,) NED, m (sent as float32).
+    """The payload (schema CONSENSUS_VERSION) of ``message`` sent from ``position_ned_m`` (3,)
+    NED, m, moving at the message's ``velocity_ned_m_s`` (3,) NED, m/s (zero if None); both sent
+    as float32. The position argument is the one sent (the transport's radio origin); the
+    message's own ``position_ned_m`` field is not read.
 
     ValueError if a field is out of range (ids and degree uint16, round uint32), not finite, or
     the payload would be larger than ``max_bytes``.
@@ -201,11 +234,18 @@ def encode_consensus(
     neighbours = uint_ids(message.edge_sums, "edge neighbour")
     floats = [message.gamma, *(message.edge_sums[j] for j in neighbours)]
     ids = heard + neighbours
+    velocity = message.velocity_ned_m_s
     payload = b"".join(
         (
-            encode_header(Kind.CONSENSUS, swarm_id),
-            _FIXED.pack(
-                round_, sender, degree, *_position(position_ned_m), len(heard), len(neighbours)
+            encode_header(Kind.CONSENSUS, swarm_id, CONSENSUS_VERSION),
+            _FIXED_V2.pack(
+                round_,
+                sender,
+                degree,
+                *_vec3_f32(position_ned_m, "position_ned_m"),
+                *_vec3_f32((0.0, 0.0, 0.0) if velocity is None else velocity, "velocity_ned_m_s"),
+                len(heard),
+                len(neighbours),
             ),
             struct.pack(f"<{len(ids)}H", *ids),
             finite_block(floats, (len(floats), N_GAMMA), "gamma and edge sums"),
@@ -216,17 +256,38 @@ def encode_consensus(
     return payload
 
 
-def _position(position_ned_m: Sequence[float] | FloatArray) -> tuple[float, float, float]:
-    pos = np.frombuffer(finite_block(position_ned_m, (3,), "position_ned_m", "<f4"), "<f4")
-    return (float(pos[0]), float(pos[1]), float(pos[2]))
+def _vec3_f32(values: Sequence[float] | FloatArray, what: str) -> tuple[float, float, float]:
+    vec = np.frombuffer(finite_block(values, (3,), what, "<f4"), "<f4")
+    return (float(vec[0]), float(vec[1]), float(vec[2]))
 
 
-def _fixed(data: bytes, swarm_id: str, max_bytes: int) -> tuple[int, tuple[int, ...]]:
-    """Offset after the fixed fields and their values, after checking the header."""
-    off = open_payload(data, Kind.CONSENSUS, swarm_id, max_bytes)
-    if len(data) < off + _FIXED.size:
+@dataclass(frozen=True)
+class _Fixed:
+    """The fixed fields of a consensus payload (velocity None in version 1)."""
+
+    end: int
+    round: int
+    sender: int
+    degree: int
+    position: tuple[float, float, float]
+    velocity: tuple[float, float, float] | None
+    n_heard: int
+    n_edges: int
+
+
+def _fixed(data: bytes, swarm_id: str, max_bytes: int) -> _Fixed:
+    """The fixed fields and the offset after them, after checking the header and that the
+    position and velocity are finite."""
+    off, version = open_versioned(data, Kind.CONSENSUS, swarm_id, max_bytes, CONSENSUS_VERSIONS)
+    layout = _FIXED[version]
+    if len(data) < off + layout.size:
         raise WireError(Reason.TRUNCATED, f"consensus: {len(data)} bytes, shorter than its fields")
-    return off + _FIXED.size, _FIXED.unpack_from(data, off)
+    values = layout.unpack_from(data, off)
+    if not all(math.isfinite(v) for v in values[3:-2]):
+        raise WireError(Reason.NOT_FINITE, "consensus position or velocity is NaN or infinite")
+    round_, sender, degree, px, py, pz = values[:6]
+    velocity = None if version == 1 else (values[6], values[7], values[8])
+    return _Fixed(off + layout.size, round_, sender, degree, (px, py, pz), velocity, *values[-2:])
 
 
 def consensus_origin(
@@ -234,11 +295,9 @@ def consensus_origin(
 ) -> tuple[int, tuple[float, float, float]]:
     """The sender and its position (NED, m) from a consensus payload's header and fixed fields,
     without decoding the rest: lets a receiver apply the radio range before paying for a full
-    :func:`decode_consensus`. WireError if the header or position is bad."""
-    _, (_, sender, _, px, py, pz, _, _) = _fixed(data, swarm_id, max_bytes)
-    if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
-        raise WireError(Reason.NOT_FINITE, "consensus position is NaN or infinite")
-    return sender, (px, py, pz)
+    :func:`decode_consensus`. WireError if the header, position or velocity is bad."""
+    fixed = _fixed(data, swarm_id, max_bytes)
+    return fixed.sender, fixed.position
 
 
 def decode_consensus(
@@ -246,9 +305,11 @@ def decode_consensus(
 ) -> ConsensusPacket:
     """Decode a consensus payload of swarm ``swarm_id``; WireError for anything malformed.
 
-    The arrays of the returned message are float64 copies, read-only.
+    The arrays of the returned message are float64 copies, read-only; its ``position_ned_m`` is
+    the packet's, its ``velocity_ned_m_s`` None from a version-1 sender.
     """
-    off, (round_, sender, degree, px, py, pz, n_heard, n_edges) = _fixed(data, swarm_id, max_bytes)
+    fixed = _fixed(data, swarm_id, max_bytes)
+    off, n_heard, n_edges = fixed.end, fixed.n_heard, fixed.n_edges
     n_ids = n_heard + n_edges
     expect_length(data, off + 2 * n_ids + _FLOATS * (1 + n_edges), "consensus")
     ids = struct.unpack_from(f"<{n_ids}H", data, off)
@@ -256,22 +317,27 @@ def decode_consensus(
     floats = np.frombuffer(data, "<f8", N_GAMMA * (1 + n_edges), off + 2 * n_ids).reshape(
         -1, N_GAMMA
     )
-    if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
-        raise WireError(Reason.NOT_FINITE, "consensus position is NaN or infinite")
     if not np.isfinite(floats).all():
         raise WireError(Reason.NOT_FINITE, "consensus gamma or an edge sum is NaN or infinite")
     check_ids(heard, "heard")
     check_ids(neighbours, "edge neighbour")
     floats = floats.astype(np.float64)  # a native, aligned, writable copy ...
     floats.setflags(write=False)  # ... made read-only
-    position = np.array((px, py, pz))
-    position.setflags(write=False)
+    position = _read_only(fixed.position)
     message = ConsensusMessage(
-        sender=sender,
-        round=round_,
+        sender=fixed.sender,
+        round=fixed.round,
         gamma=floats[0],
         edge_sums=dict(zip(neighbours, floats[1:], strict=True)),
         heard=frozenset(heard),
-        degree=degree,
+        degree=fixed.degree,
+        position_ned_m=position,
+        velocity_ned_m_s=None if fixed.velocity is None else _read_only(fixed.velocity),
     )
     return ConsensusPacket(message, position)
+
+
+def _read_only(values: tuple[float, float, float]) -> FloatArray:
+    out = np.array(values, dtype=np.float64)
+    out.setflags(write=False)
+    return out
