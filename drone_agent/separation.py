@@ -7,15 +7,19 @@ How to integrate (not wired in yet)
 - *Where*: after the cooperative controller's virtual acceleration ``v_i`` (plus the flat-axis
   PD and null-space damping), before thrust/attitude (drone_agent/thrust_attitude): the filter
   returns an acceleration inside what thrust/attitude can realise, so the limiter there does not
-  undo it. Only while flying a formation: not on the ground, not before arming.
+  undo it. From arming (take-off included: that is where a dense grid collides) to touchdown.
 - *Inputs*: own position and velocity (telemetry of this tick); the neighbours heard this tick:
   the newest consensus message of each sender within the heard timeout, position and velocity
   extrapolated to now (drone_agent/neighbours.py: ``latest_by_sender`` keeps the store,
   ``neighbours_from_inbox`` / ``neighbour_arrays`` make the arrays). Senders publish their
   velocity in ``ConsensusMessage.velocity_ned_m_s`` (wire schema 2).
 - *Parameters*: ``SeparationParams(min_separation_m=scenario.safety.min_separation_m,
-  accel=AccelBox.from_thrust_limits(limits), fence_* = the envelope's geofence)``; switch the
-  floor off (``params.without_floor()``) while the plan lands.
+  accel=AccelBox.from_thrust_limits(limits), fence_* = the envelope's geofence)``; pass
+  ``floor_on`` for the agents flying the formation (climbed past the floor) and switch the floor
+  off (``params.without_floor()``) while the plan lands. ``common_accel_ned_m_s2``: the plan's
+  centre acceleration (exactly shared); not the controller's ``w_μ``, which depends on each
+  agent's estimate and would void the reciprocal guarantee exactly when estimates disagree.
+  Neighbours known not to avoid (a failed vehicle, a version-1 sender?): ``nb_share`` 1.
 - *What to log*: count the ticks in which ``result.active`` (per agent, in the status counters),
   write an event to events.jsonl when an agent's filter starts and stops acting (with
   ``closest_m``, ``n_constraints`` and which kinds acted: ``separation`` / ``floor`` /
@@ -29,7 +33,15 @@ With ``r = p_i - p_j``, ``ρ = |r|``, ``n = r / ρ``, ``w = v_i - v_j``, ``ρ̇ 
 can brake with (``2 brake`` when both brake: ``brake / share``)::
 
     h = sgn(s) sqrt(2 A |s|) + ρ̇          (>= 0: the pair can still stop before D)
-    ḣ >= -γ h   <=>   n·(u_i - u_j) >= -γ h - A ρ̇ / sqrt(2 A |s|) - (|w|² - ρ̇²) / ρ
+    ḣ >= -α(h)   <=>   n·(u_i - u_j) >= -α(h) - A ρ̇ / sqrt(2 A |s|) - (|w|² - ρ̇²) / ρ
+    α(h) = γ h (1 + (h / h_scale)²)
+
+The class-K function ``α`` is linear near the boundary (a drone pushed inside is pushed back out
+at rate γ) and cubic far from it, so the barrier never binds a formation that is merely close: at
+rest 2 m apart an agent must accelerate at 12.7 m/s² towards the other to wake it (1.5 m: 3.5).
+With a linear ``α`` the paper's take-off (every drone accelerating at 3.9 m/s² the same way from
+2 m apart, the half-constraint cannot know the neighbour does the same) woke it at γ = 2 s⁻¹;
+with this one a shadow run of the paper's flight never does (measured, not asserted here).
 
 Unlike the second-order barrier on ``|r|² - D²`` (whose fixed gains ask for unbounded
 acceleration at high closing speed) this one is built on the braking distance, so it never asks
@@ -42,6 +54,11 @@ half. Floor and fence walls are the same barrier with the agent alone (``A = bra
 barrier and stays inside ``accel`` (an inner polytope of what thrust and tilt allow), an exact
 tiny QP (drone_agent/small_qp.py). When the command already meets every barrier it is returned
 unchanged, bit for bit: far from everyone (the paper's flight) the layer does nothing.
+
+*Sampling*: the guarantee is for continuous time; ``margin_m`` absorbs the 50 Hz hold, the
+one-tick-old neighbour data and the attitude loop's lag (closed-loop tests: closest 1.19 m for a
+1.2 m barrier, also with a one-tick delay and a 0.1 s actuation lag). Two drones at one point have
+no direction between them; both then use north (no antisymmetry: a degenerate case).
 
 *Tie-break*: two drones head-on would only brake along their common line and stand nose to nose.
 Each therefore adds to its command, before the projection, ``right_bias`` times each pair's
@@ -123,7 +140,8 @@ class SeparationParams:
     ``min_separation_m``: the scenario's ``[safety] min_separation_m``; ``margin_m`` is added to
     it in the barrier (sampling, one-tick-old neighbour data, the attitude loop's lag).
     ``brake_m_s2``: the deceleration an agent plans to avoid with (at most ``accel``'s inradius);
-    ``gamma_1_s``: how fast the barrier may be approached; ``share``: the agent's part of each
+    ``gamma_1_s``, ``h_scale_m_s``: the class-K function (module docstring): how fast the
+    barrier may be approached; ``share``: the agent's part of each
     pair constraint (1/2: reciprocal); ``right_bias``: the tie-break (module docstring).
     ``floor_m``: altitude floor, kept by every agent already above it (None: off, e.g. landing);
     ``fence_north_m`` / ``fence_east_m`` (min, max) and ``ceiling_m``: the geofence (None: off).
@@ -134,7 +152,8 @@ class SeparationParams:
     min_separation_m: float = 1.0
     margin_m: float = 0.2
     brake_m_s2: float = 2.5
-    gamma_1_s: float = 2.0
+    gamma_1_s: float = 1.0
+    h_scale_m_s: float = 1.0
     share: float = 0.5
     right_bias: float = 0.5
     floor_m: float | None = 0.5
@@ -149,7 +168,7 @@ class SeparationParams:
         for name in ("min_separation_m", "margin_m", "right_bias", "wall_margin_m"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise ValueError(f"separation.{name} must be >= 0, got {getattr(self, name)!r}")
-        for name in ("brake_m_s2", "gamma_1_s"):
+        for name in ("brake_m_s2", "gamma_1_s", "h_scale_m_s"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise ValueError(f"separation.{name} must be > 0, got {getattr(self, name)!r}")
         if not 0 < self.share <= 1:
@@ -216,13 +235,14 @@ def _rows_any(mask: BoolArray) -> BoolArray:
 
 
 def _barrier(
-    s: FloatArray, s_dot: FloatArray, a_brake: FloatArray | float, gamma: float
+    s: FloatArray, s_dot: FloatArray, a_brake: FloatArray | float, p: SeparationParams
 ) -> FloatArray:
-    """``-γ h - A ṡ / sqrt(2 A |s|)`` of the braking barrier for distance ``s`` to the boundary
+    """``-α(h) - A ṡ / sqrt(2 A |s|)`` of the braking barrier for distance ``s`` to the boundary
     and its rate ``ṡ`` (the part of the bound on the normal acceleration common to pairs and
     walls)."""
     h = np.sign(s) * np.sqrt(2.0 * a_brake * np.abs(s)) + s_dot
-    return -gamma * h - a_brake * s_dot / np.sqrt(2.0 * a_brake * np.maximum(np.abs(s), _S_EPS_M))
+    alpha = p.gamma_1_s * h * (1.0 + (h / p.h_scale_m_s) ** 2)
+    return -alpha - a_brake * s_dot / np.sqrt(2.0 * a_brake * np.maximum(np.abs(s), _S_EPS_M))
 
 
 def _pair_rows(
@@ -241,7 +261,7 @@ def _pair_rows(
     rho_dot = np.einsum("kmi,kmi->km", n, w)
     tangential2 = np.maximum(np.einsum("kmi,kmi->km", w, w) - rho_dot**2, 0.0)
     a_pair = p.brake_m_s2 / share
-    c_pair = _barrier(rho - p.distance_m, rho_dot, a_pair, p.gamma_1_s)
+    c_pair = _barrier(rho - p.distance_m, rho_dot, a_pair, p)
     c_pair -= tangential2 / np.maximum(rho, p.distance_m * 0.5)
     return n, np.minimum(share * c_pair, p.brake_m_s2), rho
 
@@ -272,7 +292,7 @@ def _wall_rows(
     """Normals (W, 3), bounds c (K, W), which are in force (K, W), which is the floor (W,)."""
     m, b, is_floor = _walls(p)
     s = own_pos @ m.T - b
-    c = _barrier(s - p.wall_margin_m, own_vel @ m.T, p.brake_m_s2, p.gamma_1_s)
+    c = _barrier(s - p.wall_margin_m, own_vel @ m.T, p.brake_m_s2, p)
     in_force = np.ones_like(s, dtype=bool)
     # the floor binds agents above it (not one taking off), or those the caller names
     in_force[:, is_floor] = (s[:, is_floor] >= 0.0) if floor_on is None else floor_on[:, None]
@@ -292,8 +312,8 @@ def filter_accelerations(
     floor_on: BoolArray | None = None,
 ) -> SeparationResult:
     """Filter the commanded accelerations (K, 3) of K agents at positions and velocities (K, 3),
-    each with up to M neighbours (K, M, 3) where ``nb_mask`` (K, M) (see :func:`pad_neighbours`).
-    All NED, SI units. Optional:
+    each with up to M neighbours (K, M, 3) where ``nb_mask`` (K, M) (see :func:`pad_neighbours`;
+    entries that are not finite are left out). All NED, SI units. Optional:
 
     - ``nb_share`` (K, M): the agent's part of each pair constraint (default ``params.share``;
       1 for a neighbour known not to avoid, e.g. a failed vehicle);
@@ -308,10 +328,16 @@ def filter_accelerations(
     own_pos = np.asarray(own_pos_ned_m, dtype=float).reshape(-1, 3)
     own_vel = np.asarray(own_vel_ned_m_s, dtype=float).reshape(-1, 3)
     u0 = np.asarray(accel_ned_m_s2, dtype=float).reshape(-1, 3)
-    mask = np.asarray(nb_mask, dtype=bool)
+    nb_pos = np.asarray(nb_pos_ned_m, dtype=float)
+    nb_vel = np.asarray(nb_vel_ned_m_s, dtype=float)
+    finite = np.isfinite(nb_pos).all(axis=-1) & np.isfinite(nb_vel).all(axis=-1)
+    mask = np.asarray(nb_mask, dtype=bool) & finite
+    nb_pos, nb_vel = (
+        np.where(finite[..., None], nb_pos, 0.0),
+        np.where(finite[..., None], nb_vel, 0.0),
+    )
     share = np.full(mask.shape, params.share) if nb_share is None else np.asarray(nb_share)
-    n, c, rho = _pair_rows(own_pos, own_vel, np.asarray(nb_pos_ned_m, dtype=float),
-                           np.asarray(nb_vel_ned_m_s, dtype=float), share, params)  # fmt: skip
+    n, c, rho = _pair_rows(own_pos, own_vel, nb_pos, nb_vel, share, params)
     if common_accel_ned_m_s2 is not None:
         common = np.broadcast_to(np.asarray(common_accel_ned_m_s2, dtype=float), own_pos.shape)
         c = c + np.einsum("kmi,ki->km", n, common)

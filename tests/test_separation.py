@@ -141,12 +141,12 @@ def test_a_paper_like_formation_flight_never_wakes_the_filter() -> None:
 def test_a_formation_accelerating_as_one_is_left_alone_given_the_common_acceleration() -> None:
     """Each agent's half of a pair constraint is conservative: it cannot know the neighbour
     accelerates alike. Measured from an acceleration both know (the plan's), it is not."""
-    grid = np.array([[n, e, ALT] for n in (0.0, 2.0, 4.0) for e in (0.0, 2.0, 4.0)])
+    grid = np.array([[n, e, ALT] for n in (0.0, 1.5, 3.0) for e in (0.0, 1.5, 3.0)])
     k = len(grid)
     u = np.tile([3.9, 0.4, -0.4], (k, 1))
     args = (grid, np.zeros_like(grid), u, np.broadcast_to(grid, (k, k, 3)), np.zeros((k, k, 3)),
             ~np.eye(k, dtype=bool), PARAMS)  # fmt: skip
-    assert filter_accelerations(*args).active.any()  # 3.9 m/s² towards the drone ahead
+    assert filter_accelerations(*args).active.any()  # 3.9 m/s² towards the drone 1.5 m ahead
     r = filter_accelerations(*args, common_accel_ned_m_s2=np.array([4.0, 0.0, -0.5]))
     assert not r.active.any() and r.accel_ned_m_s2.tobytes() == u.tobytes()
 
@@ -258,7 +258,7 @@ def _rows(p: FloatArray, v: FloatArray, nb_p: FloatArray, nb_v: FloatArray,
         s = rho - params.distance_m
         h = math.copysign(math.sqrt(2 * big_a * abs(s)), s) + rho_dot
         bound = (
-            -params.gamma_1_s * h
+            -params.gamma_1_s * h * (1 + (h / params.h_scale_m_s) ** 2)
             - big_a * rho_dot / math.sqrt(2 * big_a * max(abs(s), 0.01))
             - (w @ w - rho_dot**2) / max(rho, params.distance_m / 2)
         )
@@ -334,3 +334,27 @@ def test_lists_of_neighbours_pad_to_the_batched_layout() -> None:
     r = filter_accelerations(np.full((3, 3), 5.0), np.zeros((3, 3)), np.zeros((3, 3)), pos, vel,
                              mask, PARAMS.without_floor())  # fmt: skip
     assert r.closest_m[1] == np.inf and math.isclose(r.closest_m[2], math.sqrt(48))
+
+
+def test_the_caller_can_name_who_keeps_the_floor() -> None:
+    p = np.array([[0.0, 0.0, -0.52], [0.0, 5.0, -0.52]])  # both just above the floor ...
+    v = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])  # ... sinking at 1 m/s
+    u = np.zeros((2, 3))
+    none = (np.zeros((2, 1, 3)), np.zeros((2, 1, 3)), np.zeros((2, 1), bool), PARAMS)
+    r = filter_accelerations(p, v, u, *none, floor_on=np.array([True, False]))
+    assert r.active.tolist() == [True, False] and r.floor.tolist() == [True, False]
+    assert r.accel_ned_m_s2[0, 2] < -1.0  # braking upwards
+    assert not r.separation.any() and not r.fence.any() and r.n_constraints.tolist() == [1, 0]
+
+
+def test_neighbour_entries_that_are_not_finite_are_left_out() -> None:
+    p = np.array([[0.0, 0.0, ALT]])
+    nb = np.array([[[0.5, 0.0, ALT], [np.nan, 0.0, ALT]]])
+    vel = np.zeros((1, 2, 3))
+    r = filter_accelerations(p, np.zeros((1, 3)), np.zeros((1, 3)), nb, vel,
+                             np.array([[False, True]]), PARAMS)  # fmt: skip
+    assert not r.active[0] and r.closest_m[0] == np.inf
+    r = filter_accelerations(p, np.zeros((1, 3)), np.zeros((1, 3)), nb, vel,
+                             np.array([[True, True]]), PARAMS)  # fmt: skip
+    assert r.active[0] and r.closest_m[0] == 0.5 and r.accel_ned_m_s2[0, 0] < 0  # pushed away
+    assert np.isfinite(r.accel_ned_m_s2).all()
