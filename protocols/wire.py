@@ -50,6 +50,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum, StrEnum
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
@@ -261,33 +262,18 @@ def _vec3_f32(values: Sequence[float] | FloatArray, what: str) -> tuple[float, f
     return (float(vec[0]), float(vec[1]), float(vec[2]))
 
 
-@dataclass(frozen=True)
-class _Fixed:
-    """The fixed fields of a consensus payload (velocity None in version 1)."""
-
-    end: int
-    round: int
-    sender: int
-    degree: int
-    position: tuple[float, float, float]
-    velocity: tuple[float, float, float] | None
-    n_heard: int
-    n_edges: int
-
-
-def _fixed(data: bytes, swarm_id: str, max_bytes: int) -> _Fixed:
-    """The fixed fields and the offset after them, after checking the header and that the
-    position and velocity are finite."""
+def _fixed(data: bytes, swarm_id: str, max_bytes: int) -> tuple[int, int, tuple[Any, ...]]:
+    """The offset after the fixed fields, the version and the fields' values (round, sender,
+    degree, position (3), velocity (3, version 2 only), n_heard, n_edges), after checking the
+    header and that the position and velocity are finite."""
     off, version = open_versioned(data, Kind.CONSENSUS, swarm_id, max_bytes, CONSENSUS_VERSIONS)
     layout = _FIXED[version]
     if len(data) < off + layout.size:
         raise WireError(Reason.TRUNCATED, f"consensus: {len(data)} bytes, shorter than its fields")
     values = layout.unpack_from(data, off)
-    if not all(math.isfinite(v) for v in values[3:-2]):
+    if not math.isfinite(sum(values[3:-2])):  # float32s: the sum cannot overflow
         raise WireError(Reason.NOT_FINITE, "consensus position or velocity is NaN or infinite")
-    round_, sender, degree, px, py, pz = values[:6]
-    velocity = None if version == 1 else (values[6], values[7], values[8])
-    return _Fixed(off + layout.size, round_, sender, degree, (px, py, pz), velocity, *values[-2:])
+    return off + layout.size, version, values
 
 
 def consensus_origin(
@@ -296,8 +282,8 @@ def consensus_origin(
     """The sender and its position (NED, m) from a consensus payload's header and fixed fields,
     without decoding the rest: lets a receiver apply the radio range before paying for a full
     :func:`decode_consensus`. WireError if the header, position or velocity is bad."""
-    fixed = _fixed(data, swarm_id, max_bytes)
-    return fixed.sender, fixed.position
+    _, _, values = _fixed(data, swarm_id, max_bytes)
+    return values[1], values[3:6]
 
 
 def decode_consensus(
@@ -308,8 +294,9 @@ def decode_consensus(
     The arrays of the returned message are float64 copies, read-only; its ``position_ned_m`` is
     the packet's, its ``velocity_ned_m_s`` None from a version-1 sender.
     """
-    fixed = _fixed(data, swarm_id, max_bytes)
-    off, n_heard, n_edges = fixed.end, fixed.n_heard, fixed.n_edges
+    off, version, fields = _fixed(data, swarm_id, max_bytes)
+    round_, sender, degree = fields[:3]
+    n_heard, n_edges = fields[-2:]
     n_ids = n_heard + n_edges
     expect_length(data, off + 2 * n_ids + _FLOATS * (1 + n_edges), "consensus")
     ids = struct.unpack_from(f"<{n_ids}H", data, off)
@@ -323,21 +310,17 @@ def decode_consensus(
     check_ids(neighbours, "edge neighbour")
     floats = floats.astype(np.float64)  # a native, aligned, writable copy ...
     floats.setflags(write=False)  # ... made read-only
-    position = _read_only(fixed.position)
+    motion = np.array(fields[3:-2])  # position (3), then velocity (3) from version 2
+    motion.setflags(write=False)
+    position = motion[:3]
     message = ConsensusMessage(
-        sender=fixed.sender,
-        round=fixed.round,
+        sender=sender,
+        round=round_,
         gamma=floats[0],
         edge_sums=dict(zip(neighbours, floats[1:], strict=True)),
         heard=frozenset(heard),
-        degree=fixed.degree,
+        degree=degree,
         position_ned_m=position,
-        velocity_ned_m_s=None if fixed.velocity is None else _read_only(fixed.velocity),
+        velocity_ned_m_s=None if version == 1 else motion[3:],
     )
     return ConsensusPacket(message, position)
-
-
-def _read_only(values: tuple[float, float, float]) -> FloatArray:
-    out = np.array(values, dtype=np.float64)
-    out.setflags(write=False)
-    return out

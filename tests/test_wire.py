@@ -421,6 +421,7 @@ MALFORMED_CONSENSUS = [
     ("inf edge sum", raw_consensus(floats=_floats_with(40, -math.inf)), Reason.NOT_FINITE),
     ("NaN position", raw_consensus(position=(0.0, math.nan, 0.0)), Reason.NOT_FINITE),
     ("inf velocity", raw_consensus(velocity=(0.0, 0.0, -math.inf)), Reason.NOT_FINITE),
+    ("inf - inf", raw_consensus(velocity=(math.inf, -math.inf, 0.0)), Reason.NOT_FINITE),
     ("version 1 one byte short", raw_consensus(version=1)[:-1], Reason.TRUNCATED),
     ("version 1 NaN", raw_consensus(version=1, position=(math.nan, 0, 0)), Reason.NOT_FINITE),
     ("duplicate heard id", raw_consensus(heard=(3, 3)), Reason.BAD_VALUE),
