@@ -114,6 +114,9 @@ class ConsensusMessage:
     ``Q_sender,j`` of the sender's increments per neighbour j; ``heard``: who the sender heard
     recently (as of this round); ``degree``: ``len(heard)``, for the degree-normalised gain;
     ``ready_hops``: the sender's settled level (drone_agent.flight_phase.SwarmSettled).
+    ``position_ned_m`` (3,) and ``velocity_ned_m_s`` (3,): where the sender was and how fast it
+    moved in this round (NED), for the receivers' separation layer (drone_agent/separation.py);
+    None when not known (set by the wire decoder; the estimator does not use them).
     """
 
     sender: int
@@ -123,6 +126,8 @@ class ConsensusMessage:
     heard: frozenset[int]
     degree: int
     ready_hops: int = 0
+    position_ned_m: FloatArray | None = None
+    velocity_ned_m_s: FloatArray | None = None
 
 
 @dataclass

@@ -4,18 +4,27 @@ All integers and floats are little-endian, with no padding. Every payload starts
 
     offset  size  field
     0       1     magic 0x51 ('Q')
-    1       1     schema version (WIRE_VERSION)
+    1       1     schema version of the kind (WIRE_VERSION; CONSENSUS_VERSION for consensus)
     2       1     message kind (Kind)
     3       1     swarm id length L (1..32)
     4       L     swarm id (ASCII, protocols.keys rules)
+
+Versions are per kind: status, plan and fault payloads are at WIRE_VERSION (1); consensus
+payloads are sent at CONSENSUS_VERSION (2), which added the sender's velocity and settled level,
+and version 1 is still decoded (its message's ``velocity_ned_m_s`` is None: the sender's velocity
+is unknown; its ``ready_hops`` 0: a version-1 neighbour holds the swarm on the ground).
+Bumping only the consensus kind keeps every other payload, and their golden bytes, unchanged; a
+build that speaks only version 1 counts a version-2 consensus payload as ``wrong_version``.
 
 The consensus body (Kind.CONSENSUS) follows the header::
 
     u32 round          control-tick number of the vehicles' common simulated time
     u16 sender         drone index
     u16 degree         the sender's degree for the degree-normalised gain
-    u16 ready_hops     the sender's settled level (drone_agent.flight_phase.SwarmSettled)
+    u16 ready_hops     the sender's settled level (drone_agent.flight_phase.SwarmSettled;
+                       version 2 only, 0 from version 1)
     3 x f32 position   the sender's position, NED, m (receivers apply the radio range)
+    3 x f32 velocity   the sender's velocity, NED, m/s (version 2 only; for the separation layer)
     u16 n_heard, u16 n_edges
     n_heard x u16      heard-set, strictly increasing
     n_edges x u16      edge neighbours j, strictly increasing
@@ -25,7 +34,9 @@ The consensus body (Kind.CONSENSUS) follows the header::
 
 The (neighbour, edge sum) pairs are stored as columns, ids first, so that all floats form one
 block (one finiteness check, one copy). Gamma and edge sums are float64 because the estimator
-needs them exact: a decoded message equals the sent one bit for bit.
+needs them exact: a decoded message equals the sent one bit for bit. Position and velocity are
+float32 (ample for the radio range and the separation layer): the decoded message carries them in
+its ``position_ned_m`` and ``velocity_ned_m_s`` fields.
 
 Decoders raise only :class:`WireError`, whose ``reason`` says why (callers count drops by
 reason); encoders raise ValueError for a message that cannot be sent.
@@ -42,6 +53,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum, StrEnum
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
@@ -50,14 +62,19 @@ from protocols.frames import FloatArray
 from protocols.keys import MAX_DRONE_ID, validate_swarm_id
 
 MAGIC = 0x51
-WIRE_VERSION = 2
+WIRE_VERSION = 1
+#: Schema version of consensus payloads sent (version 1, without the velocity, still decodes).
+CONSENSUS_VERSION = 2
+CONSENSUS_VERSIONS = (1, 2)
 N_GAMMA = 18
 #: Default largest consensus payload accepted (bytes): about 110 edge sums.
 MAX_CONSENSUS_BYTES = 16 * 1024
 MAX_U32 = 0xFFFF_FFFF
 
 _HEAD = struct.Struct("<BBBB")
-_FIXED = struct.Struct("<IHHH3fHH")
+_FIXED_V1 = struct.Struct("<IHH3fHH")
+_FIXED_V2 = struct.Struct("<IHHH3f3fHH")
+_FIXED = {1: _FIXED_V1, 2: _FIXED_V2}
 _FLOATS = N_GAMMA * 8  # bytes of one (18,) float64 block
 
 
@@ -94,10 +111,16 @@ class WireError(ValueError):
 
 @dataclass(frozen=True, eq=False)
 class ConsensusPacket:
-    """A decoded consensus payload: the message and the sender's position (3,) NED, m."""
+    """A decoded consensus payload: the message and the sender's position (3,) NED, m (also
+    the message's ``position_ned_m``)."""
 
     message: ConsensusMessage
     position_ned_m: FloatArray
+
+    @property
+    def velocity_ned_m_s(self) -> FloatArray | None:
+        """The sender's velocity (3,) NED, m/s; None from a version-1 sender."""
+        return self.message.velocity_ned_m_s
 
 
 @lru_cache(maxsize=64)
@@ -106,35 +129,45 @@ def _sid(swarm_id: str) -> bytes:
 
 
 @lru_cache(maxsize=256)
-def encode_header(kind: Kind, swarm_id: str) -> bytes:
-    """The common header of a payload of ``kind`` for swarm ``swarm_id``."""
+def encode_header(kind: Kind, swarm_id: str, version: int = WIRE_VERSION) -> bytes:
+    """The common header of a payload of ``kind`` (schema ``version``) for swarm ``swarm_id``."""
     sid = _sid(swarm_id)
-    return _HEAD.pack(MAGIC, WIRE_VERSION, int(kind), len(sid)) + sid
+    return _HEAD.pack(MAGIC, version, int(kind), len(sid)) + sid
 
 
 def open_payload(data: bytes, kind: Kind, swarm_id: str, max_bytes: int) -> int:
-    """Check the header of ``data`` and return the offset of its body; WireError otherwise."""
+    """Check the header of ``data`` (schema WIRE_VERSION) and return the offset of its body;
+    WireError otherwise."""
+    return open_versioned(data, kind, swarm_id, max_bytes, (WIRE_VERSION,))[0]
+
+
+def open_versioned(
+    data: bytes, kind: Kind, swarm_id: str, max_bytes: int, versions: tuple[int, ...]
+) -> tuple[int, int]:
+    """Check the header of ``data``, whose schema version must be one of ``versions`` (the
+    newest last), and return the offset of its body and its version; WireError otherwise."""
     if len(data) > max_bytes:
         raise WireError(Reason.OVERSIZED, f"{len(data)} bytes, at most {max_bytes} accepted")
-    header = encode_header(kind, swarm_id)
+    header = encode_header(kind, swarm_id, versions[-1])
     if data[: len(header)] == header:  # the usual case, in one comparison
-        return len(header)
+        return len(header), versions[-1]
     if len(data) < _HEAD.size:
         raise WireError(Reason.TRUNCATED, f"{len(data)} bytes, shorter than the header")
     magic, version, got_kind, sid_len = _HEAD.unpack_from(data)
     if magic != MAGIC:
         raise WireError(Reason.BAD_MAGIC, f"magic 0x{magic:02x}, expected 0x{MAGIC:02x}")
-    if version != WIRE_VERSION:
-        raise WireError(Reason.BAD_VERSION, f"version {version}, this build speaks {WIRE_VERSION}")
-    if got_kind != kind:
+    if got_kind != kind:  # before the version: versions are per kind
         raise WireError(Reason.WRONG_KIND, f"kind {got_kind}, expected {int(kind)} ({kind.name})")
+    if version not in versions:
+        speaks = " or ".join(str(v) for v in versions)
+        raise WireError(Reason.BAD_VERSION, f"version {version}, this build speaks {speaks}")
     end = _HEAD.size + sid_len
     if len(data) < end:
         raise WireError(Reason.TRUNCATED, f"{len(data)} bytes, swarm id needs {end}")
     if data[_HEAD.size : end] != _sid(swarm_id):
         other = bytes(data[_HEAD.size : end]).decode("ascii", "replace")
         raise WireError(Reason.WRONG_SWARM, f"swarm {other!r}, expected {swarm_id!r}")
-    return end
+    return end, version
 
 
 def expect_length(data: bytes, expected: int, what: str) -> None:
@@ -190,7 +223,10 @@ def encode_consensus(
     *,
     max_bytes: int = MAX_CONSENSUS_BYTES,
 ) -> bytes:
-    """The payload of ``message`` sent from ``position_ned_m`` (3,) NED, m (sent as float32).
+    """The payload (schema CONSENSUS_VERSION) of ``message`` sent from ``position_ned_m`` (3,)
+    NED, m, moving at the message's ``velocity_ned_m_s`` (3,) NED, m/s (zero if None); both sent
+    as float32. The position argument is the one sent (the transport's radio origin); the
+    message's own ``position_ned_m`` field is not read.
 
     ValueError if a field is out of range (ids and degree uint16, round uint32), not finite, or
     the payload would be larger than ``max_bytes``.
@@ -203,15 +239,17 @@ def encode_consensus(
     neighbours = uint_ids(message.edge_sums, "edge neighbour")
     floats = [message.gamma, *(message.edge_sums[j] for j in neighbours)]
     ids = heard + neighbours
+    velocity = message.velocity_ned_m_s
     payload = b"".join(
         (
-            encode_header(Kind.CONSENSUS, swarm_id),
-            _FIXED.pack(
+            encode_header(Kind.CONSENSUS, swarm_id, CONSENSUS_VERSION),
+            _FIXED_V2.pack(
                 round_,
                 sender,
                 degree,
                 ready,
-                *_position(position_ned_m),
+                *_vec3_f32(position_ned_m, "position_ned_m"),
+                *_vec3_f32((0.0, 0.0, 0.0) if velocity is None else velocity, "velocity_ned_m_s"),
                 len(heard),
                 len(neighbours),
             ),
@@ -224,17 +262,25 @@ def encode_consensus(
     return payload
 
 
-def _position(position_ned_m: Sequence[float] | FloatArray) -> tuple[float, float, float]:
-    pos = np.frombuffer(finite_block(position_ned_m, (3,), "position_ned_m", "<f4"), "<f4")
-    return (float(pos[0]), float(pos[1]), float(pos[2]))
+def _vec3_f32(values: Sequence[float] | FloatArray, what: str) -> tuple[float, float, float]:
+    vec = np.frombuffer(finite_block(values, (3,), what, "<f4"), "<f4")
+    return (float(vec[0]), float(vec[1]), float(vec[2]))
 
 
-def _fixed(data: bytes, swarm_id: str, max_bytes: int) -> tuple[int, tuple[int, ...]]:
-    """Offset after the fixed fields and their values, after checking the header."""
-    off = open_payload(data, Kind.CONSENSUS, swarm_id, max_bytes)
-    if len(data) < off + _FIXED.size:
+def _fixed(data: bytes, swarm_id: str, max_bytes: int) -> tuple[int, int, tuple[Any, ...]]:
+    """The offset after the fixed fields, the version and the fields' values (round, sender,
+    degree, ready_hops (0 from version 1), position (3), velocity (3, version 2 only), n_heard,
+    n_edges), after checking the header and that the position and velocity are finite."""
+    off, version = open_versioned(data, Kind.CONSENSUS, swarm_id, max_bytes, CONSENSUS_VERSIONS)
+    layout = _FIXED[version]
+    if len(data) < off + layout.size:
         raise WireError(Reason.TRUNCATED, f"consensus: {len(data)} bytes, shorter than its fields")
-    return off + _FIXED.size, _FIXED.unpack_from(data, off)
+    values = layout.unpack_from(data, off)
+    if version == 1:
+        values = (*values[:3], 0, *values[3:])
+    if not math.isfinite(sum(values[4:-2])):  # float32s: the sum cannot overflow
+        raise WireError(Reason.NOT_FINITE, "consensus position or velocity is NaN or infinite")
+    return off + layout.size, version, values
 
 
 def consensus_origin(
@@ -242,11 +288,9 @@ def consensus_origin(
 ) -> tuple[int, tuple[float, float, float]]:
     """The sender and its position (NED, m) from a consensus payload's header and fixed fields,
     without decoding the rest: lets a receiver apply the radio range before paying for a full
-    :func:`decode_consensus`. WireError if the header or position is bad."""
-    _, (_, sender, _, _, px, py, pz, _, _) = _fixed(data, swarm_id, max_bytes)
-    if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
-        raise WireError(Reason.NOT_FINITE, "consensus position is NaN or infinite")
-    return sender, (px, py, pz)
+    :func:`decode_consensus`. WireError if the header, position or velocity is bad."""
+    _, _, values = _fixed(data, swarm_id, max_bytes)
+    return values[1], values[4:7]
 
 
 def decode_consensus(
@@ -254,11 +298,12 @@ def decode_consensus(
 ) -> ConsensusPacket:
     """Decode a consensus payload of swarm ``swarm_id``; WireError for anything malformed.
 
-    The arrays of the returned message are float64 copies, read-only.
+    The arrays of the returned message are float64 copies, read-only; its ``position_ned_m`` is
+    the packet's, its ``velocity_ned_m_s`` None from a version-1 sender.
     """
-    off, (round_, sender, degree, ready, px, py, pz, n_heard, n_edges) = _fixed(
-        data, swarm_id, max_bytes
-    )
+    off, version, fields = _fixed(data, swarm_id, max_bytes)
+    round_, sender, degree, ready = fields[:4]
+    n_heard, n_edges = fields[-2:]
     n_ids = n_heard + n_edges
     expect_length(data, off + 2 * n_ids + _FLOATS * (1 + n_edges), "consensus")
     ids = struct.unpack_from(f"<{n_ids}H", data, off)
@@ -266,16 +311,15 @@ def decode_consensus(
     floats = np.frombuffer(data, "<f8", N_GAMMA * (1 + n_edges), off + 2 * n_ids).reshape(
         -1, N_GAMMA
     )
-    if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
-        raise WireError(Reason.NOT_FINITE, "consensus position is NaN or infinite")
     if not np.isfinite(floats).all():
         raise WireError(Reason.NOT_FINITE, "consensus gamma or an edge sum is NaN or infinite")
     check_ids(heard, "heard")
     check_ids(neighbours, "edge neighbour")
     floats = floats.astype(np.float64)  # a native, aligned, writable copy ...
     floats.setflags(write=False)  # ... made read-only
-    position = np.array((px, py, pz))
-    position.setflags(write=False)
+    motion = np.array(fields[4:-2])  # position (3), then velocity (3) from version 2
+    motion.setflags(write=False)
+    position = motion[:3]
     message = ConsensusMessage(
         sender=sender,
         round=round_,
@@ -284,5 +328,7 @@ def decode_consensus(
         heard=frozenset(heard),
         degree=degree,
         ready_hops=ready,
+        position_ned_m=position,
+        velocity_ned_m_s=None if version == 1 else motion[3:],
     )
     return ConsensusPacket(message, position)

@@ -34,8 +34,13 @@ settle_s = 8.0
 [comms]
 range_m = 10.0
 
-{"".join(f"[[drones]]{chr(10)}position_ned_m = [{x}, {y}, 0.0]{chr(10)}{chr(10)}"
-         for x in (0.0, 3.0) for y in (0.0, 2.5, 5.0))}
+{
+    "".join(
+        f"[[drones]]{chr(10)}position_ned_m = [{x}, {y}, 0.0]{chr(10)}{chr(10)}"
+        for x in (0.0, 3.0)
+        for y in (0.0, 2.5, 5.0)
+    )
+}
 [[trajectory.waypoints]]
 t_s = 0.0
 centre_ned_m = [1.5, 2.5, -0.1]

@@ -161,7 +161,8 @@ def test_messages_arrive_exact_and_sorted_and_never_echo(net: Network) -> None:
         pump(net, [(l0, ORIGIN)], lambda: len(got1.poll()) > 0)
         for r in range(1000, 1005):
             l0.publish_consensus(message(0, r), ORIGIN)
-        l1.publish_consensus(message(1, 7, sums), ORIGIN)
+        velocity = np.array([0.5, -1.25, 0.0])  # on the wire since schema 2
+        l1.publish_consensus(replace(message(1, 7, sums), velocity_ned_m_s=velocity), ORIGIN)
         got0 = Inbox(l0)
         net.eventually(lambda: any(p.message.round == 1004 for p in got1.poll()))
         net.eventually(lambda: len(got0.poll()) == 1)
@@ -170,6 +171,10 @@ def test_messages_arrive_exact_and_sorted_and_never_echo(net: Network) -> None:
         received = got0.packets[0].message
         assert received.edge_sums[0].tobytes() == sums[0].tobytes()
         assert got0.packets[0].position_ned_m.tolist() == list(ORIGIN)
+        assert received.position_ned_m is not None
+        assert received.position_ned_m.tolist() == list(ORIGIN)
+        assert received.velocity_ned_m_s is not None
+        assert received.velocity_ned_m_s.tolist() == velocity.tolist()
         assert all(p.message.sender == 1 for p in got0.packets)  # its own never come back
 
 

@@ -6,6 +6,7 @@ import contextlib
 import math
 import struct
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from hypothesis import strategies as st
 from drone_agent.consensus import ConsensusMessage
 from protocols.trajectory import DescriptorTrajectory
 from protocols.wire import (
+    CONSENSUS_VERSION,
     MAX_CONSENSUS_BYTES,
     WIRE_VERSION,
     Kind,
@@ -46,10 +48,30 @@ MESSAGE = ConsensusMessage(
     heard=frozenset({7, 1, 5}),
     degree=3,
     ready_hops=9,
+    velocity_ned_m_s=np.array([0.5, -3.0, 0.125]),
 )
 POSITION = (1.5, -2.25, -10.0)
+VELOCITY = (0.5, -3.0, 0.125)
+#: Version 2: the version byte, the settled level (u16) after the degree, and the velocity
+#: (3 x f32) after the position.
 CONSENSUS_HEX = (
-    "5102010464656d6fe80300000200030009000000c03f000010c0000020c1030002000100050007000100"
+    "5102010464656d6fe80300000200030009000000c03f000010c0000020c10000003f000040c00000003e"
+    "0300020001000500070001000500000000000000f0bf000000000000ecbf000000000000e8bf0000"
+    "00000000e4bf000000000000e0bf000000000000d8bf000000000000d0bf000000000000c0bf0000"
+    "000000000000000000000000c03f000000000000d03f000000000000d83f000000000000e03f0000"
+    "00000000e43f000000000000e83f000000000000ec3f000000000000f03f000000000000f23f0000"
+    "000000000080000000000000f0bf00000000000000c000000000000008c000000000000010c00000"
+    "0000000014c000000000000018c00000000000001cc000000000000020c000000000000022c00000"
+    "0000000024c000000000000026c000000000000028c00000000000002ac00000000000002cc00000"
+    "000000002ec000000000000030c000000000000031c0000000000000f03f000000000000e03f0000"
+    "00000000d03f000000000000c03f000000000000b03f000000000000a03f000000000000903f0000"
+    "00000000803f000000000000703f000000000000603f000000000000503f000000000000403f0000"
+    "00000000303f000000000000203f000000000000103f000000000000003f000000000000f03e0000"
+    "00000000e03e"
+)
+#: Version 1 (the same message from a sender of an older build: no velocity).
+CONSENSUS_V1_HEX = (
+    "5101010464656d6fe8030000020003000000c03f000010c0000020c1030002000100050007000100"
     "0500000000000000f0bf000000000000ecbf000000000000e8bf000000000000e4bf000000000000"
     "e0bf000000000000d8bf000000000000d0bf000000000000c0bf0000000000000000000000000000"
     "c03f000000000000d03f000000000000d83f000000000000e03f000000000000e43f000000000000"
@@ -75,7 +97,7 @@ STATUS = AgentStatus(
     plan_seq=7,
 )
 STATUS_HEX = (
-    "5102020464656d6f0200e8030000000000000000344003010f07000000000000000000f03f000000"
+    "5101020464656d6f0200e8030000000000000000344003010f07000000000000000000f03f000000"
     "000000004000000000000024c000000000000000000000000000000000000000000000e03f000000"
     "00000010400000000000000240000000000000f03f64000000000000000100000000000000020000"
     "0000000000030000000000000032000000000000000000000000000000020001000500"
@@ -85,7 +107,7 @@ _COEFFS[0, :, 0] = [0, 0, -10, 0, 0, 0, 4, 4, 1]
 _COEFFS[0, 0, 1] = 0.5
 PLAN = PlanMessage(DescriptorTrajectory(7, np.array([0.0, 10.0]), _COEFFS), FlightCommand.FLY)
 PLAN_HEX = (  # header, seq 7, FLY, 2 knots, knots 0 and 10 s, then 54 coefficients, mostly 0
-    "5102030464656d6f07000000010200"
+    "5101030464656d6f07000000010200"
     + "0000000000000000"
     + "0000000000002440"
     + "0000000000000000" * 1
@@ -124,22 +146,54 @@ def test_consensus_golden_bytes() -> None:
     packet = decode_consensus(bytes.fromhex(CONSENSUS_HEX), SID)
     assert same_message(MESSAGE, packet.message)
     assert packet.position_ned_m.tolist() == list(POSITION)
+    assert packet.message.position_ned_m is not None
+    assert packet.message.position_ned_m.tolist() == list(POSITION)
+    assert packet.velocity_ned_m_s is not None and packet.velocity_ned_m_s.tolist() == [*VELOCITY]
+    assert not packet.velocity_ned_m_s.flags.writeable
+
+
+def test_version_1_consensus_still_decodes_without_a_velocity() -> None:
+    """A sender of an older build (schema 1, no velocity) is heard; its velocity is unknown."""
+    data = bytes.fromhex(CONSENSUS_V1_HEX)
+    packet = decode_consensus(data, SID)
+    assert same_message(replace(MESSAGE, ready_hops=0), packet.message)  # v1: no settled level
+    assert packet.position_ned_m.tolist() == list(POSITION)
+    assert packet.message.position_ned_m is not None
+    assert packet.velocity_ned_m_s is None and packet.message.velocity_ned_m_s is None
+    assert consensus_origin(data, SID) == (2, POSITION)
+
+
+def test_consensus_without_a_velocity_is_sent_at_rest() -> None:
+    data = encode_consensus(replace(MESSAGE, velocity_ned_m_s=None), POSITION, SID)
+    velocity = decode_consensus(data, SID).velocity_ned_m_s
+    assert velocity is not None and velocity.tolist() == [0.0, 0.0, 0.0]
 
 
 def test_consensus_layout_by_hand() -> None:
     """The layout of the module docstring, assembled with struct, is what the encoder writes."""
-    expected = (
-        bytes([0x51, WIRE_VERSION, Kind.CONSENSUS, 4])
-        + b"demo"
-        + struct.pack("<IHHH3fHH", 1000, 2, 3, 9, *POSITION, 3, 2)
-        + struct.pack("<3H", 1, 5, 7)
+    body = (
+        struct.pack("<3H", 1, 5, 7)
         + struct.pack("<2H", 1, 5)
         + struct.pack("<18d", *GAMMA)
         + struct.pack("<18d", *-np.arange(18.0))
         + struct.pack("<18d", *2.0 ** -np.arange(18))
     )
+    expected = (
+        bytes([0x51, CONSENSUS_VERSION, Kind.CONSENSUS, 4])
+        + b"demo"
+        + struct.pack("<IHHH3f3fHH", 1000, 2, 3, 9, *POSITION, *VELOCITY, 3, 2)
+        + body
+    )
+    assert CONSENSUS_VERSION == 2
     assert encode_consensus(MESSAGE, POSITION, SID) == expected
-    assert len(expected) == 476
+    assert len(expected) == 488
+    version_1 = (
+        bytes([0x51, 1, Kind.CONSENSUS, 4])
+        + b"demo"
+        + struct.pack("<IHH3fHH", 1000, 2, 3, *POSITION, 3, 2)
+        + body
+    )
+    assert version_1.hex() == CONSENSUS_V1_HEX
 
 
 def test_status_golden_bytes() -> None:
@@ -163,7 +217,7 @@ def test_eight_neighbour_message_is_compact_and_decodes_read_only() -> None:
         degree=8,
     )
     data = encode_consensus(msg, (0.0, 0.0, 0.0), SID)
-    assert len(data) == 8 + 26 + 2 * 16 + 8 * 18 * 9  # 1362 bytes
+    assert len(data) == 8 + 38 + 2 * 16 + 8 * 18 * 9  # 1374 bytes
     packet = decode_consensus(data, SID)
     assert not packet.message.gamma.flags.writeable
     assert not packet.message.edge_sums[3].flags.writeable
@@ -177,6 +231,9 @@ vec18 = st.lists(f64, min_size=18, max_size=18).map(np.array)
 ids = st.integers(0, 0xFFFF)
 
 
+f32x3 = st.tuples(*[st.floats(width=32, allow_nan=False, allow_infinity=False)] * 3)
+
+
 @st.composite
 def consensus_messages(draw: st.DrawFn) -> ConsensusMessage:
     return ConsensusMessage(
@@ -186,13 +243,14 @@ def consensus_messages(draw: st.DrawFn) -> ConsensusMessage:
         edge_sums=draw(st.dictionaries(ids, vec18, max_size=8)),
         heard=draw(st.frozensets(ids, max_size=20)),
         degree=draw(ids),
+        velocity_ned_m_s=np.array(draw(f32x3)),
     )
 
 
 @settings(max_examples=200, deadline=None)
 @given(
     msg=consensus_messages(),
-    position=st.tuples(*[st.floats(width=32, allow_nan=False, allow_infinity=False)] * 3),
+    position=f32x3,
     sid=st.from_regex(r"[A-Za-z0-9][A-Za-z0-9_-]{0,31}", fullmatch=True),
 )
 def test_consensus_round_trip_is_exact(
@@ -202,6 +260,8 @@ def test_consensus_round_trip_is_exact(
     packet = decode_consensus(data, sid)
     assert same_message(msg, packet.message)
     assert packet.position_ned_m.tolist() == list(position)
+    assert packet.velocity_ned_m_s is not None and msg.velocity_ned_m_s is not None
+    assert packet.velocity_ned_m_s.tobytes() == msg.velocity_ned_m_s.tobytes()
     assert consensus_origin(data, sid) == (msg.sender, position)
 
 
@@ -261,8 +321,7 @@ def test_plan_round_trip(
 
 
 def _with(**changes: object) -> ConsensusMessage:
-    fields = {f: getattr(MESSAGE, f) for f in ("sender", "round", "gamma", "edge_sums", "heard")}
-    return ConsensusMessage(**{**fields, "degree": MESSAGE.degree, **changes})
+    return replace(MESSAGE, **changes)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize(
@@ -276,6 +335,8 @@ def _with(**changes: object) -> ConsensusMessage:
         (_with(heard=frozenset({-3})), POSITION, "heard"),
         (MESSAGE, (0.0, 0.0, 1e39), "finite"),  # overflows float32
         (MESSAGE, (0.0, math.nan, 0.0), "finite"),
+        (_with(velocity_ned_m_s=np.array([0.0, math.inf, 0.0])), POSITION, "velocity"),
+        (_with(velocity_ned_m_s=np.zeros(2)), POSITION, "velocity"),
     ],
 )
 def test_encoder_refuses_what_cannot_be_sent(
@@ -300,12 +361,13 @@ def test_encoder_refuses_oversized_messages_and_bad_swarm_ids() -> None:
 def raw_consensus(
     *,
     magic: int = 0x51,
-    version: int = WIRE_VERSION,
+    version: int = CONSENSUS_VERSION,
     kind: int = Kind.CONSENSUS,
     sid: bytes = b"demo",
     sid_len: int | None = None,
     sender: int = 2,
     position: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    velocity: tuple[float, ...] = (0.0, 0.0, 0.0),
     heard: tuple[int, ...] = (1, 3),
     edge_ids: tuple[int, ...] = (1, 3),
     floats: list[float] | None = None,
@@ -313,18 +375,21 @@ def raw_consensus(
     n_edges: int | None = None,
     tail: bytes = b"",
 ) -> bytes:
-    """A consensus payload packed by hand, without any validation."""
+    """A consensus payload packed by hand, without any validation (version 1: no velocity)."""
     floats = [0.25] * 18 * (1 + len(edge_ids)) if floats is None else floats
+    velocity = () if version == 1 else velocity
+    ready = () if version == 1 else (0,)
     return (
         bytes([magic, version, kind, len(sid) if sid_len is None else sid_len])
         + sid
         + struct.pack(
-            "<IHHH3fHH",
+            f"<IHH{len(ready)}H3f{len(velocity)}fHH",
             7,
             sender,
             len(heard),
-            0,
+            *ready,
             *position,
+            *velocity,
             len(heard) if n_heard is None else n_heard,
             len(edge_ids) if n_edges is None else n_edges,
         )
@@ -345,7 +410,7 @@ MALFORMED_CONSENSUS = [
     ("three bytes", b"\x51\x01\x01", Reason.TRUNCATED),
     ("header only", raw_consensus()[:8], Reason.TRUNCATED),
     ("bad magic", raw_consensus(magic=0x52), Reason.BAD_MAGIC),
-    ("newer version", raw_consensus(version=WIRE_VERSION + 1), Reason.BAD_VERSION),
+    ("newer version", raw_consensus(version=CONSENSUS_VERSION + 1), Reason.BAD_VERSION),
     ("version 0", raw_consensus(version=0), Reason.BAD_VERSION),
     ("status kind", raw_consensus(kind=Kind.STATUS), Reason.WRONG_KIND),
     ("unknown kind", raw_consensus(kind=200), Reason.WRONG_KIND),
@@ -360,6 +425,10 @@ MALFORMED_CONSENSUS = [
     ("NaN gamma", raw_consensus(floats=_floats_with(0, math.nan)), Reason.NOT_FINITE),
     ("inf edge sum", raw_consensus(floats=_floats_with(40, -math.inf)), Reason.NOT_FINITE),
     ("NaN position", raw_consensus(position=(0.0, math.nan, 0.0)), Reason.NOT_FINITE),
+    ("inf velocity", raw_consensus(velocity=(0.0, 0.0, -math.inf)), Reason.NOT_FINITE),
+    ("inf - inf", raw_consensus(velocity=(math.inf, -math.inf, 0.0)), Reason.NOT_FINITE),
+    ("version 1 one byte short", raw_consensus(version=1)[:-1], Reason.TRUNCATED),
+    ("version 1 NaN", raw_consensus(version=1, position=(math.nan, 0, 0)), Reason.NOT_FINITE),
     ("duplicate heard id", raw_consensus(heard=(3, 3)), Reason.BAD_VALUE),
     ("unsorted edge ids", raw_consensus(edge_ids=(3, 1)), Reason.BAD_VALUE),
     ("oversized", raw_consensus(tail=bytes(MAX_CONSENSUS_BYTES)), Reason.OVERSIZED),
@@ -375,9 +444,12 @@ def test_malformed_consensus_is_rejected_with_its_reason(data: bytes, reason: Re
     assert str(info.value).startswith(reason.value)
 
 
-def test_hand_packed_reference_payload_decodes() -> None:
-    packet = decode_consensus(raw_consensus(), SID)
+@pytest.mark.parametrize("version", [1, 2])
+def test_hand_packed_reference_payload_decodes(version: int) -> None:
+    packet = decode_consensus(raw_consensus(version=version, velocity=(1.0, 2.0, 3.0)), SID)
     assert packet.message.heard == frozenset({1, 3}) and sorted(packet.message.edge_sums) == [1, 3]
+    velocity = packet.velocity_ned_m_s
+    assert velocity is None if version == 1 else velocity.tolist() == [1.0, 2.0, 3.0]
 
 
 def test_size_limit_is_configurable() -> None:
@@ -451,12 +523,14 @@ DECODERS: list[Callable[[bytes, str], object]] = [
     decode_status,
     decode_plan,
     consensus_origin,
+    decode_consensus,
 ]
 VALID = [
     bytes.fromhex(CONSENSUS_HEX),
     bytes.fromhex(STATUS_HEX),
     bytes.fromhex(PLAN_HEX),
     bytes.fromhex(CONSENSUS_HEX),
+    bytes.fromhex(CONSENSUS_V1_HEX),
 ]
 
 

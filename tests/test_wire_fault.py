@@ -27,33 +27,33 @@ HEAD = bytes([0x51, WIRE_VERSION, Kind.FAULT, 4]) + b"demo"
 
 #: Each command with its golden payload (hex) and the same bytes packed by hand.
 GOLDEN: list[tuple[FaultCommand, str, bytes]] = [
-    (Clear(), "5102040464656d6f00", HEAD + bytes([FaultOp.CLEAR])),
+    (Clear(), "5101040464656d6f00", HEAD + bytes([FaultOp.CLEAR])),
     (
         LinkCut(0, 4, one_way=True, duration_s=2.5),
-        "5102040464656d6f01000004000100002040",
+        "5101040464656d6f01000004000100002040",
         HEAD + bytes([FaultOp.LINK_CUT]) + struct.pack("<HHBf", 0, 4, 1, 2.5),
     ),
     (
         LinkRestore(0, 4),
-        "5102040464656d6f0200000400",
+        "5101040464656d6f0200000400",
         HEAD + bytes([FaultOp.LINK_RESTORE]) + struct.pack("<HH", 0, 4),
     ),
     (
         Loss(0.5, (1, 2), 3.0),
-        "5102040464656d6f030000003f010100020000004040",
+        "5101040464656d6f030000003f010100020000004040",
         HEAD + bytes([FaultOp.LOSS]) + struct.pack("<fBHHf", 0.5, 1, 1, 2, 3.0),
     ),
     (
         Delay(40.0, None),
-        "5102040464656d6f04000020420000000000",
+        "5101040464656d6f04000020420000000000",
         HEAD + bytes([FaultOp.DELAY]) + struct.pack("<fBHH", 40.0, 0, 0, 0),
     ),
     (
         Partition(((0, 1, 2), (3, 4))),
-        "5102040464656d6f0502000300000001000200020003000400",
+        "5101040464656d6f0502000300000001000200020003000400",
         HEAD + bytes([FaultOp.PARTITION]) + struct.pack("<HH3HH2H", 2, 3, 0, 1, 2, 2, 3, 4),
     ),
-    (Partition(None), "5102040464656d6f050000", HEAD + bytes([FaultOp.PARTITION, 0, 0])),
+    (Partition(None), "5101040464656d6f050000", HEAD + bytes([FaultOp.PARTITION, 0, 0])),
 ]
 
 
@@ -129,9 +129,9 @@ def _op(op: int, body: bytes = b"") -> bytes:
         (_op(FaultOp.PARTITION, struct.pack("<HH", 1, 0)), Reason.BAD_VALUE),
         (_op(FaultOp.PARTITION, struct.pack("<HHHHH", 2, 1, 5, 1, 5)), Reason.BAD_VALUE),
         (_op(FaultOp.PARTITION, struct.pack("<HHH", 1, 1, 5) + b"\0"), Reason.TRAILING),
-        (bytes([0x51, WIRE_VERSION, 2, 4]) + b"demo\x00", Reason.WRONG_KIND),
-        (bytes([0x51, WIRE_VERSION + 1, 4, 4]) + b"demo\x00", Reason.BAD_VERSION),
-        (bytes([0x51, WIRE_VERSION, 4, 5]) + b"other\x00", Reason.WRONG_SWARM),
+        (b"\x51\x01\x02\x04demo\x00", Reason.WRONG_KIND),
+        (b"\x51\x02\x04\x04demo\x00", Reason.BAD_VERSION),
+        (b"\x51\x01\x04\x05other\x00", Reason.WRONG_SWARM),
         (b"\x00\x01\x04\x04demo\x00", Reason.BAD_MAGIC),
         (_op(FaultOp.CLEAR) + bytes(5000), Reason.OVERSIZED),
     ],

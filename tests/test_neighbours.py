@@ -1,0 +1,93 @@
+"""Neighbour positions and velocities from an agent's inbox of consensus messages."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drone_agent.consensus import ConsensusMessage
+from drone_agent.neighbours import latest_by_sender, neighbour_arrays, neighbours_from_inbox
+from drone_agent.separation import SeparationParams, filter_accelerations
+from protocols.wire import decode_consensus, encode_consensus
+
+pytestmark = pytest.mark.timeout(60)
+
+DT = 0.02
+
+
+def msg(sender: int, round_: int, pos: tuple[float, float, float] | None = (0.0, 0.0, -5.0),
+        vel: tuple[float, float, float] | None = (0.0, 0.0, 0.0)) -> ConsensusMessage:  # fmt: skip
+    return ConsensusMessage(
+        sender, round_, np.zeros(18), {}, frozenset(), 0,
+        None if pos is None else np.array(pos), None if vel is None else np.array(vel),
+    )  # fmt: skip
+
+
+def test_newest_per_sender_extrapolated_by_velocity_times_age() -> None:
+    inbox = [
+        msg(3, 98, (0.0, 0.0, -5.0), (1.0, 0.0, 0.0)),
+        msg(3, 99, (0.02, 0.0, -5.0), (1.0, 0.0, 0.0)),  # the newest of 3: one tick old
+        msg(1, 97, (5.0, 5.0, -5.0), (0.0, -2.0, 0.5)),  # three ticks old
+    ]
+    nb = neighbours_from_inbox(inbox, own=0, round_now=100, dt_s=DT)
+    assert nb.ids == (1, 3) and nb.age_rounds.tolist() == [3, 1]
+    np.testing.assert_allclose(nb.position_ned_m, [[5.0, 4.88, -4.97], [0.04, 0.0, -5.0]])
+    np.testing.assert_allclose(nb.velocity_ned_m_s, [[0.0, -2.0, 0.5], [1.0, 0.0, 0.0]])
+    assert nb.velocity_known.all()
+    raw = neighbours_from_inbox(inbox, own=0, round_now=100, dt_s=DT, extrapolate=False)
+    np.testing.assert_allclose(raw.position_ned_m, [[5.0, 5.0, -5.0], [0.02, 0.0, -5.0]])
+
+
+def test_stale_own_future_and_positionless_messages_are_left_out() -> None:
+    inbox = [
+        msg(1, 94),  # 6 ticks old: beyond the heard timeout
+        msg(0, 100),  # our own
+        msg(2, 101),  # from the future (a later round): ignored this tick ...
+        msg(2, 99),  # ... its message of a past round is used
+        msg(4, 100, pos=None),  # no position: cannot be avoided
+        msg(5, 95),  # exactly 5 ticks old: still heard
+    ]
+    nb = neighbours_from_inbox(inbox, own=0, round_now=100, dt_s=DT)
+    assert nb.ids == (2, 5) and nb.age_rounds.tolist() == [1, 5]
+    assert neighbours_from_inbox(inbox, own=0, round_now=100, dt_s=DT, max_age_rounds=2).ids == (2,)
+
+
+def test_a_version_1_sender_is_taken_at_rest() -> None:
+    nb = neighbours_from_inbox([msg(7, 98, (1.0, 2.0, -3.0), None)], 0, 100, DT)
+    assert nb.ids == (7,) and not nb.velocity_known[0]
+    assert nb.position_ned_m.tolist() == [[1.0, 2.0, -3.0]]
+    assert nb.velocity_ned_m_s.tolist() == [[0.0, 0.0, 0.0]]
+
+
+def test_store_keeps_the_newest_message_of_each_sender() -> None:
+    store = latest_by_sender({}, [msg(1, 5), msg(2, 3)])
+    store2 = latest_by_sender(store, [msg(1, 4), msg(2, 6)])
+    assert {j: m.round for j, m in store2.items()} == {1: 5, 2: 6}
+    assert {j: m.round for j, m in store.items()} == {1: 5, 2: 3}  # not changed in place
+
+
+def test_from_the_wire_to_the_filter() -> None:
+    """Two drones head-on: each one's message, through the wire, is what the other avoids."""
+    states = {0: ((0.0, 0.0, -5.0), (2.0, 0.0, 0.0)), 1: ((1.4, 0.0, -5.0), (-2.0, 0.0, 0.0))}
+    wire = {
+        j: decode_consensus(encode_consensus(msg(j, 41, vel=v), p, "demo"), "demo").message
+        for j, (p, v) in states.items()
+    }
+    per_agent = [neighbours_from_inbox(wire.values(), own=i, round_now=42, dt_s=DT)
+                 for i in (0, 1)]  # fmt: skip
+    pos, vel, mask, ids = neighbour_arrays(per_agent)
+    assert ids.tolist() == [[1], [0]] and mask.all()
+    own_p = np.array([np.add(states[i][0], np.multiply(states[i][1], DT)) for i in (0, 1)])
+    np.testing.assert_allclose(pos[:, 0], own_p[::-1], atol=1e-6)  # extrapolated one tick
+    own_v = np.array([states[i][1] for i in (0, 1)])
+    r = filter_accelerations(own_p, own_v, np.zeros((2, 3)), pos, vel, mask, SeparationParams())
+    assert r.active.all() and r.accel_ned_m_s2[0, 0] < 0 < r.accel_ned_m_s2[1, 0]  # both brake
+
+
+def test_arrays_pad_agents_with_fewer_neighbours() -> None:
+    a = neighbours_from_inbox([msg(1, 9), msg(2, 9)], 0, 10, DT)
+    b = neighbours_from_inbox([], 1, 10, DT)
+    pos, vel, mask, ids = neighbour_arrays([a, b])
+    assert pos.shape == vel.shape == (2, 2, 3)
+    assert mask.tolist() == [[True, True], [False, False]] and ids.tolist() == [[1, 2], [-1, -1]]
+    assert neighbour_arrays([])[0].shape == (0, 1, 3)
