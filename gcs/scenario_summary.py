@@ -64,9 +64,8 @@ def describe_fault(fault: Fault) -> str:
     if isinstance(fault, LinkCut):
         way = " one way" if fault.one_way else ""
         return head + f"link cut {fault.drones[0]}-{fault.drones[1]}{way}{span}"
-    where = "every link" if getattr(fault, "drones", None) is None else "link {}-{}".format(
-        *fault.drones  # type: ignore[union-attr]
-    )
+    pair: tuple[int, int] | None = getattr(fault, "drones", None)
+    where = "every link" if pair is None else f"link {pair[0]}-{pair[1]}"
     if isinstance(fault, PacketLoss):
         return head + f"{fault.probability:.0%} loss on {where}{span}"
     if isinstance(fault, LinkDelay):

@@ -467,8 +467,9 @@ def render(
         f"min_separation_m = {fmt(o.min_separation_m)}",
         "",
         *_consensus_lines(consensus),
-        f"# Drones on the ground, {o.layout} layout, at least {fmt(min_spacing(positions))} m apart"
-        f" (spacing {fmt(o.spacing_m)} m). Drone i (0-based) is MAVLink system id i + 1.",
+        f"# Drones on the ground (NED m), {o.layout} layout, at least "
+        f"{fmt(min_spacing(positions))} m apart (spacing {fmt(o.spacing_m)} m).",
+        "# Drone i (0-based, file order) is MAVLink system id i + 1.",
     ]
     for p in positions:
         lines.append(f"[[drones]]\nposition_ned_m = {vec(p)}\n")

@@ -4,8 +4,10 @@ Layouts put N drones on the ground (z = 0, NED m) no two closer than ``spacing_m
 corner of their bounding box at the origin and the longer extent along north, so that a formation
 of yaw 0 is the layout itself:
 
-- ``grid``: rows along east, as many rows (north) as columns or one more; the last row may be short;
-- ``line``: one row along north;
+- ``grid``: rows along east, as many rows (north) as columns or one more; a last, short row is
+  centred, so that the grid's principal axes are north and east;
+- ``line``: one row along north, every other drone half a spacing to the east (a staggered
+  line: a straight one has no width, and the swarm's roll about it is undefined);
 - ``circle``: a ring whose neighbouring drones are ``spacing_m`` apart (a chord);
 - ``random``: a Poisson-disc blob grown from one seed drone (Bridson's dart throwing in an annulus
   of ``spacing_m`` to ``min(2 spacing_m, reach)`` around an already placed drone), so that it is
@@ -26,6 +28,9 @@ from scipy.sparse.csgraph import connected_components
 from protocols.frames import FloatArray
 
 LAYOUTS = ("grid", "line", "circle", "random")
+#: A line's drones alternate this share of the spacing to the east: a straight line has no width
+#: (two flat axes), and the swarm's roll about it is undefined: the controller cannot hold it.
+LINE_STAGGER = 0.5
 #: Candidates thrown around an active drone before it is retired (Bridson's k).
 _CANDIDATES = 30
 
@@ -49,7 +54,8 @@ def layout_positions(
     if layout == "grid":
         xy = _grid(n, spacing_m)
     elif layout == "line":
-        xy = np.column_stack([spacing_m * np.arange(n, dtype=float), np.zeros(n)])
+        k = np.arange(n, dtype=float)
+        xy = spacing_m * np.column_stack([k, LINE_STAGGER * (k % 2)])
     elif layout == "circle":
         xy = _circle(n, spacing_m)
     elif layout == "random":
@@ -65,7 +71,11 @@ def _grid(n: int, spacing_m: float) -> FloatArray:
     n_north = math.ceil(math.sqrt(n))
     n_east = math.ceil(n / n_north)
     k = np.arange(n)
-    return spacing_m * np.column_stack([k // n_east, k % n_east]).astype(float)
+    row, col = k // n_east, (k % n_east).astype(float)
+    short = n - n_east * (n // n_east)  # drones in a last, short row (0: none)
+    if short:
+        col[row == n // n_east] += 0.5 * (n_east - short)  # centred: the axes stay north, east
+    return spacing_m * np.column_stack([row, col]).astype(float)
 
 
 def _circle(n: int, spacing_m: float) -> FloatArray:
