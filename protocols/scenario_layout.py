@@ -5,7 +5,8 @@ corner of their bounding box at the origin and the longer extent along north, so
 of yaw 0 is the layout itself:
 
 - ``grid``: rows along east, as many rows (north) as columns or one more; a last, short row is
-  centred, so that the grid's principal axes are north and east;
+  centred, so that the grid's principal axes are north and east (rows and columns swap where
+  the short row would leave the grid wider than long);
 - ``line``: one row along north, every other drone half a spacing to the east (a staggered
   line: a straight one has no width, and the swarm's roll about it is undefined);
 - ``circle``: a ring whose neighbouring drones are ``spacing_m`` apart (a chord);
@@ -63,6 +64,8 @@ def layout_positions(
         xy = _principal(_poisson_blob(n, spacing_m, reach, rng))
     else:
         raise LayoutError(f"layout: '{layout}' is not a layout (one of: {', '.join(LAYOUTS)})")
+    if np.var(xy[:, 1]) > np.var(xy[:, 0]):  # a grid whose short row made it wider than long
+        xy = xy[:, ::-1]
     xy = xy - xy.min(axis=0)
     return np.column_stack([np.round(xy, 6), np.zeros(n)])
 
