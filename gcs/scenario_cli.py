@@ -194,8 +194,7 @@ def _check(path: Path) -> int:
     problem = envelope_problem(scenario)
     if problem is not None:
         raise ScenarioCliError(
-            f"{path}: trajectory.waypoints: the plan leaves the ground station's envelope "
-            f"{problem}"
+            f"{path}: trajectory.waypoints: the plan leaves the ground station's envelope {problem}"
         )
     for line in summary_lines(scenario):
         print(line)
