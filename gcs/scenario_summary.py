@@ -74,6 +74,20 @@ def describe_fault(fault: Fault) -> str:
     return head + f"partition into {len(fault.groups)} groups (+ the rest){span}"
 
 
+def _envelope_line(scenario: Scenario) -> str:
+    problem = envelope_problem(scenario)
+    if problem is not None:
+        return f"the plan leaves the ground station's envelope {problem}"
+    env = Envelope()
+    return (
+        f"the plan stays inside the ground station's geofence (north "
+        f"{env.fence_north_m[0]:g}..{env.fence_north_m[1]:g} m, east "
+        f"{env.fence_east_m[0]:g}..{env.fence_east_m[1]:g} m, altitude "
+        f"{env.fence_altitude_m[0]:g}..{env.fence_altitude_m[1]:g} m) and spreads "
+        f"<= {env.max_spread_m:g} m"
+    )
+
+
 def summary_lines(scenario: Scenario) -> list[str]:
     """The human-readable summary ``swarm scenario check`` prints."""
     sc = scenario
@@ -94,6 +108,7 @@ def summary_lines(scenario: Scenario) -> list[str]:
         f"consensus  {gain}, c {cons.c:g}, warm-up {cons.warmup_s:g} s on the ground",
         f"safety     min separation {sc.safety.min_separation_m:g} m; the plan's formations "
         f"keep the drones at least {tightest:.2f} m apart (at t = {when:g} s)",
+        f"envelope   {_envelope_line(sc)}",
         f"faults     {len(sc.faults) or 'none'}",
         *(f"  {describe_fault(f)}" for f in sorted(sc.faults, key=lambda f: f.t_s)),
         f"waypoints  {len(sc.waypoints)}, t = {sc.waypoints[0].t_s:g}..{sc.waypoints[-1].t_s:g} s",

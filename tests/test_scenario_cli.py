@@ -120,6 +120,7 @@ def test_check_sums_a_scenario_up() -> None:
     assert "20% loss on every link" in out
     assert "waypoints  6, t = 0..46 s" in out
     assert "keep the drones at least 2.50 m apart" in out
+    assert "the plan stays inside the ground station's geofence" in out
 
 
 def test_check_says_when_the_radio_graph_is_split(tmp_path: Path) -> None:
