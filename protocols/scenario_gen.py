@@ -349,8 +349,9 @@ def _consensus_lines(consensus: dict[str, float]) -> list[str]:
             "",
         ]
     return [
-        "# Consensus on a sparse radio graph (ALGORITHM.md §3 rule 6): the degree-normalised",
-        "# gain at its maximum (rho c = 8) and a longer warm-up on the ground before arming.",
+        "# Consensus for more than 9 drones or a sparse radio graph (ALGORITHM.md §3 rule 6, §6):",
+        "# the degree-normalised gain at its maximum (rho c = 8) and a longer warm-up on the",
+        "# ground before arming.",
         "[consensus]",
         "degree_normalised = true",
         f"rho = {fmt(consensus['rho'])}",
