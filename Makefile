@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
 export MAVLINK20 := 1
 export MPLBACKEND := Agg
 
-.PHONY: demo test lint typecheck bench venv clean
+.PHONY: demo test lint typecheck bench scenarios venv clean
 
 venv: $(STAMP)
 
@@ -32,6 +32,11 @@ typecheck: $(STAMP)
 
 test: lint typecheck
 	$(BIN)/python -m pytest -q
+
+# regenerate scenarios/ (the library of `swarm scenario new` files; paper.toml has its own script)
+scenarios: $(STAMP)
+	PYTHONPATH=. $(BIN)/python scripts/make_scenarios.py
+	PYTHONPATH=. $(BIN)/python scripts/make_paper_scenario.py scenarios/paper.toml
 
 bench: $(STAMP)
 	# RotorPy is the reference the simulator's physics step is compared with (bench only)

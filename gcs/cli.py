@@ -17,6 +17,7 @@ from gcs.drill_cli import add_parser as add_drill_parser
 from gcs.gcs_cli import add_parser as add_gcs_parser
 from gcs.operator_cli import OPERATOR_COMMANDS
 from gcs.operator_cli import add_parsers as add_operator_parsers
+from gcs.scenario_cli import add_parser as add_scenario_parser
 from gcs.up_cli import add_parsers as add_up_parsers
 from sitl_sim.sim_cli import add_sim_parser
 
@@ -80,6 +81,7 @@ def _parser() -> argparse.ArgumentParser:
     add_operator_parsers(sub)
     add_up_parsers(sub)
     add_drill_parser(sub)
+    add_scenario_parser(sub)
     return parser
 
 
@@ -105,6 +107,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _up(args)
         if args.command == "drill":
             return _drill(args)
+        if args.command == "scenario":
+            return _scenario(args)
     except CliError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -219,6 +223,15 @@ def _drill(args: argparse.Namespace) -> int:
     try:
         return run(args)
     except DrillError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _scenario(args: argparse.Namespace) -> int:
+    from gcs.scenario_cli import ScenarioCliError, run
+
+    try:
+        return run(args)
+    except ScenarioCliError as exc:
         raise CliError(str(exc)) from None
 
 
