@@ -8,7 +8,8 @@ own: ``home alt - d``, so that the ground reads the home altitude everywhere (th
 away from the plane by ``(n² + e²) / 2R``, 8 cm at 1 km, which a flat world does not have).
 
 The home altitude is taken as the ellipsoidal height of the plane (the geoid's undulation, tens
-of metres, is ignored: it moves a point by under 1 mm per km). Pure numpy; angles in degrees at the edges (as in the scenario file), radians inside.
+of metres, is ignored: it moves a point by under 1 mm per km). Pure numpy; angles in degrees at
+the edges (as in the scenario file), radians inside.
 """
 
 from __future__ import annotations

@@ -67,6 +67,6 @@ def test_hand_computed_equator_cases() -> None:
     assert lon[0] == pytest.approx(math.degrees(math.atan(1000 / WGS84_A_M)), abs=1e-12)
     assert (lat[1], lon[1], alt[1]) == pytest.approx((0.0, 0.0, 80.0), abs=1e-12)
     # the poles and the equator of the ellipsoid itself
-    la, lo, h = ecef_to_geodetic(np.array([[0.0, 0.0, 6356752.314245], [WGS84_A_M, 0.0, 0.0]]))
+    la, _, h = ecef_to_geodetic(np.array([[0.0, 0.0, 6356752.314245], [WGS84_A_M, 0.0, 0.0]]))
     np.testing.assert_allclose(np.degrees(la), [90.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(h, [0.0, 0.0], atol=1e-6)

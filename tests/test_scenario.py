@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from protocols.scenario import (
-    GeoPoint,
     Crash,
     Dropout,
     GainsConfig,
+    GeoPoint,
     LinkCut,
     LinkDelay,
     PacketLoss,
