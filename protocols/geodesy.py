@@ -73,9 +73,7 @@ def _ned_axes(lat_rad: float, lon_rad: float) -> FloatArray:
     return np.array([[-sl * co, -sl * so, cl], [-so, co, 0.0], [-cl * co, -cl * so, -sl]])
 
 
-def ned_to_geodetic(
-    home: GeoPoint, ned_m: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray]:
+def ned_to_geodetic(home: GeoPoint, ned_m: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Latitude, longitude (deg) and altitude (m MSL) of NED points ``ned_m`` (N, 3) m about
     ``home``: the tangent plane's point exactly, the altitude flat (``home.alt_m - d``)."""
     ned = np.asarray(ned_m, dtype=float).reshape(-1, 3)
@@ -84,4 +82,3 @@ def ned_to_geodetic(
     lat, lon, _ = ecef_to_geodetic(origin + ned @ _ned_axes(lat0, lon0))
     lon_deg = (np.degrees(lon) + 180.0) % 360.0 - 180.0
     return np.degrees(lat), lon_deg, home.alt_m - ned[:, 2]
-
