@@ -199,3 +199,43 @@ def test_nothing_else_imports_rerun() -> None:
         "sys.exit(1 if any(m == 'rerun' or m.startswith('rerun.') for m in sys.modules) else 0)"
     )
     assert subprocess.run([sys.executable, "-c", code], env=ENV, cwd=ROOT).returncode == 0
+
+
+@pytest.mark.slow
+def test_swarm_up_view_serves_the_live_viewer(tmp_path: Path) -> None:
+    """``swarm up --view`` on free ports: it prints the viewer's URL, the page is served while
+    the swarm flies, and the viewer ends with the run."""
+    from sitl_client import free_port_block, free_udp_port
+
+    scenario = write_scenario(
+        tmp_path / "hover.toml", SQUARE, centre=(2.0, 1.5, -2.0), spread=(2.0, 1.5, 0.0),
+        duration_s=8.0,
+    )  # fmt: skip
+    web, grpc = _free_tcp_port(), _free_tcp_port()
+    out = tmp_path / "up.out"
+    report = tmp_path / "report"
+    with out.open("wb") as f:
+        proc = subprocess.Popen(
+            swarm_command("up", str(scenario), "--report", str(report), "--base-port",
+                          str(free_port_block(4)), "--gcs-port", str(free_udp_port()), "--view",
+                          "--view-web-port", str(web), "--view-grpc-port", str(grpc)),
+            stdout=f, stderr=subprocess.STDOUT, env=ENV, cwd=ROOT,
+        )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while "live view (Rerun) at" not in out.read_text() and time.monotonic() < deadline:
+            assert proc.poll() is None, out.read_text()
+            time.sleep(0.2)
+        url = out.read_text().split("live view (Rerun) at ", 1)[1].split()[0]
+        with urllib.request.urlopen(url, timeout=10) as page:
+            assert page.status == 200
+        assert proc.wait(120) == 0, out.read_text()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    assert "swarm up: finished" in out.read_text()
+    assert (report / "flight.rrd").exists()
+    assert "swarm view: following" in (report / "logs" / "view.log").read_text()
+    with socket.socket() as s:  # the viewer has ended: its port is free again
+        s.bind(("127.0.0.1", web))
