@@ -239,3 +239,49 @@ def test_swarm_up_view_serves_the_live_viewer(tmp_path: Path) -> None:
     assert "swarm view: following" in (report / "logs" / "view.log").read_text()
     with socket.socket() as s:  # the viewer has ended: its port is free again
         s.bind(("127.0.0.1", web))
+
+
+# -- the scene's arithmetic, without Rerun's I/O ---------------------------------------------
+@pytest.mark.parametrize("euler", [(0.0, 0.0, 1.2), (0.3, -0.2, 2.9), (-0.5, 0.4, -1.0)])
+def test_ellipsoid_quaternion_is_the_descriptor_orientation(euler: tuple[float, ...]) -> None:
+    from gcs.rerun_log import quaternions_xyzw
+    from protocols.frames import rot_zyx
+
+    x, y, z, w = quaternions_xyzw(np.array([euler]))[0]
+    rot = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])  # fmt: skip
+    roll, pitch, yaw = euler
+    np.testing.assert_allclose(rot, rot_zyx(yaw, pitch, roll), atol=1e-12)
+
+
+def test_min_separation_and_modes() -> None:
+    from gcs.view_scene import Mode, event_lines, min_separation, modes
+
+    rng = np.random.default_rng(3)
+    pos = rng.normal(size=(20, 5, 3)) * 3
+    air = rng.random((20, 5)) > 0.3
+    got = min_separation(pos, air)
+    for k in range(20):
+        d = [np.linalg.norm(pos[k, i] - pos[k, j]) for i in range(5) for j in range(i + 1, 5)
+             if air[k, i] and air[k, j]]  # fmt: skip
+        assert (np.isnan(got[k]) and not d) or got[k] == pytest.approx(min(d))
+    t = np.arange(10.0)
+    record = type("R", (), {})()
+    record.t_s, record.airborne, record.n_drones = t, np.ones((10, 2), dtype=bool), 2
+    record.lost_at_s = {1: 6.0}
+    events = [
+        {"t_s": 4.0, "kind": "failsafe", "drone": 0},
+        {"t_s": 6.0, "kind": "crash", "drone": 1},
+    ]
+    mode = modes(record, events)
+    assert mode[3].tolist() == [Mode.FLYING, Mode.FLYING]
+    assert mode[5].tolist() == [Mode.FAILSAFE, Mode.FLYING]
+    assert mode[7].tolist() == [Mode.FAILSAFE, Mode.LOST]
+    lines = event_lines(events)
+    assert [(e.level, e.text) for e in lines] == [
+        ("WARN", "drone 0 failsafe"),
+        ("ERROR", "drone 1 crash"),
+    ]
