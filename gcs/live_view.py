@@ -26,8 +26,9 @@ import numpy as np
 import rerun as rr
 
 from gcs.events import read_events
+from gcs.flight_record import FlightRecord
 from gcs.gcs_report import build_record
-from gcs.rerun_log import log_scene, log_setup
+from gcs.rerun_log import log_scene, log_setup, trail_stride
 from gcs.tlog import TlogReader
 from gcs.view_scene import (
     EVENTS,
@@ -38,6 +39,7 @@ from gcs.view_scene import (
     scene_from_record,
     tlog_rate_hz,
 )
+from protocols.frames import FloatArray
 from protocols.trajectory import DescriptorTrajectory
 
 
@@ -82,7 +84,9 @@ class LiveView:
         if record is None:
             return 0
         events = read_events(events_path) if events_path.exists() else []
-        scene = scene_from_record(record, events)
+        # only the samples not sent yet and the trail before them are worked out again
+        offset = _window_start(record.t_s, self._sent_t_s)
+        scene = scene_from_record(_tail(record, offset), events)
         if not self._setup_done:
             log_setup(self.rec, scene.n_drones)
             self._setup_done = True
@@ -111,6 +115,28 @@ class LiveView:
         while not stop():
             self.poll()
             time.sleep(poll_s)
+
+
+def _window_start(t_s: FloatArray, sent_t_s: float) -> int:
+    """The first sample the scene needs: the trail's history before the first sample not sent
+    yet, starting on a trail row (as in the whole flight's recording, so the two agree)."""
+    first_new = int(np.searchsorted(t_s, sent_t_s + 1e-6))
+    stride, length = trail_stride(t_s)
+    lo = max(0, first_new - stride * length)
+    return lo - lo % stride
+
+
+def _tail(record: FlightRecord, lo: int) -> FlightRecord:
+    """``record`` from sample ``lo`` on."""
+    if lo == 0:
+        return record
+    t = record.t_s.shape[0]
+    cut = {}
+    for f in fields(record):
+        value = getattr(record, f.name)
+        if isinstance(value, np.ndarray) and value.ndim and value.shape[0] == t:
+            cut[f.name] = value[lo:]
+    return replace(record, **cut)
 
 
 def _try_plan(path: Path) -> DescriptorTrajectory | None:

@@ -120,12 +120,18 @@ def _drones(rec: rr.RecordingStream, scene: Scene, start: int) -> None:
     )
 
 
+def trail_stride(t_s: FloatArray) -> tuple[int, int]:
+    """For samples at times ``t_s``: every how many samples a trail is drawn and a trail point
+    taken, and how many points a trail has."""
+    dt = float(np.median(np.diff(t_s))) if t_s.size > 1 else 1.0
+    stride = max(1, round(1.0 / (TRAIL_HZ * dt)))
+    return stride, max(2, round(TRAIL_S / (dt * stride)) + 1)
+
+
 def _trail_rows(scene: Scene, start: int) -> tuple[np.ndarray, int, int]:
     """Sample indices (from ``start``) that get a trail, the trail's stride and its length."""
     t = scene.t_s
-    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
-    stride = max(1, round(1.0 / (TRAIL_HZ * dt)))
-    length = max(2, round(TRAIL_S / (dt * stride)) + 1)
+    stride, length = trail_stride(t)
     first = start + (-start) % stride
     return np.arange(first, t.size, stride), stride, length
 
