@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -131,7 +132,7 @@ def _tail(record: FlightRecord, lo: int) -> FlightRecord:
     if lo == 0:
         return record
     t = record.t_s.shape[0]
-    cut = {}
+    cut: dict[str, Any] = {}
     for f in fields(record):
         value = getattr(record, f.name)
         if isinstance(value, np.ndarray) and value.ndim and value.shape[0] == t:
