@@ -159,7 +159,12 @@ def _view(args: argparse.Namespace, stop: Stop, out: TextIO) -> int:
     if not args.poll_s > 0:
         raise ViewError("--poll-s must be > 0")
     rec = _open(args, f"live-{args.report.resolve().name}", out)
-    print(f"swarm view: following {args.report}/flight.tlog (Ctrl-C ends)", file=out, flush=True)
+    waiting = "" if (args.report / "flight.tlog").exists() else ", waiting for it to appear"
+    print(
+        f"swarm view: following {args.report}/flight.tlog{waiting} (Ctrl-C ends)",
+        file=out,
+        flush=True,
+    )
     LiveView(args.report, rec, plan).run(stop, args.poll_s)
     return 0
 
