@@ -14,7 +14,8 @@ venv: $(STAMP)
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	# [view]: Rerun (swarm view / replay, flight.rrd), so that its tests run too
+	$(BIN)/python -m pip install --quiet -e '.[dev,view]'
 	# MAVProxy is a real ground-station peer for the SITL tests; --no-deps keeps it headless
 	# (its GUI dependencies weigh ~1.4 GB and are not needed).
 	$(BIN)/python -m pip install --quiet --no-deps 'MAVProxy>=1.8,<2' 'pyserial>=3.5'

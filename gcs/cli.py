@@ -19,6 +19,8 @@ from gcs.operator_cli import OPERATOR_COMMANDS
 from gcs.operator_cli import add_parsers as add_operator_parsers
 from gcs.scenario_cli import add_parser as add_scenario_parser
 from gcs.up_cli import add_parsers as add_up_parsers
+from gcs.view_cli import VIEW_COMMANDS
+from gcs.view_cli import add_parsers as add_view_parsers
 from sitl_sim.sim_cli import add_sim_parser
 
 EXIT_USAGE = 2
@@ -46,7 +48,8 @@ def _parser() -> argparse.ArgumentParser:
             "Fly a scenario with every vehicle, agent and radio link in one process, through the "
             "same estimator and controllers as the distributed system, with the scenario's faults "
             "(drop-outs, crashes, link cuts, loss, delay). Writes flight.tlog (MAVLink 2), "
-            "events.jsonl, metrics.json, trajectory.json and PNG plots into the report folder."
+            "events.jsonl, metrics.json, trajectory.json, PNG plots and, with Rerun installed, "
+            "flight.rrd (swarm replay opens it) into the report folder."
         ),
     )
     sim.add_argument("scenario", type=Path, help="scenario file (TOML), e.g. scenarios/paper.toml")
@@ -82,6 +85,7 @@ def _parser() -> argparse.ArgumentParser:
     add_up_parsers(sub)
     add_drill_parser(sub)
     add_scenario_parser(sub)
+    add_view_parsers(sub)
     return parser
 
 
@@ -109,6 +113,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _drill(args)
         if args.command == "scenario":
             return _scenario(args)
+        if args.command in VIEW_COMMANDS:
+            return _view(args)
     except CliError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -232,6 +238,15 @@ def _scenario(args: argparse.Namespace) -> int:
     try:
         return run(args)
     except ScenarioCliError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _view(args: argparse.Namespace) -> int:
+    from gcs.view_cli import ViewError, run
+
+    try:
+        return run(args)
+    except ViewError as exc:
         raise CliError(str(exc)) from None
 
 

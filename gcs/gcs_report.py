@@ -1,7 +1,8 @@
 """The ground station's report: a :class:`~gcs.flight_record.FlightRecord` rebuilt from the
 ground station's own logs (``flight.tlog``: vehicle telemetry and the agents' statuses;
 ``events.jsonl``: joins, drop-outs, crashes, drills) and the final plan, then ``metrics.json``,
-``trajectory.json`` and the paper-style PNG plots, the same files as ``swarm simulate`` writes.
+``trajectory.json``, the paper-style PNG plots and ``flight.rrd`` (with Rerun installed), the same
+files as ``swarm simulate`` writes.
 
 Sampling: a uniform grid of simulated time at ``rate_hz`` (the telemetry rate), sample-and-hold.
 Estimates are NaN where no status of that agent is younger than ``max_age_s``.
@@ -33,6 +34,7 @@ from gcs.fault_timeline import link_faults
 from gcs.flight_record import FlightRecord, LinkFault
 from gcs.metrics import compute_metrics
 from gcs.plots import write_plots
+from gcs.recording import write_recording
 from gcs.simulate import _write_trajectory
 from gcs.tlog import TlogTrack, VehicleTrack, read_tlog
 from protocols.frames import FloatArray
@@ -203,8 +205,9 @@ def write_report(
     plots: bool = True,
     max_thrust_n: float | None = None,
 ) -> list[Path]:
-    """Write ``trajectory.json``, ``metrics.json`` (when there is a record) and the plots;
-    ``max_thrust_n`` (N) gives the metrics' max_thrust_ratio."""
+    """Write ``trajectory.json``, ``metrics.json`` (when there is a record), the plots and, where
+    Rerun is installed, ``flight.rrd`` (from the report's files); ``max_thrust_n`` (N) gives the
+    metrics' max_thrust_ratio."""
     files = [_write_trajectory(plan, report_dir / "trajectory.json")]
     metrics_path = report_dir / "metrics.json"
     if record is None:
@@ -218,4 +221,6 @@ def write_report(
     files.append(metrics_path)
     if plots and record is not None:
         files += write_plots(record, report_dir)
+    if record is not None and (rrd := write_recording(report_dir, record.n_drones)) is not None:
+        files.append(rrd)
     return files

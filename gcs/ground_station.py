@@ -38,6 +38,7 @@ from gcs.fault_timeline import TimedAction, timeline
 from gcs.gcs_drills import GcsDrills
 from gcs.gcs_report import build_record, write_report
 from gcs.planner import Envelope, PlanRefused
+from gcs.simulate import _write_trajectory
 from gcs.swarm_watch import SwarmWatch
 from gcs.telemetry import TelemetryReceiver
 from gcs.tlog import read_tlog
@@ -183,6 +184,8 @@ class GroundStation:
     def _publish(self, plan: PlanMessage, why: str) -> None:
         self.plans.publish(plan)
         self.plan = plan
+        # the plan in force, for a live view of the report folder (swarm view)
+        _write_trajectory(plan.trajectory, self._o.report_dir / "trajectory.json")
         self.events.record(
             self.now_s, "plan_published", seq=plan.seq, command=plan.command.name, reason=why
         )

@@ -1,7 +1,8 @@
 """``swarm simulate``: fly a scenario in one process and write its report folder.
 
 Writes ``flight.tlog`` (MAVLink 2 telemetry of every vehicle), ``events.jsonl``, ``metrics.json``,
-``trajectory.json`` (the plan's knots and coefficients) and the paper-style PNG plots.
+``trajectory.json`` (the plan's knots and coefficients), the paper-style PNG plots and, where
+Rerun is installed, ``flight.rrd`` (its recording, made from the files above: gcs/recording.py).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from gcs.events import EventLog
 from gcs.flight_record import FlightRecord
 from gcs.metrics import compute_metrics
 from gcs.plots import write_plots
+from gcs.recording import write_recording
 from gcs.reference_flight import FlightEvent, ReferenceFlight
 from gcs.tlog import TlogWriter
 from protocols.scenario import Scenario
@@ -28,6 +30,8 @@ from protocols.trajectory import DescriptorTrajectory
 MAV_STATE_STANDBY, MAV_STATE_ACTIVE, MAV_STATE_EMERGENCY = 3, 4, 6
 #: MAV_SEVERITY values used in status texts.
 SEVERITY_CRITICAL, SEVERITY_WARNING, SEVERITY_INFO = 2, 4, 6
+#: Rate (Hz) of the agents' statuses in the tlog (the ground station logs what they publish).
+STATUS_HZ = 5.0
 _EVENT_SEVERITY = {
     "fault": SEVERITY_WARNING,
     "failsafe": SEVERITY_CRITICAL,
@@ -54,8 +58,10 @@ def simulate(
     progress: Callable[[float], None] | None = None,
     tlog_hz: float = 25.0,
     plots: bool = True,
+    recording: bool = True,
 ) -> SimulationResult:
-    """Fly ``scenario`` in process and write the report into ``report_dir`` (created)."""
+    """Fly ``scenario`` in process and write the report into ``report_dir`` (created); with
+    ``recording``, also ``flight.rrd`` where Rerun is installed (:mod:`gcs.recording`)."""
     report_dir.mkdir(parents=True, exist_ok=True)
     flight = ReferenceFlight(scenario)
     wall0 = time.perf_counter()
@@ -99,6 +105,8 @@ def simulate(
     files.append(metrics_path)
     if plots:
         files += write_plots(record, report_dir)
+    if recording and (rrd := write_recording(report_dir, scenario.n_drones)) is not None:
+        files.append(rrd)
     return SimulationResult(record, flight.events, metrics, files)
 
 
@@ -119,10 +127,13 @@ def _write_tlog(
     hz: float,
     silent_from: dict[int, float],
 ) -> Path:
-    """Telemetry of every vehicle at ``hz`` (system id = index + 1), heartbeats at 1 Hz, and a
-    STATUSTEXT for each event about a drone. Vehicles in ``silent_from`` stop after that time."""
+    """Telemetry of every vehicle at ``hz`` (system id = index + 1), heartbeats at 1 Hz, each
+    live agent's status (estimate, neighbours; as the ground station logs it, mode unknown: NaN)
+    at :data:`STATUS_HZ`, and a STATUSTEXT for each event about a drone. Vehicles in
+    ``silent_from`` stop after that time."""
     t = record.t_s
     stride = max(1, round(1.0 / (hz * (t[1] - t[0])))) if t.size > 1 else 1
+    status_stride = max(1, round(1.0 / (STATUS_HZ * (t[1] - t[0])))) if t.size > 1 else 1
     hb_stride = max(1, round(1.0 / (t[1] - t[0]))) if t.size > 1 else 1
     rates = record.body_rates_rad_s
     armed = record.armed
@@ -135,7 +146,7 @@ def _write_tlog(
                 if isinstance(drone, int) and ev.kind in _EVENT_SEVERITY:
                     text = f"{ev.kind}: {ev.fields.get('reason', ev.fields.get('description', ''))}"
                     log.write_statustext(ev.t_s, drone + 1, _EVENT_SEVERITY[ev.kind], text[:150])
-            if k % stride and k % hb_stride:
+            if k % stride and k % hb_stride and k % status_stride:
                 continue
             for i in range(record.n_drones):
                 if t[k] > silent_from.get(i, np.inf):
@@ -160,6 +171,10 @@ def _write_tlog(
                         record.euler_rad[k, i],
                         body,
                     )
+                if k % status_stride == 0 and np.all(np.isfinite(record.estimate[k, i])):
+                    on = float(armed[k, i]) if armed is not None else 1.0
+                    values = [*record.estimate[k, i], record.neighbours[k, i], np.nan, on]
+                    log.write_agent_status(float(t[k]), i + 1, np.array(values, dtype=float))
     return path
 
 

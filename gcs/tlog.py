@@ -266,74 +266,98 @@ def read_tlog(path: str | Path, epoch_offset_s: float = 0.0) -> TlogTrack:
     Undecodable records (bad CRC, unknown framing) are skipped and counted; a truncated last
     record is ignored. ``epoch_offset_s`` is subtracted from record times (status texts only).
     """
-    data = Path(path).read_bytes()
-    codec = common.MAVLink(None)
-    pos: dict[int, list[tuple[float, ...]]] = {}
-    att: dict[int, list[tuple[float, ...]]] = {}
-    act: dict[int, list[tuple[float, ...]]] = {}
-    agent: dict[int, list[tuple[float, ...]]] = {}
-    beats: dict[int, list[tuple[float, ...]]] = {}
-    named: dict[int, dict[str, list[tuple[float, float]]]] = {}
-    texts: list[StatusText] = []
-    chunks: dict[tuple[int, int], list[bytes]] = {}
-    bad, resyncing = 0, False
-    ofs, size = 0, len(data)
-    while ofs + 8 + 8 <= size:
-        length = _packet_length(data, ofs + 8)
-        end = ofs + 8 + (length or 0)
-        if length is not None and end > size:
-            break  # truncated last record
-        try:
-            if length is None:
-                raise common.MAVError("no MAVLink marker")
-            msg = codec.decode(bytearray(data[ofs + 8 : end]))
-        except common.MAVError:
-            bad += 0 if resyncing else 1
-            resyncing = True
-            ofs += 1  # resynchronise byte by byte, as mavlogdump does
-            continue
+    reader = TlogReader(epoch_offset_s)
+    reader.feed(Path(path).read_bytes())
+    return reader.track()
+
+
+class TlogReader:
+    """Reads a tlog piece by piece (a log still being written): :meth:`feed` the bytes that
+    follow the last ones it consumed, :meth:`track` what has been read so far."""
+
+    def __init__(self, epoch_offset_s: float = 0.0) -> None:
+        self.epoch_offset_s = epoch_offset_s
+        self._codec = common.MAVLink(None)
+        self._pos: dict[int, list[tuple[float, ...]]] = {}
+        self._att: dict[int, list[tuple[float, ...]]] = {}
+        self._act: dict[int, list[tuple[float, ...]]] = {}
+        self._agent: dict[int, list[tuple[float, ...]]] = {}
+        self._beats: dict[int, list[tuple[float, ...]]] = {}
+        self._named: dict[int, dict[str, list[tuple[float, float]]]] = {}
+        self._texts: list[StatusText] = []
+        self._chunks: dict[tuple[int, int], list[bytes]] = {}
+        self._bad = 0
+
+    def feed(self, data: bytes) -> int:
+        """Parse the records of ``data``; the number of bytes consumed (a truncated last record
+        is left for the next call, which starts with it)."""
         resyncing = False
-        t_rec = _TS.unpack_from(data, ofs)[0] * 1e-6 - epoch_offset_s
-        ofs = end
+        ofs, size = 0, len(data)
+        while ofs + 8 + 8 <= size:
+            length = _packet_length(data, ofs + 8)
+            end = ofs + 8 + (length or 0)
+            if length is not None and end > size:
+                break  # truncated last record
+            try:
+                if length is None:
+                    raise common.MAVError("no MAVLink marker")
+                msg = self._codec.decode(bytearray(data[ofs + 8 : end]))
+            except common.MAVError:
+                self._bad += 0 if resyncing else 1
+                resyncing = True
+                ofs += 1  # resynchronise byte by byte, as mavlogdump does
+                continue
+            resyncing = False
+            t_rec = _TS.unpack_from(data, ofs)[0] * 1e-6 - self.epoch_offset_s
+            ofs = end
+            self._message(msg, t_rec)
+        return ofs
+
+    def _message(self, msg: Any, t_rec: float) -> None:
         sysid = msg.get_srcSystem()
         mtype = msg.get_type()
         if mtype == "LOCAL_POSITION_NED":
             row = (msg.time_boot_ms, msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
-            pos.setdefault(sysid, []).append(row)
+            self._pos.setdefault(sysid, []).append(row)
         elif mtype == "ATTITUDE":
             rates = (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
-            att.setdefault(sysid, []).append(
+            self._att.setdefault(sysid, []).append(
                 (msg.time_boot_ms, msg.roll, msg.pitch, msg.yaw, *rates)
             )
         elif mtype == "ACTUATOR_OUTPUT_STATUS":
             forces = msg.actuator[:ACTUATOR_ROTORS]
-            act.setdefault(sysid, []).append((msg.time_usec / 1000.0, *forces))
+            self._act.setdefault(sysid, []).append((msg.time_usec / 1000.0, *forces))
         elif mtype == "DEBUG_FLOAT_ARRAY" and msg.get_srcComponent() == AGENT_COMPID:
             if _name(msg.name) == AGENT_STATUS_NAME:
                 values = msg.data[:AGENT_STATUS_VALUES]
-                agent.setdefault(sysid, []).append((msg.time_usec / 1000.0, *values))
+                self._agent.setdefault(sysid, []).append((msg.time_usec / 1000.0, *values))
         elif mtype == "HEARTBEAT" and msg.get_srcComponent() == _AUTOPILOT_COMPONENT:
             armed = float(bool(msg.base_mode & common.MAV_MODE_FLAG_SAFETY_ARMED))
-            beats.setdefault(sysid, []).append((t_rec * 1000.0, armed, float(msg.custom_mode)))
+            beat = (t_rec * 1000.0, armed, float(msg.custom_mode))
+            self._beats.setdefault(sysid, []).append(beat)
         elif mtype == "NAMED_VALUE_FLOAT":
-            rows = named.setdefault(sysid, {}).setdefault(_name(msg.name), [])
+            rows = self._named.setdefault(sysid, {}).setdefault(_name(msg.name), [])
             rows.append((msg.time_boot_ms / 1000.0, float(msg.value)))
         elif mtype == "STATUSTEXT":
-            text = _statustext(msg, sysid, chunks)
+            text = _statustext(msg, sysid, self._chunks)
             if text is not None:
-                texts.append(StatusText(t_rec, sysid, int(msg.severity), text))
-    vehicles = {
-        s: _track(
-            pos.get(s, []), att.get(s, []), act.get(s, []), agent.get(s, []), beats.get(s, [])
-        )
-        for s in sorted(set(pos) | set(att) | set(act) | set(agent))
-    }
-    for s, values in named.items():
-        if s in vehicles:
-            vehicles[s].named = {
-                name: _by_time([tuple(r) for r in rows], 2) for name, rows in values.items()
-            }
-    return TlogTrack(vehicles, texts, bad)
+                self._texts.append(StatusText(t_rec, sysid, int(msg.severity), text))
+
+    def track(self) -> TlogTrack:
+        """Everything read so far."""
+        pos, att, act, agent, beats = self._pos, self._att, self._act, self._agent, self._beats
+        vehicles = {
+            s: _track(
+                pos.get(s, []), att.get(s, []), act.get(s, []), agent.get(s, []), beats.get(s, [])
+            )
+            for s in sorted(set(pos) | set(att) | set(act) | set(agent))
+        }
+        for s, values in self._named.items():
+            if s in vehicles:
+                vehicles[s].named = {
+                    name: _by_time([tuple(r) for r in rows], 2) for name, rows in values.items()
+                }
+        return TlogTrack(vehicles, list(self._texts), self._bad)
 
 
 def _packet_length(data: bytes, ofs: int) -> int | None:

@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import subprocess
 import sys
+import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from gcs.gcs_drills import RUN_FILE
+from gcs.recording import INSTALL_HINT, rerun_available
 from gcs.summary import summary_lines
 from gcs.supervisor import (
     Child,
@@ -91,6 +96,14 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--gcs-port", type=int, default=DEFAULT_GCS_PORT, help="telemetry to the GCS")
     p.add_argument("--duration-s", type=float, metavar="S", help="fly only the first S seconds")
+    p.add_argument(
+        "--view",
+        action="store_true",
+        help="also watch the flight live in Rerun: runs `swarm view` on the report folder and "
+        "prints the web viewer's URL (needs pip install 'quadswarm[view]')",
+    )
+    p.add_argument("--view-web-port", type=int, default=9090, help="--view: web viewer port")
+    p.add_argument("--view-grpc-port", type=int, default=9876, help="--view: viewer data port")
 
 
 def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, int]:
@@ -187,6 +200,51 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
     return RunPlan(gcs, sim, agents, drones, logs / RUN_FILE, endpoint), n
 
 
+#: How long ``--view`` waits for the viewer to print its URL (s).
+VIEW_START_S = 30.0
+
+
+@contextlib.contextmanager
+def live_view(args: argparse.Namespace, scenario: Path) -> Iterator[str | None]:
+    """With ``--view``: ``swarm view`` on the report folder as a child process (its output in
+    logs/view.log) for the length of the block; yields the viewer's URL (None without --view)."""
+    if not getattr(args, "view", False):
+        yield None
+        return
+    if not rerun_available():
+        raise SupervisorError(f"--view: {INSTALL_HINT}")
+    log = args.report / "logs" / "view.log"
+    argv = swarm_argv(
+        "view", str(args.report), "--scenario", str(scenario),
+        "--web-port", str(args.view_web_port), "--grpc-port", str(args.view_grpc_port),
+    )  # fmt: skip
+    with log.open("wb") as out:
+        proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT)
+    try:
+        yield _viewer_url(proc, log)
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+
+
+def _viewer_url(proc: subprocess.Popen[bytes], log: Path) -> str:
+    """The URL ``swarm view`` prints once it serves the viewer."""
+    end = time.monotonic() + VIEW_START_S
+    while time.monotonic() < end:
+        for line in log.read_text(errors="replace").splitlines():
+            if "web viewer at " in line:
+                return line.split("web viewer at ", 1)[1].strip()
+        if proc.poll() is not None:
+            break
+        time.sleep(0.1)
+    tail = log.read_text(errors="replace").strip().splitlines()[-1:] or ["(no output)"]
+    raise SupervisorError(f"--view: the viewer did not start: {tail[0]}")
+
+
 def run(args: argparse.Namespace) -> int:
     """``swarm up`` / ``swarm demo``; exit 0 when the scenario was flown to its end."""
     scenario = getattr(args, "scenario", None) or PAPER
@@ -195,8 +253,6 @@ def run(args: argparse.Namespace) -> int:
     shown = [0.0]
 
     def progress(line: str) -> None:
-        import time
-
         if not line:
             return
         if tty:
@@ -215,7 +271,9 @@ def run(args: argparse.Namespace) -> int:
         f"--zenoh-connect {plan.zenoh_endpoint}",
         file=sys.stderr,
     )
-    with interrupt_flag() as stop:
+    with interrupt_flag() as stop, live_view(args, scenario) as url:
+        if url is not None:
+            print(f"swarm up: live view (Rerun) at {url}", file=sys.stderr, flush=True)
         reason = supervise(plan, progress, stop)
     if tty:
         print(file=sys.stderr)

@@ -1,8 +1,10 @@
 """Scenario files: typed, validated, versioned (SPEC.md "Scenarios"). Pure apart from reading.
 
 A scenario is a TOML file with ``version = 1``: the drones' initial positions, vehicle parameters,
-rates, gains, consensus settings, communication range, the descriptor trajectory as waypoints, and
-a timeline of faults. Defaults are ALGORITHM.md §6. :func:`load_scenario` raises ScenarioError
+rates, gains, consensus settings, communication range, the descriptor trajectory as waypoints, a
+timeline of faults, and where the NED origin is on the map (``[home] lat_deg, lon_deg, alt_m``:
+WGS-84 degrees, metres above sea level; default PX4 SITL's home, Zürich). Defaults are
+ALGORITHM.md §6. :func:`load_scenario` raises ScenarioError
 (a ValueError) with a one-line message ``<file>: <field path>: <what>`` for every mistake. Angles
 are degrees in the file and radians in the trajectory; shape is a spread (RMS distance from the
 centre, m) or a variance (m²) per swarm axis in the file, always a variance in the trajectory.
@@ -21,6 +23,7 @@ import numpy as np
 from protocols.faults import Crash, Dropout, Fault, LinkCut, LinkDelay, PacketLoss, Partition
 from protocols.formation_fit import fit_problem
 from protocols.frames import FloatArray
+from protocols.geodesy import GeoPoint
 from protocols.scenario_schema import ScenarioError, Table
 from protocols.trajectory import DescriptorTrajectory, Waypoint
 
@@ -28,6 +31,7 @@ __all__ = [
     "Crash",
     "Dropout",
     "Fault",
+    "GeoPoint",
     "LinkCut",
     "LinkDelay",
     "PacketLoss",
@@ -201,6 +205,8 @@ class Scenario:
     comms: CommsConfig = field(default_factory=CommsConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     faults: tuple[Fault, ...] = ()
+    #: [home]: where the NED origin is on the map (protocols/geodesy.py)
+    home: GeoPoint = field(default_factory=GeoPoint)
     version: int = 1
 
     @property
@@ -250,7 +256,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         raise top.error(f"{version} is not supported (supported: {_supported()})", "version")
     top.allow(
         ("version", "name", "duration_s", "seed", "settle_s", "vehicle", "rates", "gains",
-         "consensus", "comms", "safety", "drones", "trajectory", "faults")
+         "consensus", "comms", "safety", "drones", "trajectory", "faults", "home")
     )  # fmt: skip
     drones = _drones(top)
     waypoints = _waypoints(top.table("trajectory", ("waypoints",)))
@@ -277,6 +283,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         comms=top.table("comms").section(CommsConfig, {"range_m": {"gt": 0}}),
         safety=safety,
         faults=tuple(_fault(t, len(drones), duration_s) for t in top.tables("faults")),
+        home=top.table("home").section(GeoPoint, HOME_BOUNDS),
         version=version,
     )
 
@@ -302,6 +309,12 @@ def _supported() -> str:
     return ", ".join(str(v) for v in SUPPORTED_VERSIONS)
 
 
+#: [home]: a latitude off the poles (longitude is undefined there), an altitude a drone can fly.
+HOME_BOUNDS = {
+    "lat_deg": {"gt": -90.0, "lt": 90.0},
+    "lon_deg": {"ge": -180.0, "le": 180.0},
+    "alt_m": {"ge": -500.0, "le": 9000.0},
+}
 _VEHICLE_BOUNDS = {name: {"gt": 0.0} for name in VehicleConfig.__dataclass_fields__}
 _GAINS_BOUNDS: dict[str, dict[str, float]] = {
     "attitude_kp": {"gt": 0},

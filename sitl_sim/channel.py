@@ -47,6 +47,8 @@ def report_unreachable(sock: socket.socket) -> bool:
     except OSError:
         return False
     return True
+
+
 _SIGNATURE_REASON = "Invalid signature"
 #: How far (10 µs units: one minute) a new signed stream may lag our timestamp (as pymavlink).
 _NEW_STREAM_SLACK = 6_000_000

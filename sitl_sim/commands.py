@@ -10,7 +10,10 @@ or FAILED (the vehicle cannot: crashed, motor failure). Handled:
 - MAV_CMD_NAV_LAND (21): LAND mode.
 - MAV_CMD_SET_MESSAGE_INTERVAL (511) / MAV_CMD_GET_MESSAGE_INTERVAL (510): the rates of the link
   the command came on (param1 message id, param2 interval µs: 0 default, -1 off).
-- MAV_CMD_REQUEST_MESSAGE (512): AUTOPILOT_VERSION and every streamed message, once.
+- MAV_CMD_REQUEST_MESSAGE (512): AUTOPILOT_VERSION and every streamed message (HOME_POSITION
+  among them), once.
+- MAV_CMD_GET_HOME_POSITION (410, deprecated for REQUEST_MESSAGE but still sent by ground
+  stations): HOME_POSITION.
 - MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES (520): AUTOPILOT_VERSION.
 - MAV_CMD_INJECT_FAILURE (420), PX4 vocabulary: param1 FAILURE_UNIT_SYSTEM_MOTOR (101), param2
   FAILURE_TYPE_OFF (1) or FAILURE_TYPE_OK (0), param3 motor instance 1..4, 0 = all motors (all
@@ -40,12 +43,14 @@ from sitl_sim.world import World
 CMD_NAV_LAND = 21
 CMD_DO_SET_MODE = 176
 CMD_COMPONENT_ARM_DISARM = 400
+CMD_GET_HOME_POSITION = 410
 CMD_INJECT_FAILURE = 420
 CMD_GET_MESSAGE_INTERVAL = 510
 CMD_SET_MESSAGE_INTERVAL = 511
 CMD_REQUEST_MESSAGE = 512
 CMD_REQUEST_AUTOPILOT_CAPABILITIES = 520
 MSG_AUTOPILOT_VERSION = 148
+MSG_HOME_POSITION = 242
 FAILURE_UNIT_SYSTEM_MOTOR = 101
 FAILURE_TYPE_OK = 0
 FAILURE_TYPE_OFF = 1
@@ -107,6 +112,8 @@ class CommandHandler:
             return CommandReply(ACCEPTED, [messages.message_interval(msg_id, interval)])
         if command == CMD_REQUEST_MESSAGE:
             return self._request(i, int(_finite(p[0])))
+        if command == CMD_GET_HOME_POSITION:
+            return self._request(i, MSG_HOME_POSITION)
         if command == CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             return CommandReply(ACCEPTED, [messages.autopilot_version(self.sysids[i])])
         if command == CMD_INJECT_FAILURE:

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from protocols.frames import FloatArray
+from protocols.geodesy import GeoPoint
 from protocols.mavlink_conventions import describe_ports, vehicle_ports
 from sitl_sim.attitude_control import AttitudeGains
 from sitl_sim.autopilot import AutopilotConfig
@@ -30,6 +31,7 @@ from sitl_sim.sim_config import (
     crash_timeline,
     grid_positions,
     parse_gcs_url,
+    parse_home,
     parse_sysids,
     read_signing_key,
     vehicles_from_scenario,
@@ -57,6 +59,7 @@ class _Vehicles:
     control_hz: int
     seed: int
     crashes: tuple[tuple[float, int], ...]
+    home: GeoPoint
 
 
 def build_config(args: argparse.Namespace) -> SimConfig:
@@ -79,7 +82,14 @@ def build_config(args: argparse.Namespace) -> SimConfig:
         gains=v.gains,
         positions_ned_m=v.positions_ned_m,
         yaw_rad=v.yaw_rad,
-        world=WorldConfig(physics_hz, control_hz, autopilot, args.position_noise_m, v.crashes),
+        world=WorldConfig(
+            physics_hz,
+            control_hz,
+            autopilot,
+            args.position_noise_m,
+            v.crashes,
+            v.home if args.home is None else parse_home(args.home),
+        ),
         net=NetConfig(
             bind_host=args.bind,
             base_port=args.base_port,
@@ -105,13 +115,14 @@ def _vehicles(args: argparse.Namespace) -> _Vehicles:
         check_count(args.drones)
         n = args.drones
         return _Vehicles(
-            VehicleParams(), AttitudeGains(), grid_positions(n), np.zeros(n), 500, 50, 0, ()
-        )
-    params, gains, positions, yaw, physics_hz, control_hz, seed, faults = vehicles_from_scenario(
-        args.scenario
+            VehicleParams(), AttitudeGains(), grid_positions(n), np.zeros(n), 500, 50, 0, (),
+            GeoPoint(),
+        )  # fmt: skip
+    params, gains, positions, yaw, physics_hz, control_hz, seed, faults, home = (
+        vehicles_from_scenario(args.scenario)
     )
     return _Vehicles(
-        params, gains, positions, yaw, physics_hz, control_hz, seed, crash_timeline(faults)
+        params, gains, positions, yaw, physics_hz, control_hz, seed, crash_timeline(faults), home
     )
 
 

@@ -11,7 +11,9 @@ SYS_STATUS carries the vehicle's receive counters so that a peer can watch them:
 ``errors_comm`` = every rejected frame, ``errors_count1`` = malformed (bad CRC, bad prefix,
 truncated), ``errors_count2`` = rejected setpoints (NaN/inf/out of range), ``errors_count3`` =
 signature failures, ``errors_count4`` = wrong target system; ``drop_rate_comm`` the rejected share
-(c%), ``load`` the simulator's busy share of wall time (d%). Counters saturate at 65535.
+(c%), ``load`` the simulator's busy share of wall time (d%). Counters saturate at 65535. Its battery
+fields are the vehicle's simulated battery (sitl_sim/battery.py): voltage (mV), current (cA),
+remaining (%); GPS and battery are among the sensors present, enabled and healthy.
 
 NAMED_VALUE_FLOAT ``agt_intime`` and ``agt_lag_ms`` (realtime only, to the GCS, once per status
 interval, per vehicle whose agent answered in it): the share of control ticks its agent answered
@@ -44,6 +46,7 @@ from protocols.mavlink_conventions import (
     MODE_OFFBOARD,
 )
 from sitl_sim.autopilot import Autopilot, Mode
+from sitl_sim.battery import Battery
 from sitl_sim.setpoint import quat_from_euler
 from sitl_sim.world import Snapshot, World
 
@@ -61,6 +64,8 @@ _SENSORS = (
     | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
     | mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
     | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    | mavlink.MAV_SYS_STATUS_SENSOR_GPS
+    | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY
 )
 CAPABILITIES = (
     mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
@@ -115,9 +120,12 @@ def heartbeat(ap: Autopilot, i: int) -> Any:
     )
 
 
-def sys_status(ap: Autopilot, i: int, counters: RxCounters, load: float) -> Any:
-    """SYS_STATUS of vehicle ``i`` with its receive counters; ``load`` is a 0..1 busy share.
-    Absent subsystems (geofence) are reported healthy, as PX4 does."""
+def sys_status(
+    ap: Autopilot, i: int, counters: RxCounters, load: float, battery: Battery | None = None
+) -> Any:
+    """SYS_STATUS of vehicle ``i`` with its receive counters and its battery (None: unknown);
+    ``load`` is a 0..1 busy share. Absent subsystems (geofence) are reported healthy, as PX4
+    does."""
     health = _SENSORS | mavlink.MAV_SYS_STATUS_GEOFENCE
     if not ap.motor_ok[:, i].all() or ap.crashed[i]:
         health &= ~mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
@@ -128,9 +136,7 @@ def sys_status(ap: Autopilot, i: int, counters: RxCounters, load: float) -> Any:
         _SENSORS,
         health,
         min(1000, round(1000 * load)),
-        _U16,
-        -1,
-        -1,
+        *_battery_fields(battery, i),
         min(drop, 10_000),
         min(counters.rejected, _U16),
         min(counters.malformed, _U16),
@@ -138,6 +144,15 @@ def sys_status(ap: Autopilot, i: int, counters: RxCounters, load: float) -> Any:
         min(counters.signature_rejected, _U16),
         min(counters.wrong_target, _U16),
     )
+
+
+def _battery_fields(battery: Battery | None, i: int) -> tuple[int, int, int]:
+    """SYS_STATUS's voltage (mV), current (cA) and remaining (%) of vehicle ``i``."""
+    if battery is None:
+        return _U16, -1, -1
+    voltage_v, current_a, remaining = battery.reading(i)
+    voltage_mv = min(_U16 - 1, max(0, round(1000.0 * voltage_v)))
+    return voltage_mv, min(32767, max(0, round(100.0 * current_a))), round(100.0 * remaining)
 
 
 def attitude(snap: Snapshot, i: int) -> Any:

@@ -26,11 +26,12 @@ from typing import Any
 import numpy as np
 
 from protocols.frames import FloatArray
-from sitl_sim import messages
+from sitl_sim import map_telemetry, messages
 from sitl_sim.autopilot import Severity, VehicleEvent
 from sitl_sim.commands import CommandHandler
 from sitl_sim.dispatch import Dispatcher, LinkSide
 from sitl_sim.lockstep import LockstepBarrier
+from sitl_sim.map_telemetry import MapFix
 from sitl_sim.network import Network
 from sitl_sim.pacing import Pacer, RateMeter
 from sitl_sim.sim_config import ClockConfig
@@ -38,7 +39,11 @@ from sitl_sim.streams import (
     ACTUATOR_OUTPUT_STATUS,
     ATTITUDE,
     ATTITUDE_TARGET,
+    EXTENDED_SYS_STATE,
+    GLOBAL_POSITION_INT,
+    GPS_RAW_INT,
     HEARTBEAT,
+    HOME_POSITION,
     LOCAL_POSITION_NED,
     SYS_STATUS,
     StreamTable,
@@ -107,10 +112,11 @@ class SimServer:
             world, network.sysids, tunables, self.commands, self.agent, self.gcs,
             self.barrier, self.report, self._new_peer, self.answers,
         )  # fmt: skip
+        home = world.config.home
         self._builders: dict[int, Callable[[int], Any]] = {
             HEARTBEAT: lambda i: messages.heartbeat(world.autopilot, i),
             SYS_STATUS: lambda i: messages.sys_status(
-                world.autopilot, i, self.dispatch.counters[i], self._load
+                world.autopilot, i, self.dispatch.counters[i], self._load, world.battery
             ),
             ATTITUDE: lambda i: messages.attitude(self._snapshot, i),
             LOCAL_POSITION_NED: lambda i: messages.local_position_ned(self._snapshot, i),
@@ -118,10 +124,21 @@ class SimServer:
             ACTUATOR_OUTPUT_STATUS: lambda i: messages.actuator_output_status(
                 messages.time_usec(world), self._rotor_forces()[:, i]
             ),
+            GLOBAL_POSITION_INT: lambda i: map_telemetry.global_position_int(
+                self._snapshot, self._map_fix(), home, i
+            ),
+            GPS_RAW_INT: lambda i: map_telemetry.gps_raw_int(
+                self._snapshot, self._map_fix(), world.config.position_noise_m, i
+            ),
+            HOME_POSITION: lambda i: map_telemetry.home_position(home, messages.time_usec(world)),
+            EXTENDED_SYS_STATE: lambda i: map_telemetry.extended_sys_state(
+                world.autopilot, self._snapshot, i
+            ),
         }
         self._forces_tick = -1
         self._forces = np.zeros((4, n))
         self._snapshot: Snapshot = world.snapshot()
+        self._fix: MapFix | None = None
         self._stopped = False
         self._load = 0.0
         self._idle_s = 0.0
@@ -345,6 +362,12 @@ class SimServer:
             self._forces = messages.rotor_forces_n(self.world)
             self._forces_tick = self.world.tick
         return self._forces
+
+    def _map_fix(self) -> MapFix:
+        """Every vehicle's geodetic position at the current snapshot, converted once per tick."""
+        if self._fix is None or self._fix.tick != self._snapshot.tick:
+            self._fix = MapFix(self.world.config.home, self._snapshot)
+        return self._fix
 
     def _new_peer(self, i: int) -> None:
         """A new agent address: give it the heartbeat and the current tick's state now."""

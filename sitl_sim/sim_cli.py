@@ -43,7 +43,13 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
         "--scenario",
         type=Path,
         metavar="FILE",
-        help="scenario file: initial positions, vehicle, gains, rates, seed, crashes",
+        help="scenario file: initial positions, vehicle, gains, rates, seed, crashes, home",
+    )
+    p.add_argument(
+        "--home",
+        metavar="LAT,LON,ALT",
+        help="where the NED origin is on the map: WGS-84 degrees, metres above sea level "
+        "(default: the scenario's [home], else PX4 SITL's 47.397742,8.545594,488)",
     )
     p.add_argument(
         "--clock",

@@ -17,6 +17,7 @@ import numpy as np
 
 from protocols.faults import Crash
 from protocols.frames import FloatArray
+from protocols.geodesy import GeoPoint
 from protocols.mavlink_conventions import (
     DEFAULT_GCS_PORT,
     MAX_VEHICLES,
@@ -24,7 +25,8 @@ from protocols.mavlink_conventions import (
     vehicle_ports,
 )
 from protocols.mavlink_signing import SigningKeyError, load_signing_key
-from protocols.scenario import ScenarioError, load_scenario
+from protocols.scenario import HOME_BOUNDS, ScenarioError, load_scenario
+from protocols.scenario_schema import check_number
 from sitl_sim.attitude_control import AttitudeGains
 from sitl_sim.config import attitude_gains, vehicle_params
 from sitl_sim.streams import AGENT_RATES_HZ, GCS_RATES_HZ
@@ -99,8 +101,11 @@ def grid_positions(n: int, spacing_m: float = GRID_SPACING_M) -> FloatArray:
 
 def vehicles_from_scenario(
     path: str | Path,
-) -> tuple[VehicleParams, AttitudeGains, FloatArray, FloatArray, int, int, int, list[Crash]]:
-    """(params, gains, positions (N, 3), yaw (N,) rad, physics Hz, control Hz, seed, crashes)."""
+) -> tuple[
+    VehicleParams, AttitudeGains, FloatArray, FloatArray, int, int, int, list[Crash], GeoPoint
+]:
+    """(params, gains, positions (N, 3), yaw (N,) rad, physics Hz, control Hz, seed, crashes,
+    home)."""
     try:
         scenario = load_scenario(path)
     except ScenarioError as exc:
@@ -116,7 +121,26 @@ def vehicles_from_scenario(
         scenario.rates.control_hz,
         scenario.seed,
         crashes,
+        scenario.home,
     )
+
+
+def parse_home(text: str) -> GeoPoint:
+    """``--home LAT,LON,ALT`` (degrees, degrees, m) -> a GeoPoint within the scenario's bounds."""
+    parts = text.split(",")
+    if len(parts) != 3:
+        raise SimConfigError(f"--home {text!r}: expected LAT,LON,ALT (e.g. 47.3977,8.5456,488)")
+    values: list[float] = []
+    for name, part in zip(("lat_deg", "lon_deg", "alt_m"), parts, strict=True):
+        try:
+            number = float(part)
+        except ValueError:
+            raise SimConfigError(f"--home {text!r}: {part.strip()!r} is not a number") from None
+        try:
+            values.append(check_number(number, "--home", name, **HOME_BOUNDS[name]))
+        except ScenarioError as exc:
+            raise SimConfigError(str(exc)) from None
+    return GeoPoint(*values)
 
 
 def check_count(n: int) -> None:

@@ -2,13 +2,17 @@
 
 Each link of each vehicle (its agent link and its share of the GCS link) streams HEARTBEAT,
 SYS_STATUS, ATTITUDE, LOCAL_POSITION_NED, ATTITUDE_TARGET and ACTUATOR_OUTPUT_STATUS (the four
-rotor forces, N; protocols/mavlink_conventions.py) at its own rates, changed by
-MAV_CMD_SET_MESSAGE_INTERVAL (interval in µs; 0 = the default rate, -1 = off). Telemetry is sent
-at control ticks, so the highest rate is the control rate: a shorter interval is accepted and
-capped. A rate that does not divide the control rate is met on average (the due time accumulates
-in fractional ticks). ACTUATOR_OUTPUT_STATUS is off by default on an agent link (an agent may
-ask for it) and goes to the GCS at the state rate, so that a ground station can rebuild thrust
-and moments.
+rotor forces, N; protocols/mavlink_conventions.py), and the map's messages (GLOBAL_POSITION_INT,
+GPS_RAW_INT, HOME_POSITION, EXTENDED_SYS_STATE; sitl_sim/map_telemetry.py) at its own rates,
+changed by MAV_CMD_SET_MESSAGE_INTERVAL (interval in µs; 0 = the default rate, -1 = off).
+Telemetry is sent at control ticks, so the highest rate is the control rate: a shorter interval
+is accepted and capped. A rate that does not divide the control rate is met on average (the due
+time accumulates in fractional ticks). ACTUATOR_OUTPUT_STATUS is off by default on an agent link
+(an agent may ask for it) and goes to the GCS at the state rate, so that a ground station can
+rebuild thrust and moments. The map's messages go to the GCS only by default, slowly (5 Hz
+global position, 1 Hz the rest: at 100 vehicles 800 messages a second), and are off on agent
+links (an agent may ask). Each map message starts at its own phase of its interval
+(:data:`PHASE`), so that the whole fleet's 1 Hz messages do not all fall on one tick.
 
 Links that keep the default rates share one :class:`StreamSchedule`; :class:`StreamTable` gives a
 link its own copy on its first change (copy on write), so the common case costs one schedule
@@ -22,9 +26,13 @@ from collections.abc import Mapping
 
 HEARTBEAT = 0
 SYS_STATUS = 1
+GPS_RAW_INT = 24
 ATTITUDE = 30
 LOCAL_POSITION_NED = 32
+GLOBAL_POSITION_INT = 33
 ATTITUDE_TARGET = 83
+HOME_POSITION = 242
+EXTENDED_SYS_STATE = 245
 ACTUATOR_OUTPUT_STATUS = 375
 
 #: Default rates (Hz) on an agent link (onboard computer) and to the ground station.
@@ -35,6 +43,10 @@ AGENT_RATES_HZ: Mapping[int, float] = {
     LOCAL_POSITION_NED: 50.0,
     ATTITUDE_TARGET: 10.0,
     ACTUATOR_OUTPUT_STATUS: 0.0,
+    GLOBAL_POSITION_INT: 0.0,
+    GPS_RAW_INT: 0.0,
+    HOME_POSITION: 0.0,
+    EXTENDED_SYS_STATE: 0.0,
 }
 GCS_RATES_HZ: Mapping[int, float] = {
     HEARTBEAT: 1.0,
@@ -43,6 +55,17 @@ GCS_RATES_HZ: Mapping[int, float] = {
     LOCAL_POSITION_NED: 10.0,
     ATTITUDE_TARGET: 2.0,
     ACTUATOR_OUTPUT_STATUS: 10.0,
+    GLOBAL_POSITION_INT: 5.0,
+    GPS_RAW_INT: 1.0,
+    HOME_POSITION: 1.0,
+    EXTENDED_SYS_STATE: 1.0,
+}
+#: Where in its interval (a fraction) a message is first due; the others start at tick 0.
+PHASE: Mapping[int, float] = {
+    GLOBAL_POSITION_INT: 0.5,
+    GPS_RAW_INT: 0.25,
+    HOME_POSITION: 0.5,
+    EXTENDED_SYS_STATE: 0.75,
 }
 #: The messages whose default rate is the link's state rate (``--agent-rate-hz``,
 #: ``--gcs-rate-hz``): the vehicle state on both links, and the rotor outputs to the GCS.
@@ -117,7 +140,7 @@ class StreamSchedule:
             return
         interval = max(1.0, self.control_hz / rate_hz)
         self._interval_ticks[msg_id] = interval
-        current = self._next_tick.get(msg_id, 0.0)
+        current = self._next_tick.get(msg_id, math.floor(PHASE.get(msg_id, 0.0) * interval))
         self._next_tick[msg_id] = 0.0 if math.isinf(current) else current
 
 

@@ -8,6 +8,10 @@ motors are stopped, and the vectorised 6-DOF dynamics with ground contact advanc
 the three in one fused call, with the same arithmetic. Then the autopilots update (failsafes,
 touchdowns, crashes) and scheduled crashes (a scenario's fault timeline) fire.
 
+Each control period also drains each vehicle's battery by the current its rotors drew
+(:mod:`sitl_sim.battery`, reported in SYS_STATUS). ``config.home`` places the NED origin on the
+map (protocols/geodesy.py), for the telemetry only: the world itself is flat.
+
 Time is the control tick ``k``: ``t_s = k / control_hz``. The only randomness is the optional
 position noise of the telemetry, drawn from the injected generator every tick for all vehicles,
 so a seed fixes a run.
@@ -20,8 +24,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from protocols.frames import FloatArray
+from protocols.geodesy import GeoPoint
 from sitl_sim.attitude_control import euler_from_quat_batch
 from sitl_sim.autopilot import Autopilot, AutopilotConfig, VehicleEvent
+from sitl_sim.battery import Battery, BatteryConfig
 from sitl_sim.dynamics import POS, QUAT, RATES, VEL, initial_state
 from sitl_sim.guidance import Guidance
 from sitl_sim.physics_kernel import PhysicsKernel
@@ -32,13 +38,16 @@ from sitl_sim.vehicle_params import VehicleParams
 @dataclass(frozen=True)
 class WorldConfig:
     """Rates (Hz; physics a multiple of control), autopilot defaults, telemetry position noise
-    (standard deviation, m) and scheduled crashes ``(t_s, vehicle index)``."""
+    (standard deviation, m), scheduled crashes ``(t_s, vehicle index)``, where the NED origin is
+    on the map, and the batteries."""
 
     physics_hz: int = 500
     control_hz: int = 50
     autopilot: AutopilotConfig = field(default_factory=AutopilotConfig)
     position_noise_m: float = 0.0
     crashes: tuple[tuple[float, int], ...] = ()
+    home: GeoPoint = field(default_factory=GeoPoint)
+    battery: BatteryConfig = field(default_factory=BatteryConfig)
 
     def validate(self) -> WorldConfig:
         """Raise ValueError naming the field unless the rates and noise are usable."""
@@ -94,6 +103,7 @@ class World:
         self.rotor_speed_rad_s = np.zeros((4, self.n))
         #: the physics sub-step (inner loop + RK4 + contact), fused
         self.kernel = PhysicsKernel(params, self.n, self.dt_physics_s, gains)
+        self.battery = Battery(self.n, config.battery)
         self._crashes = sorted(config.crashes)
         self.pending_events: list[VehicleEvent] = self.autopilot.update(
             0.0, self.state[2], np.zeros(self.n)
@@ -128,6 +138,8 @@ class World:
                 np.maximum(impact, touchdown, out=impact)
         self.rotor_speed_rad_s = rotor
         self.state = state
+        thrust_n = self.params.thrust_coeff * np.einsum("rn,rn->n", rotor, rotor)
+        self.battery.drain(ap.armed, thrust_n, 1.0 / self.config.control_hz)
         self.tick += 1
         events, self.pending_events = self.pending_events, []
         events += ap.update(self.t_s, state[2], impact)

@@ -190,6 +190,9 @@ def test_gcs_flies_a_formation_change_refuses_the_fence_and_writes_the_report(
     for png in ("paths.png", "descriptors.png", "controls.png"):
         assert (report / png).stat().st_size > 1000
     assert json.loads((report / "trajectory.json").read_text())["seq"] == 1
+    # the report's Rerun recording (the [view] extra, installed by make venv; tests/test_view.py
+    # reads one back entity by entity)
+    assert (report / "flight.rrd").read_bytes()[:4] == b"RRF2"
 
 
 def test_operator_replies_say_how_long_the_ground_station_took() -> None:

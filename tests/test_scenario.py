@@ -18,6 +18,7 @@ from protocols.scenario import (
     Crash,
     Dropout,
     GainsConfig,
+    GeoPoint,
     LinkCut,
     LinkDelay,
     PacketLoss,
@@ -131,6 +132,13 @@ def test_minimal_scenario_defaults_and_conversions() -> None:
     a, a_dot, _ = traj.evaluate(10.0)
     np.testing.assert_allclose(a, [5, 1, -2, 0, 0, math.pi / 2, 9, 1, 0.25], atol=1e-12)
     np.testing.assert_allclose(a_dot, [0.5, 0, 0, 0, 0, math.radians(9), 0, 0, 0], atol=1e-12)
+
+
+def test_home_default_and_given() -> None:
+    assert parse_scenario(_base(), "x.toml").home == GeoPoint(47.397742, 8.545594, 488.0)
+    data = _base()
+    data["home"] = {"lat_deg": -33.86, "lon_deg": 151.21, "alt_m": 3}
+    assert parse_scenario(data, "x.toml").home == GeoPoint(-33.86, 151.21, 3.0)
 
 
 def test_kd_defaults_follow_a_given_kp() -> None:
@@ -415,6 +423,12 @@ BAD = [
         id="partition empty",
     ),
     pytest.param(_set("faults", [3]), "faults[0]: must be a table", id="fault scalar"),
+    pytest.param(_set("home.lat_deg", 95.0), "home.lat_deg: must be < 90, got 95.0", id="home lat"),
+    pytest.param(
+        _set("home.lon_deg", -181), "home.lon_deg: must be >= -180, got -181", id="home lon"
+    ),
+    pytest.param(_set("home.alt_m", "high"), "home.alt_m: must be a number", id="home alt"),
+    pytest.param(_set("home.lat", 1.0), "home.lat: unknown key (did you mean", id="home typo"),
 ]
 
 

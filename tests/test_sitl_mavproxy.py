@@ -1,5 +1,6 @@
 """MAVProxy, a real ground station (headless, commands on stdin), on the simulator's GCS port:
-it detects both vehicles, fetches parameters, and ``arm throttle`` arms vehicle 1.
+it detects both vehicles, fetches parameters, ``arm throttle`` arms vehicle 1, and its ``status``
+shows each vehicle's GLOBAL_POSITION_INT on the map (around PX4 SITL's default home).
 
 MAVProxy is part of the test environment (``make venv`` installs it): without it this test fails
 and says how to install it, instead of skipping and leaving the real-peer check silently undone.
@@ -15,8 +16,10 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from protocols.geodesy import GeoPoint, ned_to_geodetic
 from tests.sitl_client import ENV, HOST, MavPeer, free_udp_port, sim_process
 
 pytestmark = pytest.mark.timeout(120)
@@ -89,6 +92,13 @@ def test_mavproxy_sees_the_vehicles_and_arms_one(tmp_path: Path) -> None:
         proc.stdin.flush()
         text = _wait_output(log, "COMPONENT_ARM_DISARM: ACCEPTED", "ARMED")
         assert "DENIED" not in text and "UNSUPPORTED" not in text
+        # vehicle 1 sits on home, vehicle 2 2 m east of it (the --drones grid)
+        home_lat, home_lon = ned_to_geodetic(GeoPoint(), np.zeros((1, 3)))[:2]
+        east_lon = ned_to_geodetic(GeoPoint(), np.array([[0.0, 2.0, 0.0]]))[1]
+        for sysid, lon in ((1, home_lon[0]), (2, east_lon[0])):
+            proc.stdin.write(f"vehicle {sysid}\nstatus GLOBAL_POSITION_INT\n".encode())
+            proc.stdin.flush()
+            _wait_output(log, f"lat : {round(home_lat[0] * 1e7)}, lon : {round(lon * 1e7)}")
         with MavPeer(1, 191, (HOST, sim.base_port)) as agent:  # the vehicle's own view
             agent.connect()
             assert agent.wait_for("HEARTBEAT").base_mode & 128

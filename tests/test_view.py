@@ -1,0 +1,287 @@
+"""Rerun views: ``swarm simulate`` writes flight.rrd and Rerun's own reader finds in it the
+entities, time range and values of flight.tlog and events.jsonl; the live view of a tlog being
+written sends the same samples; ``swarm replay`` serves the web viewer (HTTP 200); without Rerun
+the view commands say how to install it, and the rest of the tool never imports it."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pytest
+from agent_harness import write_scenario
+from sitl_client import ENV, ROOT, swarm_command
+
+from gcs import recording as recording_module
+from gcs.cli import main
+from gcs.events import read_events
+from gcs.simulate import simulate
+from gcs.tlog import read_tlog
+from protocols.scenario import load_scenario
+
+pytestmark = pytest.mark.timeout(120)
+SQUARE = [(0.0, 0.0, 0.0), (0.0, 3.0, 0.0), (4.0, 0.0, 0.0), (4.0, 3.0, 0.0)]
+ENTITIES = {
+    "/swarm/drones", "/swarm/trails", "/swarm/estimates", "/swarm/formation/commanded",
+    "/swarm/formation/actual", "/events", "/descriptors/centre_n/commanded",
+    "/descriptors/yaw/actual", "/separation/min_m", "/consensus/error_m", "/links/neighbours_mean",
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 6-s flight of four drones, flown by ``swarm simulate``'s code in this process."""
+    tmp = tmp_path_factory.mktemp("view")
+    path = write_scenario(
+        tmp / "hover.toml", SQUARE, centre=(2.0, 1.5, -2.0), spread=(2.0, 1.5, 0.0), duration_s=6.0
+    )
+    out = tmp / "report"
+    result = simulate(load_scenario(path), out, plots=False)
+    assert out / "flight.rrd" in result.files
+    return out
+
+
+def _rows(rrd: Path) -> dict[str, list[dict[str, Any]]]:
+    """Every row of every temporal chunk of ``rrd`` by entity path, read with Rerun's reader;
+    ``sim_time`` in seconds."""
+    from rerun.chunk import RrdReader
+
+    out: dict[str, list[dict[str, Any]]] = {}
+    for chunk in RrdReader(rrd).stream():
+        if chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        times = batch.column("sim_time").cast(pa.int64()).to_numpy() / 1e9
+        cols = {name: batch.column(name).to_pylist() for name in batch.schema.names
+                if ":" in name}  # fmt: skip
+        for k, t in enumerate(times):
+            out.setdefault(chunk.entity_path, []).append(
+                {"t_s": float(t), **{c: v[k] for c, v in cols.items()}}
+            )
+    for rows in out.values():
+        rows.sort(key=lambda r: r["t_s"])
+    return out
+
+
+def _drone_positions(rows: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray]:
+    """Times (T,) and positions (T, N, 3) of ``/swarm/drones`` (all drones heard in each row)."""
+    t = np.array([r["t_s"] for r in rows])
+    pos = np.array([r["Points3D:positions"] for r in rows], dtype=float)
+    return t, pos
+
+
+def test_recording_matches_the_tlog_and_events(report: Path) -> None:
+    rrd = report / "flight.rrd"
+    assert rrd.read_bytes()[:4] == b"RRF2"
+    rows = _rows(rrd)
+    assert set(rows) >= ENTITIES
+    track = read_tlog(report / "flight.tlog")
+    t_log = track.vehicles[1].t_s
+    t, pos = _drone_positions(rows["/swarm/drones"])
+    np.testing.assert_allclose(t, t_log, atol=1e-6)  # the tlog's samples, first to last
+    for sysid, v in track.vehicles.items():
+        np.testing.assert_allclose(pos[:, sysid - 1], v.position_ned_m, atol=1e-5)  # float32
+    labels = rows["/swarm/drones"][-1]["Points3D:labels"]
+    assert labels == ["1", "2", "3", "4"]
+    events = read_events(report / "events.jsonl")
+    texts = [r["TextLog:text"][0] for r in rows["/events"]]
+    assert len(texts) == len(events) and "drone 2 armed" in texts
+    # the commanded ellipsoid is the plan's centre and spreads; the true one nearby once flying
+    plan = json.loads((report / "trajectory.json").read_text())
+    assert plan["seq"] == 0
+    last = rows["/swarm/formation/commanded"][-1]
+    np.testing.assert_allclose(last["Ellipsoids3D:centers"], [[2.0, 1.5, -2.0]], atol=1e-5)
+    np.testing.assert_allclose(last["Ellipsoids3D:half_sizes"], [[2.0, 1.5, 0.0]], atol=1e-5)
+    actual = rows["/swarm/formation/actual"][-1]["Ellipsoids3D:centers"][0]
+    assert np.linalg.norm(np.subtract(actual, [2.0, 1.5, -2.0])) < 1.0
+    separation = [r["Scalars:scalars"][0] for r in rows["/separation/min_m"]]
+    assert min(separation) > 1.0
+    estimates = rows["/swarm/estimates"]
+    assert len(estimates[-1]["Points3D:positions"]) == 4  # every agent's centre estimate
+
+
+def test_live_view_of_a_growing_tlog_sends_the_same_samples(report: Path, tmp_path: Path) -> None:
+    from gcs.live_view import LiveView
+    from gcs.rerun_log import recording
+
+    live = tmp_path / "live"
+    live.mkdir()
+    for name in ("events.jsonl", "trajectory.json"):
+        (live / name).write_bytes((report / name).read_bytes())
+    data = (report / "flight.tlog").read_bytes()
+    rec = recording("live-test")
+    rec.save(str(tmp_path / "live.rrd"))
+    view = LiveView(live, rec)
+    with (live / "flight.tlog").open("wb") as tlog:
+        for cut in (len(data) // 3 + 7, 2 * len(data) // 3 + 1, len(data)):  # cuts mid-record
+            tlog.write(data[tlog.tell() : cut])
+            tlog.flush()
+            view.poll()
+    rec.flush()
+    rec.disconnect()
+    t_live, pos_live = _drone_positions(_rows(tmp_path / "live.rrd")["/swarm/drones"])
+    t_file, pos_file = _drone_positions(_rows(report / "flight.rrd")["/swarm/drones"])
+    assert t_live.size == t_file.size - 1  # the last sample waits for the next one
+    np.testing.assert_allclose(t_live, t_file[:-1])
+    np.testing.assert_allclose(pos_live, pos_file[:-1])
+
+
+def _free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_replay_serves_the_web_viewer(report: Path, tmp_path: Path) -> None:
+    web, grpc = _free_tcp_port(), _free_tcp_port()
+    out = tmp_path / "replay.out"
+    with out.open("wb") as f:
+        proc = subprocess.Popen(
+            swarm_command("replay", str(report), "--web-port", str(web), "--grpc-port", str(grpc),
+                          "--duration-s", "30"),
+            stdout=f, stderr=subprocess.STDOUT, env=ENV, cwd=ROOT,
+        )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 30
+        while "web viewer at" not in out.read_text() and time.monotonic() < deadline:
+            assert proc.poll() is None, out.read_text()
+            time.sleep(0.1)
+        url = out.read_text().split("web viewer at ", 1)[1].split()[0]
+        assert url.startswith(f"http://127.0.0.1:{web}/?url=rerun+http://127.0.0.1:{grpc}/")
+        with urllib.request.urlopen(url, timeout=10) as page:
+            assert page.status == 200 and b"<html" in page.read().lower()
+    finally:
+        proc.terminate()
+        proc.wait(15)
+
+
+def test_view_help(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["view", "--help"])
+    assert exit_info.value.code == 0
+    text = capsys.readouterr().out
+    assert "report folder" in text and "--web-port" in text and "quadswarm[view]" in text
+
+
+@pytest.mark.parametrize("command", ["view", "replay"])
+def test_without_rerun_the_view_commands_say_how_to_install_it(
+    command: str,
+    report: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        recording_module.importlib.util,
+        "find_spec",
+        lambda name, *a: None if name == "rerun" else real(name, *a),
+    )
+    assert main([command, str(report)]) == 2
+    err = capsys.readouterr().err
+    assert f"swarm {command}: the Rerun viewer is not installed" in err
+    assert "pip install 'quadswarm[view]'" in err
+    assert recording_module.write_recording(report) is None  # the reports go on without it
+
+
+def test_nothing_else_imports_rerun() -> None:
+    code = (
+        "import sys, gcs.cli, gcs.simulate, gcs.ground_station, gcs.gcs_report, gcs.view_cli, "
+        "sitl_sim.server, drone_agent.agent_cli; "
+        "sys.exit(1 if any(m == 'rerun' or m.startswith('rerun.') for m in sys.modules) else 0)"
+    )
+    assert subprocess.run([sys.executable, "-c", code], env=ENV, cwd=ROOT).returncode == 0
+
+
+@pytest.mark.slow
+def test_swarm_up_view_serves_the_live_viewer(tmp_path: Path) -> None:
+    """``swarm up --view`` on free ports: it prints the viewer's URL, the page is served while
+    the swarm flies, and the viewer ends with the run."""
+    from sitl_client import free_port_block, free_udp_port
+
+    scenario = write_scenario(
+        tmp_path / "hover.toml", SQUARE, centre=(2.0, 1.5, -2.0), spread=(2.0, 1.5, 0.0),
+        duration_s=8.0,
+    )  # fmt: skip
+    web, grpc = _free_tcp_port(), _free_tcp_port()
+    out = tmp_path / "up.out"
+    report = tmp_path / "report"
+    with out.open("wb") as f:
+        proc = subprocess.Popen(
+            swarm_command("up", str(scenario), "--report", str(report), "--base-port",
+                          str(free_port_block(4)), "--gcs-port", str(free_udp_port()), "--view",
+                          "--view-web-port", str(web), "--view-grpc-port", str(grpc)),
+            stdout=f, stderr=subprocess.STDOUT, env=ENV, cwd=ROOT,
+        )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while "live view (Rerun) at" not in out.read_text() and time.monotonic() < deadline:
+            assert proc.poll() is None, out.read_text()
+            time.sleep(0.2)
+        url = out.read_text().split("live view (Rerun) at ", 1)[1].split()[0]
+        with urllib.request.urlopen(url, timeout=10) as page:
+            assert page.status == 200
+        assert proc.wait(120) == 0, out.read_text()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    assert "swarm up: finished" in out.read_text()
+    assert (report / "flight.rrd").exists()
+    assert "swarm view: following" in (report / "logs" / "view.log").read_text()
+    with socket.socket() as s:  # the viewer has ended: its port is free again
+        s.bind(("127.0.0.1", web))
+
+
+# -- the scene's arithmetic, without Rerun's I/O ---------------------------------------------
+@pytest.mark.parametrize("euler", [(0.0, 0.0, 1.2), (0.3, -0.2, 2.9), (-0.5, 0.4, -1.0)])
+def test_ellipsoid_quaternion_is_the_descriptor_orientation(euler: tuple[float, ...]) -> None:
+    from gcs.rerun_log import quaternions_xyzw
+    from protocols.frames import rot_zyx
+
+    x, y, z, w = quaternions_xyzw(np.array([euler]))[0]
+    rot = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])  # fmt: skip
+    roll, pitch, yaw = euler
+    np.testing.assert_allclose(rot, rot_zyx(yaw, pitch, roll), atol=1e-12)
+
+
+def test_min_separation_and_modes() -> None:
+    from gcs.view_scene import Mode, event_lines, min_separation, modes
+
+    rng = np.random.default_rng(3)
+    pos = rng.normal(size=(20, 5, 3)) * 3
+    air = rng.random((20, 5)) > 0.3
+    got = min_separation(pos, air)
+    for k in range(20):
+        d = [np.linalg.norm(pos[k, i] - pos[k, j]) for i in range(5) for j in range(i + 1, 5)
+             if air[k, i] and air[k, j]]  # fmt: skip
+        assert (np.isnan(got[k]) and not d) or got[k] == pytest.approx(min(d))
+    t = np.arange(10.0)
+    record = type("R", (), {})()
+    record.t_s, record.airborne, record.n_drones = t, np.ones((10, 2), dtype=bool), 2
+    record.lost_at_s = {1: 6.0}
+    events = [
+        {"t_s": 4.0, "kind": "failsafe", "drone": 0},
+        {"t_s": 6.0, "kind": "crash", "drone": 1},
+    ]
+    mode = modes(record, events)
+    assert mode[3].tolist() == [Mode.FLYING, Mode.FLYING]
+    assert mode[5].tolist() == [Mode.FAILSAFE, Mode.FLYING]
+    assert mode[7].tolist() == [Mode.FAILSAFE, Mode.LOST]
+    lines = event_lines(events)
+    assert [(e.level, e.text) for e in lines] == [
+        ("WARN", "drone 0 failsafe"),
+        ("ERROR", "drone 1 crash"),
+    ]
