@@ -104,6 +104,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "station publishes one; its link faults are applied as drills",
     )
     p.add_argument(
+        "--wait-for-plan",
+        action="store_true",
+        help="take only gains, rates and faults from --scenario, not its plan: stay on the "
+        "ground until a ground station publishes one (an operator session, swarm up --drones)",
+    )
+    p.add_argument(
         "--no-arm", action="store_true", help="never arm: run the estimator on the ground only"
     )
     p.add_argument("--seed", type=int, default=0, help="random seed of the link-fault drills")
@@ -183,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
     if not comm_range > 0:
         raise AgentCliError("--comm-range-m must be positive")
     config = agent_config(scenario) if scenario else _default_config()
-    plan = scenario.trajectory() if scenario else None
+    plan = scenario.trajectory() if scenario and not args.wait_for_plan else None
     settings = LinkSettings(swarm_id=args.swarm_id, comm_range_m=comm_range)
     faults = LinkFaults()
     period_ms = round(config.consensus.dt_s * 1000)

@@ -45,6 +45,8 @@ COMMANDS: dict[str, tuple[frozenset[str], frozenset[str]]] = {
     "hold": (frozenset(), frozenset()),
     "land": (frozenset(), frozenset()),
     "status": (frozenset(), frozenset()),
+    # land if flying, then end the run and write the report (the ground station carries it out)
+    "shutdown": (frozenset(), frozenset()),
     # drills: stop every motor of vehicle drone; SIGKILL its agent; restart the ground station
     "crash": (frozenset({"drone"}), frozenset()),
     "dropout": (frozenset({"drone"}), frozenset()),
@@ -174,6 +176,8 @@ def plan_command(
     plan, args = current.trajectory, request.args
     duration = args.get("duration_s")
     goal = goal_of(plan, now_s)
+    if current.command == FlightCommand.GROUND and request.name not in ("takeoff", "hold"):
+        raise PlanRefused("the swarm is on the ground: take off first (swarm takeoff)")
     if request.name == "land":
         if current.command == FlightCommand.LAND:
             raise PlanRefused("the swarm is already landing")

@@ -1,4 +1,8 @@
-"""``swarm gcs``: run the ground station of a scenario until SIGTERM/SIGINT or its end time."""
+"""``swarm gcs``: run the ground station of a scenario until SIGTERM/SIGINT or its end time.
+
+With ``--session`` (``swarm up --drones N``): the first plan keeps the swarm on the ground, there
+is no end time, and SIGINT (or ``swarm shutdown``) lands the swarm before the run ends; a second
+SIGINT, or SIGTERM, ends it at once."""
 
 from __future__ import annotations
 
@@ -92,6 +96,20 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="continue a run after a restart: append to flight.tlog and events.jsonl and adopt "
         "the swarm's current plan",
     )
+    p.add_argument(
+        "--session",
+        action="store_true",
+        help="an operator session: the first plan keeps the swarm on the ground (GROUND) until "
+        "swarm takeoff; no end time: swarm shutdown or SIGINT lands the swarm, then ends the "
+        "run (a second SIGINT, or SIGTERM, ends it at once)",
+    )
+    p.add_argument(
+        "--shutdown-timeout-s",
+        type=float,
+        default=120.0,
+        metavar="S",
+        help="how long (wall s) a shutdown waits for the swarm to land (default %(default)s)",
+    )
     p.add_argument("--quiet", action="store_true", help="no status line")
 
 
@@ -134,6 +152,10 @@ def run(args: argparse.Namespace) -> int:
         raise GcsCliError("--gcs-port must be 1..65535")
     if not args.telemetry_hz > 0:
         raise GcsCliError("--telemetry-hz must be positive")
+    if not args.shutdown_timeout_s > 0:
+        raise GcsCliError("--shutdown-timeout-s must be positive")
+    if args.session and args.duration_s is not None:
+        raise GcsCliError("--duration-s: a session has no end time (it ends with swarm shutdown)")
     options = GcsOptions(
         scenario=scenario,
         report_dir=args.report,
@@ -146,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
         run_file=args.run_file,
         resume=args.resume,
         signing_key=key,
+        session=args.session,
+        shutdown_timeout_s=args.shutdown_timeout_s,
         envelope=Envelope(min_separation_m=scenario.safety.min_separation_m),
         on_line=None if args.quiet else lambda line: print(line, file=sys.stderr, flush=True),
     )
@@ -156,11 +180,20 @@ def run(args: argparse.Namespace) -> int:
     except Exception as exc:  # zenoh raises ZError with the reason
         raise GcsCliError(f"cannot start the ground station: {exc}") from None
 
+    interrupts: list[int] = []
+
     def stop(_sig: int, _frame: FrameType | None) -> None:
         station.stop()
 
+    def interrupt(_sig: int, _frame: FrameType | None) -> None:
+        interrupts.append(_sig)
+        if args.session and len(interrupts) == 1:
+            station.request_shutdown()  # land first
+        else:
+            station.stop()
+
     signal.signal(signal.SIGTERM, stop)
-    signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGINT, interrupt)
     with station:
         files = station.run()
     if station.restart_requested:

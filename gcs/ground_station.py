@@ -8,6 +8,12 @@ answers operator commands and drills on ``swarm/<sid>/command`` (:mod:`gcs.comma
 those two files (:mod:`gcs.gcs_report`). All times are simulated seconds (the vehicles'
 ``time_boot_ms``).
 
+Session (``swarm up --drones N``, ``session``): the first plan is the scenario's with GROUND, so
+the vehicles wait on the ground for ``swarm takeoff``, and the run has no end time. Shutdown
+(``swarm shutdown``, or :meth:`request_shutdown`: a session's SIGINT): a flying swarm gets the
+``land`` plan; once every vehicle still heard is disarmed on the ground, or after
+``shutdown_timeout_s`` wall seconds, the run ends and the report is written.
+
 Restart (the gcs-restart drill, under ``swarm up``): the station ends without a report and
 ``swarm up`` starts it again with ``resume``: it appends to both logs, its clock starts at the
 last logged event and it adopts the plan the agents fly (asking them for up to 10 s while they
@@ -19,6 +25,7 @@ FIFO channel drained by the loop. Use as a context manager; :meth:`stop` is sign
 
 from __future__ import annotations
 
+import math
 import select
 import time
 from collections import deque
@@ -29,10 +36,18 @@ from typing import Any
 
 import zenoh
 
+from drone_agent.flight_phase import AIRBORNE_ALTITUDE_M
 from drone_agent.transport_link import PlanServer
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
 from gcs.agent_timing import timing_metrics
-from gcs.commands import CommandError, Reply, encode_reply, parse_request, plan_command
+from gcs.commands import (
+    CommandError,
+    Reply,
+    Request,
+    encode_reply,
+    parse_request,
+    plan_command,
+)
 from gcs.events import EventLog, read_events
 from gcs.fault_timeline import TimedAction, timeline
 from gcs.gcs_drills import GcsDrills
@@ -45,13 +60,15 @@ from gcs.tlog import read_tlog
 from protocols.keys import SwarmKeys
 from protocols.scenario import Scenario
 from protocols.wire import WireError
-from protocols.wire_plan import PlanMessage, decode_plan
+from protocols.wire_plan import FlightCommand, PlanMessage, decode_plan
 from protocols.wire_status import decode_status
 from sitl_sim.config import vehicle_params
 
 _POLL_S = 0.02
 #: How long a restarted ground station asks the swarm for its current plan (s).
 RESUME_PLAN_WAIT_S = 10.0
+#: A vehicle silent this long (simulated s) is not waited for at shutdown (crashed, gone).
+SILENT_VEHICLE_S = 3.0
 
 
 @dataclass(frozen=True)
@@ -61,7 +78,9 @@ class GcsOptions:
     the swarm for its current plan at start; ``on_line``: gets the status line; ``run_file``: the
     agents' process ids written by ``swarm up`` (enables the dropout and gcs-restart drills);
     ``resume``: a restart: append to flight.tlog and events.jsonl instead of starting them;
-    ``signing_key``: sign the MAVLink commands sent to the vehicles (crash drills)."""
+    ``signing_key``: sign the MAVLink commands sent to the vehicles (crash drills); ``session``:
+    an operator session: the first plan says GROUND and there is no end time;
+    ``shutdown_timeout_s``: how long (wall s) a shutdown waits for the swarm to land."""
 
     scenario: Scenario
     report_dir: Path
@@ -78,6 +97,8 @@ class GcsOptions:
     run_file: Path | None = None
     resume: bool = False
     signing_key: bytes | None = None
+    session: bool = False
+    shutdown_timeout_s: float = 120.0
 
 
 class GroundStation:
@@ -88,6 +109,9 @@ class GroundStation:
         self._keys = SwarmKeys(options.swarm_id, 1.0)
         self._stop = False
         self.restart_requested = False
+        self._shutdown_asked = False
+        #: wall clock (monotonic s) the shutdown began, None before
+        self._shutdown_since: float | None = None
         #: a restarted station's clock starts where its events log ended, not at 0
         self._t_floor_s = (
             _last_event_time(options.report_dir / "events.jsonl") if options.resume else 0.0
@@ -125,7 +149,10 @@ class GroundStation:
             held = self._current_plan()  # before our own plan queryable exists
             self.plans = PlanServer(self.bus, options.swarm_id)
             self._closers.append(self.plans.close)
-            if held is None:
+            if held is None and options.session:
+                first = PlanMessage(options.scenario.trajectory(), FlightCommand.GROUND)
+                self._publish(first, "session: on the ground until swarm takeoff")
+            elif held is None:
                 self._publish(PlanMessage(options.scenario.trajectory()), "scenario")
             else:
                 self._publish(held, "restart: adopted the swarm's current plan")
@@ -169,6 +196,11 @@ class GroundStation:
         """Ask :meth:`run` to finish (safe from a signal handler)."""
         self._stop = True
 
+    def request_shutdown(self) -> None:
+        """Ask :meth:`run` to land the swarm if it flies, then finish (safe from a signal
+        handler; the loop carries it out)."""
+        self._shutdown_asked = True
+
     @property
     def now_s(self) -> float:
         """The newest simulated time (s) heard from a vehicle or an agent."""
@@ -208,7 +240,7 @@ class GroundStation:
 
     def run(self) -> list[Path]:
         """Run until :meth:`stop` or the end time; then write and return the report files."""
-        end_s = self._o.duration_s or self._o.scenario.duration_s
+        end_s = None if self._o.session else self._o.duration_s or self._o.scenario.duration_s
         # wall clock of the run's start: a restarted station's report covers the whole flight
         started = _run_started(self._o.report_dir / "events.jsonl") if self._o.resume else None
         wall0 = time.time() if started is None else started
@@ -220,7 +252,8 @@ class GroundStation:
             wall_clock_s=round(time.time(), 3),
         )
         next_line = time.monotonic() + 1.0
-        last_sample_s = end_s - 1.0 / self._o.telemetry_hz  # the simulator's last report
+        # the simulator's last report
+        last_sample_s = math.inf if end_s is None else end_s - 1.0 / self._o.telemetry_hz
         while not self._stop and self.now_s < last_sample_s:
             select.select([self.telemetry], [], [], _POLL_S)
             for text in self.telemetry.poll():
@@ -229,6 +262,10 @@ class GroundStation:
             self.drills.drain(self.now_s)
             self._scenario_faults()
             self._answer_commands()
+            if self._shutdown_asked and self._shutdown_since is None:
+                self._begin_shutdown(self.now_s, "interrupt")
+            if self._shutdown_since is not None and self._shutdown_over():
+                break
             if time.monotonic() >= next_line:
                 next_line += 1.0
                 if self._o.on_line is not None:
@@ -237,6 +274,8 @@ class GroundStation:
             self.events.record(self.now_s, "gcs_stopped", reason="restart", plan_seq=self.plan.seq)
             return []
         self.events.record(self.now_s, "run_end", plan_seq=self.plan.seq)
+        if end_s is None:  # a session ends now
+            end_s = self.now_s
         self.telemetry.close()
         n = self._o.scenario.n_drones
         report = self._o.report_dir
@@ -315,14 +354,12 @@ class GroundStation:
             return replace(reply, seq=self.plan.seq)
         if request.name == "gcs-restart":
             return self._restart(now)
-        try:
-            positions = self.watch.positions(self.telemetry.vehicles)
-            plan, when = plan_command(request, self.plan, now, self._o.envelope, positions)
-        except PlanRefused as exc:
-            reply = Reply(False, str(exc), self.plan.seq)
+        if request.name == "shutdown":
+            reply = self._begin_shutdown(now, "swarm shutdown")
+        elif self._shutdown_since is not None:
+            reply = Reply(False, "the swarm is shutting down", self.plan.seq)
         else:
-            self._publish(plan, request.name)
-            reply = Reply(True, f"plan {plan.seq}: {when}", plan.seq)
+            reply = self._plan_command(request, now)
         self.events.record(
             now,
             "command",
@@ -333,6 +370,64 @@ class GroundStation:
             seq=reply.seq,
         )
         return reply
+
+    def _plan_command(self, request: Request, now_s: float) -> Reply:
+        """A plan-changing command: publish the next plan, or say why not."""
+        try:
+            positions = self.watch.positions(self.telemetry.vehicles)
+            plan, when = plan_command(request, self.plan, now_s, self._o.envelope, positions)
+        except PlanRefused as exc:
+            return Reply(False, str(exc), self.plan.seq)
+        self._publish(plan, request.name)
+        return Reply(True, f"plan {plan.seq}: {when}", plan.seq)
+
+    def _begin_shutdown(self, now_s: float, why: str) -> Reply:
+        """Land the swarm if it flies (the ``land`` plan), then end the run once it is down
+        (:meth:`_shutdown_over`)."""
+        if self._shutdown_since is not None:
+            return Reply(False, "already shutting down", self.plan.seq)
+        self._shutdown_since = time.monotonic()
+        airborne = self.airborne_drones()
+        if self.plan.command == FlightCommand.FLY:
+            positions = self.watch.positions(self.telemetry.vehicles)
+            landing, when = plan_command(
+                Request("land", {}), self.plan, now_s, self._o.envelope, positions
+            )
+            self._publish(landing, f"shutdown ({why}): land first")
+            what = f"landing ({when}), then the run ends and the report is written"
+        elif airborne:
+            what = "the swarm is landing; then the run ends and the report is written"
+        else:
+            what = "the swarm is on the ground: the run ends and the report is written"
+        self.events.record(now_s, "shutdown", reason=why, airborne=airborne)
+        return Reply(True, what, self.plan.seq)
+
+    def airborne_drones(self) -> list[int]:
+        """Drones whose vehicle is armed or off the ground, among those still heard (a vehicle
+        silent for SILENT_VEHICLE_S, e.g. crashed, is not waited for)."""
+        now = self.now_s
+        return [
+            i
+            for i, v in sorted(self.telemetry.vehicles.items())
+            if now - v.t_s < SILENT_VEHICLE_S
+            and i not in self.watch.lost
+            and (
+                v.armed
+                or (v.position_ned_m is not None and -v.position_ned_m[2] > AIRBORNE_ALTITUDE_M)
+            )
+        ]
+
+    def _shutdown_over(self) -> bool:
+        """The shutdown's landing is over: every vehicle heard is down, or the time is up."""
+        assert self._shutdown_since is not None
+        airborne = self.airborne_drones()
+        if not airborne:
+            self.events.record(self.now_s, "shutdown_landed")
+            return True
+        if time.monotonic() - self._shutdown_since > self._o.shutdown_timeout_s:
+            self.events.record(self.now_s, "shutdown_timeout", airborne=airborne)
+            return True
+        return False
 
     def _restart(self, now_s: float) -> Reply:
         """The gcs-restart drill: end the run without a report, exit code RESTART_EXIT_CODE, and

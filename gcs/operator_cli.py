@@ -1,5 +1,6 @@
 """Operator commands to a running ground station: ``swarm takeoff|formation|move|rotate|scale|hold|
-land|status``. Each sends one request to ``swarm/<sid>/command`` over Zenoh and prints the answer.
+land|status|shutdown``. Each sends one request to ``swarm/<sid>/command`` over Zenoh and prints the
+answer.
 
 The first line says how long the ground station took to answer, from the request leaving to the
 reply arriving (opening the Zenoh session is not counted): ``hold: accepted (0.004 s): ...``.
@@ -19,7 +20,9 @@ from gcs.commands import CommandError, Reply, Request, decode_reply, encode_requ
 from protocols.keys import SwarmKeys
 
 ANSWER_TIMEOUT_S = 2.0
-OPERATOR_COMMANDS = ("takeoff", "formation", "move", "rotate", "scale", "hold", "land", "status")
+OPERATOR_COMMANDS = (
+    "takeoff", "formation", "move", "rotate", "scale", "hold", "land", "status", "shutdown",
+)  # fmt: skip
 
 
 class OperatorError(Exception):
@@ -47,11 +50,14 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
         "hold": "stop the formation where it can",
         "land": "land every drone",
         "status": "a table per drone: mode, armed, position, estimate error, neighbours",
+        "shutdown": "end the run: land the swarm if it flies, wait until it is down (or the "
+        "ground station's --shutdown-timeout-s), write the report; swarm up then stops "
+        "everything",
     }
     for name in OPERATOR_COMMANDS:
         p = sub.add_parser(name, help=f"operator: {helps[name]}", description=helps[name])
         _common(p)
-        if name not in ("hold", "land", "status"):
+        if name not in ("hold", "land", "status", "shutdown"):
             p.add_argument(
                 "--duration-s", type=float, metavar="S", help="take exactly this long (s)"
             )

@@ -3,10 +3,17 @@
 Start order: the ground station (the Zenoh rendezvous; it publishes the plan and records the
 flight), the simulator (lockstep waits for every agent), then the agents, one process per drone or
 ``--agents-per-process`` drones per process. The run ends when the simulator reaches the
-scenario's duration, on Ctrl-C / SIGTERM, or when the simulator or the ground station dies; an
-agent process that ends is a drone leaving the swarm, which flies on. Then every child is stopped
-(SIGTERM, then SIGKILL) so that no process of the run is left and its ports are free. The ground
-station writes the report when it is stopped.
+scenario's duration, on Ctrl-C / SIGTERM, when the ground station ends the run (``swarm
+shutdown``: it lands the swarm, writes the report and exits 0), or when the simulator or the
+ground station dies; an agent process that ends is a drone leaving the swarm, which flies on.
+Then every child is stopped (SIGTERM, then SIGKILL) so that no process of the run is left and its
+ports are free. The ground station writes the report when it is stopped.
+
+In an operator session (``RunPlan.session``) the first Ctrl-C / SIGTERM is a shutdown: the ground
+station gets SIGINT, lands the swarm if it flies, writes the report and exits; the others are
+stopped after it. A second Ctrl-C, or no end within ``shutdown_wait_s``, stops everything at once.
+The children run in their own process group, so a Ctrl-C typed in the terminal reaches only the
+supervisor, which decides what each child gets.
 """
 
 from __future__ import annotations
@@ -14,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import json
+import os
 import signal
 import socket
 import subprocess
@@ -32,7 +40,10 @@ class SupervisorError(Exception):
 
 
 def _die_with_parent() -> None:  # pragma: no cover - runs in the child before exec
-    """Linux: the child gets SIGTERM if the supervisor dies, so no orphan outlives a crash."""
+    """Linux: the child gets SIGTERM if the supervisor dies, so no orphan outlives a crash. It
+    gets a process group of its own: the terminal's Ctrl-C goes to the supervisor alone."""
+    with contextlib.suppress(OSError):
+        os.setpgid(0, 0)
     with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
@@ -84,6 +95,10 @@ class RunPlan:
     run_file: Path | None = None
     #: the Zenoh endpoint of the run (operator commands and drills connect to it)
     zenoh_endpoint: str | None = None
+    #: an operator session: a Ctrl-C asks the ground station to land and end the run
+    session: bool = False
+    #: session: how long (wall s) to wait for the ground station to end the run after a Ctrl-C
+    shutdown_wait_s: float = 180.0
 
     @property
     def children(self) -> list[Child]:
@@ -150,21 +165,38 @@ def swarm_argv(*args: str) -> list[str]:
     return [sys.executable, "-m", "gcs.cli", *args]
 
 
+#: Why a run ended when the ground station ended it (``swarm shutdown``, or Ctrl-C in a session).
+SHUT_DOWN = "shut down"
+
+
 def supervise(
     plan: RunPlan,
     progress: Callable[[str], None] | None = None,
-    should_stop: Callable[[], bool] = lambda: False,
+    should_stop: Callable[[], int] = lambda: 0,
     poll_s: float = 0.5,
 ) -> str:
-    """Start every child, watch them, stop them all. Returns why the run ended."""
+    """Start every child, watch them, stop them all. Returns why the run ended: "finished" (the
+    simulator's end), :data:`SHUT_DOWN`, "interrupted" or what failed. ``should_stop``: how many
+    times the user asked to stop (Ctrl-C)."""
     reason = "stopped"
+    shutdown_deadline: float | None = None
     try:
         for child in plan.children:
             child.start()
             time.sleep(0.3 if child.role == "gcs" else 0.05)
         plan.write_run_file()
         while True:
-            if should_stop():
+            asked = should_stop()
+            if asked and plan.session and asked < 2 and plan.gcs.running:
+                if shutdown_deadline is None:  # land first: the ground station ends the run
+                    shutdown_deadline = time.monotonic() + plan.shutdown_wait_s
+                    _signal(plan.gcs, signal.SIGINT)
+                    if progress is not None:
+                        progress("shutting down: the swarm lands (Ctrl-C again: stop at once)")
+                elif time.monotonic() > shutdown_deadline:
+                    reason = "interrupted (the shutdown took too long)"
+                    break
+            elif asked:
                 reason = "interrupted"
                 break
             if not plan.sim.running:
@@ -179,7 +211,10 @@ def supervise(
                     progress("the ground station restarts (gcs-restart drill)")
             if not plan.gcs.running:
                 code = plan.gcs.proc.returncode if plan.gcs.proc else None
-                reason = f"the ground station exited with code {code} (log: {plan.gcs.log})"
+                if code == 0:  # it ended the run: swarm shutdown, or a session's Ctrl-C
+                    reason = SHUT_DOWN
+                else:
+                    reason = f"the ground station exited with code {code} (log: {plan.gcs.log})"
                 break
             for agent in plan.agents:
                 if not agent.running and not agent.expected_exit:
@@ -196,6 +231,11 @@ def supervise(
         for child in [plan.gcs, *plan.agents, plan.sim]:
             child.stop()
     return reason
+
+
+def _signal(child: Child, sig: int) -> None:
+    if child.proc is not None and child.proc.poll() is None:
+        child.proc.send_signal(sig)
 
 
 def _restart_asked(child: Child) -> bool:
@@ -215,8 +255,9 @@ def _last_line(path: Path) -> str:
 
 
 @contextlib.contextmanager
-def interrupt_flag() -> Iterator[Callable[[], bool]]:
-    """SIGINT/SIGTERM set a flag (read by the returned callable) instead of raising."""
+def interrupt_flag() -> Iterator[Callable[[], int]]:
+    """SIGINT/SIGTERM are counted (the returned callable says how many arrived; 0 is false)
+    instead of raising."""
     hit: list[int] = []
 
     def handler(sig: int, _frame: object) -> None:
@@ -224,7 +265,7 @@ def interrupt_flag() -> Iterator[Callable[[], bool]]:
 
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        yield lambda: bool(hit)
+        yield lambda: len(hit)
     finally:
         for s, h in old.items():
             signal.signal(s, h)

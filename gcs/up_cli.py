@@ -1,4 +1,5 @@
-"""``swarm up`` and ``swarm demo``: fly a scenario with real processes end to end."""
+"""``swarm up`` and ``swarm demo``: fly a scenario with real processes end to end, or run an
+operator session (``swarm up --drones N``, :mod:`gcs.session`)."""
 
 from __future__ import annotations
 
@@ -13,8 +14,10 @@ from pathlib import Path
 
 from gcs.gcs_drills import RUN_FILE
 from gcs.recording import INSTALL_HINT, rerun_available
+from gcs.session import SESSION_FILE, SessionRequest, session_request, session_scenario, write_text
 from gcs.summary import summary_lines
 from gcs.supervisor import (
+    SHUT_DOWN,
     Child,
     RunPlan,
     SupervisorError,
@@ -29,26 +32,67 @@ from gcs.supervisor import (
 )
 from protocols.mavlink_conventions import DEFAULT_GCS_PORT, port_clash, vehicle_ports
 from protocols.scenario import ScenarioError, load_scenario
+from protocols.scenario_layout import LAYOUTS
 
 #: The paper's flight, shipped with the project (so `swarm demo` works from any folder).
 PAPER = Path(__file__).resolve().parents[1] / "scenarios" / "paper.toml"
 #: Telemetry rate of every vehicle to the ground station, and so of the report's record (Hz).
 TELEMETRY_HZ = 25
+#: A session's Ctrl-C waits this much longer than the ground station's shutdown timeout (s) for
+#: the report before stopping everything.
+REPORT_WAIT_S = 60.0
+
+UP_DESCRIPTION = """\
+Two ways to run a swarm with real processes (the ground station, the SITL simulator and the
+drone agents as supervised child processes; the report in --report):
+
+  swarm up SCENARIO         fly a scenario file to its end (its duration_s, or --duration-s);
+                            Ctrl-C stops everything at once.
+  swarm up --drones N       an operator session: N vehicles and their agents power up on the
+                            ground and wait. Fly them with swarm takeoff --altitude-m H,
+                            formation, move, rotate, scale, hold and land (in another terminal);
+                            swarm shutdown, or Ctrl-C here, lands the swarm if it flies, waits
+                            until it is down, writes the report and stops everything.
+                            --layout, --spacing-m, --range-m and --seed place the drones as
+                            swarm scenario new does; the session's scenario is written to
+                            DIR/logs/session.toml.
+"""
 
 
 def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Register ``swarm up`` and ``swarm demo``."""
     up = sub.add_parser(
         "up",
-        help="fly a scenario: simulator, one agent process per drone, ground station",
-        description=(
-            "Start the ground station, the SITL simulator and the drone agents as supervised "
-            "child processes and fly the scenario to its end. Ctrl-C, an error or the end of the "
-            "scenario stops them all. The report (flight.tlog, events.jsonl, metrics.json, PNG "
-            "plots) is written by the ground station into --report."
-        ),
+        help="fly a scenario file, or power up N drones for an operator session (--drones N)",
+        description=UP_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    up.add_argument("scenario", type=Path, help="scenario file (TOML)")
+    up.add_argument(
+        "scenario", type=Path, nargs="?", default=None, help="scenario file (TOML); or --drones"
+    )
+    session = up.add_argument_group(
+        "operator session (instead of a scenario file)",
+        "N drones on the ground, waiting for swarm takeoff; no fixed duration",
+    )
+    session.add_argument("--drones", type=int, metavar="N", help="number of drones, 2..250")
+    session.add_argument(
+        "--layout", choices=LAYOUTS, default=None, help="where they stand (default grid)"
+    )
+    session.add_argument(
+        "--spacing-m",
+        type=float,
+        metavar="M",
+        help="between neighbours on the ground (default 2.5)",
+    )
+    session.add_argument("--range-m", type=float, metavar="M", help="radio range (default 6)")
+    session.add_argument("--seed", type=int, help="random layout and the run's draws (default 0)")
+    session.add_argument(
+        "--shutdown-timeout-s",
+        type=float,
+        metavar="S",
+        help="how long a shutdown waits for the swarm to land before stopping anyway "
+        "(default 120 wall s)",
+    )
     _common(up)
     demo = sub.add_parser(
         "demo",
@@ -106,17 +150,25 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--view-grpc-port", type=int, default=9876, help="--view: viewer data port")
 
 
-def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, int]:
-    """The children of the run and the number of drones."""
-    try:
-        scenario = load_scenario(scenario_path)
-    except ScenarioError as exc:
-        raise SupervisorError(str(exc)) from None
+def build_plan(
+    args: argparse.Namespace, scenario_path: Path, session: SessionRequest | None = None
+) -> tuple[RunPlan, int]:
+    """The children of the run and the number of drones. With ``session``, the session's
+    scenario is generated and written to ``scenario_path`` (in the report's logs folder)."""
+    if session is None:
+        try:
+            scenario = load_scenario(scenario_path)
+        except ScenarioError as exc:
+            raise SupervisorError(str(exc)) from None
+        text = None
+    else:
+        generated = session_scenario(session, scenario_path)
+        scenario, text = generated.scenario, generated.text
     n = scenario.n_drones
     if args.agents_per_process < 1:
         raise SupervisorError("--agents-per-process must be at least 1")
     duration = scenario.duration_s if args.duration_s is None else args.duration_s
-    if not 0 < duration <= scenario.duration_s:
+    if session is None and not 0 < duration <= scenario.duration_s:
         raise SupervisorError(f"--duration-s must be in (0, {scenario.duration_s:g}]")
     ports = vehicle_ports(n, args.base_port)
     clash = port_clash(ports, args.gcs_port)
@@ -130,6 +182,8 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
         logs.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SupervisorError(f"cannot write the report folder {report}: {exc}") from None
+    if text is not None:
+        write_text(scenario_path, text)
     endpoint = args.zenoh_connect
     if args.zenoh_connect:
         # the ground station joins that endpoint and listens on a port of its own: left to its
@@ -157,6 +211,7 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
             str(TELEMETRY_HZ),
             "--run-file",
             str(logs / RUN_FILE),
+            *_session_flags(session),
             *key,
             "--quiet",
             *gcs_zenoh,
@@ -172,7 +227,7 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
             ("--base-port", args.base_port),  # None (the default layout) is left out
             ("--gcs", f"udp:127.0.0.1:{args.gcs_port}"),
             ("--gcs-rate-hz", TELEMETRY_HZ),
-            ("--duration-s", duration),
+            ("--duration-s", None if session else duration),  # a session: no end
         ]
     )
     sim = Child("simulator", swarm_argv("sim", *common, *sim_flags, *key), logs / "sim.log")
@@ -189,6 +244,7 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
                 "--swarm-id",
                 args.swarm_id,
                 "--quiet",
+                *(["--wait-for-plan"] if session else []),  # a session: GROUND until takeoff
                 *agent_zenoh,
                 *key,
             ),
@@ -197,7 +253,18 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
         for ids in groups
     ]
     drones = agent_ranges(n, args.agents_per_process)
-    return RunPlan(gcs, sim, agents, drones, logs / RUN_FILE, endpoint), n
+    plan = RunPlan(gcs, sim, agents, drones, logs / RUN_FILE, endpoint)
+    if session is not None:
+        plan.session = True
+        plan.shutdown_wait_s = session.shutdown_timeout_s + REPORT_WAIT_S
+    return plan, n
+
+
+def _session_flags(session: SessionRequest | None) -> list[str]:
+    """The ground station's flags of a session."""
+    if session is None:
+        return []
+    return ["--session", "--shutdown-timeout-s", str(session.shutdown_timeout_s)]
 
 
 #: How long ``--view`` waits for the viewer to print its URL (s).
@@ -247,8 +314,12 @@ def _viewer_url(proc: subprocess.Popen[bytes], log: Path) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """``swarm up`` / ``swarm demo``; exit 0 when the scenario was flown to its end."""
-    scenario = getattr(args, "scenario", None) or PAPER
-    plan, n = build_plan(args, scenario)
+    session = session_request(args)
+    if session is not None:
+        scenario = args.report / "logs" / SESSION_FILE
+    else:
+        scenario = getattr(args, "scenario", None) or PAPER
+    plan, n = build_plan(args, scenario, session)
     tty = sys.stderr.isatty()
     shown = [0.0]
 
@@ -271,6 +342,15 @@ def run(args: argparse.Namespace) -> int:
         f"--zenoh-connect {plan.zenoh_endpoint}",
         file=sys.stderr,
     )
+    if session is not None:
+        print(
+            f"swarm up: an operator session: {n} drones ({session.layout}, "
+            f"{session.spacing_m:g} m apart, radio {session.range_m:g} m) wait on the ground. "
+            "Fly them with swarm takeoff --altitude-m 3, then swarm formation / move / rotate / "
+            "scale / hold / land; swarm shutdown (or Ctrl-C here) lands them, writes the report "
+            "and stops everything",
+            file=sys.stderr,
+        )
     with interrupt_flag() as stop, live_view(args, scenario) as url:
         if url is not None:
             print(f"swarm up: live view (Rerun) at {url}", file=sys.stderr, flush=True)
@@ -284,4 +364,4 @@ def run(args: argparse.Namespace) -> int:
         files = sorted(p for p in args.report.iterdir() if p.is_file())
         for line in summary_lines(metrics, files):
             print(line)
-    return 0 if reason == "finished" else 1
+    return 0 if reason in ("finished", SHUT_DOWN) else 1

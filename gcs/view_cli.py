@@ -103,7 +103,7 @@ def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
         deadline = None if args.duration_s is None else time.monotonic() + args.duration_s
 
         def stop() -> bool:
-            return interrupted() or (deadline is not None and time.monotonic() >= deadline)
+            return bool(interrupted()) or (deadline is not None and time.monotonic() >= deadline)
 
         if args.command == "replay":
             return _replay(args, stop, out)

@@ -16,6 +16,11 @@ the heading is defined and nobody comes closer than on the ground. After the cli
 - ``turn-and-stretch``: hold 5 s; then in 20 s a 20 m move north with a 30 deg turn and a 15 %
   stretch of the length spread; hold (issue 10's large-swarm flight).
 
+:data:`SESSION_TEMPLATE` (``ground``, not offered by ``swarm scenario new``) is the plan of an
+operator session (``swarm up --drones N``): the swarm rests on the ground in its layout and does
+not climb; the ground station publishes it as a GROUND plan and the operator's ``swarm takeoff``
+starts the flight.
+
 The last waypoint is held to the end. Waypoints carry no rates: the plan through them is
 shape-preserving (protocols/trajectory.py), so corners are rests and holds are holds.
 """
@@ -29,6 +34,10 @@ from protocols.descriptors import covariance
 from protocols.frames import FloatArray
 
 TEMPLATES = ("hover", "paper", "survey", "turn-and-stretch")
+#: The operator session's plan: on the ground, in the layout (``swarm up --drones N``).
+SESSION_TEMPLATE = "ground"
+#: How long (s) the session's plan lasts; it is held on the ground after it, for ever.
+SESSION_PLAN_S = 10.0
 #: Length and width spreads closer than this ratio count as a tie (heading undefined).
 _TIE_RATIO = 0.1
 _TIE_STRETCH = 1.1
@@ -87,6 +96,8 @@ def _start(positions: FloatArray) -> tuple[Vec3, Vec3]:
 def build_plan(o: PlanRequest, positions: FloatArray, spacing_m: float, warmup_s: float) -> Plan:
     """The plan of template ``o.template`` for drones starting at ``positions`` (N, 3) NED m,
     ``spacing_m`` apart, after a consensus warm-up of ``warmup_s`` (s) on the ground."""
+    if o.template == SESSION_TEMPLATE:
+        return _ground(positions, warmup_s)
     default_alt = 5.0 if o.template == "paper" else 3.0
     alt = default_alt if o.altitude_m is None else o.altitude_m
     (n0, e0, _), spread = _start(positions)
@@ -105,6 +116,18 @@ def build_plan(o: PlanRequest, positions: FloatArray, spacing_m: float, warmup_s
         "turn-and-stretch": _turn_and_stretch,
     }[o.template]
     return builder(o, head, spread, extent_m=_extent(positions, spacing_m))
+
+
+def _ground(positions: FloatArray, warmup_s: float) -> Plan:
+    """The session's plan: the layout's formation resting on the ground (no climb, no end)."""
+    (n0, e0, _), spread = _start(positions)
+    ground = (n0, e0, 0.0)
+    d = max(SESSION_PLAN_S, warmup_s + 6.0)
+    points = (
+        PlanPoint(0.0, ground, 0.0, spread, "on the ground: consensus warm-up"),
+        PlanPoint(d, ground, 0.0, spread, "on the ground until the operator's swarm takeoff"),
+    )
+    return Plan(points, d, warmup_s, d, "on the ground, waiting for the operator")
 
 
 def _extent(positions: FloatArray, spacing_m: float) -> tuple[float, float]:
