@@ -187,17 +187,16 @@ def supervise(
         plan.write_run_file()
         while True:
             asked = should_stop()
-            if asked and plan.session and asked < 2 and plan.gcs.running:
-                if shutdown_deadline is None:  # land first: the ground station ends the run
-                    shutdown_deadline = time.monotonic() + plan.shutdown_wait_s
-                    _signal(plan.gcs, signal.SIGINT)
-                    if progress is not None:
-                        progress("shutting down: the swarm lands (Ctrl-C again: stop at once)")
-                elif time.monotonic() > shutdown_deadline:
-                    reason = "interrupted (the shutdown took too long)"
-                    break
-            elif asked:
+            if asked and not (plan.session and asked < 2):
                 reason = "interrupted"
+                break
+            if asked and shutdown_deadline is None:  # a session lands first; the gcs ends it
+                shutdown_deadline = time.monotonic() + plan.shutdown_wait_s
+                _signal(plan.gcs, signal.SIGINT)
+                if progress is not None:
+                    progress("shutting down: the swarm lands (Ctrl-C again: stop at once)")
+            elif shutdown_deadline is not None and time.monotonic() > shutdown_deadline:
+                reason = "interrupted (the shutdown took too long)"
                 break
             if not plan.sim.running:
                 code = plan.sim.proc.returncode if plan.sim.proc else None

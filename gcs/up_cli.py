@@ -322,11 +322,16 @@ def run(args: argparse.Namespace) -> int:
     plan, n = build_plan(args, scenario, session)
     tty = sys.stderr.isatty()
     shown = [0.0]
+    said = [""]
 
     def progress(line: str) -> None:
         if not line:
             return
-        if tty:
+        if not line.startswith("sim "):  # news (once each), not the simulator's status line
+            if line != said[0]:
+                said[0] = line
+                print(f"\r{line:<150}" if tty else line, file=sys.stderr, flush=True)
+        elif tty:
             print(f"\r{line[:150]:<150}", end="", file=sys.stderr, flush=True)
         elif time.monotonic() - shown[0] >= 10.0:
             print(line, file=sys.stderr, flush=True)
