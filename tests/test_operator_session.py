@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import re
+import signal
 import subprocess
 import time
 from collections.abc import Callable
@@ -198,3 +199,42 @@ def test_an_operator_session_from_power_up_to_the_report(tmp_path: Path) -> None
     kinds = [e["kind"] for e in events]
     assert "shutdown_landed" in kinds and kinds[-1] == "run_end", kinds[-5:]
     print(f"operator session: {took:.0f} s wall, {track.vehicles[1].t_s[-1]:.0f} s simulated")
+
+
+def test_ctrl_c_lands_a_flying_session_before_it_stops(tmp_path: Path) -> None:
+    """Ctrl-C to ``swarm up`` while the swarm flies: it lands, then the run ends, report written."""
+    out = tmp_path / "swarm-up.out"
+    with _default_ports_lock(), out.open("wb") as sink:
+        proc = subprocess.Popen(
+            [*_swarm_exe(), "up", "--drones", str(N), "--layout", "line"],
+            stdout=sink, stderr=subprocess.STDOUT, env=ENV, cwd=tmp_path,
+        )  # fmt: skip
+        session = Session(tmp_path, proc, out)
+        try:
+            session.wait_modes("READY")
+            reply = session.command("takeoff", "--altitude-m", str(ALTITUDE_M))
+            session.wait_modes("FLYING")
+            session.wait_t(_arrival(reply) + 1.0)
+            proc.send_signal(signal.SIGINT)  # Ctrl-C
+            code = proc.wait(120)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(10)
+    text = out.read_text(errors="replace")
+    assert code == 0 and "swarm up: shut down" in text, text[-3000:]
+    assert "the swarm lands" in text, text[-3000:]
+    report = tmp_path / "report"
+    assert (report / "metrics.json").exists()
+    track = read_tlog(report / "flight.tlog")
+    events = read_events(report / "events.jsonl")
+    assert_no_crash(events)
+    (shutdown,) = [e for e in events if e["kind"] == "shutdown"]
+    assert shutdown["reason"] == "interrupt" and shutdown["airborne"] == list(range(N))
+    landing = [e for e in events if e["kind"] == "plan_published"][-1]
+    assert landing["command"] == "LAND", landing
+    t_down = next(float(e["t_s"]) for e in events if e["kind"] == "shutdown_landed")
+    assert_landed_safely(track, N, float(shutdown["t_s"]), t_down)
+    for sysid, v in track.vehicles.items():
+        k = int(np.searchsorted(v.t_s, float(shutdown["t_s"]))) - 1
+        assert -v.position_ned_m[k, 2] == pytest.approx(ALTITUDE_M, abs=0.2), sysid
