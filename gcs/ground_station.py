@@ -404,13 +404,13 @@ class GroundStation:
 
     def airborne_drones(self) -> list[int]:
         """Drones whose vehicle is armed or off the ground, among those still heard (a vehicle
-        silent for SILENT_VEHICLE_S, e.g. crashed, is not waited for)."""
+        silent for SILENT_VEHICLE_S, e.g. crashed, is not waited for; one whose agent left is:
+        its own failsafe lands it)."""
         now = self.now_s
         return [
             i
             for i, v in sorted(self.telemetry.vehicles.items())
             if now - v.t_s < SILENT_VEHICLE_S
-            and i not in self.watch.lost
             and (
                 v.armed
                 or (v.position_ned_m is not None and -v.position_ned_m[2] > AIRBORNE_ALTITUDE_M)
