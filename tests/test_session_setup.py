@@ -185,3 +185,44 @@ def test_a_second_ctrl_c_stops_everything_at_once(tmp_path: Path) -> None:
     assert supervise(plan, should_stop=lambda: 2, poll_s=0.1) == "interrupted"
     assert not plan.gcs.running and not plan.sim.running
     assert plan.gcs.proc is not None and plan.gcs.proc.returncode in (3, -signal.SIGTERM)
+
+
+# -- the ground station of a session -----------------------------------------------------------
+def test_a_session_gcs_starts_grounded_and_its_shutdown_gives_up_after_the_timeout(
+    tmp_path: Path,
+) -> None:
+    """First plan GROUND; a shutdown while a vehicle is still up waits for it, at most
+    ``shutdown_timeout_s``, then ends the run with a report; commands after it are refused."""
+    from drone_agent.zenoh_transport import ZenohSettings
+    from gcs.commands import encode_request
+    from gcs.events import read_events
+    from gcs.ground_station import GcsOptions, GroundStation
+    from gcs.telemetry import VehicleState
+
+    request = session_request(_parser().parse_args(["up", "--drones", "4"]))
+    assert request is not None
+    scenario = session_scenario(request, tmp_path / SESSION_FILE).scenario
+    options = GcsOptions(
+        scenario=scenario,
+        report_dir=tmp_path / "report",
+        zenoh=ZenohSettings(listen=("tcp/127.0.0.1:0",)),
+        gcs_port=free_udp_port(),
+        plan_query_s=0.2,
+        plots=False,
+        session=True,
+        shutdown_timeout_s=1.0,
+    )
+    with GroundStation(options) as station:
+        assert station.plan.command == FlightCommand.GROUND
+        station.telemetry.vehicles[2] = VehicleState(position_ned_m=(0.0, 0.0, -2.0), armed=True)
+        assert station.airborne_drones() == [2]
+        reply = station.execute(encode_request(Request("shutdown", {})))
+        assert reply.accepted and "landing" in reply.reason, reply
+        refused = station.execute(encode_request(Request("takeoff", {"altitude_m": 3.0})))
+        assert not refused.accepted and "shutting down" in refused.reason
+        started = time.monotonic()
+        files = station.run()
+        assert 1.0 <= time.monotonic() - started < 10.0
+    assert tmp_path / "report" / "metrics.json" in files
+    kinds = [e["kind"] for e in read_events(tmp_path / "report" / "events.jsonl")]
+    assert kinds[-2:] == ["shutdown_timeout", "run_end"], kinds
