@@ -112,7 +112,7 @@ def _zenoh(args: argparse.Namespace) -> ZenohSettings:
 def run(args: argparse.Namespace) -> int:
     """Run the ground station; prints a status line per second on stderr unless --quiet."""
     from gcs.ground_station import GcsOptions, GroundStation
-    from gcs.planner import Envelope
+    from gcs.planner import envelope_of
     from protocols.scenario import ScenarioError, load_scenario
 
     try:
@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         run_file=args.run_file,
         resume=args.resume,
         signing_key=key,
-        envelope=Envelope(min_separation_m=scenario.safety.min_separation_m),
+        envelope=envelope_of(scenario.safety),
         on_line=None if args.quiet else lambda line: print(line, file=sys.stderr, flush=True),
     )
     try:
