@@ -30,12 +30,13 @@ from typing import Any
 import zenoh
 
 from drone_agent.transport import Closeable, ClosesOnExit, Congestion, Inbox, Publisher
+from protocols.swarm_secrets import RoleSecrets
 
 _CONGESTION = {
     Congestion.DROP: zenoh.CongestionControl.DROP,
     Congestion.BLOCK: zenoh.CongestionControl.BLOCK,
 }
-MODES = ("peer", "client")
+MODES = ("peer", "client", "router")
 
 
 @dataclass(frozen=True)
@@ -46,7 +47,9 @@ class ZenohSettings:
     ``tcp/127.0.0.1:7447`` (a client listens on nothing). ``lease_ms``: how long (ms) peers wait
     for this session's keep-alives before declaring it dead; ``keep_alive``: keep-alives per
     lease. ``multicast_scouting``: find peers by UDP multicast (off: it finds strangers on shared
-    machines).
+    machines). ``secrets``: the role's credentials (``swarm keys init``): TLS with a client
+    certificate (mTLS) and user/password on every link, and (router) the swarm's access control;
+    every endpoint must then be ``tls/``.
     """
 
     mode: str = "peer"
@@ -55,6 +58,7 @@ class ZenohSettings:
     lease_ms: int = 1000
     keep_alive: int = 4
     multicast_scouting: bool = False
+    secrets: RoleSecrets | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -64,6 +68,10 @@ class ZenohSettings:
         for endpoint in (*self.listen, *self.connect):
             if not isinstance(endpoint, str) or "/" not in endpoint:
                 raise ValueError(f"zenoh endpoint must look like tcp/HOST:PORT, got {endpoint!r}")
+        if self.secrets is not None:
+            plain = [e for e in (*self.listen, *self.connect) if not e.startswith("tls/")]
+            if plain:
+                raise ValueError(f"a secured session speaks TLS only: {plain[0]} is not tls/")
         if self.lease_ms < 100 or not 1 <= self.keep_alive <= self.lease_ms // 10:
             raise ValueError(
                 f"lease_ms must be >= 100 and keep_alive 1..lease_ms/10, got "
@@ -73,7 +81,7 @@ class ZenohSettings:
     def config(self) -> zenoh.Config:
         """The Zenoh configuration (JSON5 values) of these settings."""
         conf = zenoh.Config()
-        listen = list(self.listen) if self.mode == "peer" else []
+        listen = list(self.listen) if self.mode != "client" else []
         for key, value in (
             ("mode", self.mode),
             ("scouting/multicast/enabled", self.multicast_scouting),
@@ -88,19 +96,34 @@ class ZenohSettings:
             ),
         ):
             conf.insert_json5(key, json.dumps(value))
+        if self.secrets is not None:
+            from drone_agent.zenoh_config import secure
+
+            secure(conf, self.secrets, self.mode)
         return conf
 
+    @property
+    def secured(self) -> bool:
+        """Whether the session uses TLS and credentials."""
+        return self.secrets is not None
 
-def open_client(endpoint: str) -> ZenohBus:
-    """A short-lived client session on ``endpoint`` (for tools: operator commands, drills).
 
-    ValueError for an endpoint that is not ``tcp/HOST:PORT``; ConnectionError if nothing answers.
+def open_client(endpoint: str, secrets: RoleSecrets | None = None) -> ZenohBus:
+    """A short-lived client session on ``endpoint`` (for tools: operator commands, drills), with
+    the credentials of ``secrets`` if given (a ``tcp/`` endpoint then becomes ``tls/``).
+
+    ValueError for an endpoint that is not ``tcp/HOST:PORT``; ConnectionError if nothing answers
+    or the router refuses the credential (the message says which).
     """
-    settings = ZenohSettings(mode="client", listen=(), connect=(endpoint,))
+    from drone_agent.zenoh_config import open_error, secured_endpoint
+
+    if secrets is not None:
+        endpoint = secured_endpoint(endpoint)
+    settings = ZenohSettings(mode="client", listen=(), connect=(endpoint,), secrets=secrets)
     try:
         return ZenohBus.open(settings)
     except zenoh.ZError:
-        raise ConnectionError(f"nothing reachable at {endpoint}") from None
+        raise ConnectionError(open_error(endpoint, secrets)) from None
 
 
 def tcp_listen_free(port: int, host: str = "127.0.0.1") -> bool:

@@ -15,8 +15,10 @@ os.environ.setdefault("MAVLINK20", "1")  # before anything imports pymavlink
 from drone_agent.agent_cli import add_parser as add_agent_parser
 from gcs.drill_cli import add_parser as add_drill_parser
 from gcs.gcs_cli import add_parser as add_gcs_parser
+from gcs.keys_cli import add_parser as add_keys_parser
 from gcs.operator_cli import OPERATOR_COMMANDS
 from gcs.operator_cli import add_parsers as add_operator_parsers
+from gcs.router_cli import add_parser as add_router_parser
 from gcs.up_cli import add_parsers as add_up_parsers
 from sitl_sim.sim_cli import add_sim_parser
 
@@ -80,6 +82,8 @@ def _parser() -> argparse.ArgumentParser:
     add_operator_parsers(sub)
     add_up_parsers(sub)
     add_drill_parser(sub)
+    add_router_parser(sub)
+    add_keys_parser(sub)
     return parser
 
 
@@ -105,6 +109,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _up(args)
         if args.command == "drill":
             return _drill(args)
+        if args.command == "router":
+            return _router(args)
+        if args.command == "keys":
+            return _keys(args)
     except CliError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -219,6 +227,24 @@ def _drill(args: argparse.Namespace) -> int:
     try:
         return run(args)
     except DrillError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _router(args: argparse.Namespace) -> int:
+    from gcs.router_cli import RouterError, run
+
+    try:
+        return run(args)
+    except RouterError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _keys(args: argparse.Namespace) -> int:
+    from gcs.keys_cli import KeysError, run
+
+    try:
+        return run(args)
+    except KeysError as exc:
         raise CliError(str(exc)) from None
 
 

@@ -32,14 +32,15 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "sim", help="run the SITL simulator (N vehicles, MAVLink over UDP)", description=DESCRIPTION
     )
-    who = p.add_mutually_exclusive_group(required=True)
-    who.add_argument(
+    p.add_argument(
         "--drones",
-        type=int,
-        metavar="N",
-        help=f"N vehicles (1..{MAX_VEHICLES}) on the ground on a 2 m grid",
+        metavar="N|LO-HI",
+        help=f"N vehicles (1..{MAX_VEHICLES}) on the ground on a 2 m grid; or a range LO-HI of "
+        "drone indices: serve only those (with --scenario: a shard of its swarm; drone d keeps "
+        "system id d+1 and its port), so several simulators on several hosts share a swarm "
+        "(realtime clock)",
     )
-    who.add_argument(
+    p.add_argument(
         "--scenario",
         type=Path,
         metavar="FILE",
@@ -113,6 +114,13 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
         metavar="FILE",
         help="MAVLink 2 signing key (32 raw bytes or 64 hex characters): telemetry "
         "signed, unsigned or wrongly signed commands and setpoints rejected",
+    )
+    p.add_argument(
+        "--secrets",
+        type=Path,
+        metavar="DIR",
+        help="the swarm's secrets (swarm keys init): sign MAVLink with its key (the simulator "
+        "uses no Zenoh)",
     )
     p.add_argument("--seed", type=int, help="random seed (default: the scenario's, else 0)")
     p.add_argument(

@@ -50,6 +50,9 @@ class NetConfig:
     base_port: int | None = None
     gcs: Address | None = ("127.0.0.1", DEFAULT_GCS_PORT)
     signing_key: bytes | None = None
+    #: drone index of the first vehicle (a shard of a swarm, sitl_sim/shard.py): vehicle i is
+    #: drone first_drone + i, on that drone's port
+    first_drone: int = 0
     agent_rates_hz: Mapping[int, float] = field(default_factory=lambda: dict(AGENT_RATES_HZ))
     gcs_rates_hz: Mapping[int, float] = field(default_factory=lambda: dict(GCS_RATES_HZ))
 

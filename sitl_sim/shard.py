@@ -1,0 +1,48 @@
+"""A simulator shard: ``swarm sim --drones LO-HI`` serves drones LO..HI of a swarm only.
+
+Drone ``d`` keeps its identity in every shard: system id ``d + 1`` and UDP port
+``vehicle_port(d)`` (so an agent finds its vehicle whichever shard serves it, on that shard's
+host), its scenario position, and the scenario's crash faults of the drones in the range. Vehicles
+do not touch each other in the simulator (no collision physics), so shards need nothing from each
+other under the realtime clock: each paces to the wall clock.
+
+Lockstep across shards is not built: each shard's barrier holds only its own agents, so two
+shards in lockstep would drift apart in simulated time (and the agents' consensus would mix
+rounds). It would need the shards to agree on each tick (a shared barrier: every shard steps to
+k + 1 once every shard holds tick k's setpoints of its live vehicles), e.g. over Zenoh; use
+``--clock realtime`` with several shards.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from sitl_sim.sim_config import SimConfigError
+
+
+@dataclass(frozen=True)
+class DroneRange:
+    """Drones ``first``..``last`` (0-based, inclusive) of a swarm."""
+
+    first: int
+    last: int
+
+    @property
+    def count(self) -> int:
+        return self.last - self.first + 1
+
+    def __contains__(self, drone: object) -> bool:
+        return isinstance(drone, int) and self.first <= drone <= self.last
+
+
+def parse_drones(text: str) -> tuple[int | None, DroneRange | None]:
+    """``--drones`` as a count ``N`` (None, no range) or a range ``LO-HI`` (None, range)."""
+    text = text.strip()
+    if text.isdigit():
+        return int(text), None
+    lo, sep, hi = text.partition("-")
+    if sep and lo.strip().isdigit() and hi.strip().isdigit():
+        first, last = int(lo), int(hi)
+        if first <= last:
+            return None, DroneRange(first, last)
+    raise SimConfigError(f"--drones {text!r}: a count N or a range of drone indices LO-HI")
