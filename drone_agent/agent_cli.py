@@ -141,7 +141,7 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
     ``--secrets`` a TLS client of the router at ``--zenoh-connect``."""
     listen, connect = args.zenoh_listen, args.zenoh_connect
     if getattr(args, "secrets", None) is not None:
-        return _secured_settings(args.secrets, "agent", connect)
+        return _secured_settings(args.secrets, "agent", connect, args.swarm_id)
     if listen is None and connect is None:
         if tcp_listen_free(RENDEZVOUS_PORT):
             listen, connect = [f"tcp/127.0.0.1:{RENDEZVOUS_PORT}"], []
@@ -157,7 +157,9 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
         raise AgentCliError(str(exc)) from None
 
 
-def _secured_settings(folder: Path, role: str, connect: list[str] | None) -> ZenohSettings:
+def _secured_settings(
+    folder: Path, role: str, connect: list[str] | None, swarm_id: str
+) -> ZenohSettings:
     from drone_agent.zenoh_config import role_secrets, secured_endpoint
 
     if not connect:
@@ -167,7 +169,7 @@ def _secured_settings(folder: Path, role: str, connect: list[str] | None) -> Zen
             mode="client",
             listen=(),
             connect=tuple(secured_endpoint(e) for e in connect),
-            secrets=role_secrets(folder, role),
+            secrets=role_secrets(folder, role, swarm_id),
         )
     except ValueError as exc:
         raise AgentCliError(str(exc)) from None

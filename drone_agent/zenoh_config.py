@@ -50,15 +50,22 @@ def secured_endpoint(endpoint: str) -> str:
     return "tls/" + endpoint[4:] if endpoint.startswith("tcp/") else endpoint
 
 
-def role_secrets(folder: object, role: str) -> RoleSecrets | None:
+def role_secrets(folder: object, role: str, swarm_id: str | None = None) -> RoleSecrets | None:
     """``role``'s secrets in ``folder`` (None when no folder is given); ValueError (one line)
-    when the folder lacks them."""
+    when the folder lacks them or they are another swarm's than ``swarm_id`` (the router's
+    access control covers that swarm's keys only: everything else would be dropped)."""
     if folder is None:
         return None
     try:
-        return load_role(str(folder), role)
+        secrets = load_role(str(folder), role)
     except SecretsError as exc:
         raise ValueError(str(exc)) from None
+    if swarm_id is not None and secrets.swarm_id != swarm_id:
+        raise ValueError(
+            f"the secrets in {folder} are swarm {secrets.swarm_id!r}'s, not {swarm_id!r}: give "
+            f"--swarm-id {secrets.swarm_id} (or make secrets with swarm keys init --swarm-id)"
+        )
+    return secrets
 
 
 def _answers(endpoint: str) -> bool:

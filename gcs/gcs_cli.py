@@ -125,7 +125,7 @@ def _zenoh(args: argparse.Namespace) -> ZenohSettings:
                 mode="client",
                 listen=(),
                 connect=tuple(secured_endpoint(e) for e in args.zenoh_connect),
-                secrets=role_secrets(args.secrets, "gcs"),
+                secrets=role_secrets(args.secrets, "gcs", args.swarm_id),
             )
         except ValueError as exc:
             raise GcsCliError(str(exc)) from None

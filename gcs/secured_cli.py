@@ -30,7 +30,9 @@ def add_secrets_flags(p: argparse.ArgumentParser, role: str) -> None:
 
 def secrets_of(args: argparse.Namespace) -> RoleSecrets | None:
     """The role's secrets of ``--secrets`` (None without it); ValueError: one line."""
-    return role_secrets(getattr(args, "secrets", None), getattr(args, "role", "operator"))
+    return role_secrets(
+        getattr(args, "secrets", None), getattr(args, "role", "operator"), args.swarm_id
+    )
 
 
 def refusal(secrets: RoleSecrets | None, kind: str, suffix: str, what: str) -> str | None:

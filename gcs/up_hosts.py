@@ -21,6 +21,7 @@ swarm's key. Without ``--router`` it starts a router of its own on this machine,
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +30,8 @@ from gcs.gcs_drills import RUN_FILE
 from gcs.supervisor import Child, RunPlan, SupervisorError, flags, free_tcp_port, swarm_argv
 
 PARTS = ("router", "gcs", "sim", "agents")
+#: How long a simulator host waits for the agents of its drones to join (s).
+AGENTS_WAIT_S = 300
 #: Telemetry rate of every vehicle to the ground station (Hz), as up_cli.TELEMETRY_HZ.
 TELEMETRY_HZ = 25
 
@@ -135,7 +138,7 @@ def host_layout(args: argparse.Namespace, n: int) -> HostLayout:
     roles = {"router": "router", "gcs": "gcs", "sim": "sim", "agents": "agent"}
     for part in parts if args.secrets is not None else ():
         try:
-            role_secrets(args.secrets, roles[part])
+            role_secrets(args.secrets, roles[part], args.swarm_id)
         except ValueError as exc:
             raise SupervisorError(str(exc)) from None
     if router is None and args.secrets is not None:
@@ -204,6 +207,7 @@ def multihost_plan(
                 ("--gcs-bind", layout.bind),
                 ("--telemetry-hz", TELEMETRY_HZ),
                 ("--run-file", logs / RUN_FILE),
+                ("--duration-s", duration_s),
                 ("--quiet", True),
             ]
         )
@@ -228,6 +232,11 @@ def multihost_plan(
             ]
         )
         sim = Child("simulator", swarm_argv("sim", *common, *sim_flags, *secured), logs / "sim.log")
+        if "agents" not in layout.parts:
+            # agents on other hosts: start the simulator once they are all on the swarm network
+            wait = [sys.executable, "-m", "gcs.agents_wait", layout.router, args.swarm_id,
+                    str(layout.first), str(layout.last), str(AGENTS_WAIT_S)]  # fmt: skip
+            sim.before = wait + ([str(layout.secrets)] if layout.secrets is not None else [])
     agents, agent_drones = [], []
     if "agents" in layout.parts:
         for group in _groups(layout.first, layout.last, args.agents_per_process):
