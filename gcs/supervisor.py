@@ -46,16 +46,7 @@ class Child:
     log: Path
     proc: subprocess.Popen[bytes] | None = None
     expected_exit: bool = False
-    #: a command run to its end (output to the log) before the child starts; SupervisorError
-    #: with its last line if it fails
-    before: list[str] | None = None
-
     def start(self) -> None:
-        if self.before is not None:
-            with self.log.open("ab") as out:
-                done = subprocess.run(self.before, stdout=out, stderr=subprocess.STDOUT)
-            if done.returncode != 0:
-                raise SupervisorError(f"{_last_line(self.log)} (log: {self.log})")
         with self.log.open("ab") as out:
             self.proc = subprocess.Popen(
                 self.argv, stdout=out, stderr=subprocess.STDOUT, preexec_fn=_die_with_parent

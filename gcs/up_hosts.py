@@ -21,7 +21,6 @@ swarm's key. Without ``--router`` it starts a router of its own on this machine,
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,8 +29,6 @@ from gcs.gcs_drills import RUN_FILE
 from gcs.supervisor import Child, RunPlan, SupervisorError, flags, free_tcp_port, swarm_argv
 
 PARTS = ("router", "gcs", "sim", "agents")
-#: How long a simulator host waits for the agents of its drones to join (s).
-AGENTS_WAIT_S = 300
 #: Telemetry rate of every vehicle to the ground station (Hz), as up_cli.TELEMETRY_HZ.
 TELEMETRY_HZ = 25
 
@@ -232,11 +229,6 @@ def multihost_plan(
             ]
         )
         sim = Child("simulator", swarm_argv("sim", *common, *sim_flags, *secured), logs / "sim.log")
-        if "agents" not in layout.parts:
-            # agents on other hosts: start the simulator once they are all on the swarm network
-            wait = [sys.executable, "-m", "gcs.agents_wait", layout.router, args.swarm_id,
-                    str(layout.first), str(layout.last), str(AGENTS_WAIT_S)]  # fmt: skip
-            sim.before = wait + ([str(layout.secrets)] if layout.secrets is not None else [])
     agents, agent_drones = [], []
     if "agents" in layout.parts:
         for group in _groups(layout.first, layout.last, args.agents_per_process):

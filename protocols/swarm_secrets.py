@@ -12,9 +12,9 @@
 =====================  ==========================================================================
 
 Roles: ``router`` (the Zenoh router: the one TLS listener), ``gcs`` (ground station),
-``operator`` (operator commands and drills), ``agent`` (drone agents), ``sim`` (the simulator's
-host: MAVLink, and only watching the agents' liveliness on Zenoh). Every file is written with
-permissions 0600 in a 0700 folder, and nothing here ever prints or logs a secret: errors name
+``operator`` (operator commands and drills), ``agent`` (drone agents), ``sim`` (the simulator:
+MAVLink only, no Zenoh right at all). Every file is written with permissions 0600 in a 0700
+folder, and nothing here ever prints or logs a secret: errors name
 files, never contents.
 
 What each role may *send* (the router checks every message arriving from a client; denied by
@@ -43,7 +43,7 @@ from protocols.keys import ROOT, validate_swarm_id
 VERSION = 1
 ROLES = ("router", "gcs", "operator", "agent", "sim")
 #: Roles that open Zenoh sessions as clients of the router.
-CLIENT_ROLES = ("gcs", "operator", "agent", "sim")
+CLIENT_ROLES = ("gcs", "operator", "agent")
 MANIFEST = "swarm.json"
 CERT_DAYS = 3650
 
@@ -85,9 +85,7 @@ RIGHTS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
         (QUERY, ("command",)),
         (PUT, ("fault",)),
     ),
-    # the simulator speaks MAVLink only; swarm up on a simulator host waits for the agents'
-    # liveliness before starting it
-    "sim": ((LIVE_SUB, ("alive/*",)), (LIVE_QUERY, ("alive/*",))),
+    "sim": (),  # MAVLink only
     "router": (),
 }
 

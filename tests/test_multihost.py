@@ -1,4 +1,4 @@
-"""The paper's flight across four hosts (Linux network namespaces on a bridge), secured.
+"""The paper's flight across four hosts (Linux network namespaces on a bridge), open and secured.
 
 - ground (10.231.S.1): the Zenoh router and the ground station
   (``swarm up --only router,gcs``);
@@ -7,10 +7,26 @@
 
 MAVLink UDP (agents to vehicles, vehicles to the ground station) and Zenoh (every process a
 client of the router) cross the namespaces on their own addresses: no process shares a loopback
-with another host's. The swarm is secured with ``swarm keys init`` (TLS with client certificates,
-user/password, access control, signed MAVLink). The first 60 s of the paper flight, including
-drone 1's crash at 30 s, are judged from the ground station's flight.tlog by the bars of
-``test_demo_paper.py`` (the one-host flight). About 2 minutes.
+with another host's. Twice: a plain router, and a swarm secured with ``swarm keys init`` (TLS with
+client certificates, user/password, access control, signed MAVLink). The first 60 s of the paper
+flight, including drone 1's crash at 30 s, are judged from the ground station's flight.tlog as
+``test_demo_paper.py`` judges the one-host flight, with its bars where they do not depend on the
+length of the flight, and the 60 s one-host figures (in brackets, lockstep, the same on loopback
+with or without a router) for the two that do:
+
+- after 20 s: centroid RMS < 0.13 m, shape < 0.25 m^2 with the crash (one host over 60 s:
+  0.103 m / 0.202 m^2; the crash weighs more in 40 s than in 180); < 2 mm / 0.008 m^2 in steady
+  flight (0.2-0.3 mm / 0.004-0.006 m^2);
+- no two airborne drones closer than 1.9 m (2.02 m);
+- the survivors' formation back within 5 cm / 0.1 m^2 of the plan 7 s after the crash;
+- within 2 mm / 0.02 m^2 RMS of ``swarm simulate``'s flight after 20 s, in steady flight and with
+  the crash (one host: 0.2-0.3 mm / 0.006-0.010 m^2 steady, 0.5-0.8 mm / 0.007-0.011 m^2 with
+  the crash, on loopback with or without a router, open or secured).
+
+Measured across the namespaces: 0.103 m / 0.201 m^2 with the crash, 0.25 mm / 0.005 m^2 steady,
+2.01 m; from ``swarm simulate`` 0.2 mm / 0.006-0.0075 m^2 steady, 0.4-0.5 mm / 0.007-0.011 m^2
+with the crash. Lockstep runs about 3x
+real time here: each flight takes about 30 s.
 
 Without root or ``ip netns`` the test is skipped, saying why.
 """
@@ -78,21 +94,38 @@ def _wait_for(path: Path, text: str, timeout_s: float) -> bool:
     return False
 
 
+@pytest.fixture(scope="module")
+def one_host(tmp_path_factory: pytest.TempPathFactory) -> dict[str, np.ndarray]:
+    """``swarm simulate``'s first 60 s of the paper flight (the in-process reference)."""
+    out = tmp_path_factory.mktemp("simulate")
+    proc = subprocess.run(
+        [*SWARM, "simulate", str(PAPER), "--report", str(out), "--progress", "off",
+         "--duration-s", str(DURATION_S), "--no-plots"],
+        capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    return _first_60_s(out)
+
+
 @pytest.mark.skipif(WHY_NOT is not None, reason=f"network namespaces: {WHY_NOT}")
-def test_secured_paper_flight_across_four_hosts(tmp_path: Path) -> None:
+@pytest.mark.parametrize("secured", [False, True], ids=["open", "secured"])
+def test_paper_flight_across_four_hosts(
+    tmp_path: Path, secured: bool, one_host: dict[str, np.ndarray]
+) -> None:
     with netns.hosts(["ground", "sim", "compa", "compb"]) as h:
         ground, sim = h["ground"], h["sim"]
         router = f"tcp/{ground.ip}:7447"
         secrets = tmp_path / "secrets"
-        keys = subprocess.run(
-            [*SWARM, "keys", "init", str(secrets), "--router-host", ground.ip,
-             "--swarm-id", "paper"],
-            capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=60,
-        )  # fmt: skip
-        assert keys.returncode == 0, keys.stderr
+        if secured:
+            keys = subprocess.run(
+                [*SWARM, "keys", "init", str(secrets), "--router-host", ground.ip,
+                 "--swarm-id", "paper"],
+                capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=60,
+            )  # fmt: skip
+            assert keys.returncode == 0, keys.stderr
         common = [
-            "up", str(PAPER), "--router", router, "--secrets", str(secrets),
-            "--duration-s", str(DURATION_S), "--swarm-id", "paper",
+            "up", str(PAPER), "--router", router, "--duration-s", str(DURATION_S),
+            "--swarm-id", "paper", *(["--secrets", str(secrets)] if secured else []),
         ]  # fmt: skip
         procs: list[subprocess.Popen[bytes]] = []
         try:
@@ -109,7 +142,6 @@ def test_secured_paper_flight_across_four_hosts(tmp_path: Path) -> None:
                            "--report", str(tmp_path / name), "--only", "agents",
                            "--drones", drones, "--agents-per-process", "5", "--sim-host", sim.ip)
                 )  # fmt: skip
-            # the simulator host waits until every agent is on the swarm network, then starts
             procs.append(
                 _start(sim, tmp_path / "sim.out", *common, "--report", str(tmp_path / "sim"),
                        "--only", "sim", "--bind", sim.ip, "--gcs-host", ground.ip)
@@ -125,25 +157,59 @@ def test_secured_paper_flight_across_four_hosts(tmp_path: Path) -> None:
         assert [p.returncode for p in procs] == [0, 0, 0, 0], logs
         report = tmp_path / "ground"
         assert "finished" in (tmp_path / "ground.out").read_text(), logs
+        if secured:  # secrets files are 0600 in a 0700 folder and never printed
+            assert {oct(p.stat().st_mode & 0o777) for p in secrets.iterdir()} == {"0o600"}
+            assert secrets.stat().st_mode & 0o777 == 0o700
+            printed = "".join(p.read_text(errors="replace") for p in tmp_path.rglob("*.out"))
+            printed += "".join(p.read_text(errors="replace") for p in tmp_path.rglob("*.log"))
+            for name in ("agent.password", "gcs.password", "mavlink.key"):
+                assert (secrets / name).read_text().strip() not in printed
     # the agents reached their vehicles on the simulator's address and the router on the
     # ground's; nothing of theirs listens on or talks to a loopback of another host
     sim_log = (tmp_path / "sim" / "logs" / "sim.log").read_text()
     assert f"on UDP {sim.ip}:" in sim_log and f"GCS udp:{ground.ip}:" in sim_log, sim_log
-    assert "signed" in sim_log
+    assert ("signed" in sim_log) == secured
     router_log = (report / "logs" / "router.log").read_text()
-    assert f"tls/{ground.ip}:7447" in router_log and "secured" in router_log, router_log
-    _assert_paper_bars(report)
+    proto = "tls" if secured else "tcp"
+    assert f"{proto}/{ground.ip}:7447" in router_log, router_log
+    assert ("network secured" in router_log) == secured, router_log
+    flight = _first_60_s(report)
+    _assert_paper_bars(flight)
+    _assert_close_to(flight, one_host)
 
 
-def _assert_paper_bars(report: Path) -> None:
-    """The bars of test_demo_paper.py (one host), over the first 60 s."""
+def _first_60_s(report: Path) -> dict[str, np.ndarray]:
     flight = flight_of(read_tlog(report / "flight.tlog"))
     keep = flight["t"] <= DURATION_S - 0.5
-    t, pos = flight["t"][keep], flight["positions"][keep]
-    member, desired = flight["member"][keep], flight["desired"][keep]
+    return {k: v[keep] for k, v in flight.items()}
+
+
+def _assert_close_to(flight: dict[str, np.ndarray], reference: dict[str, np.ndarray]) -> None:
+    """Within 2 mm / 0.02 m^2 RMS of the in-process flight after 20 s (see the docstring)."""
+    t = flight["t"]
+    ours = descriptors_of(flight["positions"], flight["member"], flight["desired"])
+    theirs = descriptors_of(reference["positions"], reference["member"], reference["desired"])
+    after = t >= SETTLE_S
+    steady = after & ~((t >= CRASH_T_S) & (t < CRASH_T_S + 10.0))
+
+    def rms(x: np.ndarray, mask: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(x[mask] ** 2)))
+
+    centre = np.linalg.norm(ours[:, :3] - theirs[:, :3], axis=1)
+    shape = np.linalg.norm(ours[:, 6:9] - theirs[:, 6:9], axis=1)
+    apart = {"steady": (rms(centre, steady), rms(shape, steady)),
+             "after": (rms(centre, after), rms(shape, after))}  # fmt: skip
+    assert apart["steady"][0] < 0.002 and apart["steady"][1] < 0.02, apart
+    assert apart["after"][0] < 0.002 and apart["after"][1] < 0.02, apart
+
+
+def _assert_paper_bars(flight: dict[str, np.ndarray]) -> None:
+    """The bars of test_demo_paper.py (one host) over the first 60 s (see the docstring)."""
+    t, pos = flight["t"], flight["positions"]
+    member, desired = flight["member"], flight["desired"]
     errors = tracking_from_positions(t, pos, member, desired, SETTLE_S)
-    assert errors["centroid_m"]["rms"] < 0.06, errors["centroid_m"]
-    assert errors["shape_m2"]["rms"] < 0.12, errors["shape_m2"]
+    assert errors["centroid_m"]["rms"] < 0.13, errors["centroid_m"]
+    assert errors["shape_m2"]["rms"] < 0.25, errors["shape_m2"]
     window = [(CRASH_T_S, CRASH_T_S + 10.0)]
     steady = tracking_from_positions(t, pos, member, desired, SETTLE_S, exclude=window)
     assert steady["centroid_m"]["rms"] < 0.002, steady["centroid_m"]
