@@ -71,6 +71,13 @@ def add_multihost_flags(p: argparse.ArgumentParser) -> None:
         help="where the simulator sends telemetry: the ground station's host (default: --bind)",
     )
     p.add_argument(
+        "--start-at",
+        type=float,
+        metavar="UNIX_S",
+        help="the simulator's tick 0 at this Unix time (realtime): the same on every host of a "
+        "simulator split by --drones, so its shards share one clock",
+    )
+    p.add_argument(
         "--secrets",
         type=Path,
         metavar="DIR",
@@ -132,6 +139,11 @@ def host_layout(args: argparse.Namespace, n: int) -> HostLayout:
             "--only needs --router ENDPOINT: the swarm's router, where the parts started on "
             "different hosts meet"
         )
+    spread = [f for f in ("drones", "start_at", "sim_host", "gcs_host") if getattr(args, f)]
+    spread += ["bind"] if args.bind != "127.0.0.1" else []
+    if spread and router is None and args.secrets is None:
+        flag = "--" + spread[0].replace("_", "-")
+        raise SupervisorError(f"{flag} is for a swarm spread over hosts: give --router ENDPOINT")
     roles = {"router": "router", "gcs": "gcs", "sim": "sim", "agents": "agent"}
     for part in parts if args.secrets is not None else ():
         try:
@@ -148,6 +160,12 @@ def host_layout(args: argparse.Namespace, n: int) -> HostLayout:
         raise SupervisorError(
             "a simulator of some drones only (--drones) needs --clock realtime: lockstep across "
             "simulator shards is not built"
+        )
+    shard = "sim" in parts and (first, last) != (0, n - 1)
+    if shard and args.start_at is None:
+        raise SupervisorError(
+            "a simulator of some drones only (--drones) needs --start-at UNIX_S, the same on "
+            "every simulator host, so its shards share one clock"
         )
     bind = args.bind
     return HostLayout(
@@ -226,6 +244,7 @@ def multihost_plan(
                 ("--gcs-rate-hz", TELEMETRY_HZ),
                 ("--duration-s", duration_s),
                 ("--drones", shard),
+                ("--start-at", args.start_at),
             ]
         )
         sim = Child("simulator", swarm_argv("sim", *common, *sim_flags, *secured), logs / "sim.log")

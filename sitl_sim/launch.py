@@ -102,6 +102,7 @@ def build_config(args: argparse.Namespace) -> SimConfig:
             join_timeout_s=args.join_timeout,
             wait_agents=_wait_agents(args),
             duration_s=args.duration_s,
+            start_at_unix_s=_start_at(args),
         ),
         seed=v.seed if args.seed is None else args.seed,
     )
@@ -133,6 +134,13 @@ def _vehicles(args: argparse.Namespace) -> tuple[_Vehicles, DroneRange | None]:
             f"--drones {shard.first}-{shard.last}: the scenario has drones 0-{len(positions) - 1}"
         )
     return _slice(v, shard), shard
+
+
+def _start_at(args: argparse.Namespace) -> float | None:
+    start_at: float | None = getattr(args, "start_at", None)
+    if start_at is not None and args.clock != "realtime":
+        raise SimConfigError("--start-at needs --clock realtime (lockstep starts with its agents)")
+    return start_at
 
 
 def _slice(v: _Vehicles, shard: DroneRange) -> _Vehicles:

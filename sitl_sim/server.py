@@ -185,7 +185,13 @@ class SimServer:
         if self.answers is not None:
             self.answers.sent(self.world.tick, sent_to)
         join_deadline = start + self.clock.join_timeout_s
-        if self.barrier is None and self.clock.wait_agents > 0:
+        if self.barrier is None and self.clock.start_at_unix_s is not None:
+            # a shard of a swarm: tick 0 at the agreed wall-clock time (sitl_sim/shard.py)
+            self._poll_until(self.wall() + self.clock.start_at_unix_s - time.time())
+            start = self.wall()
+            meter = RateMeter(self.world.t_s, start)
+            self.pacer.rebase(self.world.tick, start)
+        elif self.barrier is None and self.clock.wait_agents > 0:
             self._await_agents(join_deadline)
             start = self.wall()
             meter = RateMeter(self.world.t_s, start)

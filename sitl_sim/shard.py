@@ -4,7 +4,10 @@ Drone ``d`` keeps its identity in every shard: system id ``d + 1`` and UDP port
 ``vehicle_port(d)`` (so an agent finds its vehicle whichever shard serves it, on that shard's
 host), its scenario position, and the scenario's crash faults of the drones in the range. Vehicles
 do not touch each other in the simulator (no collision physics), so shards need nothing from each
-other under the realtime clock: each paces to the wall clock.
+other under the realtime clock but one clock: each paces to the wall clock from tick 0, which
+every shard runs at the same agreed Unix time (``--start-at``; hosts' clocks synchronised, as
+NTP keeps them). A shard that falls behind re-bases its pace (sitl_sim/pacing.py) and from then
+on lags the others: keep each shard's load within its host's means.
 
 Lockstep across shards is not built: each shard's barrier holds only its own agents, so two
 shards in lockstep would drift apart in simulated time (and the agents' consensus would mix

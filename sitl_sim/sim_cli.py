@@ -166,6 +166,14 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
         metavar="S",
         help="stop after S simulated seconds (default: run until stopped)",
     )
+    p.add_argument(
+        "--start-at",
+        type=float,
+        metavar="UNIX_S",
+        help="realtime: run tick 0 at this Unix time (e.g. $(($(date +%%s) + 20))) instead of "
+        "when agents have spoken; give every shard of a swarm (--drones LO-HI) the same one so "
+        "they share one clock",
+    )
     p.add_argument("--quiet", action="store_true", help="no start and status lines")
     return p
 

@@ -70,6 +70,9 @@ class ClockConfig:
     join_timeout_s: float = 10.0
     wait_agents: int = 1
     duration_s: float | None = None
+    #: realtime: tick 0 runs at this Unix time (s), not when agents have spoken, so that
+    #: simulator shards on several hosts share one clock (sitl_sim/shard.py)
+    start_at_unix_s: float | None = None
 
 
 @dataclass(frozen=True)
