@@ -123,7 +123,7 @@ def zenoh_router(duration_s: float = 5.0, repeats: int = 3) -> dict[str, Any]:
     finally:
         shutil.rmtree(folder, ignore_errors=True)
     rows = []
-    for name, got in runs.items():
+    for got in runs.values():
         ordered = sorted(got, key=lambda r: r["p99_ms"])
         rows.append({**ordered[len(ordered) // 2], "p50_ms_runs": [r["p50_ms"] for r in got],
                      "p99_ms_runs": [r["p99_ms"] for r in got]})  # fmt: skip
