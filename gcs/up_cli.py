@@ -113,7 +113,9 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
     if clash is not None:
         raise SupervisorError(clash)
     if "sim" in layout.parts:
-        check_udp_ports(ports[layout.first : layout.last + 1], "vehicle ports", layout.bind)
+        check_udp_ports(
+            ports[layout.sim_first : layout.sim_last + 1], "vehicle ports", layout.bind
+        )
     if "gcs" in layout.parts:
         check_udp_ports([args.gcs_port], "ground station", layout.bind)
     if layout.router is not None or layout.secrets is not None:

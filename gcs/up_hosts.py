@@ -2,8 +2,9 @@
 
 With ``--router ENDPOINT`` every process ``swarm up`` starts is a client of the swarm's Zenoh
 router there (``swarm router``, or ``--only router,...`` on the host that runs it); ``--only``
-starts some parts only (``router``, ``gcs``, ``sim``, ``agents``) and ``--drones LO-HI`` narrows
-the simulator and the agents to a range of drones, so that each host starts its share::
+starts some parts only (``router``, ``gcs``, ``sim``, ``agents``), ``--drones LO-HI`` narrows the
+agents to a range of drones and ``--sim-drones LO-HI`` the simulator (a shard), so that each host
+starts its share::
 
     ground (10.0.0.1):  swarm up paper.toml --router tcp/10.0.0.1:7447 --only router,gcs \\
                             --bind 10.0.0.1
@@ -50,8 +51,14 @@ def add_multihost_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--drones",
         metavar="LO-HI",
-        help="only the agents (and the simulator's vehicles) of drones LO..HI (0-based), e.g. "
-        "0-4 on one companion host and 5-8 on another",
+        help="only the agents of drones LO..HI (0-based), e.g. 0-4 on one companion host and "
+        "5-8 on another",
+    )
+    p.add_argument(
+        "--sim-drones",
+        metavar="LO-HI",
+        help="a simulator of drones LO..HI only (a shard: one per simulator host, realtime, "
+        "with one --start-at on every shard's host; default: every drone)",
     )
     p.add_argument(
         "--bind",
@@ -75,7 +82,7 @@ def add_multihost_flags(p: argparse.ArgumentParser) -> None:
         type=float,
         metavar="UNIX_S",
         help="the simulator's tick 0 at this Unix time (realtime): the same on every host of a "
-        "simulator split by --drones, so its shards share one clock",
+        "simulator split by --sim-drones, so its shards share one clock",
     )
     p.add_argument(
         "--secrets",
@@ -88,12 +95,15 @@ def add_multihost_flags(p: argparse.ArgumentParser) -> None:
 
 @dataclass(frozen=True)
 class HostLayout:
-    """What this host runs: ``parts``, drones ``first``..``last``, the router endpoint (None: the
-    single-host peer rendezvous), the secrets folder, and the addresses."""
+    """What this host runs: ``parts``, the agents of drones ``first``..``last``, the simulator's
+    drones ``sim_first``..``sim_last``, the router endpoint (None: the single-host peer
+    rendezvous), the secrets folder, and the addresses."""
 
     parts: tuple[str, ...]
     first: int
     last: int
+    sim_first: int
+    sim_last: int
     router: str | None
     secrets: Path | None
     bind: str
@@ -111,14 +121,14 @@ def _parts(text: str | None) -> tuple[str, ...] | None:
     return parts
 
 
-def _range(text: str | None, n: int) -> tuple[int, int]:
+def _range(text: str | None, n: int, flag: str) -> tuple[int, int]:
     if text is None:
         return 0, n - 1
     lo, sep, hi = text.partition("-")
     if not sep:
         lo = hi = text
     if not (lo.strip().isdigit() and hi.strip().isdigit()) or not int(lo) <= int(hi) < n:
-        raise SupervisorError(f"--drones {text!r}: a range LO-HI of drones 0..{n - 1}")
+        raise SupervisorError(f"{flag} {text!r}: a range LO-HI of drones 0..{n - 1}")
     return int(lo), int(hi)
 
 
@@ -139,7 +149,9 @@ def host_layout(args: argparse.Namespace, n: int) -> HostLayout:
             "--only needs --router ENDPOINT: the swarm's router, where the parts started on "
             "different hosts meet"
         )
-    spread = [f for f in ("drones", "start_at", "sim_host", "gcs_host") if getattr(args, f)]
+    spread = [
+        f for f in ("drones", "sim_drones", "start_at", "sim_host", "gcs_host") if getattr(args, f)
+    ]
     spread += ["bind"] if args.bind != "127.0.0.1" else []
     if spread and router is None and args.secrets is None:
         flag = "--" + spread[0].replace("_", "-")
@@ -155,23 +167,26 @@ def host_layout(args: argparse.Namespace, n: int) -> HostLayout:
         router = f"tcp/127.0.0.1:{port}"
     if router is not None and args.secrets is not None:
         router = secured_endpoint(router)
-    first, last = _range(args.drones, n)
-    if "sim" in parts and args.clock == "lockstep" and (first, last) != (0, n - 1):
+    first, last = _range(args.drones, n, "--drones")
+    sim_first, sim_last = _range(args.sim_drones, n, "--sim-drones")
+    shard = "sim" in parts and (sim_first, sim_last) != (0, n - 1)
+    if shard and args.clock == "lockstep":
         raise SupervisorError(
-            "a simulator of some drones only (--drones) needs --clock realtime: lockstep across "
-            "simulator shards is not built"
+            "a simulator of some drones only (--sim-drones) needs --clock realtime: lockstep "
+            "across simulator shards is not built"
         )
-    shard = "sim" in parts and (first, last) != (0, n - 1)
     if shard and args.start_at is None:
         raise SupervisorError(
-            "a simulator of some drones only (--drones) needs --start-at UNIX_S, the same on "
-            "every simulator host, so its shards share one clock"
+            "a simulator of some drones only (--sim-drones) needs --start-at UNIX_S, the same "
+            "on every simulator host, so its shards share one clock"
         )
     bind = args.bind
     return HostLayout(
         parts=parts,
         first=first,
         last=last,
+        sim_first=sim_first,
+        sim_last=sim_last,
         router=router,
         secrets=args.secrets,
         bind=bind,
@@ -229,9 +244,9 @@ def multihost_plan(
         gcs = Child(
             "gcs", swarm_argv("gcs", *common, *gcs_flags, *client, *secured), logs / "gcs.log"
         )
-    drones = range(layout.first, layout.last + 1)
     if "sim" in layout.parts:
-        shard = None if len(drones) == n else f"{layout.first}-{layout.last}"
+        drones = range(layout.sim_first, layout.sim_last + 1)
+        shard = None if len(drones) == n else f"{layout.sim_first}-{layout.sim_last}"
         sim_flags = flags(
             [
                 ("--clock", args.clock),

@@ -72,9 +72,9 @@ def test_swarm_up_refuses_a_shard_without_a_common_clock(tmp_path: Path) -> None
         return out.stderr
 
     router = ["--router", "tcp/127.0.0.1:1"]
-    assert "needs --clock realtime" in up(*router, "--only", "sim", "--drones", "0-4")
+    assert "needs --clock realtime" in up(*router, "--only", "sim", "--sim-drones", "0-4")
     assert "needs --start-at" in up(
-        *router, "--only", "sim", "--drones", "0-4", "--clock", "realtime"
+        *router, "--only", "sim", "--sim-drones", "0-4", "--clock", "realtime"
     )
     assert "--only needs --router" in up("--only", "gcs")
     assert "--drones is for a swarm spread over hosts" in up("--drones", "0-4")
@@ -95,8 +95,8 @@ def test_two_simulator_shards_fly_one_swarm(tmp_path: Path) -> None:
     ]  # fmt: skip
     parts = {
         "ground": ["--only", "router,gcs"],
-        "sim-a": ["--only", "sim", "--drones", "0-1", "--start-at", str(start_at)],
-        "sim-b": ["--only", "sim", "--drones", "2-3", "--start-at", str(start_at)],
+        "sim-a": ["--only", "sim", "--sim-drones", "0-1", "--start-at", str(start_at)],
+        "sim-b": ["--only", "sim", "--sim-drones", "2-3", "--start-at", str(start_at)],
         "agents": ["--only", "agents", "--agents-per-process", "2"],
     }
     procs = {}
