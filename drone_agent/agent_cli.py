@@ -148,10 +148,13 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
         else:
             listen, connect = ["tcp/127.0.0.1:0"], [f"tcp/127.0.0.1:{RENDEZVOUS_PORT}"]
     try:
+        from drone_agent.zenoh_config import ROUTER_WAIT_MS
+
         return ZenohSettings(
             mode=args.zenoh_mode,
             listen=tuple(listen or ()) if args.zenoh_mode == "peer" else (),
             connect=tuple(connect or ()),
+            connect_timeout_ms=ROUTER_WAIT_MS if args.zenoh_mode == "client" else 0,
         )
     except ValueError as exc:
         raise AgentCliError(str(exc)) from None
@@ -160,7 +163,7 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
 def _secured_settings(
     folder: Path, role: str, connect: list[str] | None, swarm_id: str
 ) -> ZenohSettings:
-    from drone_agent.zenoh_config import role_secrets, secured_endpoint
+    from drone_agent.zenoh_config import ROUTER_WAIT_MS, role_secrets, secured_endpoint
 
     if not connect:
         raise AgentCliError("--secrets needs --zenoh-connect: the swarm router's endpoint")
@@ -170,6 +173,7 @@ def _secured_settings(
             listen=(),
             connect=tuple(secured_endpoint(e) for e in connect),
             secrets=role_secrets(folder, role, swarm_id),
+            connect_timeout_ms=ROUTER_WAIT_MS,
         )
     except ValueError as exc:
         raise AgentCliError(str(exc)) from None

@@ -22,6 +22,8 @@ from protocols.swarm_secrets import RoleSecrets, SecretsError, load_role
 
 #: Default router port (Zenoh's usual one).
 ROUTER_PORT = 7447
+#: How long the ground station and agents wait for their router (ms): hosts start in any order.
+ROUTER_WAIT_MS = 120_000
 
 
 def secure(conf: Any, secrets: RoleSecrets, mode: str) -> None:

@@ -47,7 +47,8 @@ class ZenohSettings:
     ``tcp/127.0.0.1:7447`` (a client listens on nothing). ``lease_ms``: how long (ms) peers wait
     for this session's keep-alives before declaring it dead; ``keep_alive``: keep-alives per
     lease. ``multicast_scouting``: find peers by UDP multicast (off: it finds strangers on shared
-    machines). ``secrets``: the role's credentials (``swarm keys init``): TLS with a client
+    machines). ``connect_timeout_ms``: how long a client waits for its router to answer (long-
+    running processes started on several hosts in any order). ``secrets``: the role's credentials (``swarm keys init``): TLS with a client
     certificate (mTLS) and user/password on every link, and (router) the swarm's access control;
     every endpoint must then be ``tls/``.
     """
@@ -59,6 +60,8 @@ class ZenohSettings:
     keep_alive: int = 4
     multicast_scouting: bool = False
     secrets: RoleSecrets | None = None
+    #: a client waits up to this long (ms) for its router (0: one try, fail at once)
+    connect_timeout_ms: int = 0
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -96,6 +99,8 @@ class ZenohSettings:
             ),
         ):
             conf.insert_json5(key, json.dumps(value))
+        if self.connect_timeout_ms > 0:
+            conf.insert_json5("connect/timeout_ms", json.dumps(self.connect_timeout_ms))
         if self.secrets is not None:
             from drone_agent.zenoh_config import secure
 

@@ -186,7 +186,7 @@ def supervise(
                 break
             if plan.gcs is None:
                 if plan.agents and not any(a.running for a in plan.agents):
-                    reason = "finished" if plan.sim is None else reason
+                    reason = _agents_ended(plan.agents)
                     break
                 _watch_agents(plan, progress)
                 if progress is not None and plan.sim is not None:
@@ -218,6 +218,16 @@ def supervise(
             if last is not None:
                 last.stop()
     return reason
+
+
+def _agents_ended(agents: list[Child]) -> str:
+    """Why a run of agents only ended: "finished" when they all left cleanly (their vehicles
+    stopped), else the first failure."""
+    for a in agents:
+        code = a.proc.returncode if a.proc is not None else None
+        if code not in (0, None):
+            return f"{a.role} exited with code {code} (log: {a.log})"
+    return "finished"
 
 
 def _watch_agents(plan: RunPlan, progress: Callable[[str], None] | None) -> None:
