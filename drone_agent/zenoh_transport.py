@@ -44,9 +44,9 @@ class ZenohSettings:
     """How to open the session.
 
     ``mode``: ``peer``, ``client`` or ``router`` (``swarm router``). ``listen`` / ``connect``:
-    endpoints such as ``tcp/127.0.0.1:7447`` (a client listens on nothing). ``lease_ms``: how long (ms) peers wait
-    for this session's keep-alives before declaring it dead; ``keep_alive``: keep-alives per
-    lease. ``multicast_scouting``: find peers by UDP multicast (off: it finds strangers on shared
+    endpoints such as ``tcp/127.0.0.1:7447`` (a client listens on nothing). ``lease_ms``: how
+    long (ms) peers wait for this session's keep-alives before declaring it dead;
+    ``keep_alive``: keep-alives per lease. ``multicast_scouting``: find peers by UDP multicast (off: it finds strangers on shared
     machines). ``connect_timeout_ms``: how long a client waits for its router to answer (long-
     running processes started on several hosts in any order). ``secrets``: the role's
     credentials (``swarm keys init``): TLS with a client certificate (mTLS) and user/password on
