@@ -46,11 +46,12 @@ class ZenohSettings:
     ``mode``: ``peer``, ``client`` or ``router`` (``swarm router``). ``listen`` / ``connect``:
     endpoints such as ``tcp/127.0.0.1:7447`` (a client listens on nothing). ``lease_ms``: how
     long (ms) peers wait for this session's keep-alives before declaring it dead;
-    ``keep_alive``: keep-alives per lease. ``multicast_scouting``: find peers by UDP multicast (off: it finds strangers on shared
-    machines). ``connect_timeout_ms``: how long a client waits for its router to answer (long-
-    running processes started on several hosts in any order). ``secrets``: the role's
-    credentials (``swarm keys init``): TLS with a client certificate (mTLS) and user/password on
-    every link, and (router) the swarm's access control; every endpoint must then be ``tls/``.
+    ``keep_alive``: keep-alives per lease. ``multicast_scouting``: find peers by UDP multicast
+    (off: it finds strangers on shared machines). ``connect_timeout_ms``: how long a client
+    waits for its router to answer (long-running processes started on several hosts in any
+    order). ``secrets``: the role's credentials (``swarm keys init``): TLS with a client
+    certificate (mTLS) and user/password on every link, and (router) the swarm's access control;
+    every endpoint must then be ``tls/``.
     """
 
     mode: str = "peer"
