@@ -70,7 +70,7 @@ def role_secrets(folder: object, role: str, swarm_id: str | None = None) -> Role
     return secrets
 
 
-def _answers(endpoint: str) -> bool:
+def answers(endpoint: str) -> bool:
     """Whether something accepts TCP connections at ``proto/HOST:PORT``."""
     _, _, address = endpoint.partition("/")
     host, _, port = address.rpartition(":")
@@ -85,7 +85,7 @@ def _answers(endpoint: str) -> bool:
 
 def open_error(endpoint: str, secrets: RoleSecrets | None) -> str:
     """One line on why a client session to ``endpoint`` did not open."""
-    if not _answers(endpoint):
+    if not answers(endpoint):
         return f"nothing reachable at {endpoint}"
     if secrets is None:
         return (

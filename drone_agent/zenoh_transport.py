@@ -21,6 +21,7 @@ Never fork a process after it opened a session (the child hangs): start agents w
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import socket
 from collections.abc import Callable
@@ -202,8 +203,16 @@ class ZenohBus(ClosesOnExit):
 
     @classmethod
     def open(cls, settings: ZenohSettings | None = None) -> ZenohBus:
-        """Open a session with ``settings`` (default: the embedded loopback peer)."""
-        return cls(zenoh.open((settings or ZenohSettings()).config()))
+        """Open a session with ``settings`` (default: the embedded loopback peer). A client
+        waits for its router (``connect_timeout_ms``) only while nothing answers there: a router
+        that is up and refuses the session (a bad credential) fails it at once."""
+        settings = settings or ZenohSettings()
+        if settings.mode == "client" and settings.connect_timeout_ms > 0:
+            from drone_agent.zenoh_config import answers
+
+            if answers(settings.connect[0]):
+                settings = dataclasses.replace(settings, connect_timeout_ms=0)
+        return cls(zenoh.open(settings.config()))
 
     def publisher(self, key: str, congestion: Congestion) -> Publisher:
         """A declared publisher on ``key`` with the given congestion control; DROP publishers

@@ -178,6 +178,14 @@ def test_clients_without_the_right_credentials_cannot_connect(
     bad_password = _swarm("status", "--swarm-id", SWARM_ID, "--zenoh-connect", router,
                           "--secrets", str(forged))  # fmt: skip
     _one_line_error(bad_password, "refused the 'operator' credential", "password")
+    # long-running processes too, at once (they wait for a router only while none answers)
+    started = time.monotonic()
+    agent = _swarm(
+        "agent", "--drone-id", "0", "--swarm-id", SWARM_ID, "--zenoh-connect", router,
+        "--secrets", str(stranger), "--base-port", str(free_port_block(1)),
+    )  # fmt: skip
+    _one_line_error(agent, "refused the 'agent' credential")
+    assert time.monotonic() - started < 20.0
     # nothing listening at all says so
     nobody = _swarm("status", "--swarm-id", SWARM_ID, "--zenoh-connect",
                     free_loopback_endpoint(), "--secrets", str(secrets))  # fmt: skip
