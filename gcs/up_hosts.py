@@ -85,6 +85,16 @@ def add_multihost_flags(p: argparse.ArgumentParser) -> None:
         "simulator split by --sim-drones, so its shards share one clock",
     )
     p.add_argument(
+        "--shard-sync",
+        metavar="HOST:PORT",
+        help="lockstep simulator shards: this shard's UDP port for the shards' tick agreement",
+    )
+    p.add_argument(
+        "--shard-peers",
+        metavar="LIST",
+        help="lockstep simulator shards: the other shards' --shard-sync, comma-separated",
+    )
+    p.add_argument(
         "--secrets",
         type=Path,
         metavar="DIR",
@@ -149,9 +159,8 @@ def host_layout(args: argparse.Namespace, n: int) -> HostLayout:
             "--only needs --router ENDPOINT: the swarm's router, where the parts started on "
             "different hosts meet"
         )
-    spread = [
-        f for f in ("drones", "sim_drones", "start_at", "sim_host", "gcs_host") if getattr(args, f)
-    ]
+    flags_ = ("drones", "sim_drones", "start_at", "sim_host", "gcs_host", "shard_sync")
+    spread = [f for f in flags_ if getattr(args, f)]
     spread += ["bind"] if args.bind != "127.0.0.1" else []
     if spread and router is None and args.secrets is None:
         flag = "--" + spread[0].replace("_", "-")
@@ -170,12 +179,13 @@ def host_layout(args: argparse.Namespace, n: int) -> HostLayout:
     first, last = _range(args.drones, n, "--drones")
     sim_first, sim_last = _range(args.sim_drones, n, "--sim-drones")
     shard = "sim" in parts and (sim_first, sim_last) != (0, n - 1)
-    if shard and args.clock == "lockstep":
+    synced = args.shard_sync is not None and args.shard_peers is not None
+    if shard and args.clock == "lockstep" and not synced:
         raise SupervisorError(
-            "a simulator of some drones only (--sim-drones) needs --clock realtime: lockstep "
-            "across simulator shards is not built"
+            "a lockstep simulator of some drones only (--sim-drones) needs --shard-sync "
+            "HOST:PORT and --shard-peers (the other shards'), or --clock realtime and --start-at"
         )
-    if shard and args.start_at is None:
+    if shard and args.clock == "realtime" and args.start_at is None:
         raise SupervisorError(
             "a simulator of some drones only (--sim-drones) needs --start-at UNIX_S, the same "
             "on every simulator host, so its shards share one clock"
@@ -260,6 +270,8 @@ def multihost_plan(
                 ("--duration-s", duration_s),
                 ("--drones", shard),
                 ("--start-at", args.start_at),
+                ("--shard-sync", args.shard_sync),
+                ("--shard-peers", args.shard_peers),
             ]
         )
         sim = Child("simulator", swarm_argv("sim", *common, *sim_flags, *secured), logs / "sim.log")

@@ -9,11 +9,10 @@ every shard runs at the same agreed Unix time (``--start-at``; hosts' clocks syn
 NTP keeps them). A shard that falls behind re-bases its pace (sitl_sim/pacing.py) and from then
 on lags the others: keep each shard's load within its host's means.
 
-Lockstep across shards is not built: each shard's barrier holds only its own agents, so two
-shards in lockstep would drift apart in simulated time (and the agents' consensus would mix
-rounds). It would need the shards to agree on each tick (a shared barrier: every shard steps to
-k + 1 once every shard holds tick k's setpoints of its live vehicles), e.g. over Zenoh; use
-``--clock realtime`` with several shards.
+Lockstep across shards (sitl_sim/shard_sync.py, ``--shard-sync HOST:PORT --shard-peers
+LIST``): each shard's barrier holds only its own agents, so the shards also agree on every tick
+over UDP: a shard steps to k + 1 once every shard holds tick k's setpoints of its live agents.
+The agents' consensus then sees the same rounds across shards, as with one simulator.
 """
 
 from __future__ import annotations

@@ -174,6 +174,17 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
         "when agents have spoken; give every shard of a swarm (--drones LO-HI) the same one so "
         "they share one clock",
     )
+    p.add_argument(
+        "--shard-sync",
+        metavar="HOST:PORT",
+        help="lockstep across shards: this shard's UDP port for the shards' tick agreement "
+        "(every shard steps once all hold the tick's setpoints); with --shard-peers",
+    )
+    p.add_argument(
+        "--shard-peers",
+        metavar="LIST",
+        help="the other shards' --shard-sync addresses, comma-separated HOST:PORT",
+    )
     p.add_argument("--quiet", action="store_true", help="no start and status lines")
     return p
 
@@ -190,14 +201,42 @@ def run_sim(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
     def show(status: Status) -> None:
         print(status_line(status), file=out, flush=True)
 
-    with Network(config.net, config.sysids) as network:
-        on_status = None if args.quiet else show
-        server = SimServer(world, tunables, network, config.clock, on_status=on_status)
-        if not args.quiet:
-            print(start_line(config), file=out, flush=True)
-        with _stop_on_signals(server.stop):
-            server.run()
+    shards = _shard_sync(args)
+    try:
+        with Network(config.net, config.sysids) as network:
+            on_status = None if args.quiet else show
+            server = SimServer(
+                world, tunables, network, config.clock, on_status=on_status, shard_sync=shards
+            )
+            if not args.quiet:
+                print(start_line(config), file=out, flush=True)
+            with _stop_on_signals(server.stop):
+                server.run()
+    finally:
+        if shards is not None:
+            shards.close()
     return 0
+
+
+def _shard_sync(args: argparse.Namespace) -> Any:
+    """The shards' tick agreement of ``--shard-sync`` / ``--shard-peers`` (None without)."""
+    import time
+
+    from sitl_sim.shard_sync import ShardSync, parse_address
+    from sitl_sim.sim_config import SimConfigError
+
+    if args.shard_sync is None and args.shard_peers is None:
+        return None
+    if args.shard_sync is None or not args.shard_peers:
+        raise SimConfigError("lockstep across shards needs both --shard-sync and --shard-peers")
+    if args.clock != "lockstep":
+        raise SimConfigError("--shard-sync is for --clock lockstep (realtime shards: --start-at)")
+    try:
+        bind = parse_address(args.shard_sync, "--shard-sync")
+        peers = [parse_address(p, "--shard-peers") for p in args.shard_peers.split(",")]
+        return ShardSync(bind, peers, time.monotonic, timeout_s=args.lockstep_timeout * 5)
+    except ValueError as exc:
+        raise SimConfigError(str(exc)) from None
 
 
 class _stop_on_signals:

@@ -22,6 +22,7 @@ from gcs.cli import _parser
 from gcs.tlog import read_tlog
 from protocols.mavlink_conventions import vehicle_port
 from sitl_sim.launch import build_config, start_line
+from sitl_sim.shard_sync import ShardSync
 from sitl_sim.sim_config import SimConfigError
 
 PAPER = ROOT / "scenarios" / "paper.toml"
@@ -72,7 +73,7 @@ def test_swarm_up_refuses_a_shard_without_a_common_clock(tmp_path: Path) -> None
         return out.stderr
 
     router = ["--router", "tcp/127.0.0.1:1"]
-    assert "needs --clock realtime" in up(*router, "--only", "sim", "--sim-drones", "0-4")
+    assert "needs --shard-sync" in up(*router, "--only", "sim", "--sim-drones", "0-4")
     assert "needs --start-at" in up(
         *router, "--only", "sim", "--sim-drones", "0-4", "--clock", "realtime"
     )
@@ -80,23 +81,59 @@ def test_swarm_up_refuses_a_shard_without_a_common_clock(tmp_path: Path) -> None
     assert "--drones is for a swarm spread over hosts" in up("--drones", "0-4")
 
 
+def test_shard_sync_waits_for_every_peer_and_drops_a_silent_one() -> None:
+    now = [0.0]
+    a_port, b_port, c_port = free_udp_port(), free_udp_port(), free_udp_port()
+    a = ShardSync(("127.0.0.1", a_port), [("127.0.0.1", b_port), ("127.0.0.1", c_port)],
+                  lambda: now[0], timeout_s=5.0)  # fmt: skip
+    b = ShardSync(("127.0.0.1", b_port), [("127.0.0.1", a_port)], lambda: now[0])
+    c = ShardSync(("127.0.0.1", c_port), [("127.0.0.1", a_port)], lambda: now[0])
+    try:
+        b.announce(0)
+        now[0] = 60.0  # c has not spoken yet: a shard still gathering its agents is waited for
+        time.sleep(0.05)
+        a.receive()
+        assert not a.ready(0)
+        c.announce(0)
+        time.sleep(0.05)
+        a.receive()
+        assert a.ready(0) and not a.ready(1)
+        b.announce(1)  # c stays silent at tick 0 for longer than the timeout: dropped
+        time.sleep(0.05)
+        a.receive()
+        now[0] = 66.0
+        assert a.ready(1) and list(a.peers) == [("127.0.0.1", b_port)]
+    finally:
+        for s in (a, b, c):
+            s.close()
+
+
 @pytest.mark.slow
-def test_two_simulator_shards_fly_one_swarm(tmp_path: Path) -> None:
+@pytest.mark.parametrize("clock", ["realtime", "lockstep"])
+def test_two_simulator_shards_fly_one_swarm(tmp_path: Path, clock: str) -> None:
     scenario = write_scenario(
         tmp_path / "hover.toml", SQUARE, centre=(2.0, 1.5, -2.0), spread=(2.0, 1.5, 0.0),
         duration_s=22.0, settle_s=8.0,
     )  # fmt: skip
     base, gcs_port = free_port_block(4), free_udp_port()
     router = free_loopback_endpoint()
-    start_at = time.time() + 12.0
     common = [
-        "up", str(scenario), "--router", router, "--clock", "realtime", "--swarm-id", "shards",
+        "up", str(scenario), "--router", router, "--clock", clock, "--swarm-id", "shards",
         "--base-port", str(base), "--gcs-port", str(gcs_port),
     ]  # fmt: skip
+    if clock == "realtime":  # one agreed start
+        start_at = str(time.time() + 12.0)
+        clocks = [["--start-at", start_at], ["--start-at", start_at]]
+    else:  # the shards agree on every tick
+        sync = [f"127.0.0.1:{free_udp_port()}", f"127.0.0.1:{free_udp_port()}"]
+        clocks = [
+            ["--shard-sync", sync[0], "--shard-peers", sync[1]],
+            ["--shard-sync", sync[1], "--shard-peers", sync[0]],
+        ]
     parts = {
         "ground": ["--only", "router,gcs"],
-        "sim-a": ["--only", "sim", "--sim-drones", "0-1", "--start-at", str(start_at)],
-        "sim-b": ["--only", "sim", "--sim-drones", "2-3", "--start-at", str(start_at)],
+        "sim-a": ["--only", "sim", "--sim-drones", "0-1", *clocks[0]],
+        "sim-b": ["--only", "sim", "--sim-drones", "2-3", *clocks[1]],
         "agents": ["--only", "agents", "--agents-per-process", "2"],
     }
     procs = {}
