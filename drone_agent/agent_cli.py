@@ -148,13 +148,15 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
         else:
             listen, connect = ["tcp/127.0.0.1:0"], [f"tcp/127.0.0.1:{RENDEZVOUS_PORT}"]
     try:
-        from drone_agent.zenoh_config import ROUTER_WAIT_MS
+        from drone_agent.zenoh_config import ROUTER_LEASE_MS, ROUTER_WAIT_MS
 
+        client = args.zenoh_mode == "client"
         return ZenohSettings(
             mode=args.zenoh_mode,
-            listen=tuple(listen or ()) if args.zenoh_mode == "peer" else (),
+            listen=tuple(listen or ()) if not client else (),
             connect=tuple(connect or ()),
-            connect_timeout_ms=ROUTER_WAIT_MS if args.zenoh_mode == "client" else 0,
+            connect_timeout_ms=ROUTER_WAIT_MS if client else 0,
+            lease_ms=ROUTER_LEASE_MS if client else ZenohSettings.lease_ms,
         )
     except ValueError as exc:
         raise AgentCliError(str(exc)) from None
@@ -163,7 +165,12 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
 def _secured_settings(
     folder: Path, role: str, connect: list[str] | None, swarm_id: str
 ) -> ZenohSettings:
-    from drone_agent.zenoh_config import ROUTER_WAIT_MS, role_secrets, secured_endpoint
+    from drone_agent.zenoh_config import (
+        ROUTER_LEASE_MS,
+        ROUTER_WAIT_MS,
+        role_secrets,
+        secured_endpoint,
+    )
 
     if not connect:
         raise AgentCliError("--secrets needs --zenoh-connect: the swarm router's endpoint")
@@ -174,6 +181,7 @@ def _secured_settings(
             connect=tuple(secured_endpoint(e) for e in connect),
             secrets=role_secrets(folder, role, swarm_id),
             connect_timeout_ms=ROUTER_WAIT_MS,
+            lease_ms=ROUTER_LEASE_MS,
         )
     except ValueError as exc:
         raise AgentCliError(str(exc)) from None

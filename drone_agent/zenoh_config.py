@@ -24,6 +24,10 @@ from protocols.swarm_secrets import RoleSecrets, SecretsError, load_role
 ROUTER_PORT = 7447
 #: How long the ground station and agents wait for their router (ms): hosts start in any order.
 ROUTER_WAIT_MS = 120_000
+#: Link lease between a router and its clients (ms): a link silent that long is closed and the
+#: client's liveliness tokens vanish. Longer than a peer's on loopback (1 s): links cross hosts,
+#: and a starved process must not drop half the swarm (a killed one's still vanish at once).
+ROUTER_LEASE_MS = 3000
 
 
 def secure(conf: Any, secrets: RoleSecrets, mode: str) -> None:

@@ -116,7 +116,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 def _zenoh(args: argparse.Namespace) -> ZenohSettings:
     if args.secrets is not None:
-        from drone_agent.zenoh_config import ROUTER_WAIT_MS, role_secrets, secured_endpoint
+        from drone_agent.zenoh_config import (
+            ROUTER_LEASE_MS,
+            ROUTER_WAIT_MS,
+            role_secrets,
+            secured_endpoint,
+        )
 
         if not args.zenoh_connect:
             raise GcsCliError("--secrets needs --zenoh-connect: the swarm router's endpoint")
@@ -127,6 +132,7 @@ def _zenoh(args: argparse.Namespace) -> ZenohSettings:
                 connect=tuple(secured_endpoint(e) for e in args.zenoh_connect),
                 secrets=role_secrets(args.secrets, "gcs", args.swarm_id),
                 connect_timeout_ms=ROUTER_WAIT_MS,
+                lease_ms=ROUTER_LEASE_MS,
             )
         except ValueError as exc:
             raise GcsCliError(str(exc)) from None
@@ -134,13 +140,15 @@ def _zenoh(args: argparse.Namespace) -> ZenohSettings:
     if listen is None:
         listen = [f"tcp/127.0.0.1:{RENDEZVOUS_PORT}"] if args.zenoh_mode == "peer" else []
     try:
-        from drone_agent.zenoh_config import ROUTER_WAIT_MS
+        from drone_agent.zenoh_config import ROUTER_LEASE_MS, ROUTER_WAIT_MS
 
+        client = args.zenoh_mode == "client"
         return ZenohSettings(
             mode=args.zenoh_mode,
-            listen=tuple(listen) if args.zenoh_mode == "peer" else (),
+            listen=tuple(listen) if not client else (),
             connect=tuple(args.zenoh_connect or ()),
-            connect_timeout_ms=ROUTER_WAIT_MS if args.zenoh_mode == "client" else 0,
+            connect_timeout_ms=ROUTER_WAIT_MS if client else 0,
+            lease_ms=ROUTER_LEASE_MS if client else ZenohSettings.lease_ms,
         )
     except ValueError as exc:
         raise GcsCliError(str(exc)) from None

@@ -15,7 +15,13 @@ import sys
 import threading
 from pathlib import Path
 
-from drone_agent.zenoh_config import ROUTER_PORT, describe, role_secrets, secured_endpoint
+from drone_agent.zenoh_config import (
+    ROUTER_LEASE_MS,
+    ROUTER_PORT,
+    describe,
+    role_secrets,
+    secured_endpoint,
+)
 
 
 class RouterError(Exception):
@@ -43,7 +49,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "becomes tls/)",
     )
     p.add_argument("--secrets", type=Path, metavar="DIR", help="the swarm's secrets folder")
-    p.add_argument("--lease-ms", type=int, default=1000, help="link lease, ms (default 1000)")
+    p.add_argument(
+        "--lease-ms",
+        type=int,
+        default=ROUTER_LEASE_MS,
+        help="link lease, ms: a client silent that long is dropped (default %(default)s)",
+    )
 
 
 def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
