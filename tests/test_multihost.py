@@ -25,8 +25,8 @@ with or without a router) for the two that do:
 
 Measured across the namespaces: 0.103 m / 0.201 m^2 with the crash, 0.25 mm / 0.005 m^2 steady,
 2.01 m; from ``swarm simulate`` 0.2 mm / 0.006-0.0075 m^2 steady, 0.4-0.5 mm / 0.007-0.011 m^2
-with the crash. Lockstep runs about 3x
-real time here: each flight takes about 30 s.
+with the crash. Lockstep runs about 3x real time: each flight takes 30 s on a quiet 2-core
+machine, about 1 minute at load 20 (plus ``swarm simulate``'s 10-60 s, once).
 
 Without root or ``ip netns`` the test is skipped, saying why.
 """
