@@ -27,6 +27,7 @@ from gcs.supervisor import (
     supervise,
     swarm_argv,
 )
+from gcs.up_hosts import add_multihost_flags, host_layout, multihost_plan
 from protocols.mavlink_conventions import DEFAULT_GCS_PORT, port_clash, vehicle_ports
 from protocols.scenario import ScenarioError, load_scenario
 
@@ -86,6 +87,7 @@ def _common(p: argparse.ArgumentParser) -> None:
         metavar="ENDPOINT",
         help="use this Zenoh endpoint (e.g. a router) instead of the ground station's",
     )
+    add_multihost_flags(p)
     p.add_argument("--swarm-id", default="swarm", help="swarm name on Zenoh")
     p.add_argument(
         "--base-port",
@@ -118,12 +120,17 @@ def build_plan(args: argparse.Namespace, scenario_path: Path) -> tuple[RunPlan, 
     duration = scenario.duration_s if args.duration_s is None else args.duration_s
     if not 0 < duration <= scenario.duration_s:
         raise SupervisorError(f"--duration-s must be in (0, {scenario.duration_s:g}]")
+    layout = host_layout(args, n)
     ports = vehicle_ports(n, args.base_port)
     clash = port_clash(ports, args.gcs_port)
     if clash is not None:
         raise SupervisorError(clash)
-    check_udp_ports(ports, "vehicle ports")
-    check_udp_ports([args.gcs_port], "ground station")
+    if "sim" in layout.parts:
+        check_udp_ports(ports[layout.sim_first : layout.sim_last + 1], "vehicle ports", layout.bind)
+    if "gcs" in layout.parts:
+        check_udp_ports([args.gcs_port], "ground station", layout.bind)
+    if layout.router is not None or layout.secrets is not None:
+        return multihost_plan(args, scenario_path, layout, n, duration), n
     report: Path = args.report
     logs = report / "logs"
     try:
@@ -261,14 +268,16 @@ def run(args: argparse.Namespace) -> int:
             print(line, file=sys.stderr, flush=True)
             shown[0] = time.monotonic()
 
+    parts = [c.role.split()[0] for c in plan.children]
     print(
         f"swarm up: {n} drones, {len(plan.agents)} agent processes, {args.clock} clock; "
-        f"logs in {args.report / 'logs'}",
+        f"here: {', '.join(dict.fromkeys(parts))}; logs in {args.report / 'logs'}",
         file=sys.stderr,
     )
+    secrets = f" --secrets {args.secrets}" if args.secrets is not None else ""
     print(
         f"swarm up: operator commands and drills: swarm status --swarm-id {args.swarm_id} "
-        f"--zenoh-connect {plan.zenoh_endpoint}",
+        f"--zenoh-connect {plan.zenoh_endpoint}{secrets}",
         file=sys.stderr,
     )
     with interrupt_flag() as stop, live_view(args, scenario) as url:
