@@ -23,6 +23,7 @@ from bench.physics import physics_step
 from bench.physics_tick import physics_tick
 from bench.sitl import sitl_rtf
 from bench.zenoh_latency import zenoh_latency
+from bench.zenoh_router import zenoh_router
 
 Benchmark = Callable[[], dict[str, Any]]
 
@@ -30,6 +31,7 @@ BENCHMARKS: dict[str, Benchmark] = {
     "physics_step": physics_step,
     "physics_tick": physics_tick,
     "zenoh_latency": zenoh_latency,
+    "zenoh_router": zenoh_router,
     "sitl": sitl_rtf,
     "end_to_end": end_to_end,
 }

@@ -25,6 +25,7 @@ import math
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -122,8 +123,16 @@ def _delivered_pct(probe: int, n: int, groups: list[list[int]], results: list[An
     return 100.0 * len(got) / max(len(sent), 1)
 
 
-def measure(n_agents: int, n_processes: int, duration_s: float) -> dict[str, Any]:
-    """One configuration: start the hosts and the probe, gather and summarise their results."""
+def measure(
+    n_agents: int,
+    n_processes: int,
+    duration_s: float,
+    session_args: Callable[[int], list[str]] | None = None,
+) -> dict[str, Any]:
+    """One configuration: start the hosts and the probe, gather and summarise their results.
+
+    ``session_args(k)``: the Zenoh flags of worker ``k`` (default: peers meshed from worker 0's
+    endpoint; bench/zenoh_router.py gives clients of a router)."""
     from drone_agent.zenoh_transport import free_loopback_endpoint
 
     seed = free_loopback_endpoint()
@@ -142,7 +151,10 @@ def measure(n_agents: int, n_processes: int, duration_s: float) -> dict[str, Any
             "--duration-s",
             str(duration_s),
         ]
-        args += ["--listen", seed] if k == 0 else ["--connect", seed]
+        if session_args is not None:
+            args += session_args(k)
+        else:
+            args += ["--listen", seed] if k == 0 else ["--connect", seed]
         args += ["--probe"] if k == len(groups) - 1 else []
         workers.append(subprocess.Popen(args, cwd=_ROOT, stdout=subprocess.PIPE, text=True))
     results = []
@@ -193,6 +205,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--listen", default=None)
     parser.add_argument("--connect", default=None)
     parser.add_argument("--probe", action="store_true", help="poll and record latencies")
+    parser.add_argument("--client", action="store_true", help="a client of --connect (router)")
+    parser.add_argument("--secrets", default=None, help="agent credential of a secured router")
     args = parser.parse_args(argv)
     if args.worker is None:
         from bench.run import format_rows
@@ -201,12 +215,21 @@ def main(argv: list[str] | None = None) -> int:
         print(format_rows("zenoh_latency", result["rows"]))
         print(f"{result['note']}; target {result['target']} met: {result['target_met']}")
         return 0
+    from drone_agent.zenoh_config import role_secrets
     from drone_agent.zenoh_transport import ZenohSettings
 
-    settings = ZenohSettings(
-        listen=(args.listen,) if args.listen else ("tcp/127.0.0.1:0",),
-        connect=(args.connect,) if args.connect else (),
-    )
+    if args.client:
+        settings = ZenohSettings(
+            mode="client",
+            listen=(),
+            connect=(args.connect,),
+            secrets=role_secrets(args.secrets, "agent"),
+        )
+    else:
+        settings = ZenohSettings(
+            listen=(args.listen,) if args.listen else ("tcp/127.0.0.1:0",),
+            connect=(args.connect,) if args.connect else (),
+        )
     drones = [int(x) for x in args.worker.split(",")]
     result = run_worker(drones, args.n, settings, args.start_at, args.duration_s, args.probe)
     print(json.dumps(result))

@@ -68,7 +68,19 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "10-249 on 14560-14799)",
     )
     p.add_argument("--swarm-id", default="swarm", help="swarm name on Zenoh (default %(default)s)")
-    p.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer")
+    p.add_argument(
+        "--vehicle-host",
+        default="127.0.0.1",
+        metavar="HOST",
+        help="where the simulator's vehicle ports are (default 127.0.0.1; another host's "
+        "address when the simulator runs elsewhere)",
+    )
+    p.add_argument(
+        "--zenoh-mode",
+        choices=("peer", "client"),
+        default="peer",
+        help="client: join a Zenoh router (swarm router) given by --zenoh-connect",
+    )
     p.add_argument(
         "--zenoh-connect",
         nargs="*",
@@ -88,6 +100,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         type=Path,
         metavar="FILE",
         help="MAVLink 2 signing key (32 raw bytes or 64 hex characters)",
+    )
+    p.add_argument(
+        "--secrets",
+        type=Path,
+        metavar="DIR",
+        help="the swarm's secrets (swarm keys init): client of the router at --zenoh-connect "
+        "over TLS with the agent credential; MAVLink signed with its key",
     )
     p.add_argument(
         "--comm-range-m",
@@ -125,18 +144,51 @@ def _endpoint(url: str) -> tuple[str, int]:
 
 
 def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
-    """The session settings: the flags, or the embedded loopback rendezvous by default."""
+    """The session settings: the flags, or the embedded loopback rendezvous by default; with
+    ``--secrets`` a TLS client of the router at ``--zenoh-connect``."""
     listen, connect = args.zenoh_listen, args.zenoh_connect
+    if getattr(args, "secrets", None) is not None:
+        return _secured_settings(args.secrets, "agent", connect, args.swarm_id)
     if listen is None and connect is None:
         if tcp_listen_free(RENDEZVOUS_PORT):
             listen, connect = [f"tcp/127.0.0.1:{RENDEZVOUS_PORT}"], []
         else:
             listen, connect = ["tcp/127.0.0.1:0"], [f"tcp/127.0.0.1:{RENDEZVOUS_PORT}"]
     try:
+        from drone_agent.zenoh_config import ROUTER_LEASE_MS, ROUTER_WAIT_MS
+
+        client = args.zenoh_mode == "client"
         return ZenohSettings(
             mode=args.zenoh_mode,
-            listen=tuple(listen or ()) if args.zenoh_mode == "peer" else (),
+            listen=tuple(listen or ()) if not client else (),
             connect=tuple(connect or ()),
+            connect_timeout_ms=ROUTER_WAIT_MS if client else 0,
+            lease_ms=ROUTER_LEASE_MS if client else ZenohSettings.lease_ms,
+        )
+    except ValueError as exc:
+        raise AgentCliError(str(exc)) from None
+
+
+def _secured_settings(
+    folder: Path, role: str, connect: list[str] | None, swarm_id: str
+) -> ZenohSettings:
+    from drone_agent.zenoh_config import (
+        ROUTER_LEASE_MS,
+        ROUTER_WAIT_MS,
+        role_secrets,
+        secured_endpoint,
+    )
+
+    if not connect:
+        raise AgentCliError("--secrets needs --zenoh-connect: the swarm router's endpoint")
+    try:
+        return ZenohSettings(
+            mode="client",
+            listen=(),
+            connect=tuple(secured_endpoint(e) for e in connect),
+            secrets=role_secrets(folder, role, swarm_id),
+            connect_timeout_ms=ROUTER_WAIT_MS,
+            lease_ms=ROUTER_LEASE_MS,
         )
     except ValueError as exc:
         raise AgentCliError(str(exc)) from None
@@ -180,9 +232,12 @@ def run(args: argparse.Namespace) -> int:
     if args.vehicle is not None and len(drones) != 1:
         raise AgentCliError("--vehicle names one vehicle: use --base-port with several drones")
     key = None
-    if args.signing_key is not None:
+    key_file = args.signing_key
+    if key_file is None and args.secrets is not None:
+        key_file = args.secrets / "mavlink.key"
+    if key_file is not None:
         try:
-            key = load_signing_key(args.signing_key)
+            key = load_signing_key(key_file)
         except SigningKeyError as exc:
             raise AgentCliError(str(exc)) from None
     comm_range = args.comm_range_m or (scenario.comms.range_m if scenario else 10.0)
@@ -199,16 +254,20 @@ def run(args: argparse.Namespace) -> int:
             if args.vehicle:
                 address = _endpoint(args.vehicle)
             else:
-                address = ("127.0.0.1", vehicle_port(d, args.base_port))
+                address = (args.vehicle_host, vehicle_port(d, args.base_port))
             links.append(VehicleLink(d, address[0], address[1], signing_key=key))
     except OSError as exc:
         raise AgentCliError(f"cannot open the vehicle link: {exc}") from None
+    zsettings = zenoh_settings(args)
     try:
-        bus: Bus = ZenohBus.open(zenoh_settings(args))
-    except AgentCliError:
-        raise
+        bus: Bus = ZenohBus.open(zsettings)
     except Exception as exc:  # zenoh raises ZError with the reason
-        raise AgentCliError(f"cannot open the Zenoh session: {exc}") from None
+        from drone_agent.zenoh_config import open_error
+
+        reason = str(exc).split(" at /", 1)[0]
+        if zsettings.mode == "client":
+            reason = open_error(zsettings.connect[0], zsettings.secrets)
+        raise AgentCliError(f"cannot open the Zenoh session: {reason}") from None
 
     def transport(bus_: Bus, drone: int, position: Position) -> AgentTransport:
         # called once the host runs; ``host`` is bound by then

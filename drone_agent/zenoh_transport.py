@@ -21,6 +21,7 @@ Never fork a process after it opened a session (the child hangs): start agents w
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import socket
 from collections.abc import Callable
@@ -30,23 +31,28 @@ from typing import Any
 import zenoh
 
 from drone_agent.transport import Closeable, ClosesOnExit, Congestion, Inbox, Publisher
+from protocols.swarm_secrets import RoleSecrets
 
 _CONGESTION = {
     Congestion.DROP: zenoh.CongestionControl.DROP,
     Congestion.BLOCK: zenoh.CongestionControl.BLOCK,
 }
-MODES = ("peer", "client")
+MODES = ("peer", "client", "router")
 
 
 @dataclass(frozen=True)
 class ZenohSettings:
     """How to open the session.
 
-    ``mode``: ``peer`` or ``client``. ``listen`` / ``connect``: endpoints such as
-    ``tcp/127.0.0.1:7447`` (a client listens on nothing). ``lease_ms``: how long (ms) peers wait
-    for this session's keep-alives before declaring it dead; ``keep_alive``: keep-alives per
-    lease. ``multicast_scouting``: find peers by UDP multicast (off: it finds strangers on shared
-    machines).
+    ``mode``: ``peer``, ``client`` or ``router`` (``swarm router``). ``listen`` / ``connect``:
+    endpoints such as ``tcp/127.0.0.1:7447`` (a client listens on nothing). ``lease_ms``: how
+    long (ms) peers wait for this session's keep-alives before declaring it dead;
+    ``keep_alive``: keep-alives per lease. ``multicast_scouting``: find peers by UDP multicast
+    (off: it finds strangers on shared machines). ``connect_timeout_ms``: how long a client
+    waits for its router to answer (long-running processes started on several hosts in any
+    order). ``secrets``: the role's credentials (``swarm keys init``): TLS with a client
+    certificate (mTLS) and user/password on every link, and (router) the swarm's access control;
+    every endpoint must then be ``tls/``.
     """
 
     mode: str = "peer"
@@ -55,6 +61,9 @@ class ZenohSettings:
     lease_ms: int = 1000
     keep_alive: int = 4
     multicast_scouting: bool = False
+    secrets: RoleSecrets | None = None
+    #: a client waits up to this long (ms) for its router (0: one try, fail at once)
+    connect_timeout_ms: int = 0
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -64,6 +73,10 @@ class ZenohSettings:
         for endpoint in (*self.listen, *self.connect):
             if not isinstance(endpoint, str) or "/" not in endpoint:
                 raise ValueError(f"zenoh endpoint must look like tcp/HOST:PORT, got {endpoint!r}")
+        if self.secrets is not None:
+            plain = [e for e in (*self.listen, *self.connect) if not e.startswith("tls/")]
+            if plain:
+                raise ValueError(f"a secured session speaks TLS only: {plain[0]} is not tls/")
         if self.lease_ms < 100 or not 1 <= self.keep_alive <= self.lease_ms // 10:
             raise ValueError(
                 f"lease_ms must be >= 100 and keep_alive 1..lease_ms/10, got "
@@ -73,7 +86,7 @@ class ZenohSettings:
     def config(self) -> zenoh.Config:
         """The Zenoh configuration (JSON5 values) of these settings."""
         conf = zenoh.Config()
-        listen = list(self.listen) if self.mode == "peer" else []
+        listen = list(self.listen) if self.mode != "client" else []
         for key, value in (
             ("mode", self.mode),
             ("scouting/multicast/enabled", self.multicast_scouting),
@@ -88,19 +101,36 @@ class ZenohSettings:
             ),
         ):
             conf.insert_json5(key, json.dumps(value))
+        if self.connect_timeout_ms > 0:
+            conf.insert_json5("connect/timeout_ms", json.dumps(self.connect_timeout_ms))
+        if self.secrets is not None:
+            from drone_agent.zenoh_config import secure
+
+            secure(conf, self.secrets, self.mode)
         return conf
 
+    @property
+    def secured(self) -> bool:
+        """Whether the session uses TLS and credentials."""
+        return self.secrets is not None
 
-def open_client(endpoint: str) -> ZenohBus:
-    """A short-lived client session on ``endpoint`` (for tools: operator commands, drills).
 
-    ValueError for an endpoint that is not ``tcp/HOST:PORT``; ConnectionError if nothing answers.
+def open_client(endpoint: str, secrets: RoleSecrets | None = None) -> ZenohBus:
+    """A short-lived client session on ``endpoint`` (for tools: operator commands, drills), with
+    the credentials of ``secrets`` if given (a ``tcp/`` endpoint then becomes ``tls/``).
+
+    ValueError for an endpoint that is not ``tcp/HOST:PORT``; ConnectionError if nothing answers
+    or the router refuses the credential (the message says which).
     """
-    settings = ZenohSettings(mode="client", listen=(), connect=(endpoint,))
+    from drone_agent.zenoh_config import open_error, secured_endpoint
+
+    if secrets is not None:
+        endpoint = secured_endpoint(endpoint)
+    settings = ZenohSettings(mode="client", listen=(), connect=(endpoint,), secrets=secrets)
     try:
         return ZenohBus.open(settings)
     except zenoh.ZError:
-        raise ConnectionError(f"nothing reachable at {endpoint}") from None
+        raise ConnectionError(open_error(endpoint, secrets)) from None
 
 
 def tcp_listen_free(port: int, host: str = "127.0.0.1") -> bool:
@@ -173,8 +203,16 @@ class ZenohBus(ClosesOnExit):
 
     @classmethod
     def open(cls, settings: ZenohSettings | None = None) -> ZenohBus:
-        """Open a session with ``settings`` (default: the embedded loopback peer)."""
-        return cls(zenoh.open((settings or ZenohSettings()).config()))
+        """Open a session with ``settings`` (default: the embedded loopback peer). A client
+        waits for its router (``connect_timeout_ms``) only while nothing answers there: a router
+        that is up and refuses the session (a bad credential) fails it at once."""
+        settings = settings or ZenohSettings()
+        if settings.mode == "client" and settings.connect_timeout_ms > 0:
+            from drone_agent.zenoh_config import answers
+
+            if answers(settings.connect[0]):
+                settings = dataclasses.replace(settings, connect_timeout_ms=0)
+        return cls(zenoh.open(settings.config()))
 
     def publisher(self, key: str, congestion: Congestion) -> Publisher:
         """A declared publisher on ``key`` with the given congestion control; DROP publishers

@@ -15,8 +15,10 @@ os.environ.setdefault("MAVLINK20", "1")  # before anything imports pymavlink
 from drone_agent.agent_cli import add_parser as add_agent_parser
 from gcs.drill_cli import add_parser as add_drill_parser
 from gcs.gcs_cli import add_parser as add_gcs_parser
+from gcs.keys_cli import add_parser as add_keys_parser
 from gcs.operator_cli import OPERATOR_COMMANDS
 from gcs.operator_cli import add_parsers as add_operator_parsers
+from gcs.router_cli import add_parser as add_router_parser
 from gcs.scenario_cli import add_parser as add_scenario_parser
 from gcs.up_cli import add_parsers as add_up_parsers
 from gcs.view_cli import VIEW_COMMANDS
@@ -86,6 +88,8 @@ def _parser() -> argparse.ArgumentParser:
     add_drill_parser(sub)
     add_scenario_parser(sub)
     add_view_parsers(sub)
+    add_router_parser(sub)
+    add_keys_parser(sub)
     return parser
 
 
@@ -115,6 +119,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _scenario(args)
         if args.command in VIEW_COMMANDS:
             return _view(args)
+        if args.command == "router":
+            return _router(args)
+        if args.command == "keys":
+            return _keys(args)
     except CliError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -247,6 +255,24 @@ def _view(args: argparse.Namespace) -> int:
     try:
         return run(args)
     except ViewError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _router(args: argparse.Namespace) -> int:
+    from gcs.router_cli import RouterError, run
+
+    try:
+        return run(args)
+    except RouterError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _keys(args: argparse.Namespace) -> int:
+    from gcs.keys_cli import KeysError, run
+
+    try:
+        return run(args)
+    except KeysError as exc:
         raise CliError(str(exc)) from None
 
 

@@ -16,7 +16,9 @@ import time
 
 from drone_agent.agent_cli import RENDEZVOUS_PORT
 from gcs.commands import Request, encode_request
+from gcs.secured_cli import add_secrets_flags, refusal, secrets_of
 from protocols.keys import SwarmKeys
+from protocols.swarm_secrets import RoleSecrets
 from protocols.wire_fault import (
     Clear,
     Delay,
@@ -62,6 +64,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
             metavar="ENDPOINT",
             help="a Zenoh endpoint of the swarm (default %(default)s)",
         )
+        add_secrets_flags(d, "operator")
         return d
 
     cut = drill("link-cut", "cut the radio link between drones I and J")
@@ -130,18 +133,20 @@ def command_of(args: argparse.Namespace) -> FaultCommand:
     return Clear()
 
 
-def publish(swarm_id: str, endpoint: str, payload: bytes) -> None:
+def publish(
+    swarm_id: str, endpoint: str, payload: bytes, secrets: RoleSecrets | None = None
+) -> None:
     """Publish ``payload`` once on the swarm's fault key (BLOCK congestion, reliable)."""
     from drone_agent.transport import Congestion
     from drone_agent.zenoh_transport import open_client
 
     try:
         key = SwarmKeys(swarm_id, 1.0).fault
-        bus = open_client(endpoint)
+        bus = open_client(endpoint, secrets)
     except ValueError as exc:
         raise DrillError(str(exc)) from None
-    except ConnectionError:
-        raise DrillError(f"no swarm reachable at {endpoint}") from None
+    except ConnectionError as exc:
+        raise DrillError(f"no swarm: {exc}") from None
     with bus:
         publisher = bus.publisher(key, Congestion.BLOCK)
         time.sleep(CONNECT_WAIT_S)  # let the router learn the subscribers before the put
@@ -152,12 +157,18 @@ def publish(swarm_id: str, endpoint: str, payload: bytes) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Carry out the drill of ``args``; 0 done, 1 refused by the ground station."""
+    try:
+        secrets = secrets_of(args)
+    except ValueError as exc:
+        raise DrillError(str(exc)) from None
     if args.drill in GCS_DRILLS:
         from gcs.operator_cli import OperatorError, send
 
         request = Request(args.drill, {"drone": args.drone} if "drone" in args else {})
         try:
-            reply = send(args.swarm_id, args.zenoh_connect, encode_request(request))
+            reply = send(
+                args.swarm_id, args.zenoh_connect, encode_request(request), secrets=secrets
+            )
         except OperatorError as exc:
             raise DrillError(str(exc)) from None
         print(f"drill {args.drill}: {'accepted' if reply.accepted else 'refused'}: {reply.reason}")
@@ -167,7 +178,10 @@ def run(args: argparse.Namespace) -> int:
         payload = encode_fault(command, args.swarm_id)
     except ValueError as exc:
         raise DrillError(str(exc)) from None
-    publish(args.swarm_id, args.zenoh_connect, payload)
+    denied = refusal(secrets, "put", "fault", "send drills")
+    if denied is not None:
+        raise DrillError(denied)
+    publish(args.swarm_id, args.zenoh_connect, payload, secrets)
     from drone_agent.fault_drills import describe
 
     print(f"drill {args.drill}: sent {describe(command)}")

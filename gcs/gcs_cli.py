@@ -51,7 +51,26 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         metavar="PORT",
         help="UDP port on 127.0.0.1 the simulator sends telemetry to (default %(default)s)",
     )
-    p.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer")
+    p.add_argument(
+        "--gcs-bind",
+        default="127.0.0.1",
+        metavar="HOST",
+        help="address the telemetry port binds to (default 127.0.0.1; 0.0.0.0 or this host's "
+        "address when the simulator runs on another host)",
+    )
+    p.add_argument(
+        "--zenoh-mode",
+        choices=("peer", "client"),
+        default="peer",
+        help="client: join a Zenoh router (swarm router) given by --zenoh-connect",
+    )
+    p.add_argument(
+        "--secrets",
+        type=Path,
+        metavar="DIR",
+        help="the swarm's secrets (swarm keys init): client of the router at --zenoh-connect "
+        "over TLS with the gcs credential; MAVLink commands signed with its key",
+    )
     p.add_argument(
         "--zenoh-listen",
         nargs="*",
@@ -114,14 +133,40 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 def _zenoh(args: argparse.Namespace) -> ZenohSettings:
+    if args.secrets is not None:
+        from drone_agent.zenoh_config import (
+            ROUTER_LEASE_MS,
+            ROUTER_WAIT_MS,
+            role_secrets,
+            secured_endpoint,
+        )
+
+        if not args.zenoh_connect:
+            raise GcsCliError("--secrets needs --zenoh-connect: the swarm router's endpoint")
+        try:
+            return ZenohSettings(
+                mode="client",
+                listen=(),
+                connect=tuple(secured_endpoint(e) for e in args.zenoh_connect),
+                secrets=role_secrets(args.secrets, "gcs", args.swarm_id),
+                connect_timeout_ms=ROUTER_WAIT_MS,
+                lease_ms=ROUTER_LEASE_MS,
+            )
+        except ValueError as exc:
+            raise GcsCliError(str(exc)) from None
     listen = args.zenoh_listen
     if listen is None:
         listen = [f"tcp/127.0.0.1:{RENDEZVOUS_PORT}"] if args.zenoh_mode == "peer" else []
     try:
+        from drone_agent.zenoh_config import ROUTER_LEASE_MS, ROUTER_WAIT_MS
+
+        client = args.zenoh_mode == "client"
         return ZenohSettings(
             mode=args.zenoh_mode,
-            listen=tuple(listen) if args.zenoh_mode == "peer" else (),
+            listen=tuple(listen) if not client else (),
             connect=tuple(args.zenoh_connect or ()),
+            connect_timeout_ms=ROUTER_WAIT_MS if client else 0,
+            lease_ms=ROUTER_LEASE_MS if client else ZenohSettings.lease_ms,
         )
     except ValueError as exc:
         raise GcsCliError(str(exc)) from None
@@ -130,7 +175,7 @@ def _zenoh(args: argparse.Namespace) -> ZenohSettings:
 def run(args: argparse.Namespace) -> int:
     """Run the ground station; prints a status line per second on stderr unless --quiet."""
     from gcs.ground_station import GcsOptions, GroundStation
-    from gcs.planner import Envelope
+    from gcs.planner import envelope_of
     from protocols.scenario import ScenarioError, load_scenario
 
     try:
@@ -139,11 +184,14 @@ def run(args: argparse.Namespace) -> int:
     except (ScenarioError, ValueError) as exc:
         raise GcsCliError(str(exc)) from None
     key = None
-    if args.signing_key is not None:
+    key_file = args.signing_key
+    if key_file is None and args.secrets is not None:
+        key_file = args.secrets / "mavlink.key"
+    if key_file is not None:
         from protocols.mavlink_signing import SigningKeyError, load_signing_key
 
         try:
-            key = load_signing_key(args.signing_key)
+            key = load_signing_key(key_file)
         except SigningKeyError as exc:
             raise GcsCliError(str(exc)) from None
     if args.duration_s is not None and not args.duration_s > 0:
@@ -156,12 +204,14 @@ def run(args: argparse.Namespace) -> int:
         raise GcsCliError("--shutdown-timeout-s must be positive")
     if args.session and args.duration_s is not None:
         raise GcsCliError("--duration-s: a session has no end time (it ends with swarm shutdown)")
+    zenoh_settings = _zenoh(args)
     options = GcsOptions(
         scenario=scenario,
         report_dir=args.report,
-        zenoh=_zenoh(args),
+        zenoh=zenoh_settings,
         swarm_id=args.swarm_id,
         gcs_port=args.gcs_port,
+        gcs_host=args.gcs_bind,
         duration_s=args.duration_s,
         telemetry_hz=args.telemetry_hz,
         plots=not args.no_plots,
@@ -170,15 +220,22 @@ def run(args: argparse.Namespace) -> int:
         signing_key=key,
         session=args.session,
         shutdown_timeout_s=args.shutdown_timeout_s,
-        envelope=Envelope(min_separation_m=scenario.safety.min_separation_m),
+        envelope=envelope_of(scenario.safety),
         on_line=None if args.quiet else lambda line: print(line, file=sys.stderr, flush=True),
     )
     try:
         station = GroundStation(options)
     except OSError as exc:
-        raise GcsCliError(f"cannot bind UDP 127.0.0.1:{args.gcs_port}: {exc.strerror}") from None
+        raise GcsCliError(
+            f"cannot bind UDP {args.gcs_bind}:{args.gcs_port}: {exc.strerror}"
+        ) from None
     except Exception as exc:  # zenoh raises ZError with the reason
-        raise GcsCliError(f"cannot start the ground station: {exc}") from None
+        from drone_agent.zenoh_config import open_error
+
+        reason = str(exc).split(" at /", 1)[0]
+        if zenoh_settings.mode == "client":
+            reason = open_error(zenoh_settings.connect[0], zenoh_settings.secrets)
+        raise GcsCliError(f"cannot start the ground station: {reason}") from None
 
     interrupts: list[int] = []
 

@@ -17,7 +17,9 @@ from typing import Any
 
 from drone_agent.agent_cli import RENDEZVOUS_PORT
 from gcs.commands import CommandError, Reply, Request, decode_reply, encode_request
+from gcs.secured_cli import add_secrets_flags, refusal, secrets_of
 from protocols.keys import SwarmKeys
+from protocols.swarm_secrets import RoleSecrets
 
 ANSWER_TIMEOUT_S = 2.0
 OPERATOR_COMMANDS = (
@@ -35,8 +37,9 @@ def _common(p: argparse.ArgumentParser) -> None:
         "--zenoh-connect",
         default=f"tcp/127.0.0.1:{RENDEZVOUS_PORT}",
         metavar="ENDPOINT",
-        help="where the ground station listens (default %(default)s)",
+        help="where the ground station listens, or the swarm's router (default %(default)s)",
     )
+    add_secrets_flags(p, "operator")
 
 
 def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -113,25 +116,39 @@ def request_of(args: argparse.Namespace) -> Request:
 
 
 def send(
-    swarm_id: str, endpoint: str, payload: bytes, timeout_s: float = ANSWER_TIMEOUT_S
+    swarm_id: str,
+    endpoint: str,
+    payload: bytes,
+    timeout_s: float = ANSWER_TIMEOUT_S,
+    secrets: RoleSecrets | None = None,
 ) -> Reply:
     """Send one request payload to the ground station; OperatorError if none answers."""
-    return send_timed(swarm_id, endpoint, payload, timeout_s)[0]
+    return send_timed(swarm_id, endpoint, payload, timeout_s, secrets)[0]
 
 
 def send_timed(
-    swarm_id: str, endpoint: str, payload: bytes, timeout_s: float = ANSWER_TIMEOUT_S
+    swarm_id: str,
+    endpoint: str,
+    payload: bytes,
+    timeout_s: float = ANSWER_TIMEOUT_S,
+    secrets: RoleSecrets | None = None,
 ) -> tuple[Reply, float]:
-    """As :func:`send`, with the seconds from sending the request to its reply's arrival."""
+    """As :func:`send`, with the seconds from sending the request to its reply's arrival.
+
+    With ``secrets``: TLS and the role's credential; a role without the right to send commands
+    is refused here, in one line, before anything is sent."""
     from drone_agent.zenoh_transport import open_client
 
+    denied = refusal(secrets, "query", "command", "send operator commands and drills")
+    if denied is not None:
+        raise OperatorError(denied)
     try:
         key = SwarmKeys(swarm_id, 1.0).command
-        bus = open_client(endpoint)
+        bus = open_client(endpoint, secrets)
     except ValueError as exc:
         raise OperatorError(str(exc)) from None
-    except ConnectionError:
-        raise OperatorError(f"no ground station reachable at {endpoint}") from None
+    except ConnectionError as exc:
+        raise OperatorError(f"no ground station: {exc}") from None
     with bus:
         sent = time.monotonic()
         replies = bus.session.get(key, payload=payload, timeout=timeout_s)
@@ -142,8 +159,10 @@ def send_timed(
                     return decode_reply(reply.ok.payload.to_bytes()), elapsed
                 except CommandError as exc:
                     raise OperatorError(str(exc)) from None
+    hint = "" if secrets is None else f" (or the router refused the {secrets.role!r} credential)"
     raise OperatorError(
         f"no ground station of swarm {swarm_id!r} answered within {timeout_s:g} s at {endpoint}"
+        + hint
     )
 
 
@@ -184,7 +203,17 @@ def format_reply(name: str, reply: Reply, elapsed_s: float | None = None) -> lis
 def run(args: argparse.Namespace) -> int:
     """Send the command of ``args``, print the answer; 0 accepted, 1 refused."""
     request = request_of(args)
-    reply, elapsed_s = send_timed(args.swarm_id, args.zenoh_connect, encode_request(request))
+    try:
+        secrets = secrets_of(args)
+    except ValueError as exc:
+        raise OperatorError(str(exc)) from None
+    reply, elapsed_s = send_timed(
+        args.swarm_id, args.zenoh_connect, encode_request(request), secrets=secrets
+    )
     for line in format_reply(args.command, reply, elapsed_s):
         print(line)
+    if args.command == "status":
+        from drone_agent.zenoh_config import describe
+
+        print(f"network: {describe(secrets)}")
     return 0 if reply.accepted else 1

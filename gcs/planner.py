@@ -26,6 +26,7 @@ from protocols.descriptor_vector import (
     SHAPE,
 )
 from protocols.frames import FloatArray
+from protocols.scenario import SafetyConfig
 from protocols.trajectory import DescriptorTrajectory, Waypoint, quintic_hermite
 
 #: Peak speed and acceleration of a rest-to-rest minimum-jerk quintic over distance D and time T
@@ -62,6 +63,17 @@ class Envelope:
     min_duration_s: float = 1.0
     max_descent_m_s: float = 1.0
     min_separation_m: float = 1.0
+
+
+def envelope_of(safety: SafetyConfig) -> Envelope:
+    """The default envelope with a scenario's ``[safety]``: minimum separation and geofence."""
+    fence = (-safety.geofence_m, safety.geofence_m)
+    return Envelope(
+        fence_north_m=fence,
+        fence_east_m=fence,
+        fence_altitude_m=(-0.5, safety.ceiling_m),
+        min_separation_m=safety.min_separation_m,
+    )
 
 
 def _limits(env: Envelope) -> list[tuple[slice, float, float, str]]:

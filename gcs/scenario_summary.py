@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from gcs.planner import Envelope, PlanRefused, check_target
+from gcs.planner import Envelope, PlanRefused, check_target, envelope_of
 from protocols.faults import Crash, Dropout, Fault, LinkCut, LinkDelay, PacketLoss, Partition
 from protocols.formation_fit import closest_pair, formation_positions
 from protocols.scenario import Scenario, WaypointConfig
@@ -28,7 +28,7 @@ def envelope_problem(scenario: Scenario, envelope: Envelope | None = None) -> st
     """Why the scenario's plan leaves ``envelope`` (default: the ground station's), or None.
 
     The plan is sampled at every waypoint and twice a second to ``duration_s``."""
-    env = envelope or Envelope()
+    env = envelope or envelope_of(scenario.safety)
     plan = scenario.trajectory()
     n = max(2, math.ceil(scenario.duration_s * ENVELOPE_SAMPLES_PER_S) + 1)
     t = np.union1d(np.linspace(0.0, scenario.duration_s, n), [w.t_s for w in scenario.waypoints])
@@ -78,7 +78,7 @@ def _envelope_line(scenario: Scenario) -> str:
     problem = envelope_problem(scenario)
     if problem is not None:
         return f"the plan leaves the ground station's envelope {problem}"
-    env = Envelope()
+    env = envelope_of(scenario.safety)
     return (
         f"the plan stays inside the ground station's geofence (north "
         f"{env.fence_north_m[0]:g}..{env.fence_north_m[1]:g} m, east "

@@ -72,28 +72,52 @@ class SessionRequest:
         )
 
 
+#: ``swarm up`` flags of a swarm spread over hosts (gcs/up_hosts.py): not for a session.
+MULTIHOST_FLAGS = (
+    "router", "only", "sim_drones", "start_at", "sim_host", "gcs_host", "shard_sync",
+    "shard_peers", "secrets",
+)  # fmt: skip
+
+
 def session_request(args: argparse.Namespace) -> SessionRequest | None:
-    """The session ``args`` ask for (``--drones``), None for a scenario run; SupervisorError with
-    one line for a bad combination or value."""
-    drones = getattr(args, "drones", None)
+    """The session ``args`` ask for (``swarm up --drones N``, no scenario file), None for a
+    scenario run; SupervisorError with one line for a bad combination or value. With a scenario
+    file, ``--drones LO-HI`` is the multi-host range of this host's agents (gcs/up_hosts.py)."""
+    if getattr(args, "command", "up") != "up":
+        return None  # swarm demo flies the paper's scenario
+    drones_text: str | None = getattr(args, "drones", None)
     scenario = getattr(args, "scenario", None)
     given = [k for k in SESSION_DEFAULTS if getattr(args, k, None) is not None]
     timeout = getattr(args, "shutdown_timeout_s", None)
-    if drones is None:
+    if scenario is not None or drones_text is None:
         if given or timeout is not None:
             flag = _flag(given[0] if given else "shutdown_timeout_s")
             raise SupervisorError(
                 f"{flag} goes with --drones N (an operator session); a scenario file has its own"
             )
-        if scenario is None and getattr(args, "command", "up") == "up":
+        if scenario is None:
             raise SupervisorError(
                 "give a scenario file (swarm up SCENARIO) or --drones N for an operator session"
             )
+        spread = any(getattr(args, k, None) for k in MULTIHOST_FLAGS)
+        if drones_text is not None and not spread:
+            raise SupervisorError(
+                f"give a scenario file or --drones N, not both ({scenario} has its own drones; "
+                "with a scenario file, --drones LO-HI picks this host's agents and needs --router)"
+            )
         return None
-    if scenario is not None:
+    multihost = [k for k in MULTIHOST_FLAGS if getattr(args, k, None)]
+    if multihost:
         raise SupervisorError(
-            f"give a scenario file or --drones N, not both ({scenario} has its own drones)"
+            f"{_flag(multihost[0])}: an operator session (--drones N) runs on this machine; "
+            "a swarm spread over hosts flies a scenario file"
         )
+    if not drones_text.strip().isdigit():
+        raise SupervisorError(
+            f"--drones: an operator session needs a number of drones, {MIN_DRONES}..{MAX_DRONES}, "
+            f"got {drones_text!r} (a range LO-HI goes with a scenario file and --router)"
+        )
+    drones = int(drones_text)
     if not MIN_DRONES <= drones <= MAX_DRONES:
         raise SupervisorError(f"--drones: need {MIN_DRONES}..{MAX_DRONES}, got {drones}")
     if getattr(args, "duration_s", None) is not None:

@@ -86,8 +86,8 @@ class Child:
 class RunPlan:
     """Everything ``swarm up`` starts, in order."""
 
-    gcs: Child
-    sim: Child
+    gcs: Child | None
+    sim: Child | None
     agents: list[Child] = field(default_factory=list)
     #: drones of each agent process (same order as ``agents``)
     agent_drones: list[range] = field(default_factory=list)
@@ -95,6 +95,8 @@ class RunPlan:
     run_file: Path | None = None
     #: the Zenoh endpoint of the run (operator commands and drills connect to it)
     zenoh_endpoint: str | None = None
+    #: the swarm's Zenoh router, when this run starts it (started first)
+    router: Child | None = None
     #: an operator session: a Ctrl-C asks the ground station to land and end the run
     session: bool = False
     #: session: how long (wall s) to wait for the ground station to end the run after a Ctrl-C
@@ -102,7 +104,9 @@ class RunPlan:
 
     @property
     def children(self) -> list[Child]:
-        return [self.gcs, self.sim, *self.agents]
+        """Every child, in start order: router, ground station, simulator, agents (a partial
+        start on one host of several has only some of them)."""
+        return [c for c in (self.router, self.gcs, self.sim) if c is not None] + self.agents
 
     def write_run_file(self) -> None:
         """``{"zenoh": endpoint, "agents": {"<drone>": pid}}``: the run's Zenoh endpoint and the
@@ -135,12 +139,12 @@ def rendezvous_port() -> int:
     return RENDEZVOUS_PORT if tcp_listen_free(RENDEZVOUS_PORT) else free_tcp_port()
 
 
-def check_udp_ports(ports: list[int], what: str) -> None:
-    """SupervisorError naming the port if any of ``ports`` (UDP) is taken."""
+def check_udp_ports(ports: list[int], what: str, host: str = "127.0.0.1") -> None:
+    """SupervisorError naming the port if any of ``ports`` (UDP on ``host``) is taken."""
     for port in ports:
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             try:
-                s.bind(("127.0.0.1", port))
+                s.bind((host, port))
             except OSError:
                 raise SupervisorError(
                     f"UDP port {port} ({what}) is in use: is another swarm running? "
@@ -175,14 +179,20 @@ def supervise(
     should_stop: Callable[[], int] = lambda: 0,
     poll_s: float = 0.5,
 ) -> str:
-    """Start every child, watch them, stop them all. Returns why the run ended: "finished" (the
-    simulator's end), :data:`SHUT_DOWN`, "interrupted" or what failed. ``should_stop``: how many
-    times the user asked to stop (Ctrl-C)."""
+    """Start every child, watch them, stop them all. Returns why the run ended: "finished",
+    :data:`SHUT_DOWN` (the ground station ended the run), "interrupted" or what failed.
+    ``should_stop``: how many times the user asked to stop (Ctrl-C).
+
+    The run ends with the simulator when this host runs it, else with the ground station, else
+    (agents only) when every agent process has ended (their vehicles went silent: the simulator
+    on another host ended), or on Ctrl-C; a router alone runs until Ctrl-C."""
     reason = "stopped"
     shutdown_deadline: float | None = None
     try:
         for child in plan.children:
             child.start()
+            if child is plan.router:
+                _wait_listening(plan.zenoh_endpoint, child)
             time.sleep(0.3 if child.role == "gcs" else 0.05)
         plan.write_run_file()
         while True:
@@ -198,9 +208,26 @@ def supervise(
             elif shutdown_deadline is not None and time.monotonic() > shutdown_deadline:
                 reason = "interrupted (the shutdown took too long)"
                 break
-            if not plan.sim.running:
+            if plan.router is not None and not plan.router.running:
+                code = plan.router.proc.returncode if plan.router.proc else None
+                reason = f"the Zenoh router exited with code {code} (log: {plan.router.log})"
+                break
+            if plan.sim is not None and not plan.sim.running:
                 code = plan.sim.proc.returncode if plan.sim.proc else None
                 reason = "finished" if code == 0 else f"the simulator exited with code {code}"
+                break
+            if plan.gcs is None:
+                if plan.agents and not any(a.running for a in plan.agents):
+                    reason = _agents_ended(plan.agents)
+                    break
+                _watch_agents(plan, progress)
+                if progress is not None and plan.sim is not None:
+                    progress(_last_line(plan.sim.log))
+                time.sleep(poll_s)
+                continue
+            gcs_proc = plan.gcs.proc
+            if plan.sim is None and gcs_proc is not None and gcs_proc.poll() == 0:
+                reason = "finished"
                 break
             if not plan.gcs.running and _restart_asked(plan.gcs):
                 if "--resume" not in plan.gcs.argv:
@@ -215,26 +242,60 @@ def supervise(
                 else:
                     reason = f"the ground station exited with code {code} (log: {plan.gcs.log})"
                 break
-            for agent in plan.agents:
-                if not agent.running and not agent.expected_exit:
-                    # a drone drop-out, not a failure of the run: the swarm flies on
-                    agent.expected_exit = True
-                    code = agent.proc.returncode if agent.proc else None
-                    if progress is not None:
-                        progress(f"{agent.role} exited with code {code}; the swarm flies on")
+            _watch_agents(plan, progress)
             if progress is not None:
-                progress(_last_line(plan.sim.log))
+                progress(_last_line((plan.sim or plan.gcs).log))
             time.sleep(poll_s)
     finally:
-        # the ground station first, so the report ends with the flight, not with the shutdown
-        for child in [plan.gcs, *plan.agents, plan.sim]:
-            child.stop()
+        # the ground station first, so the report ends with the flight, not with the shutdown;
+        # the router last, so everyone leaves it cleanly
+        for last in [plan.gcs, *plan.agents, plan.sim, plan.router]:
+            if last is not None:
+                last.stop()
     return reason
 
 
-def _signal(child: Child, sig: int) -> None:
-    if child.proc is not None and child.proc.poll() is None:
+def _signal(child: Child | None, sig: int) -> None:
+    if child is not None and child.proc is not None and child.proc.poll() is None:
         child.proc.send_signal(sig)
+
+
+def _agents_ended(agents: list[Child]) -> str:
+    """Why a run of agents only ended: "finished" when they all left cleanly (their vehicles
+    stopped), else the first failure."""
+    for a in agents:
+        code = a.proc.returncode if a.proc is not None else None
+        if code not in (0, None):
+            return f"{a.role} exited with code {code} (log: {a.log})"
+    return "finished"
+
+
+def _watch_agents(plan: RunPlan, progress: Callable[[str], None] | None) -> None:
+    for agent in plan.agents:
+        if not agent.running and not agent.expected_exit:
+            # a drone drop-out, not a failure of the run: the swarm flies on
+            agent.expected_exit = True
+            code = agent.proc.returncode if agent.proc else None
+            if progress is not None:
+                progress(f"{agent.role} exited with code {code}; the swarm flies on")
+
+
+def _wait_listening(endpoint: str | None, child: Child, timeout_s: float = 15.0) -> None:
+    """Wait until the router ``child`` accepts TCP connections at ``endpoint``; SupervisorError
+    if it ends or does not listen in time."""
+    if endpoint is None:
+        return
+    host, _, port = endpoint.partition("/")[2].rpartition(":")
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if not child.running:
+            raise SupervisorError(
+                f"the Zenoh router did not start: {_last_line(child.log)} (log: {child.log})"
+            )
+        with contextlib.suppress(OSError), socket.create_connection((host, int(port)), 0.5):
+            return
+        time.sleep(0.1)
+    raise SupervisorError(f"the Zenoh router does not listen on {endpoint} (log: {child.log})")
 
 
 def _restart_asked(child: Child) -> bool:

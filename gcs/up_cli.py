@@ -30,6 +30,7 @@ from gcs.supervisor import (
     supervise,
     swarm_argv,
 )
+from gcs.up_hosts import add_multihost_flags, host_layout, multihost_plan
 from protocols.mavlink_conventions import DEFAULT_GCS_PORT, port_clash, vehicle_ports
 from protocols.scenario import ScenarioError, load_scenario
 from protocols.scenario_layout import LAYOUTS
@@ -74,7 +75,7 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
         "operator session (instead of a scenario file)",
         "N drones on the ground, waiting for swarm takeoff; no fixed duration",
     )
-    session.add_argument("--drones", type=int, metavar="N", help="number of drones, 2..250")
+    # --drones N itself is with the multi-host flags: one flag, LO-HI with a scenario file
     session.add_argument(
         "--layout", choices=LAYOUTS, default=None, help="where they stand (default grid)"
     )
@@ -130,6 +131,7 @@ def _common(p: argparse.ArgumentParser) -> None:
         metavar="ENDPOINT",
         help="use this Zenoh endpoint (e.g. a router) instead of the ground station's",
     )
+    add_multihost_flags(p)
     p.add_argument("--swarm-id", default="swarm", help="swarm name on Zenoh")
     p.add_argument(
         "--base-port",
@@ -170,12 +172,20 @@ def build_plan(
     duration = scenario.duration_s if args.duration_s is None else args.duration_s
     if session is None and not 0 < duration <= scenario.duration_s:
         raise SupervisorError(f"--duration-s must be in (0, {scenario.duration_s:g}]")
+    # a session's --drones N is its size, not the multi-host range of this host's agents
+    layout = host_layout(
+        args if session is None else argparse.Namespace(**{**vars(args), "drones": None}), n
+    )
     ports = vehicle_ports(n, args.base_port)
     clash = port_clash(ports, args.gcs_port)
     if clash is not None:
         raise SupervisorError(clash)
-    check_udp_ports(ports, "vehicle ports")
-    check_udp_ports([args.gcs_port], "ground station")
+    if "sim" in layout.parts:
+        check_udp_ports(ports[layout.sim_first : layout.sim_last + 1], "vehicle ports", layout.bind)
+    if "gcs" in layout.parts:
+        check_udp_ports([args.gcs_port], "ground station", layout.bind)
+    if layout.router is not None or layout.secrets is not None:
+        return multihost_plan(args, scenario_path, layout, n, duration), n
     report: Path = args.report
     logs = report / "logs"
     try:
@@ -337,14 +347,16 @@ def run(args: argparse.Namespace) -> int:
             print(line, file=sys.stderr, flush=True)
             shown[0] = time.monotonic()
 
+    parts = [c.role.split()[0] for c in plan.children]
     print(
         f"swarm up: {n} drones, {len(plan.agents)} agent processes, {args.clock} clock; "
-        f"logs in {args.report / 'logs'}",
+        f"here: {', '.join(dict.fromkeys(parts))}; logs in {args.report / 'logs'}",
         file=sys.stderr,
     )
+    secrets = f" --secrets {args.secrets}" if args.secrets is not None else ""
     print(
         f"swarm up: operator commands and drills: swarm status --swarm-id {args.swarm_id} "
-        f"--zenoh-connect {plan.zenoh_endpoint}",
+        f"--zenoh-connect {plan.zenoh_endpoint}{secrets}",
         file=sys.stderr,
     )
     if session is not None:

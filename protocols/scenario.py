@@ -129,9 +129,14 @@ class CommsConfig:
 @dataclass(frozen=True)
 class SafetyConfig:
     """[safety]: the distance (m) every formation of the plan and of operator commands must keep
-    between drones (protocols/formation_fit.py)."""
+    between drones (protocols/formation_fit.py), and every agent's separation layer keeps from
+    the neighbours it hears (drone_agent/separation.py); the geofence: north and east within
+    ``± geofence_m`` of the origin, altitude up to ``ceiling_m`` (the ground station refuses
+    commands that leave it, the agents' separation layer stops drones at it)."""
 
     min_separation_m: float = 1.0
+    geofence_m: float = 1000.0
+    ceiling_m: float = 60.0
 
 
 @dataclass(frozen=True)
@@ -266,7 +271,10 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         duration_s = waypoints[-1].t_s
     else:
         raise top.error("missing (required when the last waypoint is at t = 0)", "duration_s")
-    safety = top.table("safety").section(SafetyConfig, {"min_separation_m": {"ge": 0}})
+    safety = top.table("safety").section(
+        SafetyConfig,
+        {"min_separation_m": {"ge": 0}, "geofence_m": {"gt": 0}, "ceiling_m": {"gt": 0}},
+    )
     _check_formations(top, drones, waypoints, safety)
     return Scenario(
         source=source,

@@ -7,6 +7,7 @@ raises :class:`~sitl_sim.sim_config.SimConfigError` with one line naming the fla
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -19,6 +20,7 @@ from sitl_sim.attitude_control import AttitudeGains
 from sitl_sim.autopilot import AutopilotConfig
 from sitl_sim.failsafe import FailsafeConfig
 from sitl_sim.server import Status
+from sitl_sim.shard import DroneRange, parse_drones
 from sitl_sim.sim_config import (
     ClockConfig,
     NetConfig,
@@ -64,8 +66,9 @@ class _Vehicles:
 
 def build_config(args: argparse.Namespace) -> SimConfig:
     """Validate the parsed flags of ``swarm sim``; SimConfigError on the first mistake."""
-    v = _vehicles(args)
+    v, shard = _vehicles(args)
     n = len(v.positions_ned_m)
+    first = 0 if shard is None else shard.first
     check_count(n)
     physics_hz = args.physics_hz if args.physics_hz is not None else v.physics_hz
     control_hz = args.control_hz if args.control_hz is not None else v.control_hz
@@ -74,10 +77,13 @@ def build_config(args: argparse.Namespace) -> SimConfig:
     gcs = parse_gcs_url(args.gcs)
     # a GCS on this machine must not share a port with a vehicle
     local_gcs = gcs is not None and (gcs[0].startswith("127.") or gcs[0] == args.bind)
-    check_ports(args.base_port, n, gcs[1] if gcs is not None and local_gcs else None)
+    check_ports(args.base_port, first + n, gcs[1] if gcs is not None and local_gcs else None)
+    key_file = args.signing_key
+    if key_file is None and getattr(args, "secrets", None) is not None:
+        key_file = args.secrets / "mavlink.key"
     autopilot = AutopilotConfig(failsafe=FailsafeConfig(offboard_timeout_s=args.offboard_timeout))
     return SimConfig(
-        sysids=parse_sysids(args.sysids, n),
+        sysids=parse_sysids(args.sysids, n) if shard is None else _shard_sysids(args, shard),
         params=v.params,
         gains=v.gains,
         positions_ned_m=v.positions_ned_m,
@@ -94,7 +100,8 @@ def build_config(args: argparse.Namespace) -> SimConfig:
             bind_host=args.bind,
             base_port=args.base_port,
             gcs=gcs,
-            signing_key=read_signing_key(args.signing_key),
+            signing_key=read_signing_key(key_file),
+            first_drone=first,
             agent_rates_hz=_rates(AGENT_RATES_HZ, AGENT_STATE_STREAMS, args.agent_rate_hz),
             gcs_rates_hz=_rates(GCS_RATES_HZ, GCS_STATE_STREAMS, args.gcs_rate_hz),
         ),
@@ -105,25 +112,62 @@ def build_config(args: argparse.Namespace) -> SimConfig:
             join_timeout_s=args.join_timeout,
             wait_agents=_wait_agents(args),
             duration_s=args.duration_s,
+            start_at_unix_s=_start_at(args),
         ),
         seed=v.seed if args.seed is None else args.seed,
     )
 
 
-def _vehicles(args: argparse.Namespace) -> _Vehicles:
+def _vehicles(args: argparse.Namespace) -> tuple[_Vehicles, DroneRange | None]:
+    """The vehicles served, and the drone range when this simulator is a shard."""
+    if args.scenario is None and args.drones is None:
+        raise SimConfigError("give --drones N (or LO-HI) or --scenario FILE")
+    count, shard = parse_drones(args.drones) if args.drones is not None else (None, None)
+    if args.scenario is not None and count is not None:
+        raise SimConfigError("with --scenario, --drones takes a range LO-HI of its drones")
     if args.scenario is None:
-        check_count(args.drones)
-        n = args.drones
-        return _Vehicles(
-            VehicleParams(), AttitudeGains(), grid_positions(n), np.zeros(n), 500, 50, 0, (),
-            GeoPoint(),
-        )  # fmt: skip
+        n = shard.last + 1 if shard is not None else count if count is not None else 0
+        check_count(n)
+        grid = grid_positions(n)
+        v = _Vehicles(
+            VehicleParams(), AttitudeGains(), grid, np.zeros(n), 500, 50, 0, (), GeoPoint()
+        )
+        return (v, None) if shard is None else (_slice(v, shard), shard)
     params, gains, positions, yaw, physics_hz, control_hz, seed, faults, home = (
         vehicles_from_scenario(args.scenario)
     )
-    return _Vehicles(
+    v = _Vehicles(
         params, gains, positions, yaw, physics_hz, control_hz, seed, crash_timeline(faults), home
     )
+    if shard is None:
+        return v, None
+    if shard.last >= len(positions):
+        raise SimConfigError(
+            f"--drones {shard.first}-{shard.last}: the scenario has drones 0-{len(positions) - 1}"
+        )
+    return _slice(v, shard), shard
+
+
+def _start_at(args: argparse.Namespace) -> float | None:
+    start_at: float | None = getattr(args, "start_at", None)
+    if start_at is not None and args.clock != "realtime":
+        raise SimConfigError("--start-at needs --clock realtime (lockstep starts with its agents)")
+    return start_at
+
+
+def _slice(v: _Vehicles, shard: DroneRange) -> _Vehicles:
+    """The vehicles of ``shard`` only (crashes renumbered to the shard's indices)."""
+    rows = slice(shard.first, shard.last + 1)
+    crashes = tuple((t, d - shard.first) for t, d in v.crashes if d in shard)
+    return dataclasses.replace(
+        v, positions_ned_m=v.positions_ned_m[rows], yaw_rad=v.yaw_rad[rows], crashes=crashes
+    )
+
+
+def _shard_sysids(args: argparse.Namespace, shard: DroneRange) -> tuple[int, ...]:
+    if args.sysids is not None:
+        raise SimConfigError("--sysids cannot be combined with a --drones range")
+    return tuple(range(shard.first + 1, shard.last + 2))
 
 
 def _check_numbers(args: argparse.Namespace) -> None:
@@ -166,12 +210,14 @@ def build_world(config: SimConfig) -> tuple[World, Tunables]:
 def start_line(config: SimConfig) -> str:
     """What is listening where, printed once at start-up."""
     net, clock = config.net, config.clock
-    ports = f"{net.bind_host}:{describe_ports(vehicle_ports(config.n, net.base_port))}"
+    ports = vehicle_ports(net.first_drone + config.n, net.base_port)[net.first_drone :]
+    ports_text = f"{net.bind_host}:{describe_ports(ports)}"
     gcs = "none" if net.gcs is None else f"udp:{net.gcs[0]}:{net.gcs[1]}"
     ids = f"{config.sysids[0]}..{config.sysids[-1]}" if config.n > 1 else str(config.sysids[0])
     signed = ", signed" if net.signing_key is not None else ""
     return (
-        f"swarm sim: {config.n} vehicles (system ids {ids}) on UDP {ports}, GCS {gcs}{signed}; "
+        f"swarm sim: {config.n} vehicles (system ids {ids}) on UDP {ports_text}, GCS {gcs}"
+        f"{signed}; "
         f"clock {clock.mode} x{clock.speedup:g}, physics {config.world.physics_hz} Hz, "
         f"control {config.world.control_hz} Hz"
     )

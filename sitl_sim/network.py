@@ -77,7 +77,7 @@ class Network:
         cfg, key = self.config, self.config.signing_key
         try:
             for i, sysid in enumerate(self.sysids):
-                port = vehicle_port(i, cfg.base_port)
+                port = vehicle_port(cfg.first_drone + i, cfg.base_port)
                 sock = bind_udp(cfg.bind_host, port, f"vehicle {i}, system id {sysid}")
                 report_unreachable(sock)  # an agent whose process died is noticed at once
                 endpoint = Endpoint(sock, new_codec(sysid, 1, key), None, self.outbox)

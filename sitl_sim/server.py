@@ -34,6 +34,7 @@ from sitl_sim.lockstep import LockstepBarrier
 from sitl_sim.map_telemetry import MapFix
 from sitl_sim.network import Network
 from sitl_sim.pacing import Pacer, RateMeter
+from sitl_sim.shard_sync import ShardSync
 from sitl_sim.sim_config import ClockConfig
 from sitl_sim.streams import (
     ACTUATOR_OUTPUT_STATUS,
@@ -55,6 +56,7 @@ from sitl_sim.world import Snapshot, World
 RESEND_S = 0.25
 _MAX_WAIT_S = 0.05
 _GCS = -1
+_SHARDS = -2
 
 
 @dataclass(frozen=True)
@@ -92,8 +94,11 @@ class SimServer:
         sleep: Callable[[float], None] = time.sleep,
         on_status: Callable[[Status], None] | None = None,
         status_interval_s: float = 1.0,
+        shard_sync: ShardSync | None = None,
     ) -> None:
         self.world, self.net, self.clock = world, network, clock
+        #: lockstep across simulator shards (sitl_sim/shard_sync.py), None for a whole swarm
+        self.shards = shard_sync
         self.wall, self.sleep = wall_clock, sleep
         self.on_status, self.status_interval_s = on_status, status_interval_s
         control_hz = world.config.control_hz
@@ -186,6 +191,8 @@ class SimServer:
                 selector.register(endpoint.sock, selectors.EVENT_READ, i)
             if self.net.gcs_endpoint is not None:
                 selector.register(self.net.gcs_endpoint.sock, selectors.EVENT_READ, _GCS)
+            if self.shards is not None:
+                selector.register(self.shards.sock, selectors.EVENT_READ, _SHARDS)
             try:
                 self._loop()
             finally:
@@ -202,7 +209,13 @@ class SimServer:
         if self.answers is not None:
             self.answers.sent(self.world.tick, sent_to)
         join_deadline = start + self.clock.join_timeout_s
-        if self.barrier is None and self.clock.wait_agents > 0:
+        if self.barrier is None and self.clock.start_at_unix_s is not None:
+            # a shard of a swarm: tick 0 at the agreed wall-clock time (sitl_sim/shard.py)
+            self._poll_until(self.wall() + self.clock.start_at_unix_s - time.time())
+            start = self.wall()
+            meter = RateMeter(self.world.t_s, start)
+            self.pacer.rebase(self.world.tick, start)
+        elif self.barrier is None and self.clock.wait_agents > 0:
             self._await_agents(join_deadline)
             start = self.wall()
             meter = RateMeter(self.world.t_s, start)
@@ -213,6 +226,8 @@ class SimServer:
             else:
                 self.barrier.open_tick(self.world.tick, sent_to, self.wall())
                 self._await_barrier(join_deadline)
+                if self.shards is not None:
+                    self._await_shards()
             if self._stopped:
                 break
             self._step()
@@ -267,6 +282,17 @@ class SimServer:
                 next_resend = now + RESEND_S
             self._poll(min(wait_until, next_resend) - now)
 
+    def _await_shards(self) -> None:
+        """Lockstep across shards: announce this tick, then serve input until every other shard
+        holds it too (sitl_sim/shard_sync.py)."""
+        assert self.shards is not None
+        tick = self.world.tick
+        while not self._stopped:
+            self.shards.announce(tick)
+            if self.shards.ready(tick):
+                return
+            self._poll(0.01)
+
     def _await_agents(self, deadline: float) -> None:
         """Realtime: hold tick 0 (re-sending its state) until ``wait_agents`` agents have spoken
         or the join timeout passes, so that a swarm's plan starts when its agents are there."""
@@ -318,7 +344,10 @@ class SimServer:
         dispatch = self.dispatch
         for key, _ in ready:
             vehicle = key.data
-            if vehicle == _GCS:
+            if vehicle == _SHARDS:
+                assert self.shards is not None
+                self.shards.receive()
+            elif vehicle == _GCS:
                 endpoint = self.net.gcs_endpoint
                 assert endpoint is not None
                 for data, _addr in endpoint.receive():

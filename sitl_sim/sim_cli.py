@@ -32,14 +32,15 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "sim", help="run the SITL simulator (N vehicles, MAVLink over UDP)", description=DESCRIPTION
     )
-    who = p.add_mutually_exclusive_group(required=True)
-    who.add_argument(
+    p.add_argument(
         "--drones",
-        type=int,
-        metavar="N",
-        help=f"N vehicles (1..{MAX_VEHICLES}) on the ground on a 2 m grid",
+        metavar="N|LO-HI",
+        help=f"N vehicles (1..{MAX_VEHICLES}) on the ground on a 2 m grid; or a range LO-HI of "
+        "drone indices: serve only those (with --scenario: a shard of its swarm; drone d keeps "
+        "system id d+1 and its port), so several simulators on several hosts share a swarm "
+        "(realtime clock)",
     )
-    who.add_argument(
+    p.add_argument(
         "--scenario",
         type=Path,
         metavar="FILE",
@@ -120,6 +121,13 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
         help="MAVLink 2 signing key (32 raw bytes or 64 hex characters): telemetry "
         "signed, unsigned or wrongly signed commands and setpoints rejected",
     )
+    p.add_argument(
+        "--secrets",
+        type=Path,
+        metavar="DIR",
+        help="the swarm's secrets (swarm keys init): sign MAVLink with its key (the simulator "
+        "uses no Zenoh)",
+    )
     p.add_argument("--seed", type=int, help="random seed (default: the scenario's, else 0)")
     p.add_argument(
         "--position-noise-m",
@@ -164,6 +172,25 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
         metavar="S",
         help="stop after S simulated seconds (default: run until stopped)",
     )
+    p.add_argument(
+        "--start-at",
+        type=float,
+        metavar="UNIX_S",
+        help="realtime: run tick 0 at this Unix time (e.g. $(($(date +%%s) + 20))) instead of "
+        "when agents have spoken; give every shard of a swarm (--drones LO-HI) the same one so "
+        "they share one clock",
+    )
+    p.add_argument(
+        "--shard-sync",
+        metavar="HOST:PORT",
+        help="lockstep across shards: this shard's UDP port for the shards' tick agreement "
+        "(every shard steps once all hold the tick's setpoints); with --shard-peers",
+    )
+    p.add_argument(
+        "--shard-peers",
+        metavar="LIST",
+        help="the other shards' --shard-sync addresses, comma-separated HOST:PORT",
+    )
     p.add_argument("--quiet", action="store_true", help="no start and status lines")
     return p
 
@@ -180,14 +207,42 @@ def run_sim(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
     def show(status: Status) -> None:
         print(status_line(status), file=out, flush=True)
 
-    with Network(config.net, config.sysids) as network:
-        on_status = None if args.quiet else show
-        server = SimServer(world, tunables, network, config.clock, on_status=on_status)
-        if not args.quiet:
-            print(start_line(config), file=out, flush=True)
-        with _stop_on_signals(server.stop):
-            server.run()
+    shards = _shard_sync(args)
+    try:
+        with Network(config.net, config.sysids) as network:
+            on_status = None if args.quiet else show
+            server = SimServer(
+                world, tunables, network, config.clock, on_status=on_status, shard_sync=shards
+            )
+            if not args.quiet:
+                print(start_line(config), file=out, flush=True)
+            with _stop_on_signals(server.stop):
+                server.run()
+    finally:
+        if shards is not None:
+            shards.close()
     return 0
+
+
+def _shard_sync(args: argparse.Namespace) -> Any:
+    """The shards' tick agreement of ``--shard-sync`` / ``--shard-peers`` (None without)."""
+    import time
+
+    from sitl_sim.shard_sync import ShardSync, parse_address
+    from sitl_sim.sim_config import SimConfigError
+
+    if args.shard_sync is None and args.shard_peers is None:
+        return None
+    if args.shard_sync is None or not args.shard_peers:
+        raise SimConfigError("lockstep across shards needs both --shard-sync and --shard-peers")
+    if args.clock != "lockstep":
+        raise SimConfigError("--shard-sync is for --clock lockstep (realtime shards: --start-at)")
+    try:
+        bind = parse_address(args.shard_sync, "--shard-sync")
+        peers = [parse_address(p, "--shard-peers") for p in args.shard_peers.split(",")]
+        return ShardSync(bind, peers, time.monotonic, timeout_s=args.lockstep_timeout * 5)
+    except ValueError as exc:
+        raise SimConfigError(str(exc)) from None
 
 
 class _stop_on_signals:

@@ -52,6 +52,9 @@ class NetConfig:
     base_port: int | None = None
     gcs: Address | None = ("127.0.0.1", DEFAULT_GCS_PORT)
     signing_key: bytes | None = None
+    #: drone index of the first vehicle (a shard of a swarm, sitl_sim/shard.py): vehicle i is
+    #: drone first_drone + i, on that drone's port
+    first_drone: int = 0
     agent_rates_hz: Mapping[int, float] = field(default_factory=lambda: dict(AGENT_RATES_HZ))
     gcs_rates_hz: Mapping[int, float] = field(default_factory=lambda: dict(GCS_RATES_HZ))
 
@@ -69,6 +72,9 @@ class ClockConfig:
     join_timeout_s: float = 10.0
     wait_agents: int = 1
     duration_s: float | None = None
+    #: realtime: tick 0 runs at this Unix time (s), not when agents have spoken, so that
+    #: simulator shards on several hosts share one clock (sitl_sim/shard.py)
+    start_at_unix_s: float | None = None
 
 
 @dataclass(frozen=True)

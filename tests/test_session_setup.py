@@ -39,6 +39,9 @@ from protocols.wire_plan import FlightCommand, PlanMessage
         (["up", "--drones", "4", "--range-m", "1"], "--range-m: at 1 m the radio graph"),
         (["up", "--drones", "4", "--spacing-m", "0"], "--spacing-m: must be a positive number"),
         (["up", "--drones", "4", "--shutdown-timeout-s", "0"], "--shutdown-timeout-s: must be"),
+        (["up", "--drones", "0-4"], "--drones: an operator session needs a number of drones"),
+        (["up", "s.toml", "--drones", "0-4"], "--drones LO-HI picks this host's agents"),
+        (["up", "--drones", "4", "--router", "tcp/10.0.0.1:7447"], "--router: an operator"),
     ],
 )
 def test_bad_combinations_are_one_line_and_exit_2(

@@ -368,7 +368,8 @@ def test_client_sessions_through_a_router() -> None:
     with pytest.raises(ValueError, match="client mode needs"):
         ZenohSettings("client")
     with pytest.raises(ValueError, match="mode"):
-        ZenohSettings("router")
+        ZenohSettings("relay")
+    ZenohSettings("router", listen=(endpoint,))  # swarm router's own settings
 
 
 # --- a real second process -----------------------------------------------------------------------

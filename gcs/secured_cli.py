@@ -1,0 +1,46 @@
+"""``--secrets DIR`` and ``--role`` for the commands that join a swarm's Zenoh network, and the
+one-line refusal when a credential lacks a right (checked before anything is sent: the router
+would drop the message silently, protocols/swarm_secrets.RIGHTS)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from drone_agent.zenoh_config import role_secrets
+from protocols.swarm_secrets import ROLES, RoleSecrets, may
+
+
+def add_secrets_flags(p: argparse.ArgumentParser, role: str) -> None:
+    """``--secrets DIR`` (credentials of ``swarm keys init``) and ``--role`` (default ``role``)."""
+    p.add_argument(
+        "--secrets",
+        type=Path,
+        metavar="DIR",
+        help="the swarm's secrets (swarm keys init): TLS with a client certificate, "
+        f"user/password and access control; tcp/ endpoints become tls/ (role {role})",
+    )
+    p.add_argument(
+        "--role",
+        choices=ROLES,
+        default=role,
+        help="which credential of --secrets to use (default %(default)s)",
+    )
+
+
+def secrets_of(args: argparse.Namespace) -> RoleSecrets | None:
+    """The role's secrets of ``--secrets`` (None without it); ValueError: one line."""
+    return role_secrets(
+        getattr(args, "secrets", None), getattr(args, "role", "operator"), args.swarm_id
+    )
+
+
+def refusal(secrets: RoleSecrets | None, kind: str, suffix: str, what: str) -> str | None:
+    """Why ``secrets``' role may not send ``kind`` on ``swarm/<sid>/<suffix>`` (None: it may, or
+    the network is open)."""
+    if secrets is None or may(secrets.role, kind, suffix):
+        return None
+    return (
+        f"refused: the {secrets.role!r} credential has no right to {what} "
+        f"({kind} on swarm/{secrets.swarm_id}/{suffix}); only the operator credential has"
+    )
