@@ -102,8 +102,9 @@ def session_request(args: argparse.Namespace) -> SessionRequest | None:
         spread = any(getattr(args, k, None) for k in MULTIHOST_FLAGS)
         if drones_text is not None and not spread:
             raise SupervisorError(
-                f"give a scenario file or --drones N, not both ({scenario} has its own drones; "
-                "with a scenario file, --drones LO-HI picks this host's agents and needs --router)"
+                "--drones is for a swarm spread over hosts: give --router ENDPOINT (with a "
+                f"scenario file, here {scenario}, --drones LO-HI picks this host's agents); for "
+                "an operator session give --drones N without a scenario file"
             )
         return None
     multihost = [k for k in MULTIHOST_FLAGS if getattr(args, k, None)]

@@ -29,7 +29,7 @@ from protocols.wire_plan import FlightCommand, PlanMessage
     ("argv", "says"),
     [
         (["up"], "give a scenario file (swarm up SCENARIO) or --drones N"),
-        (["up", "s.toml", "--drones", "4"], "give a scenario file or --drones N, not both"),
+        (["up", "s.toml", "--drones", "4"], "for an operator session give --drones N without a"),
         (["up", "--drones", "0"], "--drones: need 2..250, got 0"),
         (["up", "--drones", "300"], "--drones: need 2..250, got 300"),
         (["up", "--drones", "1"], "--drones: need 2..250, got 1"),
@@ -40,7 +40,7 @@ from protocols.wire_plan import FlightCommand, PlanMessage
         (["up", "--drones", "4", "--spacing-m", "0"], "--spacing-m: must be a positive number"),
         (["up", "--drones", "4", "--shutdown-timeout-s", "0"], "--shutdown-timeout-s: must be"),
         (["up", "--drones", "0-4"], "--drones: an operator session needs a number of drones"),
-        (["up", "s.toml", "--drones", "0-4"], "--drones LO-HI picks this host's agents"),
+        (["up", "s.toml", "--drones", "0-4"], "--drones is for a swarm spread over hosts"),
         (["up", "--drones", "4", "--router", "tcp/10.0.0.1:7447"], "--router: an operator"),
     ],
 )
