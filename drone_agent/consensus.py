@@ -33,10 +33,12 @@ Pure and I/O-free: no clock, no transport; time enters only as the round number.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from drone_agent.moments import N_CHANNELS
 from protocols.frames import FloatArray
@@ -98,21 +100,6 @@ class ConsensusMessage:
     degree: int
 
 
-@dataclass
-class _Edge:
-    q_own: FloatArray = field(default_factory=lambda: np.zeros(N_CHANNELS))
-    q_received: FloatArray = field(default_factory=lambda: np.zeros(N_CHANNELS))
-    last_round: int = -1
-
-
-@dataclass
-class _Peer:
-    latest_round: int = -1
-    q_for_me: FloatArray | None = None
-    # round -> (gamma_j, degree_j, j heard me in that round)
-    pending: dict[int, tuple[FloatArray, int, bool]] = field(default_factory=dict)
-
-
 @dataclass(frozen=True)
 class ConsensusOutput:
     """Result of one round: the estimate (18,) of the channel averages, the message to send, the
@@ -126,32 +113,370 @@ class ConsensusOutput:
     disagreement: float = 0.0
 
 
+
+#: Round tag of an empty history slot (no real round is this old).
+_NO_ROUND = -(2**62)
+
+
+class _Entries:
+    """The pending (agent, neighbour, round) values of one step, as flat lists (one per field)."""
+
+    def __init__(self) -> None:
+        self.pos: list[int] = []  # position of the agent in the step's batch
+        self.sender: list[int] = []
+        self.round: list[int] = []
+        self.gamma: list[FloatArray] = []
+        self.degree: list[int] = []
+        self.heard_me: list[bool] = []
+
+    def add(self, pos: int, me: int, msg: ConsensusMessage) -> None:
+        self.pos.append(pos)
+        self.sender.append(msg.sender)
+        self.round.append(msg.round)
+        self.gamma.append(msg.gamma)
+        self.degree.append(msg.degree)
+        self.heard_me.append(me in msg.heard)
+
+
+class BatchConsensus:
+    """The consensus state of K agents, one row each (ids ``agent_ids``), advanced together.
+
+    Each row is exactly one :class:`ConsensusEstimator`: it uses only its own inbox, own channels,
+    own membership view and own state; rows never read each other. The state is held as arrays
+    over (row, neighbour id): running sums ``Q_ij`` (``_q_own``, ``_q_recv``, (K, M, 18)), whether
+    an edge exists and the last round it integrated, the newest round heard from each peer and the
+    ``Q_ji`` it sent, and a ring of the last ``history_ticks`` rounds of the row's own gamma,
+    degree and heard-set (slot ``round % history_ticks``, tagged with its round). M grows with the
+    largest neighbour id seen. Only what must look at each message (validity, the newest message
+    per peer, duplicates, rounds from the future kept for later) is Python; every pairing rule of
+    the module docstring and the tanh increments are array operations over all the (agent,
+    neighbour, round) values of the step at once.
+    """
+
+    def __init__(self, agent_ids: Sequence[int], params: ConsensusParams) -> None:
+        params.validate()
+        self.params = params
+        self.agent_ids = tuple(int(i) for i in agent_ids)
+        if len(set(self.agent_ids)) != len(self.agent_ids):
+            raise ValueError(f"agent ids must be distinct, got {self.agent_ids}")
+        k, h = len(self.agent_ids), params.history_ticks
+        self._m = 0
+        self._q_own = np.zeros((k, 0, N_CHANNELS))
+        self._q_recv = np.zeros((k, 0, N_CHANNELS))
+        self._edge = np.zeros((k, 0), dtype=bool)
+        self._edge_round = np.zeros((k, 0), dtype=np.int64)
+        self._peer = np.zeros((k, 0), dtype=bool)
+        self._latest = np.zeros((k, 0), dtype=np.int64)
+        self._q_for_me = np.zeros((k, 0, N_CHANNELS))
+        self._has_q_for_me = np.zeros((k, 0), dtype=bool)
+        self._hist_round = np.full((k, h), _NO_ROUND, dtype=np.int64)
+        self._hist_gamma = np.zeros((k, h, N_CHANNELS))
+        self._hist_degree = np.zeros((k, h), dtype=np.int64)
+        self._hist_heard = np.zeros((k, h, 0), dtype=bool)
+        # rounds not yet integrable (from the future), per row: (sender, round) -> message
+        self._later: list[dict[tuple[int, int], ConsensusMessage]] = [{} for _ in range(k)]
+        self._last_round: list[int | None] = [None] * k
+        self.dropped_messages = [0] * k
+        self._grow(max(self.agent_ids, default=0) + 1)
+
+    # -- inspection ----------------------------------------------------------------------------
+    def edges(self, row: int) -> tuple[int, ...]:
+        """Neighbours of row ``row`` with edge state (integrating or frozen), sorted."""
+        return tuple(int(j) for j in np.flatnonzero(self._edge[row]))
+
+    def edge_sum(self, row: int, neighbour: int) -> FloatArray:
+        """``eta_ij`` (18,) row ``row`` uses for the edge to ``neighbour`` (zeros if none)."""
+        if neighbour >= self._m or not self._edge[row, neighbour]:
+            return np.zeros(N_CHANNELS)
+        out: FloatArray = 0.5 * (self._q_own[row, neighbour] - self._q_recv[row, neighbour])
+        return out
+
+    # -- the step ------------------------------------------------------------------------------
+    def step(
+        self,
+        rows: Sequence[int],
+        round_: int,
+        zeta: FloatArray,
+        inboxes: Sequence[Iterable[ConsensusMessage]],
+        members: Sequence[frozenset[int] | None],
+    ) -> list[ConsensusOutput]:
+        """Advance rows ``rows`` (distinct) to round ``round_``: ``zeta`` (len(rows), 18) their
+        channels, ``inboxes[k]`` the messages row ``rows[k]`` received since its last step,
+        ``members[k]`` its liveliness view (None keeps every partner). One output per row."""
+        rows_arr = np.asarray(rows, dtype=np.intp).reshape(-1)
+        for row in rows_arr.tolist():
+            last = self._last_round[row]
+            if last is not None and round_ <= last:
+                raise ValueError(f"round {round_} is not after round {last}")
+            self._last_round[row] = round_
+        inboxes = [list(inbox) for inbox in inboxes]
+        top = max((m.sender for inbox in inboxes for m in inbox), default=-1)
+        if top >= self._m:
+            self._grow(top + 1)
+        entries = self._receive(rows_arr, round_, inboxes)
+        member_mask = self._member_mask(members)
+        if member_mask is not None:
+            self._discard_dead(rows_arr, member_mask)
+        timeout = self.params.heard_timeout_ticks
+        heard = self._peer[rows_arr] & (self._latest[rows_arr] >= round_ - timeout)
+        degree = heard.sum(axis=1)
+        active, disagreement = self._integrate(rows_arr, round_, entries, member_mask)
+        gamma = self.params.f * 0.5 * self._eta_total(rows_arr) + np.asarray(zeta, dtype=float)
+        slot = round_ % self.params.history_ticks
+        self._hist_round[rows_arr, slot] = round_
+        self._hist_gamma[rows_arr, slot] = gamma
+        self._hist_degree[rows_arr, slot] = degree
+        self._hist_heard[rows_arr, slot] = heard
+        return self._outputs(rows_arr, round_, gamma, heard, active, disagreement)
+
+    def _grow(self, m: int) -> None:
+        """Make room for neighbour ids below ``m`` (at least doubling)."""
+        m = max(m, 2 * self._m)
+        pad = m - self._m
+
+        def wider(a: npt.NDArray[Any], axis: int, fill: float | bool = 0) -> npt.NDArray[Any]:
+            shape = list(a.shape)
+            shape[axis] = pad
+            return np.concatenate([a, np.full(shape, fill, dtype=a.dtype)], axis=axis)
+
+        self._q_own, self._q_recv = wider(self._q_own, 1), wider(self._q_recv, 1)
+        self._q_for_me = wider(self._q_for_me, 1)
+        self._edge, self._peer = wider(self._edge, 1, False), wider(self._peer, 1, False)
+        self._has_q_for_me = wider(self._has_q_for_me, 1, False)
+        self._edge_round, self._latest = wider(self._edge_round, 1, -1), wider(self._latest, 1, -1)
+        self._hist_heard = wider(self._hist_heard, 2, False)
+        self._m = m
+
+    def _receive(
+        self, rows: npt.NDArray[np.intp], round_: int, inboxes: list[list[ConsensusMessage]]
+    ) -> _Entries:
+        """File each message (rule order: by sender, then round, arrival order among equals):
+        drop own and too-old ones, keep the newest message per peer for its heard round and the
+        ``Q_ji`` it carries, and collect the values to pair (the last copy of a duplicate wins;
+        rounds not yet due wait in ``_later``)."""
+        oldest = round_ - self.params.history_ticks
+        entries = _Entries()
+        newest_rows: list[int] = []
+        newest_ids: list[int] = []
+        newest_rounds: list[int] = []
+        q_rows: list[int] = []
+        q_ids: list[int] = []
+        q_values: list[FloatArray] = []
+        unset_rows: list[int] = []
+        unset_ids: list[int] = []
+        seen_rows: list[int] = []
+        seen_ids: list[int] = []
+        for pos, (row, inbox) in enumerate(zip(rows.tolist(), inboxes, strict=True)):
+            me = self.agent_ids[row]
+            waiting = self._later[row]
+            if not inbox and not waiting:
+                continue
+            pending = dict(waiting)
+            newest: dict[int, ConsensusMessage] = {}
+            latest = self._latest[row]
+            dropped = 0
+            for msg in inbox:
+                j, q = msg.sender, msg.round
+                if j == me or q < oldest:
+                    dropped += 1
+                    continue
+                pending[(j, q)] = msg
+                best = newest.get(j)
+                if best is None:
+                    if q > latest[j]:
+                        newest[j] = msg
+                    else:
+                        seen_rows.append(row)
+                        seen_ids.append(j)
+                elif q > best.round:
+                    newest[j] = msg
+            self.dropped_messages[row] += dropped
+            waiting.clear()
+            for (j, q), msg in pending.items():
+                if q < round_:
+                    entries.add(pos, me, msg)
+                else:
+                    waiting[(j, q)] = msg
+            for j, msg in newest.items():
+                newest_rows.append(row)
+                newest_ids.append(j)
+                newest_rounds.append(msg.round)
+                q_ji = msg.edge_sums.get(me)
+                if q_ji is None:
+                    unset_rows.append(row)
+                    unset_ids.append(j)
+                else:
+                    q_rows.append(row)
+                    q_ids.append(j)
+                    q_values.append(q_ji)
+        self._peer[seen_rows, seen_ids] = True
+        self._peer[newest_rows, newest_ids] = True
+        self._latest[newest_rows, newest_ids] = newest_rounds
+        self._has_q_for_me[unset_rows, unset_ids] = False
+        if q_values:
+            self._has_q_for_me[q_rows, q_ids] = True
+            self._q_for_me[q_rows, q_ids] = np.asarray(q_values, dtype=float)
+        return entries
+
+    def _member_mask(
+        self, members: Sequence[frozenset[int] | None]
+    ) -> npt.NDArray[np.bool_] | None:
+        """(len(rows), M) True where the row's membership view lists the id; None if no row has
+        a view."""
+        if all(m is None for m in members):
+            return None
+        masks: dict[int, npt.NDArray[np.bool_]] = {}
+        out = np.ones((len(members), self._m), dtype=bool)
+        for pos, view in enumerate(members):
+            if view is None:
+                continue
+            mask = masks.get(id(view))
+            if mask is None:
+                mask = np.zeros(self._m, dtype=bool)
+                ids = [j for j in view if 0 <= j < self._m]
+                mask[ids] = True
+                masks[id(view)] = mask
+            out[pos] = mask
+        return out
+
+    def _discard_dead(self, rows: npt.NDArray[np.intp], member_mask: npt.NDArray[np.bool_]) -> None:
+        """Rule 5: drop every state towards partners the row's membership view no longer lists."""
+        dead = (self._peer[rows] | self._edge[rows]) & ~member_mask
+        if not dead.any():
+            return
+        pos, ids = np.nonzero(dead)
+        r = rows[pos]
+        self._q_own[r, ids] = 0.0
+        self._q_recv[r, ids] = 0.0
+        self._edge[r, ids] = False
+        self._edge_round[r, ids] = -1
+        self._peer[r, ids] = False
+        self._latest[r, ids] = -1
+        self._has_q_for_me[r, ids] = False
+        for p in np.flatnonzero(dead.any(axis=1)).tolist():
+            waiting = self._later[int(rows[p])]
+            if waiting:
+                gone = set(np.flatnonzero(dead[p]).tolist())
+                for key in [key for key in waiting if key[0] in gone]:
+                    del waiting[key]
+
+    def _integrate(
+        self,
+        rows: npt.NDArray[np.intp],
+        round_: int,
+        entries: _Entries,
+        member_mask: npt.NDArray[np.bool_] | None,
+    ) -> tuple[list[tuple[int, ...]], FloatArray]:
+        """Rules 2, 3 and 6 and the delay-scaled gain over every due (agent, neighbour, round):
+        integrate those whose own value of that round is still in the history, newer than the
+        edge's last integrated round, and where both ends heard each other in that round.
+        Returns the active neighbours per row and the disagreement per row."""
+        n_rows = rows.shape[0]
+        disagreement = np.zeros(n_rows)
+        active: list[tuple[int, ...]] = [()] * n_rows
+        if not entries.pos:
+            return active, disagreement
+        pos = np.asarray(entries.pos, dtype=np.intp)
+        j = np.asarray(entries.sender, dtype=np.intp)
+        q = np.asarray(entries.round, dtype=np.int64)
+        row = rows[pos]
+        slot = q % self.params.history_ticks
+        ok = (self._hist_round[row, slot] == q) & np.asarray(entries.heard_me, dtype=bool)
+        ok &= self._hist_heard[row, slot, j]
+        ok &= ~self._edge[row, j] | (q > self._edge_round[row, j])
+        if member_mask is not None:
+            ok &= member_mask[pos, j]
+        if not ok.any():
+            return active, disagreement
+        sel = np.flatnonzero(ok)
+        sel = sel[np.lexsort((q[sel], j[sel], pos[sel]))]  # per edge, rounds in order
+        pos, j, q, row, slot = pos[sel], j[sel], q[sel], row[sel], slot[sel]
+        gamma_i = self._hist_gamma[row, slot]
+        gamma_j = np.asarray(entries.gamma, dtype=float)[sel]
+        rho = np.full(sel.shape[0], self.params.rho)
+        if self.params.degree_normalised:
+            degree_j = np.asarray(entries.degree, dtype=np.int64)[sel]
+            rho = rho / np.maximum(np.maximum(self._hist_degree[row, slot], degree_j), 1)
+        rho = rho / np.maximum(round_ - q, 1)  # delay-scaled gain (module doc)
+        diff = gamma_i - gamma_j
+        scale = 1.0 + np.maximum(np.abs(gamma_i).max(axis=1), np.abs(gamma_j).max(axis=1))
+        np.maximum.at(disagreement, pos, np.abs(diff).max(axis=1) / scale)
+        increment = (rho * self.params.dt_s)[:, None] * np.tanh(self.params.c * diff)
+        np.subtract.at(self._q_own, (row, j), increment)
+        self._edge[row, j] = True
+        np.maximum.at(self._edge_round, (row, j), q)
+        flags = np.zeros((n_rows, self._m), dtype=bool)
+        flags[pos, j] = True
+        for p in np.unique(pos).tolist():
+            active[p] = tuple(np.flatnonzero(flags[p]).tolist())
+        return active, disagreement
+
+    def _eta_total(self, rows: npt.NDArray[np.intp]) -> FloatArray:
+        """``sum_j (Q_ij - Q_ji)`` (len(rows), 18) over each row's edges, ``Q_ji`` refreshed from
+        the newest message of j that carried one (rule 1), summed in neighbour order."""
+        total = np.zeros((rows.shape[0], N_CHANNELS))
+        pos, ids = np.nonzero(self._edge[rows])
+        if pos.shape[0] == 0:
+            return total
+        r = rows[pos]
+        fresh = self._has_q_for_me[r, ids]
+        self._q_recv[r[fresh], ids[fresh]] = self._q_for_me[r[fresh], ids[fresh]]
+        d = self._q_own[r, ids] - self._q_recv[r, ids]
+        starts = np.flatnonzero(np.r_[True, pos[1:] != pos[:-1]])
+        total[pos[starts]] = np.add.reduceat(d, starts, axis=0)
+        return total
+
+    def _outputs(
+        self,
+        rows: npt.NDArray[np.intp],
+        round_: int,
+        gamma: FloatArray,
+        heard: npt.NDArray[np.bool_],
+        active: list[tuple[int, ...]],
+        disagreement: FloatArray,
+    ) -> list[ConsensusOutput]:
+        pos, ids = np.nonzero(self._edge[rows])
+        sums = self._q_own[rows[pos], ids]
+        bounds = np.searchsorted(pos, np.arange(rows.shape[0] + 1)).tolist()
+        id_list = ids.tolist()
+        out = []
+        for p, row in enumerate(rows.tolist()):
+            lo, hi = bounds[p], bounds[p + 1]
+            heard_ids = frozenset(np.flatnonzero(heard[p]).tolist())
+            message = ConsensusMessage(
+                sender=self.agent_ids[row],
+                round=round_,
+                gamma=gamma[p],
+                edge_sums=dict(zip(id_list[lo:hi], sums[lo:hi], strict=True)),
+                heard=heard_ids,
+                degree=len(heard_ids),
+            )
+            out.append(ConsensusOutput(gamma[p], message, active[p], float(disagreement[p])))
+        return out
+
+
 class ConsensusEstimator:
-    """The consensus state of one agent. Call :meth:`step` once per round, rounds increasing."""
+    """The consensus state of one agent: a :class:`BatchConsensus` of one row. Call :meth:`step`
+    once per round, rounds increasing."""
 
     def __init__(self, agent_id: int, params: ConsensusParams) -> None:
-        params.validate()
         self.agent_id = agent_id
         self.params = params
-        self._edges: dict[int, _Edge] = {}
-        self._peers: dict[int, _Peer] = {}
-        # round -> (gamma_i, degree_i, heard_i)
-        self._history: dict[int, tuple[FloatArray, int, frozenset[int]]] = {}
-        self._last_round: int | None = None
-        self._disagreement = 0.0
-        self.dropped_messages = 0
+        self._batch = BatchConsensus((agent_id,), params)
+
+    @property
+    def dropped_messages(self) -> int:
+        """Messages ignored: our own, or older than the history."""
+        return self._batch.dropped_messages[0]
 
     @property
     def edges(self) -> tuple[int, ...]:
         """Neighbours with edge state (integrating or frozen), sorted."""
-        return tuple(sorted(self._edges))
+        return self._batch.edges(0)
 
     def edge_sum(self, neighbour: int) -> FloatArray:
         """``eta_ij`` (18,) currently used for the edge to ``neighbour`` (zeros if none)."""
-        edge = self._edges.get(neighbour)
-        if edge is None:
-            return np.zeros(N_CHANNELS)
-        return 0.5 * (edge.q_own - edge.q_received)
+        return self._batch.edge_sum(0, neighbour)
 
     def step(
         self,
@@ -163,76 +488,5 @@ class ConsensusEstimator:
         """Advance to round ``round_`` with own channels ``zeta`` (18,) and the messages received
         since the last call. ``members``: the live agents (liveliness view); partners not in it
         are discarded (rule 5). None keeps every partner."""
-        if self._last_round is not None and round_ <= self._last_round:
-            raise ValueError(f"round {round_} is not after round {self._last_round}")
-        self._last_round = round_
-        for msg in sorted(inbox, key=lambda m: (m.sender, m.round)):
-            self._receive(msg, round_)
-        if members is not None:
-            for j in [j for j in set(self._peers) | set(self._edges) if j not in members]:
-                self._edges.pop(j, None)
-                self._peers.pop(j, None)
-        timeout = self.params.heard_timeout_ticks
-        heard = frozenset(
-            j for j, peer in self._peers.items() if peer.latest_round >= round_ - timeout
-        )
-        self._disagreement = 0.0
-        active = tuple(j for j in sorted(self._peers) if self._integrate(j, round_))
-        eta_total = np.zeros(N_CHANNELS)
-        for j, edge in self._edges.items():
-            peer = self._peers.get(j)
-            if peer is not None and peer.q_for_me is not None:
-                edge.q_received = peer.q_for_me
-            eta_total += edge.q_own - edge.q_received
-        gamma = self.params.f * 0.5 * eta_total + np.asarray(zeta, dtype=float)
-        self._history[round_] = (gamma, len(heard), heard)
-        self._history.pop(round_ - self.params.history_ticks, None)
-        message = ConsensusMessage(
-            sender=self.agent_id,
-            round=round_,
-            gamma=gamma,
-            edge_sums={j: e.q_own.copy() for j, e in sorted(self._edges.items())},
-            heard=heard,
-            degree=len(heard),
-        )
-        return ConsensusOutput(gamma, message, active, self._disagreement)
-
-    def _receive(self, msg: ConsensusMessage, round_: int) -> None:
-        if msg.sender == self.agent_id or msg.round < round_ - self.params.history_ticks:
-            self.dropped_messages += 1
-            return
-        peer = self._peers.setdefault(msg.sender, _Peer())
-        peer.pending[msg.round] = (msg.gamma, msg.degree, self.agent_id in msg.heard)
-        if msg.round > peer.latest_round:
-            peer.latest_round = msg.round
-            q = msg.edge_sums.get(self.agent_id)
-            peer.q_for_me = None if q is None else np.asarray(q, dtype=float)
-
-    def _integrate(self, j: int, round_: int) -> bool:
-        """Integrate every pending round of peer j that can be paired; True if any was."""
-        peer = self._peers[j]
-        edge = self._edges.get(j)
-        done = False
-        for q in sorted(peer.pending):
-            if q >= round_:
-                continue
-            gamma_j, degree_j, j_heard_me = peer.pending.pop(q)
-            own = self._history.get(q)
-            if own is None or (edge is not None and q <= edge.last_round):
-                continue
-            gamma_i, degree_i, heard_i = own
-            if not (j_heard_me and j in heard_i):
-                continue
-            if edge is None:
-                edge = self._edges[j] = _Edge()
-            rho = self.params.rho
-            if self.params.degree_normalised:
-                rho = rho / max(degree_i, degree_j, 1)
-            rho = rho / max(round_ - q, 1)  # delay-scaled gain (module doc)
-            diff = gamma_i - gamma_j
-            scale = 1.0 + max(float(np.abs(gamma_i).max()), float(np.abs(gamma_j).max()))
-            self._disagreement = max(self._disagreement, float(np.abs(diff).max()) / scale)
-            edge.q_own = edge.q_own - rho * self.params.dt_s * np.tanh(self.params.c * diff)
-            edge.last_round = q
-            done = True
-        return done
+        zeta_row = np.asarray(zeta, dtype=float).reshape(1, N_CHANNELS)
+        return self._batch.step((0,), round_, zeta_row, [inbox], [members])[0]
