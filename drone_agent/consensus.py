@@ -113,7 +113,6 @@ class ConsensusOutput:
     disagreement: float = 0.0
 
 
-
 #: Round tag of an empty history slot (no real round is this old).
 _NO_ROUND = -(2**62)
 
