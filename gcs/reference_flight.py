@@ -1,6 +1,7 @@
 """The whole swarm in one process (``swarm simulate``): vehicles, agents and radio, no network.
 
-Every drone runs the same :class:`~drone_agent.agent_core.AgentCore` as the distributed agents,
+Every drone runs the same agent core as the distributed agents (all of them as the rows of one
+:class:`~drone_agent.agent_core.BatchAgentCore`, one call per control tick),
 the vehicles run the same dynamics and inner loop as the SITL simulator, and consensus messages
 pass through an in-memory radio with the scenario's faults. It is the reference the distributed
 system is measured against, and a fast tuning tool. Deterministic for a given seed; no I/O.
@@ -14,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from drone_agent.agent_core import AgentCore
+from drone_agent.agent_core import AgentCore, BatchAgentCore
 from drone_agent.config import agent_config
 from drone_agent.link_faults import LinkFaults
 from gcs.fault_timeline import TimedAction, link_faults, timeline
@@ -84,7 +85,10 @@ class ReferenceFlight:
         self.rng = rng if rng is not None else np.random.default_rng(scenario.seed)
         yaw0 = np.radians([d.yaw_deg for d in scenario.drones])
         self.state = initial_state(scenario.positions_ned_m(), yaw0)
-        self.agents: dict[int, AgentCore] = {i: AgentCore(i, self.config) for i in range(self.n)}
+        self.core = BatchAgentCore(range(self.n), self.config)
+        self.agents: dict[int, AgentCore] = {
+            i: AgentCore(i, self.config, self.core) for i in range(self.n)
+        }
         delay = max(1, scenario.consensus.delay_ticks)
         self.network = InProcessNetwork(self.n, scenario.comms.range_m, self.rng, delay)
         self.failsafe = FailsafeConfig()
@@ -181,10 +185,19 @@ class ReferenceFlight:
         pos, vel = self.state[POS].T, self.state[VEL].T
         members = frozenset(self.agents)
         inboxes = self.network.receive(k)
-        messages = []
-        for i, agent in self.agents.items():
-            out = agent.tick(k, self.t_s, pos[i], vel[i], self.plan, inboxes[i], members)
-            messages.append(out.message)
+        live = sorted(self.agents)
+        outs = self.core.tick(
+            [self.agents[i].row for i in live],
+            k,
+            self.t_s,
+            pos[live],
+            vel[live],
+            [self.plan] * len(live),
+            [inboxes[i] for i in live],
+            [members] * len(live),
+        )
+        messages = [out.message for out in outs]
+        for i, out in zip(live, outs, strict=True):
             rec.estimate[k, i] = out.estimate
             rec.neighbours[k, i] = len(out.active_neighbours)
             sp = out.setpoint
