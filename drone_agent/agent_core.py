@@ -111,8 +111,7 @@ class BatchAgentCore:
         v = np.asarray(velocities_ned_m_s, dtype=float).reshape(-1, 3)
         a_d, ad_dot, ad_ddot = self._references(plans, t_s)
         zeta = channels_batch(x, v, a_d[:, CENTRE], ad_dot[:, CENTRE])
-        outs = self.consensus.step(rows, round_, zeta, inboxes, members)
-        gamma = np.stack([o.estimate for o in outs])
+        gamma, outs = self.consensus.step(rows, round_, zeta, inboxes, members)
         moments = moments_from_averages_batch(gamma, a_d[:, CENTRE], ad_dot[:, CENTRE])
         r_d = desired_axes_batch(a_d)
         axes, s = align_axes_batch(moments.sigma_m2, r_d)
@@ -157,7 +156,9 @@ class BatchAgentCore:
             first.setdefault(key, plan)
         if len(groups) == 1:
             (plan,) = first.values()
-            return tuple(np.broadcast_to(f, (len(plans), 9)) for f in plan.evaluate(t_s))  # type: ignore[return-value]
+            a, a_dot, a_ddot = plan.evaluate(t_s)
+            n = len(plans)
+            return a[None].repeat(n, 0), a_dot[None].repeat(n, 0), a_ddot[None].repeat(n, 0)
         out = (np.empty((len(plans), 9)), np.empty((len(plans), 9)), np.empty((len(plans), 9)))
         for key, ks in groups.items():
             for dst, value in zip(out, first[key].evaluate(t_s), strict=True):

@@ -117,24 +117,34 @@ class ConsensusOutput:
 _NO_ROUND = -(2**62)
 
 
-class _Entries:
-    """The pending (agent, neighbour, round) values of one step, as flat lists (one per field)."""
+@dataclass
+class _Due:
+    """The (agent, neighbour, round) values due for pairing in one step, deduplicated (the last
+    copy of a (sender, round) wins) and ordered by (agent, neighbour, round): ``pos`` the agent's
+    position in the step's batch, ``sender``, ``round`` and ``msg`` (index into ``messages``, the
+    distinct message objects of the step), all (T,)."""
 
-    def __init__(self) -> None:
-        self.pos: list[int] = []  # position of the agent in the step's batch
-        self.sender: list[int] = []
-        self.round: list[int] = []
-        self.gamma: list[FloatArray] = []
-        self.degree: list[int] = []
-        self.heard_me: list[bool] = []
+    pos: npt.NDArray[np.intp]
+    sender: npt.NDArray[np.intp]
+    round: npt.NDArray[np.int64]
+    msg: npt.NDArray[np.intp]
+    messages: list[ConsensusMessage]
 
-    def add(self, pos: int, me: int, msg: ConsensusMessage) -> None:
-        self.pos.append(pos)
-        self.sender.append(msg.sender)
-        self.round.append(msg.round)
-        self.gamma.append(msg.gamma)
-        self.degree.append(msg.degree)
-        self.heard_me.append(me in msg.heard)
+
+def _after_true(flags: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """``[True, *flags]``."""
+    out = np.empty(flags.shape[0] + 1, dtype=bool)
+    out[0] = True
+    out[1:] = flags
+    return out
+
+
+def _before_true(flags: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """``[*flags, True]``."""
+    out = np.empty(flags.shape[0] + 1, dtype=bool)
+    out[-1] = True
+    out[:-1] = flags
+    return out
 
 
 class BatchConsensus:
@@ -156,6 +166,7 @@ class BatchConsensus:
         params.validate()
         self.params = params
         self.agent_ids = tuple(int(i) for i in agent_ids)
+        self._ids = np.array(self.agent_ids, dtype=np.intp)
         if len(set(self.agent_ids)) != len(self.agent_ids):
             raise ValueError(f"agent ids must be distinct, got {self.agent_ids}")
         k, h = len(self.agent_ids), params.history_ticks
@@ -176,6 +187,7 @@ class BatchConsensus:
         self._later: list[dict[tuple[int, int], ConsensusMessage]] = [{} for _ in range(k)]
         self._last_round: list[int | None] = [None] * k
         self.dropped_messages = [0] * k
+        self._masks: dict[int, tuple[frozenset[int], npt.NDArray[np.bool_]]] = {}
         self._grow(max(self.agent_ids, default=0) + 1)
 
     # -- inspection ----------------------------------------------------------------------------
@@ -198,10 +210,11 @@ class BatchConsensus:
         zeta: FloatArray,
         inboxes: Sequence[Iterable[ConsensusMessage]],
         members: Sequence[frozenset[int] | None],
-    ) -> list[ConsensusOutput]:
+    ) -> tuple[FloatArray, list[ConsensusOutput]]:
         """Advance rows ``rows`` (distinct) to round ``round_``: ``zeta`` (len(rows), 18) their
         channels, ``inboxes[k]`` the messages row ``rows[k]`` received since its last step,
-        ``members[k]`` its liveliness view (None keeps every partner). One output per row."""
+        ``members[k]`` its liveliness view (None keeps every partner). Returns the estimates
+        (len(rows), 18) and one output per row (whose estimate is its row of them)."""
         rows_arr = np.asarray(rows, dtype=np.intp).reshape(-1)
         for row in rows_arr.tolist():
             last = self._last_round[row]
@@ -212,21 +225,21 @@ class BatchConsensus:
         top = max((m.sender for inbox in inboxes for m in inbox), default=-1)
         if top >= self._m:
             self._grow(top + 1)
-        entries = self._receive(rows_arr, round_, inboxes)
         member_mask = self._member_mask(members)
+        due = self._receive(rows_arr, round_, inboxes, member_mask)
         if member_mask is not None:
             self._discard_dead(rows_arr, member_mask)
         timeout = self.params.heard_timeout_ticks
         heard = self._peer[rows_arr] & (self._latest[rows_arr] >= round_ - timeout)
         degree = heard.sum(axis=1)
-        active, disagreement = self._integrate(rows_arr, round_, entries, member_mask)
+        active, disagreement = self._integrate(rows_arr, round_, due)
         gamma = self.params.f * 0.5 * self._eta_total(rows_arr) + np.asarray(zeta, dtype=float)
         slot = round_ % self.params.history_ticks
         self._hist_round[rows_arr, slot] = round_
         self._hist_gamma[rows_arr, slot] = gamma
         self._hist_degree[rows_arr, slot] = degree
         self._hist_heard[rows_arr, slot] = heard
-        return self._outputs(rows_arr, round_, gamma, heard, active, disagreement)
+        return gamma, self._outputs(rows_arr, round_, gamma, heard, active, disagreement)
 
     def _grow(self, m: int) -> None:
         """Make room for neighbour ids below ``m`` (at least doubling)."""
@@ -247,75 +260,89 @@ class BatchConsensus:
         self._m = m
 
     def _receive(
-        self, rows: npt.NDArray[np.intp], round_: int, inboxes: list[list[ConsensusMessage]]
-    ) -> _Entries:
-        """File each message (rule order: by sender, then round, arrival order among equals):
-        drop own and too-old ones, keep the newest message per peer for its heard round and the
-        ``Q_ji`` it carries, and collect the values to pair (the last copy of a duplicate wins;
-        rounds not yet due wait in ``_later``)."""
-        oldest = round_ - self.params.history_ticks
-        entries = _Entries()
-        newest_rows: list[int] = []
-        newest_ids: list[int] = []
-        newest_rounds: list[int] = []
-        q_rows: list[int] = []
-        q_ids: list[int] = []
-        q_values: list[FloatArray] = []
-        unset_rows: list[int] = []
-        unset_ids: list[int] = []
-        seen_rows: list[int] = []
-        seen_ids: list[int] = []
-        for pos, (row, inbox) in enumerate(zip(rows.tolist(), inboxes, strict=True)):
-            me = self.agent_ids[row]
+        self,
+        rows: npt.NDArray[np.intp],
+        round_: int,
+        inboxes: list[list[ConsensusMessage]],
+        member_mask: npt.NDArray[np.bool_] | None,
+    ) -> _Due | None:
+        """File each message: drop own and too-old ones (counted) and those of partners the
+        row's membership view does not list; keep the newest message per peer (the first copy of
+        its highest round) for the heard-set and the ``Q_ji`` it carries; return the values due
+        for pairing (rounds before ``round_``; the last copy of a (sender, round) wins) and keep
+        the later rounds waiting. The rows' waiting values are filed again first, in front of
+        their inbox, as if they had just arrived."""
+        msgs: list[ConsensusMessage] = []
+        counts: list[int] = []
+        carried: list[int] = []  # positions in msgs of values filed again
+        for row, inbox in zip(rows.tolist(), inboxes, strict=True):
             waiting = self._later[row]
-            if not inbox and not waiting:
-                continue
-            pending = dict(waiting)
-            newest: dict[int, ConsensusMessage] = {}
-            latest = self._latest[row]
-            dropped = 0
-            for msg in inbox:
-                j, q = msg.sender, msg.round
-                if j == me or q < oldest:
-                    dropped += 1
-                    continue
-                pending[(j, q)] = msg
-                best = newest.get(j)
-                if best is None:
-                    if q > latest[j]:
-                        newest[j] = msg
-                    else:
-                        seen_rows.append(row)
-                        seen_ids.append(j)
-                elif q > best.round:
-                    newest[j] = msg
-            self.dropped_messages[row] += dropped
-            waiting.clear()
-            for (j, q), msg in pending.items():
-                if q < round_:
-                    entries.add(pos, me, msg)
-                else:
-                    waiting[(j, q)] = msg
-            for j, msg in newest.items():
-                newest_rows.append(row)
-                newest_ids.append(j)
-                newest_rounds.append(msg.round)
-                q_ji = msg.edge_sums.get(me)
-                if q_ji is None:
-                    unset_rows.append(row)
-                    unset_ids.append(j)
-                else:
-                    q_rows.append(row)
-                    q_ids.append(j)
-                    q_values.append(q_ji)
-        self._peer[seen_rows, seen_ids] = True
-        self._peer[newest_rows, newest_ids] = True
-        self._latest[newest_rows, newest_ids] = newest_rounds
-        self._has_q_for_me[unset_rows, unset_ids] = False
-        if q_values:
-            self._has_q_for_me[q_rows, q_ids] = True
-            self._q_for_me[q_rows, q_ids] = np.asarray(q_values, dtype=float)
-        return entries
+            n = len(inbox)
+            if waiting:
+                carried += range(len(msgs), len(msgs) + len(waiting))
+                msgs += waiting.values()
+                n += len(waiting)
+                waiting.clear()
+            msgs += inbox
+            counts.append(n)
+        if not msgs:
+            return None
+        index: dict[int, int] = {}
+        which = np.array([index.setdefault(id(m), len(index)) for m in msgs], dtype=np.intp)
+        messages = list({id(m): m for m in msgs}.values())
+        j = np.array([m.sender for m in messages], dtype=np.intp)[which]
+        q = np.array([m.round for m in messages], dtype=np.int64)[which]
+        pos = np.repeat(np.arange(rows.shape[0]), counts)
+        me = self._ids[rows][pos]
+        valid = (j != me) & (q >= round_ - self.params.history_ticks)
+        if carried:
+            valid[carried] = True
+        if not valid.all():
+            dropped = np.bincount(pos[~valid], minlength=rows.shape[0])
+            for p in np.flatnonzero(dropped).tolist():
+                self.dropped_messages[int(rows[p])] += int(dropped[p])
+        if member_mask is not None:
+            valid &= member_mask[pos, j]
+        sel = np.flatnonzero(valid)
+        if sel.shape[0] == 0:
+            return None
+        order = sel[np.lexsort((q[sel], j[sel], pos[sel]))]  # stable: arrival order among equals
+        pos, j, q, which = pos[order], j[order], q[order], which[order]
+        same_pair = (pos[1:] == pos[:-1]) & (j[1:] == j[:-1])
+        same_value = same_pair & (q[1:] == q[:-1])
+        row = rows[pos]
+        self._peer[row, j] = True
+        # newest per (row, peer): the first copy of the highest round
+        first_copy = _after_true(~same_value)
+        copy_start = np.maximum.accumulate(np.where(first_copy, np.arange(q.shape[0]), 0))
+        newest = copy_start[np.flatnonzero(_before_true(~same_pair))]
+        newer = newest[q[newest] > self._latest[row[newest], j[newest]]]
+        self._note_newest(row[newer], j[newer], q[newer], [messages[k] for k in which[newer]])
+        last_copy = np.flatnonzero(_before_true(~same_value))
+        is_due = q[last_copy] < round_
+        later = last_copy[~is_due]
+        for k in later.tolist():
+            self._later[int(row[k])][(int(j[k]), int(q[k]))] = messages[which[k]]
+        due = last_copy[is_due]
+        return _Due(pos[due], j[due], q[due], which[due], messages)
+
+    def _note_newest(
+        self,
+        rows: npt.NDArray[np.intp],
+        ids: npt.NDArray[np.intp],
+        rounds: npt.NDArray[np.int64],
+        messages: list[ConsensusMessage],
+    ) -> None:
+        """Peer ``ids[k]``'s newest message to row ``rows[k]`` is ``messages[k]`` of round
+        ``rounds[k]``: the round it was last heard in, and the ``Q_ji`` it carries (if any)."""
+        self._latest[rows, ids] = rounds
+        mine = [self.agent_ids[r] for r in rows.tolist()]
+        sums = [m.edge_sums.get(i) for m, i in zip(messages, mine, strict=True)]
+        has = np.array([x is not None for x in sums], dtype=bool)
+        self._has_q_for_me[rows, ids] = has
+        if has.any():
+            values = [x for x in sums if x is not None]
+            self._q_for_me[rows[has], ids[has]] = np.asarray(values, dtype=float)
 
     def _member_mask(
         self, members: Sequence[frozenset[int] | None]
@@ -324,19 +351,24 @@ class BatchConsensus:
         a view."""
         if all(m is None for m in members):
             return None
-        masks: dict[int, npt.NDArray[np.bool_]] = {}
         out = np.ones((len(members), self._m), dtype=bool)
         for pos, view in enumerate(members):
-            if view is None:
-                continue
-            mask = masks.get(id(view))
-            if mask is None:
-                mask = np.zeros(self._m, dtype=bool)
-                ids = [j for j in view if 0 <= j < self._m]
-                mask[ids] = True
-                masks[id(view)] = mask
-            out[pos] = mask
+            if view is not None:
+                out[pos] = self._mask_of(view)
         return out
+
+    def _mask_of(self, view: frozenset[int]) -> npt.NDArray[np.bool_]:
+        """(M,) True for the ids in ``view``; remembered for the same view object (agents hand
+        over one view for many ticks)."""
+        cached = self._masks.get(id(view))
+        if cached is not None and cached[0] is view and cached[1].shape[0] == self._m:
+            return cached[1]
+        mask = np.zeros(self._m, dtype=bool)
+        mask[[j for j in view if 0 <= j < self._m]] = True
+        if len(self._masks) >= 64:
+            self._masks.clear()
+        self._masks[id(view)] = (view, mask)
+        return mask
 
     def _discard_dead(self, rows: npt.NDArray[np.intp], member_mask: npt.NDArray[np.bool_]) -> None:
         """Rule 5: drop every state towards partners the row's membership view no longer lists."""
@@ -352,19 +384,9 @@ class BatchConsensus:
         self._peer[r, ids] = False
         self._latest[r, ids] = -1
         self._has_q_for_me[r, ids] = False
-        for p in np.flatnonzero(dead.any(axis=1)).tolist():
-            waiting = self._later[int(rows[p])]
-            if waiting:
-                gone = set(np.flatnonzero(dead[p]).tolist())
-                for key in [key for key in waiting if key[0] in gone]:
-                    del waiting[key]
 
     def _integrate(
-        self,
-        rows: npt.NDArray[np.intp],
-        round_: int,
-        entries: _Entries,
-        member_mask: npt.NDArray[np.bool_] | None,
+        self, rows: npt.NDArray[np.intp], round_: int, due: _Due | None
     ) -> tuple[list[tuple[int, ...]], FloatArray]:
         """Rules 2, 3 and 6 and the delay-scaled gain over every due (agent, neighbour, round):
         integrate those whose own value of that round is still in the history, newer than the
@@ -373,42 +395,51 @@ class BatchConsensus:
         n_rows = rows.shape[0]
         disagreement = np.zeros(n_rows)
         active: list[tuple[int, ...]] = [()] * n_rows
-        if not entries.pos:
+        if due is None:
             return active, disagreement
-        pos = np.asarray(entries.pos, dtype=np.intp)
-        j = np.asarray(entries.sender, dtype=np.intp)
-        q = np.asarray(entries.round, dtype=np.int64)
+        pos, j, q = due.pos, due.sender, due.round
         row = rows[pos]
         slot = q % self.params.history_ticks
-        ok = (self._hist_round[row, slot] == q) & np.asarray(entries.heard_me, dtype=bool)
-        ok &= self._hist_heard[row, slot, j]
+        ok = (self._hist_round[row, slot] == q) & self._hist_heard[row, slot, j]
         ok &= ~self._edge[row, j] | (q > self._edge_round[row, j])
-        if member_mask is not None:
-            ok &= member_mask[pos, j]
+        ok &= self._heard_by(due)[due.msg, self._ids[row]]
         if not ok.any():
             return active, disagreement
-        sel = np.flatnonzero(ok)
-        sel = sel[np.lexsort((q[sel], j[sel], pos[sel]))]  # per edge, rounds in order
-        pos, j, q, row, slot = pos[sel], j[sel], q[sel], row[sel], slot[sel]
+        pos, j, q, row, slot = pos[ok], j[ok], q[ok], row[ok], slot[ok]
+        messages = [due.messages[k] for k in due.msg[ok].tolist()]
         gamma_i = self._hist_gamma[row, slot]
-        gamma_j = np.asarray(entries.gamma, dtype=float)[sel]
-        rho = np.full(sel.shape[0], self.params.rho)
+        gamma_j = np.array([m.gamma for m in messages], dtype=float)
+        rho = np.full(q.shape[0], self.params.rho)
         if self.params.degree_normalised:
-            degree_j = np.asarray(entries.degree, dtype=np.int64)[sel]
+            degree_j = np.array([m.degree for m in messages], dtype=np.int64)
             rho = rho / np.maximum(np.maximum(self._hist_degree[row, slot], degree_j), 1)
         rho = rho / np.maximum(round_ - q, 1)  # delay-scaled gain (module doc)
         diff = gamma_i - gamma_j
         scale = 1.0 + np.maximum(np.abs(gamma_i).max(axis=1), np.abs(gamma_j).max(axis=1))
         np.maximum.at(disagreement, pos, np.abs(diff).max(axis=1) / scale)
         increment = (rho * self.params.dt_s)[:, None] * np.tanh(self.params.c * diff)
+        # entries are ordered by (agent, neighbour, round): several rounds on one edge add up in
+        # round order, as one agent integrating them one after the other
         np.subtract.at(self._q_own, (row, j), increment)
         self._edge[row, j] = True
         np.maximum.at(self._edge_round, (row, j), q)
-        flags = np.zeros((n_rows, self._m), dtype=bool)
-        flags[pos, j] = True
-        for p in np.unique(pos).tolist():
-            active[p] = tuple(np.flatnonzero(flags[p]).tolist())
+        first = _after_true((pos[1:] != pos[:-1]) | (j[1:] != j[:-1]))
+        bounds = np.searchsorted(pos[first], np.arange(n_rows + 1))
+        ids = j[first].tolist()
+        for p in np.flatnonzero(np.diff(bounds)).tolist():
+            active[p] = tuple(ids[bounds[p] : bounds[p + 1]])
         return active, disagreement
+
+    def _heard_by(self, due: _Due) -> npt.NDArray[np.bool_]:
+        """(messages, M) True where the message's heard-set lists the id."""
+        heard = np.zeros((len(due.messages), self._m), dtype=bool)
+        ids = [h for m in due.messages for h in m.heard]
+        if ids:
+            owner = np.repeat(np.arange(len(due.messages)), [len(m.heard) for m in due.messages])
+            ids_arr = np.asarray(ids, dtype=np.intp)
+            keep = (ids_arr >= 0) & (ids_arr < self._m)
+            heard[owner[keep], ids_arr[keep]] = True
+        return heard
 
     def _eta_total(self, rows: npt.NDArray[np.intp]) -> FloatArray:
         """``sum_j (Q_ij - Q_ji)`` (len(rows), 18) over each row's edges, ``Q_ji`` refreshed from
@@ -421,7 +452,7 @@ class BatchConsensus:
         fresh = self._has_q_for_me[r, ids]
         self._q_recv[r[fresh], ids[fresh]] = self._q_for_me[r[fresh], ids[fresh]]
         d = self._q_own[r, ids] - self._q_recv[r, ids]
-        starts = np.flatnonzero(np.r_[True, pos[1:] != pos[:-1]])
+        starts = np.flatnonzero(_after_true(pos[1:] != pos[:-1]))
         total[pos[starts]] = np.add.reduceat(d, starts, axis=0)
         return total
 
@@ -438,10 +469,13 @@ class BatchConsensus:
         sums = self._q_own[rows[pos], ids]
         bounds = np.searchsorted(pos, np.arange(rows.shape[0] + 1)).tolist()
         id_list = ids.tolist()
+        heard_pos, heard_ids_all = np.nonzero(heard)
+        heard_bounds = np.searchsorted(heard_pos, np.arange(rows.shape[0] + 1)).tolist()
+        heard_list = heard_ids_all.tolist()
         out = []
         for p, row in enumerate(rows.tolist()):
             lo, hi = bounds[p], bounds[p + 1]
-            heard_ids = frozenset(np.flatnonzero(heard[p]).tolist())
+            heard_ids = frozenset(heard_list[heard_bounds[p] : heard_bounds[p + 1]])
             message = ConsensusMessage(
                 sender=self.agent_ids[row],
                 round=round_,
@@ -488,4 +522,4 @@ class ConsensusEstimator:
         since the last call. ``members``: the live agents (liveliness view); partners not in it
         are discarded (rule 5). None keeps every partner."""
         zeta_row = np.asarray(zeta, dtype=float).reshape(1, N_CHANNELS)
-        return self._batch.step((0,), round_, zeta_row, [inbox], [members])[0]
+        return self._batch.step((0,), round_, zeta_row, [inbox], [members])[1][0]

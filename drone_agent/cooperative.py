@@ -96,7 +96,11 @@ def shape_matrix(
 
 def _skew_pairs(v: FloatArray) -> FloatArray:
     """``skew(v)[j, k]`` (K, 3) for each pair (j, k, m) of :data:`_PAIRS`, indexed by m."""
-    return np.stack([-v[:, 0], v[:, 1], -v[:, 2]], axis=1)
+    out = np.empty_like(v)
+    out[:, 0] = -v[:, 0]
+    out[:, 1] = v[:, 1]
+    out[:, 2] = -v[:, 2]
+    return out
 
 
 def shape_matrix_batch(
@@ -267,4 +271,8 @@ def euler_rate_matrix_batch(roll: FloatArray, pitch: FloatArray) -> FloatArray:
 def rotation_error_batch(axes: FloatArray, axes_desired: FloatArray) -> FloatArray:
     """:func:`rotation_error` of K frames (K, 3, 3) -> (K, 3)."""
     m = 0.5 * (np.swapaxes(axes_desired, 1, 2) @ axes - np.swapaxes(axes, 1, 2) @ axes_desired)
-    return np.stack([m[:, 2, 1], m[:, 0, 2], m[:, 1, 0]], axis=1)
+    out = np.empty((m.shape[0], 3))
+    out[:, 0] = m[:, 2, 1]
+    out[:, 1] = m[:, 0, 2]
+    out[:, 2] = m[:, 1, 0]
+    return out

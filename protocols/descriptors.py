@@ -89,7 +89,8 @@ def align_axes_batch(sigma: FloatArray, desired_axes: FloatArray) -> tuple[Float
     r3[:, 0] = r1[:, 1] * r2[:, 2] - r1[:, 2] * r2[:, 1]
     r3[:, 1] = r1[:, 2] * r2[:, 0] - r1[:, 0] * r2[:, 2]
     r3[:, 2] = r1[:, 0] * r2[:, 1] - r1[:, 1] * r2[:, 0]
-    axes = np.stack([r1, r2, r3], axis=2)
+    axes = np.empty((k_n, 3, 3))
+    axes[:, :, 0], axes[:, :, 1], axes[:, :, 2] = r1, r2, r3
     s = (axes * (sym @ axes)).sum(axis=1)
     return axes, s
 
