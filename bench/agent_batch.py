@@ -196,7 +196,9 @@ def profile_worker(scenario: str, duration_s: float) -> dict[str, Any]:
     return {"us_per_tick": per_tick, "ticks": ticks, "cprofile_top_tottime": lines[start:]}
 
 
-def _wrap(owner: Any, name: str, label: str, parts: dict[str, float], depth: dict[str, int]) -> None:
+def _wrap(
+    owner: Any, name: str, label: str, parts: dict[str, float], depth: dict[str, int]
+) -> None:
     original = getattr(owner, name)
     is_static = isinstance(owner, type) is False
 
@@ -231,7 +233,11 @@ def _run(tree: Path, *args: str) -> dict[str, Any]:
         "print(json.dumps(b.worker(sys.argv[1:])))"
     )
     out = subprocess.run(
-        [sys.executable, "-c", code, *args], env=env, cwd=tree, check=True, capture_output=True,
+        [sys.executable, "-c", code, *args],
+        env=env,
+        cwd=tree,
+        check=True,
+        capture_output=True,
         text=True,
     )
     result: dict[str, Any] = json.loads(out.stdout.strip().splitlines()[-1])

@@ -21,6 +21,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from drone_agent.consensus import BatchConsensus, ConsensusMessage, ConsensusParams
 from drone_agent.cooperative import CooperativeGains, virtual_acceleration_batch
@@ -116,7 +117,9 @@ class BatchAgentCore:
         r_d = desired_axes_batch(a_d)
         axes, s = align_axes_batch(moments.sigma_m2, r_d)
         estimate = frame_vector_batch(moments.centre_ned_m, axes, s)
-        ready = np.isfinite(gamma).all(axis=1) & (t_s >= self.config.warmup_s)
+        ready: npt.NDArray[np.bool_] = np.isfinite(gamma).all(axis=1) & bool(
+            t_s >= self.config.warmup_s
+        )
         setpoints: list[Setpoint | None] = [None] * len(outs)
         if ready.any():
             setpoints = self._setpoints(
@@ -168,7 +171,7 @@ class BatchAgentCore:
     def _setpoints(
         self,
         rows: Sequence[int],
-        ready: FloatArray,
+        ready: npt.NDArray[np.bool_],
         x: FloatArray,
         v: FloatArray,
         moments: SwarmMoments,
@@ -196,7 +199,7 @@ class BatchAgentCore:
             pick,
             ref,
             self.config.gains,
-            tuple(f[idx] for f in frame),  # type: ignore[arg-type]
+            (frame[0][idx], frame[1][idx], frame[2][idx]),
         )
         yaw = ref[0][:, I_YAW]
         limits = self.config.limits

@@ -221,12 +221,12 @@ class BatchConsensus:
             if last is not None and round_ <= last:
                 raise ValueError(f"round {round_} is not after round {last}")
             self._last_round[row] = round_
-        inboxes = [list(inbox) for inbox in inboxes]
-        top = max((m.sender for inbox in inboxes for m in inbox), default=-1)
+        boxes = [list(inbox) for inbox in inboxes]
+        top = max((m.sender for inbox in boxes for m in inbox), default=-1)
         if top >= self._m:
             self._grow(top + 1)
         member_mask = self._member_mask(members)
-        due = self._receive(rows_arr, round_, inboxes, member_mask)
+        due = self._receive(rows_arr, round_, boxes, member_mask)
         if member_mask is not None:
             self._discard_dead(rows_arr, member_mask)
         timeout = self.params.heard_timeout_ticks
