@@ -117,9 +117,9 @@ class BatchAgentCore:
         r_d = desired_axes_batch(a_d)
         axes, s = align_axes_batch(moments.sigma_m2, r_d)
         estimate = frame_vector_batch(moments.centre_ned_m, axes, s)
-        ready: npt.NDArray[np.bool_] = np.isfinite(gamma).all(axis=1) & bool(
-            t_s >= self.config.warmup_s
-        )
+        ready = np.zeros(len(outs), dtype=bool)
+        if t_s >= self.config.warmup_s:
+            ready[:] = np.isfinite(gamma).all(axis=1)
         setpoints: list[Setpoint | None] = [None] * len(outs)
         if ready.any():
             setpoints = self._setpoints(
