@@ -306,25 +306,61 @@ class BatchConsensus:
         sel = np.flatnonzero(valid)
         if sel.shape[0] == 0:
             return None
-        order = sel[np.lexsort((q[sel], j[sel], pos[sel]))]  # stable: arrival order among equals
+        order, same_pair, same_value = self._sorted(pos[sel], j[sel], q[sel], rows.shape[0])
+        order = sel[order]
         pos, j, q, which = pos[order], j[order], q[order], which[order]
-        same_pair = (pos[1:] == pos[:-1]) & (j[1:] == j[:-1])
-        same_value = same_pair & (q[1:] == q[:-1])
         row = rows[pos]
         self._peer[row, j] = True
         # newest per (row, peer): the first copy of the highest round
-        first_copy = _after_true(~same_value)
-        copy_start = np.maximum.accumulate(np.where(first_copy, np.arange(q.shape[0]), 0))
-        newest = copy_start[np.flatnonzero(_before_true(~same_pair))]
+        ends = np.flatnonzero(_before_true(~same_pair))
+        duplicates = bool(same_value.any())
+        if duplicates:
+            first_copy = _after_true(~same_value)
+            copy_start = np.maximum.accumulate(np.where(first_copy, np.arange(q.shape[0]), 0))
+            newest = copy_start[ends]
+        else:
+            newest = ends
         newer = newest[q[newest] > self._latest[row[newest], j[newest]]]
         self._note_newest(row[newer], j[newer], q[newer], [messages[k] for k in which[newer]])
-        last_copy = np.flatnonzero(_before_true(~same_value))
-        is_due = q[last_copy] < round_
-        later = last_copy[~is_due]
-        for k in later.tolist():
-            self._later[int(row[k])][(int(j[k]), int(q[k]))] = messages[which[k]]
-        due = last_copy[is_due]
-        return _Due(pos[due], j[due], q[due], which[due], messages)
+        if duplicates:  # the last copy of a (sender, round) is the one paired
+            last_copy = np.flatnonzero(_before_true(~same_value))
+            pos, j, q, which, row = (
+                pos[last_copy],
+                j[last_copy],
+                q[last_copy],
+                which[last_copy],
+                row[last_copy],
+            )
+        is_due = q < round_
+        if not is_due.all():
+            for k in np.flatnonzero(~is_due).tolist():
+                self._later[int(row[k])][(int(j[k]), int(q[k]))] = messages[which[k]]
+            pos, j, q, which = pos[is_due], j[is_due], q[is_due], which[is_due]
+        return _Due(pos, j, q, which, messages)
+
+    def _sorted(
+        self,
+        pos: npt.NDArray[np.intp],
+        j: npt.NDArray[np.intp],
+        q: npt.NDArray[np.int64],
+        n_rows: int,
+    ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+        """The stable order by (agent, sender, round) (arrival order among equals), and whether
+        each value has the same (agent, sender) / (agent, sender, round) as the next one."""
+        q_lo = int(q.min())
+        span = int(q.max()) - q_lo + 1
+        if span * self._m * n_rows >= 2**62:  # rounds too far apart for one key
+            order = np.lexsort((q, j, pos))
+            pos, j, q = pos[order], j[order], q[order]
+            same_pair = (pos[1:] == pos[:-1]) & (j[1:] == j[:-1])
+            return order, same_pair, same_pair & (q[1:] == q[:-1])
+        pair = pos * self._m + j
+        key = pair * span + (q - q_lo)
+        order = np.arange(key.shape[0])
+        if not (key[1:] > key[:-1]).all():  # inboxes usually arrive in order already
+            order = np.argsort(key, kind="stable")
+            key, pair = key[order], pair[order]
+        return order, pair[1:] == pair[:-1], key[1:] == key[:-1]
 
     def _note_newest(
         self,
@@ -352,6 +388,10 @@ class BatchConsensus:
         if all(m is None for m in members):
             return None
         out = np.ones((len(members), self._m), dtype=bool)
+        first = members[0]
+        if first is not None and all(view is first for view in members):
+            out[:] = self._mask_of(first)
+            return out
         for pos, view in enumerate(members):
             if view is not None:
                 out[pos] = self._mask_of(view)
@@ -416,14 +456,19 @@ class BatchConsensus:
         rho = rho / np.maximum(round_ - q, 1)  # delay-scaled gain (module doc)
         diff = gamma_i - gamma_j
         scale = 1.0 + np.maximum(np.abs(gamma_i).max(axis=1), np.abs(gamma_j).max(axis=1))
-        np.maximum.at(disagreement, pos, np.abs(diff).max(axis=1) / scale)
+        starts = np.flatnonzero(_after_true(pos[1:] != pos[:-1]))
+        disagreement[pos[starts]] = np.maximum.reduceat(np.abs(diff).max(axis=1) / scale, starts)
         increment = (rho * self.params.dt_s)[:, None] * np.tanh(self.params.c * diff)
-        # entries are ordered by (agent, neighbour, round): several rounds on one edge add up in
-        # round order, as one agent integrating them one after the other
-        np.subtract.at(self._q_own, (row, j), increment)
-        self._edge[row, j] = True
-        np.maximum.at(self._edge_round, (row, j), q)
         first = _after_true((pos[1:] != pos[:-1]) | (j[1:] != j[:-1]))
+        if first.all():  # one round per edge (the usual case)
+            self._q_own[row, j] -= increment
+            self._edge_round[row, j] = q
+        else:
+            # entries are ordered by (agent, neighbour, round): several rounds on one edge add
+            # up in round order, as one agent integrating them one after the other
+            np.subtract.at(self._q_own, (row, j), increment)
+            np.maximum.at(self._edge_round, (row, j), q)
+        self._edge[row, j] = True
         bounds = np.searchsorted(pos[first], np.arange(n_rows + 1))
         ids = j[first].tolist()
         for p in np.flatnonzero(np.diff(bounds)).tolist():
