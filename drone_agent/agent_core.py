@@ -181,26 +181,25 @@ class BatchAgentCore:
         """The checked setpoints of the rows ready to fly (None for the others, and for any
         command not finite or out of range, which is counted against its row)."""
         idx = np.flatnonzero(ready)
-        pick = SwarmMoments(
-            *(
-                f[idx]
-                for f in (
-                    moments.centre_ned_m,
-                    moments.centre_rate_ned_m_s,
-                    moments.sigma_m2,
-                    moments.sigma_rate_m2_s,
-                )
+        if idx.shape[0] == ready.shape[0]:  # all ready (the usual case): no gathering
+            accel = virtual_acceleration_batch(x, v, moments, reference, self.config.gains, frame)
+            ref = reference
+        else:
+            pick = SwarmMoments(
+                moments.centre_ned_m[idx],
+                moments.centre_rate_ned_m_s[idx],
+                moments.sigma_m2[idx],
+                moments.sigma_rate_m2_s[idx],
             )
-        )
-        ref = (reference[0][idx], reference[1][idx], reference[2][idx])
-        accel = virtual_acceleration_batch(
-            x[idx],
-            v[idx],
-            pick,
-            ref,
-            self.config.gains,
-            (frame[0][idx], frame[1][idx], frame[2][idx]),
-        )
+            ref = (reference[0][idx], reference[1][idx], reference[2][idx])
+            accel = virtual_acceleration_batch(
+                x[idx],
+                v[idx],
+                pick,
+                ref,
+                self.config.gains,
+                (frame[0][idx], frame[1][idx], frame[2][idx]),
+            )
         yaw = ref[0][:, I_YAW]
         limits = self.config.limits
         roll, pitch, thrust_n, limited = attitude_thrust_batch(accel, yaw, limits)

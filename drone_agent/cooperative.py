@@ -221,10 +221,10 @@ def virtual_acceleration_batch(
 
     e_d = euler_rate_matrix_batch(a_d[:, 3], a_d[:, 4])
     to_swarm = axes_t @ r_d
-    omega_d = _matvec(to_swarm, _matvec(e_d, ad_dot[:, ORIENTATION]))
-    alpha = _matvec(to_swarm, _matvec(e_d, ad_ddot[:, ORIENTATION])) - kp[
-        ORIENTATION
-    ] * rotation_error_batch(axes, r_d)
+    # the desired angular rate and acceleration, in the swarm frame: columns (K, 3, 2)
+    angular = to_swarm @ (e_d @ _columns(ad_dot[:, ORIENTATION], ad_ddot[:, ORIENTATION]))
+    omega_d = angular[:, :, 0]
+    alpha = angular[:, :, 1] - kp[ORIENTATION] * rotation_error_batch(axes, r_d)
     w_rate = _skew_pairs(omega_d)
     damping = np.empty_like(alpha)
     for j, k, m in _PAIRS:
@@ -233,18 +233,28 @@ def virtual_acceleration_batch(
 
     p = positions_ned_m - swarm.centre_ned_m
     p_dot = velocities_ned_m_s - swarm.centre_rate_ned_m_s
-    p_swarm, p_dot_swarm = _matvec(axes_t, p), _matvec(axes_t, p_dot)
-    v_swarm = _matvec(a, p_swarm)
-    v_swarm = np.where(
-        flat, v_swarm - (gains.flat_kp * p_swarm + gains.flat_kd * p_dot_swarm), v_swarm
-    )
+    offsets = axes_t @ _columns(p, p_dot)  # p and p_dot in the swarm frame
+    p_swarm, p_dot_swarm = offsets[:, :, 0], offsets[:, :, 1]
     sg = np.maximum(s, s_min)
     b = sigma_rate / (sg[:, :, None] + sg[:, None, :])
     # the flat-axis PD holds a flat axis: no spreading rate there is "explained" (its
     # 1/(2 s_min) gain turned estimate noise into a growing split)
     b[:, [0, 1, 2], [0, 1, 2]] = np.where(flat, 0.0, b[:, [0, 1, 2], [0, 1, 2]])
-    v_swarm = v_swarm - gains.null_damping_per_s * (p_dot_swarm - _matvec(b, p_swarm))
+    fields = np.concatenate([a, b], axis=1) @ offsets[:, :, :1]  # A p and B p: (K, 6, 1)
+    v_swarm = fields[:, :3, 0]
+    v_swarm = np.where(
+        flat, v_swarm - (gains.flat_kp * p_swarm + gains.flat_kd * p_dot_swarm), v_swarm
+    )
+    v_swarm = v_swarm - gains.null_damping_per_s * (p_dot_swarm - fields[:, 3:, 0])
     out: FloatArray = w_mu + _matvec(axes, v_swarm)
+    return out
+
+
+def _columns(u: FloatArray, w: FloatArray) -> FloatArray:
+    """Vectors (K, 3) u and w as the two columns of (K, 3, 2)."""
+    out = np.empty((u.shape[0], 3, 2))
+    out[:, :, 0] = u
+    out[:, :, 1] = w
     return out
 
 

@@ -65,12 +65,13 @@ def align_axes_batch(sigma: FloatArray, desired_axes: FloatArray) -> tuple[Float
     """
     k_n = sigma.shape[0]
     sym = 0.5 * (sigma + np.swapaxes(sigma, 1, 2))
-    finite = np.isfinite(sym).all(axis=(1, 2))
-    evecs = np.full((k_n, 3, 3), np.nan)
+    finite = np.isfinite(sym.reshape(k_n, 9)).all(axis=1)
     if finite.all():
         evecs = np.linalg.eigh(sym)[1]
-    elif finite.any():
-        evecs[finite] = np.linalg.eigh(sym[finite])[1]
+    else:
+        evecs = np.full((k_n, 3, 3), np.nan)
+        if finite.any():
+            evecs[finite] = np.linalg.eigh(sym[finite])[1]
     overlap = np.abs(np.swapaxes(desired_axes, 1, 2) @ evecs)  # [K, desired k, eigen j]
     rows = np.arange(k_n)
     first = np.argmax(overlap[:, :2, :].reshape(k_n, 6), axis=1)
@@ -78,19 +79,16 @@ def align_axes_batch(sigma: FloatArray, desired_axes: FloatArray) -> tuple[Float
     rest = overlap[rows, 1 - k1, :]
     rest[rows, j1] = -np.inf
     j2 = np.argmax(rest, axis=1)
-    columns = []
-    for k, j in ((0, np.where(k1 == 0, j1, j2)), (1, np.where(k1 == 0, j2, j1))):
-        e = evecs[rows, :, j]  # (K, 3)
-        sign = np.sign((desired_axes[:, :, k] * e).sum(axis=1))
-        sign[sign == 0.0] = 1.0
-        columns.append(e * sign[:, None])
-    r1, r2 = columns
-    r3 = np.empty_like(r1)
-    r3[:, 0] = r1[:, 1] * r2[:, 2] - r1[:, 2] * r2[:, 1]
-    r3[:, 1] = r1[:, 2] * r2[:, 0] - r1[:, 0] * r2[:, 2]
-    r3[:, 2] = r1[:, 0] * r2[:, 1] - r1[:, 1] * r2[:, 0]
+    chosen = np.where((k1 == 0)[:, None], np.stack([j1, j2], axis=1), np.stack([j2, j1], axis=1))
+    e = evecs[rows[:, None], :, chosen]  # (K, 2, 3): the eigenvectors for desired axes 0 and 1
+    along = (np.swapaxes(desired_axes[:, :, :2], 1, 2) * e).sum(axis=2)
+    r12 = e * np.where(along < 0.0, -1.0, 1.0)[:, :, None]  # signed along the desired axis
+    r1, r2 = r12[:, 0], r12[:, 1]
     axes = np.empty((k_n, 3, 3))
-    axes[:, :, 0], axes[:, :, 1], axes[:, :, 2] = r1, r2, r3
+    axes[:, :, :2] = np.swapaxes(r12, 1, 2)
+    axes[:, 0, 2] = r1[:, 1] * r2[:, 2] - r1[:, 2] * r2[:, 1]  # r3 = r1 x r2
+    axes[:, 1, 2] = r1[:, 2] * r2[:, 0] - r1[:, 0] * r2[:, 2]
+    axes[:, 2, 2] = r1[:, 0] * r2[:, 1] - r1[:, 1] * r2[:, 0]
     s = (axes * (sym @ axes)).sum(axis=1)
     return axes, s
 
