@@ -118,6 +118,19 @@ _NO_ROUND = -(2**62)
 
 
 @dataclass
+class _Mail:
+    """The messages of one step: ``messages`` the distinct message objects and ``senders`` (U,)
+    theirs; ``which`` (n,) the message of each (row, message) value, rows in turn, ``counts``
+    values per row, ``carried`` positions of values filed again (waiting from earlier steps)."""
+
+    messages: list[ConsensusMessage]
+    senders: npt.NDArray[np.intp]
+    which: npt.NDArray[np.intp]
+    counts: list[int]
+    carried: list[int]
+
+
+@dataclass
 class _Due:
     """The (agent, neighbour, round) values due for pairing in one step, deduplicated (the last
     copy of a (sender, round) wins) and ordered by (agent, neighbour, round): ``pos`` the agent's
@@ -221,12 +234,11 @@ class BatchConsensus:
             if last is not None and round_ <= last:
                 raise ValueError(f"round {round_} is not after round {last}")
             self._last_round[row] = round_
-        boxes = [list(inbox) for inbox in inboxes]
-        top = max((m.sender for inbox in boxes for m in inbox), default=-1)
-        if top >= self._m:
-            self._grow(top + 1)
+        mail = self._gather(rows_arr, inboxes)
+        if mail is not None and int(mail.senders.max()) >= self._m:
+            self._grow(int(mail.senders.max()) + 1)
         member_mask = self._member_mask(members)
-        due = self._receive(rows_arr, round_, boxes, member_mask)
+        due = None if mail is None else self._receive(rows_arr, round_, mail, member_mask)
         if member_mask is not None:
             self._discard_dead(rows_arr, member_mask)
         timeout = self.params.heard_timeout_ticks
@@ -259,40 +271,48 @@ class BatchConsensus:
         self._hist_heard = wider(self._hist_heard, 2, False)
         self._m = m
 
+    def _gather(
+        self, rows: npt.NDArray[np.intp], inboxes: Sequence[Iterable[ConsensusMessage]]
+    ) -> _Mail | None:
+        """The step's messages, row by row, each row's waiting values first (filed again as if
+        they had just arrived), as indices into the distinct message objects (one message
+        reaches many rows in process)."""
+        msgs: list[ConsensusMessage] = []
+        counts: list[int] = []
+        carried: list[int] = []  # positions in msgs of values filed again
+        for row, inbox in zip(rows.tolist(), inboxes, strict=True):
+            waiting = self._later[row]
+            n = len(msgs)
+            if waiting:
+                carried += range(n, n + len(waiting))
+                msgs += waiting.values()
+                waiting.clear()
+            msgs += inbox
+            counts.append(len(msgs) - n)
+        if not msgs:
+            return None
+        index: dict[int, int] = {}
+        which = np.array([index.setdefault(id(m), len(index)) for m in msgs], dtype=np.intp)
+        messages = list({id(m): m for m in msgs}.values())
+        senders = np.array([m.sender for m in messages], dtype=np.intp)
+        return _Mail(messages, senders, which, counts, carried)
+
     def _receive(
         self,
         rows: npt.NDArray[np.intp],
         round_: int,
-        inboxes: list[list[ConsensusMessage]],
+        mail: _Mail,
         member_mask: npt.NDArray[np.bool_] | None,
     ) -> _Due | None:
         """File each message: drop own and too-old ones (counted) and those of partners the
         row's membership view does not list; keep the newest message per peer (the first copy of
         its highest round) for the heard-set and the ``Q_ji`` it carries; return the values due
         for pairing (rounds before ``round_``; the last copy of a (sender, round) wins) and keep
-        the later rounds waiting. The rows' waiting values are filed again first, in front of
-        their inbox, as if they had just arrived."""
-        msgs: list[ConsensusMessage] = []
-        counts: list[int] = []
-        carried: list[int] = []  # positions in msgs of values filed again
-        for row, inbox in zip(rows.tolist(), inboxes, strict=True):
-            waiting = self._later[row]
-            n = len(inbox)
-            if waiting:
-                carried += range(len(msgs), len(msgs) + len(waiting))
-                msgs += waiting.values()
-                n += len(waiting)
-                waiting.clear()
-            msgs += inbox
-            counts.append(n)
-        if not msgs:
-            return None
-        index: dict[int, int] = {}
-        which = np.array([index.setdefault(id(m), len(index)) for m in msgs], dtype=np.intp)
-        messages = list({id(m): m for m in msgs}.values())
-        j = np.array([m.sender for m in messages], dtype=np.intp)[which]
+        the later rounds waiting."""
+        messages, which, carried = mail.messages, mail.which, mail.carried
+        j = mail.senders[which]
         q = np.array([m.round for m in messages], dtype=np.int64)[which]
-        pos = np.repeat(np.arange(rows.shape[0]), counts)
+        pos = np.repeat(np.arange(rows.shape[0]), mail.counts)
         me = self._ids[rows][pos]
         valid = (j != me) & (q >= round_ - self.params.history_ticks)
         if carried:
@@ -321,7 +341,7 @@ class BatchConsensus:
         else:
             newest = ends
         newer = newest[q[newest] > self._latest[row[newest], j[newest]]]
-        self._note_newest(row[newer], j[newer], q[newer], [messages[k] for k in which[newer]])
+        self._note_newest(row[newer], j[newer], q[newer], which[newer], messages)
         if duplicates:  # the last copy of a (sender, round) is the one paired
             last_copy = np.flatnonzero(_before_true(~same_value))
             pos, j, q, which, row = (
@@ -367,17 +387,22 @@ class BatchConsensus:
         rows: npt.NDArray[np.intp],
         ids: npt.NDArray[np.intp],
         rounds: npt.NDArray[np.int64],
+        which: npt.NDArray[np.intp],
         messages: list[ConsensusMessage],
     ) -> None:
-        """Peer ``ids[k]``'s newest message to row ``rows[k]`` is ``messages[k]`` of round
-        ``rounds[k]``: the round it was last heard in, and the ``Q_ji`` it carries (if any)."""
+        """Peer ``ids[k]``'s newest message to row ``rows[k]`` is ``messages[which[k]]`` of
+        round ``rounds[k]``: the round it was last heard in, and the ``Q_ji`` it carries."""
         self._latest[rows, ids] = rounds
-        mine = [self.agent_ids[r] for r in rows.tolist()]
-        sums = [m.edge_sums.get(i) for m, i in zip(messages, mine, strict=True)]
-        has = np.array([x is not None for x in sums], dtype=bool)
-        self._has_q_for_me[rows, ids] = has
-        if has.any():
-            values = [x for x in sums if x is not None]
+        mine = self._ids[rows].tolist()
+        sums = [messages[k].edge_sums.get(i) for k, i in zip(which.tolist(), mine, strict=True)]
+        values = [x for x in sums if x is not None]
+        if len(values) == len(sums):
+            has: npt.NDArray[np.bool_] | slice = slice(None)
+            self._has_q_for_me[rows, ids] = True
+        else:
+            has = np.array([x is not None for x in sums], dtype=bool)
+            self._has_q_for_me[rows, ids] = has
+        if values:
             self._q_for_me[rows[has], ids[has]] = np.asarray(values, dtype=float)
 
     def _member_mask(
@@ -445,13 +470,12 @@ class BatchConsensus:
         ok &= self._heard_by(due)[due.msg, self._ids[row]]
         if not ok.any():
             return active, disagreement
-        pos, j, q, row, slot = pos[ok], j[ok], q[ok], row[ok], slot[ok]
-        messages = [due.messages[k] for k in due.msg[ok].tolist()]
+        pos, j, q, row, slot, msg = pos[ok], j[ok], q[ok], row[ok], slot[ok], due.msg[ok]
         gamma_i = self._hist_gamma[row, slot]
-        gamma_j = np.array([m.gamma for m in messages], dtype=float)
+        gamma_j = np.array([m.gamma for m in due.messages], dtype=float)[msg]
         rho = np.full(q.shape[0], self.params.rho)
         if self.params.degree_normalised:
-            degree_j = np.array([m.degree for m in messages], dtype=np.int64)
+            degree_j = np.array([m.degree for m in due.messages], dtype=np.int64)[msg]
             rho = rho / np.maximum(np.maximum(self._hist_degree[row, slot], degree_j), 1)
         rho = rho / np.maximum(round_ - q, 1)  # delay-scaled gain (module doc)
         diff = gamma_i - gamma_j
