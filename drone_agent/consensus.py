@@ -291,9 +291,10 @@ class BatchConsensus:
             counts.append(len(msgs) - n)
         if not msgs:
             return None
-        index: dict[int, int] = {}
-        which = np.array([index.setdefault(id(m), len(index)) for m in msgs], dtype=np.intp)
-        messages = list({id(m): m for m in msgs}.values())
+        # distinct objects by identity (their order is irrelevant: only indexed)
+        ids = np.array(list(map(id, msgs)), dtype=np.int64)
+        _, first, which = np.unique(ids, return_index=True, return_inverse=True)
+        messages = [msgs[k] for k in first.tolist()]
         senders = np.array([m.sender for m in messages], dtype=np.intp)
         return _Mail(messages, senders, which, counts, carried)
 

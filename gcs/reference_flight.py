@@ -197,18 +197,25 @@ class ReferenceFlight:
             [members] * len(live),
         )
         messages = [out.message for out in outs]
+        if outs:
+            rec.estimate[k, live] = [out.estimate for out in outs]
+            rec.neighbours[k, live] = [len(out.active_neighbours) for out in outs]
+        flying: list[int] = []
+        commands: list[tuple[float, float, float, float]] = []
         for i, out in zip(live, outs, strict=True):
-            rec.estimate[k, i] = out.estimate
-            rec.neighbours[k, i] = len(out.active_neighbours)
             sp = out.setpoint
             if sp is None or self.crashed[i]:
                 continue
             if not self.armed[i] and not self.in_failsafe[i]:
                 self.armed[i] = True
                 self._event("armed", drone=i)
-            self.attitude_sp[:, i] = (sp.roll_rad, sp.pitch_rad, sp.yaw_rad)
-            self.thrust_sp[i] = sp.thrust_normalised
-            self.last_setpoint_s[i] = self.t_s
+            flying.append(i)
+            commands.append((sp.roll_rad, sp.pitch_rad, sp.yaw_rad, sp.thrust_normalised))
+        if flying:
+            values = np.array(commands).T
+            self.attitude_sp[:, flying] = values[:3]
+            self.thrust_sp[flying] = values[3]
+            self.last_setpoint_s[flying] = self.t_s
         self.network.send(k, messages, self.network.in_range(pos))
         thrust, moments = wrench_from_rotor_speeds(self.rotor_speed, self.params)
         rec.t[k] = self.t_s
