@@ -223,7 +223,7 @@ class ReferenceFlight:
         rec.euler[k] = euler_from_quat_batch(self.state[QUAT]).T
         rec.rates[k] = self.state[RATES].T
         rec.thrust[k], rec.moments[k] = thrust, moments.T
-        rec.desired[k] = self.plan.evaluate(self.t_s)[0]
+        rec.desired[k] = outs[0].desired if outs else self.plan.evaluate(self.t_s)[0]
         rec.member[k] = self.member
         rec.airborne[k] = -pos[:, 2] > AIRBORNE_ALTITUDE_M
         rec.armed[k] = self.armed
