@@ -111,19 +111,24 @@ def maths_worker(n: int, k: int, ticks: int) -> dict[str, Any]:
 
 
 def simulate_worker(scenario: str, duration_s: float | None) -> dict[str, Any]:
-    """``swarm simulate`` of a scenario file (or ``grid``): its real-time factor."""
+    """``swarm simulate`` (:func:`gcs.simulate.simulate`, no plots) of a scenario file (or
+    ``grid``), in this process so that the tree under test is what runs: its real-time factor
+    as metrics.json reports it (the flight loop's wall time)."""
+    import dataclasses
+
+    from gcs.simulate import simulate
+    from protocols.scenario import load_scenario
+
     with tempfile.TemporaryDirectory() as tmp:
         path = (
             _grid_scenario(GRID_SIM_N, GRID_SIM_S, Path(tmp))
             if scenario == "grid"
             else Path(scenario)
         )
-        args = [sys.executable, "-m", "gcs.cli", "simulate", str(path), "--no-plots"]
-        args += ["--report", str(Path(tmp) / "report"), "--progress", "off"]
+        sc = load_scenario(path)
         if duration_s is not None:
-            args += ["--duration-s", str(duration_s)]
-        subprocess.run(args, check=True, capture_output=True, cwd=ROOT)
-        metrics = json.loads((Path(tmp) / "report" / "metrics.json").read_text())
+            sc = dataclasses.replace(sc, duration_s=duration_s)
+        metrics = simulate(sc, Path(tmp) / "report", plots=False).metrics
     return {
         "real_time_factor": metrics["real_time_factor"],
         "wall_time_s": metrics["wall_time_s"],
@@ -257,8 +262,9 @@ def worker(argv: list[str]) -> dict[str, Any]:
     raise ValueError(kind)
 
 
-def _before_tree(rev: str, folder: Path) -> Path:
-    tree = folder / "before"
+def _tree(rev: str, folder: Path, name: str) -> Path:
+    """The files of revision ``rev`` in ``folder / name``."""
+    tree = folder / name
     tree.mkdir()
     archive = subprocess.run(
         ["git", "-C", str(ROOT), "archive", rev], check=True, capture_output=True
@@ -268,15 +274,28 @@ def _before_tree(rev: str, folder: Path) -> Path:
 
 
 def agent_batch(
-    before: str = "20394f3", repeats: int = 3, quick: bool = False, profile: bool = True
+    before: str = "20394f3",
+    repeats: int = 3,
+    quick: bool = False,
+    profile: bool = True,
+    after: str | None = None,
 ) -> dict[str, Any]:
-    """All the figures, before and after (see the module docstring)."""
+    """All the figures, before and after (see the module docstring); ``after`` a revision, or
+    None for the working tree."""
     paper = str(ROOT / "scenarios" / "paper.toml")
     ticks = 30 if quick else MATHS_TICKS
     rows: list[dict[str, Any]] = []
-    result: dict[str, Any] = {"before": before, "repeats": repeats, "rows": rows}
+    result: dict[str, Any] = {
+        "before": before,
+        "after": after or "working tree",
+        "repeats": repeats,
+        "rows": rows,
+    }
     with tempfile.TemporaryDirectory() as tmp:
-        trees = {"before": _before_tree(before, Path(tmp)), "after": ROOT}
+        trees = {
+            "before": _tree(before, Path(tmp), "before"),
+            "after": ROOT if after is None else _tree(after, Path(tmp), "after"),
+        }
         jobs: list[tuple[str, tuple[str, ...]]] = [
             (f"maths N={MATHS_N} K={k}", ("maths", str(MATHS_N), str(k), str(ticks)))
             for k in BATCH_SIZES
@@ -327,6 +346,7 @@ def profile_text(result: dict[str, Any]) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--before", default="20394f3", help="git revision of the 'before' code")
+    parser.add_argument("--after", help="git revision of the 'after' code (default: this tree)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results_agent_batch.json")
@@ -334,7 +354,7 @@ def main(argv: list[str] | None = None) -> int:
         "--profile-out", type=Path, default=ROOT / "bench" / "agent_batch_profile.txt"
     )
     args = parser.parse_args(argv)
-    result = agent_batch(args.before, args.repeats, args.quick)
+    result = agent_batch(args.before, args.repeats, args.quick, after=args.after)
     args.out.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
     args.profile_out.write_text(profile_text(result), encoding="utf-8")
     for row in result["rows"]:

@@ -106,6 +106,8 @@ class ReferenceFlight:
         self.events: list[FlightEvent] = []
         self._actions: list[TimedAction] = timeline(scenario)
         self.t_s = 0.0
+        self._kernel = PhysicsKernel(self.params, self.n, self.dt / self.substeps, self.att_gains)
+        self._oldest_setpoint_s: float | None = None
 
     # -- FaultTarget ---------------------------------------------------------------------------
     @property
@@ -142,6 +144,8 @@ class ReferenceFlight:
             if progress is not None:
                 progress(self.t_s)
             if k < n_ticks - 1:
+                armed = self.last_setpoint_s[self.armed]
+                self._oldest_setpoint_s = float(armed.min()) if armed.shape[0] else None
                 for sub in range(self.substeps):
                     self._physics_step(self.t_s + sub * self.dt / self.substeps)
         self._event("run_end", lost=sorted(self.lost_at))
@@ -230,8 +234,14 @@ class ReferenceFlight:
 
     def _physics_step(self, t_s: float) -> None:
         attitude, thrust = self.attitude_sp, self.thrust_sp
-        stale = self.armed & (t_s - self.last_setpoint_s > self.failsafe.offboard_timeout_s)
-        if stale.any():
+        timeout = self.failsafe.offboard_timeout_s
+        # no vehicle can be stale while the oldest armed one's last setpoint is recent enough
+        # (t - last is monotonic in last; the armed set only shrinks between control ticks)
+        oldest = self._oldest_setpoint_s
+        stale = None
+        if oldest is not None and t_s - oldest > timeout:
+            stale = self.armed & (t_s - self.last_setpoint_s > timeout)
+        if stale is not None and stale.any():
             attitude, thrust = attitude.copy(), thrust.copy()
             for i in np.flatnonzero(stale & ~self.in_failsafe):
                 self.in_failsafe[i] = True
@@ -252,11 +262,7 @@ class ReferenceFlight:
             )
             attitude[:, stale], thrust[stale] = att, thr
         # inner_loop + step_with_contact, fused (same arithmetic: sitl_sim.physics_kernel)
-        kernel: PhysicsKernel | None = getattr(self, "_physics_kernel", None)
-        if kernel is None:
-            kernel = PhysicsKernel(self.params, self.n, self.dt / self.substeps, self.att_gains)
-            self._physics_kernel = kernel
-        self.state, self.rotor_speed, impact = kernel.substep(
+        self.state, self.rotor_speed, impact = self._kernel.substep(
             self.state, attitude, thrust, self.armed
         )
         if impact is not None:
