@@ -94,12 +94,17 @@ def shape_matrix(
     return a
 
 
+# The pairs of _PAIRS as index arrays (j, k per m), and the positions of (j, k), (k, j) and the
+# diagonal in a 3 x 3 matrix flattened to 9 (row-major).
+_J, _K = np.array([1, 0, 0]), np.array([2, 2, 1])
+_UPPER, _LOWER, _DIAGONAL = np.array([5, 2, 1]), np.array([7, 6, 3]), slice(None, None, 4)
+#: ``skew(v)[j, k] = _SKEW_SIGN[m] * v[m]`` for each pair (j, k, m).
+_SKEW_SIGN = np.array([-1.0, 1.0, -1.0])
+
+
 def _skew_pairs(v: FloatArray) -> FloatArray:
     """``skew(v)[j, k]`` (K, 3) for each pair (j, k, m) of :data:`_PAIRS`, indexed by m."""
-    out = np.empty_like(v)
-    out[:, 0] = -v[:, 0]
-    out[:, 1] = v[:, 1]
-    out[:, 2] = -v[:, 2]
+    out: FloatArray = v * _SKEW_SIGN
     return out
 
 
@@ -115,15 +120,12 @@ def shape_matrix_batch(
     (K, 3) bool) -> A (K, 3, 3)."""
     s = variances_m2
     sg = np.maximum(s, min_variance_m2)
-    a = np.zeros((s.shape[0], 3, 3))
+    a = np.zeros((s.shape[0], 9))
     with np.errstate(divide="ignore", invalid="ignore"):
-        diagonal = np.where(flat, 0.0, w_shape / (2.0 * sg))
-    a[:, [0, 1, 2], [0, 1, 2]] = diagonal
-    omega = _skew_pairs(alpha)
-    for j, k, m in _PAIRS:
-        num = (s[:, k] - s[:, j]) * omega[:, m] + damping[:, m]
-        a[:, j, k] = a[:, k, j] = num / (sg[:, j] + sg[:, k])
-    return a
+        a[:, _DIAGONAL] = np.where(flat, 0.0, w_shape / (2.0 * sg))
+    num = (s[:, _K] - s[:, _J]) * _skew_pairs(alpha) + damping
+    a[:, _UPPER] = a[:, _LOWER] = num / (sg[:, _J] + sg[:, _K])
+    return a.reshape(-1, 3, 3)
 
 
 def pinv_block(offset_m: FloatArray, axes: FloatArray, variances_m2: FloatArray) -> FloatArray:
@@ -215,7 +217,7 @@ def virtual_acceleration_batch(
         - kp[CENTRE] * (swarm.centre_ned_m - a_d[:, CENTRE])
     )
     s_d, s_d_dot, s_d_ddot = a_d[:, SHAPE], ad_dot[:, SHAPE], ad_ddot[:, SHAPE]
-    rate_diag = sigma_rate[:, [0, 1, 2], [0, 1, 2]]
+    rate_diag = sigma_rate.reshape(-1, 9)[:, _DIAGONAL]
     w_s = s_d_ddot - kd[SHAPE] * (rate_diag - s_d_dot) - kp[SHAPE] * (s - s_d)
     flat = s_d < s_min
 
@@ -225,10 +227,8 @@ def virtual_acceleration_batch(
     angular = to_swarm @ (e_d @ _columns(ad_dot[:, ORIENTATION], ad_ddot[:, ORIENTATION]))
     omega_d = angular[:, :, 0]
     alpha = angular[:, :, 1] - kp[ORIENTATION] * rotation_error_batch(axes, r_d)
-    w_rate = _skew_pairs(omega_d)
-    damping = np.empty_like(alpha)
-    for j, k, m in _PAIRS:
-        damping[:, m] = -kd[3 + m] * (sigma_rate[:, j, k] - (s[:, k] - s[:, j]) * w_rate[:, m])
+    twist = (s[:, _K] - s[:, _J]) * _skew_pairs(omega_d)
+    damping = -kd[ORIENTATION] * (sigma_rate.reshape(-1, 9)[:, _UPPER] - twist)
     a = shape_matrix_batch(s, w_s, alpha, damping, s_min, flat)
 
     p = positions_ned_m - swarm.centre_ned_m
@@ -239,7 +239,8 @@ def virtual_acceleration_batch(
     b = sigma_rate / (sg[:, :, None] + sg[:, None, :])
     # the flat-axis PD holds a flat axis: no spreading rate there is "explained" (its
     # 1/(2 s_min) gain turned estimate noise into a growing split)
-    b[:, [0, 1, 2], [0, 1, 2]] = np.where(flat, 0.0, b[:, [0, 1, 2], [0, 1, 2]])
+    b_flat = b.reshape(-1, 9)
+    b_flat[:, _DIAGONAL] = np.where(flat, 0.0, b_flat[:, _DIAGONAL])
     fields = np.concatenate([a, b], axis=1) @ offsets[:, :, :1]  # A p and B p: (K, 6, 1)
     v_swarm = fields[:, :3, 0]
     v_swarm = np.where(
@@ -280,9 +281,7 @@ def euler_rate_matrix_batch(roll: FloatArray, pitch: FloatArray) -> FloatArray:
 
 def rotation_error_batch(axes: FloatArray, axes_desired: FloatArray) -> FloatArray:
     """:func:`rotation_error` of K frames (K, 3, 3) -> (K, 3)."""
-    m = 0.5 * (np.swapaxes(axes_desired, 1, 2) @ axes - np.swapaxes(axes, 1, 2) @ axes_desired)
-    out = np.empty((m.shape[0], 3))
-    out[:, 0] = m[:, 2, 1]
-    out[:, 1] = m[:, 0, 2]
-    out[:, 2] = m[:, 1, 0]
+    # (R^T R_d) = (R_d^T R)^T: the vee of half their difference, entries (2, 1), (0, 2), (1, 0)
+    p = (np.swapaxes(axes_desired, 1, 2) @ axes).reshape(-1, 9)
+    out: FloatArray = 0.5 * (p[:, [7, 2, 3]] - p[:, [5, 6, 1]])
     return out
