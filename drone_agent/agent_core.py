@@ -125,23 +125,21 @@ class BatchAgentCore:
             setpoints = self._setpoints(
                 rows, ready, x, v, moments, (a_d, ad_dot, ad_ddot), (r_d, axes, s)
             )
+        centre, rate = list(moments.centre_ned_m), list(moments.centre_rate_ned_m_s)
+        sigma, sigma_rate = list(moments.sigma_m2), list(moments.sigma_rate_m2_s)
+        estimates, desired = list(estimate), list(a_d)
         return [
             AgentOutput(
                 out.message,
-                estimate[k],
-                SwarmMoments(
-                    moments.centre_ned_m[k],
-                    moments.centre_rate_ned_m_s[k],
-                    moments.sigma_m2[k],
-                    moments.sigma_rate_m2_s[k],
-                ),
+                estimates[k],
+                SwarmMoments(centre[k], rate[k], sigma[k], sigma_rate[k]),
                 setpoints[k],
                 out.active_neighbours,
-                bool(ready[k]),
+                flies,
                 out.disagreement,
-                a_d[k],
+                desired[k],
             )
-            for k, out in enumerate(outs)
+            for k, (out, flies) in enumerate(zip(outs, ready.tolist(), strict=True))
         ]
 
     def _references(self, plans: Sequence[DescriptorTrajectory], t_s: float) -> StateTriple:

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from itertools import chain, pairwise
 from typing import Any
 
 import numpy as np
@@ -195,6 +196,7 @@ class BatchConsensus:
         self._has_q_for_me = np.zeros((k, 0), dtype=bool)
         self._hist_round = np.full((k, h), _NO_ROUND, dtype=np.int64)
         self._hist_gamma = np.zeros((k, h, N_CHANNELS))
+        self._hist_largest = np.zeros((k, h))  # max |gamma| of the round
         self._hist_degree = np.zeros((k, h), dtype=np.int64)
         self._hist_heard = np.zeros((k, h, 0), dtype=bool)
         # rounds not yet integrable (from the future), per row: (sender, round) -> message
@@ -250,6 +252,7 @@ class BatchConsensus:
         slot = round_ % self.params.history_ticks
         self._hist_round[rows_arr, slot] = round_
         self._hist_gamma[rows_arr, slot] = gamma
+        self._hist_largest[rows_arr, slot] = np.abs(gamma).max(axis=1)
         self._hist_degree[rows_arr, slot] = degree
         self._hist_heard[rows_arr, slot] = heard
         return gamma, self._outputs(rows_arr, round_, gamma, heard, active, disagreement)
@@ -474,14 +477,17 @@ class BatchConsensus:
             return active, disagreement
         pos, j, q, row, slot, msg = pos[ok], j[ok], q[ok], row[ok], slot[ok], due.msg[ok]
         gamma_i = self._hist_gamma[row, slot]
-        gamma_j = np.array([m.gamma for m in due.messages], dtype=float)[msg]
+        gamma_msg = np.array([m.gamma for m in due.messages], dtype=float)
+        gamma_j = gamma_msg[msg]
         rho = np.full(q.shape[0], self.params.rho)
         if self.params.degree_normalised:
             degree_j = np.array([m.degree for m in due.messages], dtype=np.int64)[msg]
             rho = rho / np.maximum(np.maximum(self._hist_degree[row, slot], degree_j), 1)
         rho = rho / np.maximum(round_ - q, 1)  # delay-scaled gain (module doc)
         diff = gamma_i - gamma_j
-        scale = 1.0 + np.maximum(np.abs(gamma_i).max(axis=1), np.abs(gamma_j).max(axis=1))
+        # max |gamma| per own round (kept with the history) and per message
+        largest_j = np.abs(gamma_msg).max(axis=1)[msg]
+        scale = 1.0 + np.maximum(self._hist_largest[row, slot], largest_j)
         starts = np.flatnonzero(_after_true(pos[1:] != pos[:-1]))
         disagreement[pos[starts]] = np.maximum.reduceat(np.abs(diff).max(axis=1) / scale, starts)
         increment = (rho * self.params.dt_s)[:, None] * np.tanh(self.params.c * diff)
@@ -504,12 +510,13 @@ class BatchConsensus:
     def _heard_by(self, due: _Due) -> npt.NDArray[np.bool_]:
         """(messages, M) True where the message's heard-set lists the id."""
         heard = np.zeros((len(due.messages), self._m), dtype=bool)
-        ids = [h for m in due.messages for h in m.heard]
-        if ids:
-            owner = np.repeat(np.arange(len(due.messages)), [len(m.heard) for m in due.messages])
-            ids_arr = np.asarray(ids, dtype=np.intp)
-            keep = (ids_arr >= 0) & (ids_arr < self._m)
-            heard[owner[keep], ids_arr[keep]] = True
+        sizes = [len(m.heard) for m in due.messages]
+        total = sum(sizes)
+        if total:
+            owner = np.repeat(np.arange(len(due.messages)), sizes)
+            ids = np.fromiter(chain.from_iterable(m.heard for m in due.messages), np.intp, total)
+            keep = (ids >= 0) & (ids < self._m)
+            heard[owner[keep], ids[keep]] = True
         return heard
 
     def _eta_total(self, rows: npt.NDArray[np.intp]) -> FloatArray:
@@ -543,20 +550,27 @@ class BatchConsensus:
         heard_pos, heard_ids_all = np.nonzero(heard)
         heard_bounds = np.searchsorted(heard_pos, np.arange(rows.shape[0] + 1)).tolist()
         heard_list = heard_ids_all.tolist()
-        out = []
-        for p, row in enumerate(rows.tolist()):
-            lo, hi = bounds[p], bounds[p + 1]
-            heard_ids = frozenset(heard_list[heard_bounds[p] : heard_bounds[p + 1]])
-            message = ConsensusMessage(
-                sender=self.agent_ids[row],
-                round=round_,
-                gamma=gamma[p],
-                edge_sums=dict(zip(id_list[lo:hi], sums[lo:hi], strict=True)),
-                heard=heard_ids,
-                degree=len(heard_ids),
+        gamma_rows, sum_rows = list(gamma), list(sums)
+        heard_sets = [frozenset(heard_list[lo:hi]) for lo, hi in pairwise(heard_bounds)]
+        edge_sums = [
+            dict(zip(id_list[lo:hi], sum_rows[lo:hi], strict=True)) for lo, hi in pairwise(bounds)
+        ]
+        return [
+            ConsensusOutput(
+                gamma_rows[p],
+                ConsensusMessage(
+                    sender=self.agent_ids[row],
+                    round=round_,
+                    gamma=gamma_rows[p],
+                    edge_sums=edge_sums[p],
+                    heard=heard_sets[p],
+                    degree=len(heard_sets[p]),
+                ),
+                active[p],
+                dis,
             )
-            out.append(ConsensusOutput(gamma[p], message, active[p], float(disagreement[p])))
-        return out
+            for p, (row, dis) in enumerate(zip(rows.tolist(), disagreement.tolist(), strict=True))
+        ]
 
 
 class ConsensusEstimator:
