@@ -17,12 +17,6 @@ from drone_agent.link_faults import LinkFaults
 from protocols.frames import FloatArray
 
 
-def _group_heads(sorted_ids: npt.NDArray[np.intp]) -> npt.NDArray[np.intp]:
-    """Where each run of equal values starts in ``sorted_ids``, and its length at the end."""
-    starts = np.flatnonzero(np.diff(sorted_ids)) + 1
-    return np.concatenate(([0], starts, [sorted_ids.shape[0]]))
-
-
 class InProcessNetwork:
     """Delivers each round's messages to the drones in range, ``base_delay_ticks`` (≥ 1) later."""
 
@@ -36,12 +30,10 @@ class InProcessNetwork:
         self.rng = rng
         self.base_delay_ticks = base_delay_ticks
         self.conditions = LinkFaults()
-        # arrival round -> batches in send order: (receivers, where each receiver's messages
-        # start in ``which`` (and its length at the end), index into messages by receiver,
-        # messages)
-        self._in_flight: dict[
-            int, list[tuple[list[int], list[int], list[int], list[ConsensusMessage]]]
-        ] = defaultdict(list)
+        # arrival round -> batches of (receivers, index into messages, messages), in send order
+        self._in_flight: dict[int, list[tuple[list[int], list[int], list[ConsensusMessage]]]] = (
+            defaultdict(list)
+        )
         self.sent = 0
         self.delivered = 0
         self.lost = 0
@@ -82,17 +74,8 @@ class InProcessNetwork:
             ticks += delay[i, receivers]
         msgs = list(messages)
         for d in np.unique(ticks).tolist():
-            on = np.flatnonzero(ticks == d)
-            by_receiver = on[np.argsort(receivers[on], kind="stable")]  # message order kept
-            heads = _group_heads(receivers[by_receiver])
-            self._in_flight[round_ + d].append(
-                (
-                    receivers[by_receiver[heads[:-1]]].tolist(),
-                    heads.tolist(),
-                    which[by_receiver].tolist(),
-                    msgs,
-                )
-            )
+            on = ticks == d
+            self._in_flight[round_ + d].append((receivers[on].tolist(), which[on].tolist(), msgs))
 
     def _link_matrices(
         self,
@@ -128,8 +111,8 @@ class InProcessNetwork:
     def receive(self, round_: int) -> list[list[ConsensusMessage]]:
         """The inboxes (one list per drone) of messages that arrive at round ``round_``."""
         inboxes: list[list[ConsensusMessage]] = [[] for _ in range(self.n)]
-        for receivers, heads, which, msgs in self._in_flight.pop(round_, []):
-            for j, lo, hi in zip(receivers, heads[:-1], heads[1:], strict=True):
-                inboxes[j] += map(msgs.__getitem__, which[lo:hi])
-            self.delivered += len(which)
+        for receivers, which, msgs in self._in_flight.pop(round_, []):
+            for j, k in zip(receivers, which, strict=True):
+                inboxes[j].append(msgs[k])
+            self.delivered += len(receivers)
         return inboxes
