@@ -58,10 +58,9 @@ class _Recorder:
         self.t = np.zeros(n_ticks)
         self.pos = np.zeros((n_ticks, n, 3))
         self.vel = np.zeros((n_ticks, n, 3))
-        self.euler = np.zeros((n_ticks, n, 3))
+        self.quat = np.zeros((n_ticks, 4, n))  # turned into Euler angles after the flight
+        self.rotor_speed = np.zeros((n_ticks, 4, n))  # into thrust and moments after the flight
         self.rates = np.zeros((n_ticks, n, 3))
-        self.thrust = np.zeros((n_ticks, n))
-        self.moments = np.zeros((n_ticks, n, 3))
         self.desired = np.zeros((n_ticks, 9))
         self.estimate = np.full((n_ticks, n, 9), np.nan)
         self.member = np.zeros((n_ticks, n), dtype=bool)
@@ -149,13 +148,18 @@ class ReferenceFlight:
                 for sub in range(self.substeps):
                     self._physics_step(self.t_s + sub * self.dt / self.substeps)
         self._event("run_end", lost=sorted(self.lost_at))
+        # per-tick conversions done once over the whole record (same arithmetic per sample)
+        n_ticks_n = rec.quat.shape[0] * self.n
+        euler = euler_from_quat_batch(rec.quat.transpose(1, 0, 2).reshape(4, n_ticks_n))
+        rotor_speed = rec.rotor_speed.transpose(1, 0, 2).reshape(4, n_ticks_n)
+        thrust, moments = wrench_from_rotor_speeds(rotor_speed, self.params)
         return FlightRecord(
             t_s=rec.t,
             position_ned_m=rec.pos,
             velocity_ned_m_s=rec.vel,
-            euler_rad=rec.euler,
-            thrust_n=rec.thrust,
-            moments_nm=rec.moments,
+            euler_rad=np.ascontiguousarray(euler.reshape(3, -1, self.n).transpose(1, 2, 0)),
+            thrust_n=thrust.reshape(-1, self.n),
+            moments_nm=np.ascontiguousarray(moments.reshape(3, -1, self.n).transpose(1, 2, 0)),
             desired=rec.desired,
             estimate=rec.estimate,
             member=rec.member,
@@ -221,12 +225,11 @@ class ReferenceFlight:
             self.thrust_sp[flying] = values[3]
             self.last_setpoint_s[flying] = self.t_s
         self.network.send(k, messages, self.network.in_range(pos))
-        thrust, moments = wrench_from_rotor_speeds(self.rotor_speed, self.params)
         rec.t[k] = self.t_s
         rec.pos[k], rec.vel[k] = pos, vel
-        rec.euler[k] = euler_from_quat_batch(self.state[QUAT]).T
+        rec.quat[k] = self.state[QUAT]
         rec.rates[k] = self.state[RATES].T
-        rec.thrust[k], rec.moments[k] = thrust, moments.T
+        rec.rotor_speed[k] = self.rotor_speed
         rec.desired[k] = outs[0].desired if outs else self.plan.evaluate(self.t_s)[0]
         rec.member[k] = self.member
         rec.airborne[k] = -pos[:, 2] > AIRBORNE_ALTITUDE_M
