@@ -201,21 +201,12 @@ class BatchAgentCore:
         yaw = ref[0][:, I_YAW]
         limits = self.config.limits
         roll, pitch, thrust_n, limited = attitude_thrust_batch(accel, yaw, limits)
-        thrust = thrust_n / limits.max_thrust_n
-        ok = np.isfinite(roll) & np.isfinite(pitch) & np.isfinite(yaw) & np.isfinite(thrust)
-        ok &= (thrust >= 0.0) & (thrust <= 1.0)
+        command = np.stack([roll, pitch, yaw, thrust_n / limits.max_thrust_n])  # (4, K)
+        ok = np.isfinite(command).all(axis=0) & (command[3] >= 0.0) & (command[3] <= 1.0)
         out: list[Setpoint | None] = [None] * len(ready)
-        values = zip(
-            idx.tolist(),
-            roll.tolist(),
-            pitch.tolist(),
-            yaw.tolist(),
-            thrust.tolist(),
-            limited.tolist(),
-            ok.tolist(),
-            strict=True,
-        )
-        for k, r, p, y, t, lim, good in values:
+        for k, (r, p, y, t), lim, good in zip(
+            idx.tolist(), command.T.tolist(), limited.tolist(), ok.tolist(), strict=True
+        ):
             if good:
                 out[k] = Setpoint(r, p, y, t, lim)
             else:

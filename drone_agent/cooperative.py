@@ -121,8 +121,7 @@ def shape_matrix_batch(
     s = variances_m2
     sg = np.maximum(s, min_variance_m2)
     a = np.zeros((s.shape[0], 9))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a[:, _DIAGONAL] = np.where(flat, 0.0, w_shape / (2.0 * sg))
+    a[:, _DIAGONAL] = np.divide(w_shape, 2.0 * sg, out=np.zeros_like(sg), where=~flat)
     num = (s[:, _K] - s[:, _J]) * _skew_pairs(alpha) + damping
     a[:, _UPPER] = a[:, _LOWER] = num / (sg[:, _J] + sg[:, _K])
     return a.reshape(-1, 3, 3)
