@@ -296,9 +296,12 @@ class BatchConsensus:
         if not msgs:
             return None
         # distinct objects by identity (their order is irrelevant: only indexed)
-        ids = np.array(list(map(id, msgs)), dtype=np.int64)
-        _, first, which = np.unique(ids, return_index=True, return_inverse=True)
-        messages = [msgs[k] for k in first.tolist()]
+        ids = np.fromiter(map(id, msgs), np.int64, len(msgs))
+        order = np.argsort(ids)
+        first = _after_true(ids[order[1:]] != ids[order[:-1]])
+        which = np.empty(len(msgs), dtype=np.intp)
+        which[order] = np.cumsum(first) - 1
+        messages = [msgs[k] for k in order[first].tolist()]
         senders = np.array([m.sender for m in messages], dtype=np.intp)
         return _Mail(messages, senders, which, counts, carried)
 
@@ -328,12 +331,14 @@ class BatchConsensus:
                 self.dropped_messages[int(rows[p])] += int(dropped[p])
         if member_mask is not None:
             valid &= member_mask[pos, j]
-        sel = np.flatnonzero(valid)
-        if sel.shape[0] == 0:
-            return None
-        order, same_pair, same_value = self._sorted(pos[sel], j[sel], q[sel], rows.shape[0])
-        order = sel[order]
-        pos, j, q, which = pos[order], j[order], q[order], which[order]
+        if not valid.all():
+            sel = np.flatnonzero(valid)
+            if sel.shape[0] == 0:
+                return None
+            pos, j, q, which = pos[sel], j[sel], q[sel], which[sel]
+        order, same_pair, same_value = self._sorted(pos, j, q, rows.shape[0])
+        if order is not None:
+            pos, j, q, which = pos[order], j[order], q[order], which[order]
         row = rows[pos]
         self._peer[row, j] = True
         # newest per (row, peer): the first copy of the highest round
@@ -369,19 +374,20 @@ class BatchConsensus:
         j: npt.NDArray[np.intp],
         q: npt.NDArray[np.int64],
         n_rows: int,
-    ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
-        """The stable order by (agent, sender, round) (arrival order among equals), and whether
-        each value has the same (agent, sender) / (agent, sender, round) as the next one."""
+    ) -> tuple[npt.NDArray[np.intp] | None, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+        """The stable order by (agent, sender, round) (arrival order among equals; None if the
+        values are in that order already), and whether each value in that order has the same
+        (agent, sender) / (agent, sender, round) as the next one."""
         q_lo = int(q.min())
         span = int(q.max()) - q_lo + 1
         if span * self._m * n_rows >= 2**62:  # rounds too far apart for one key
-            order = np.lexsort((q, j, pos))
-            pos, j, q = pos[order], j[order], q[order]
+            by_key = np.lexsort((q, j, pos))
+            pos, j, q = pos[by_key], j[by_key], q[by_key]
             same_pair = (pos[1:] == pos[:-1]) & (j[1:] == j[:-1])
-            return order, same_pair, same_pair & (q[1:] == q[:-1])
+            return by_key, same_pair, same_pair & (q[1:] == q[:-1])
         pair = pos * self._m + j
         key = pair * span + (q - q_lo)
-        order = np.arange(key.shape[0])
+        order: npt.NDArray[np.intp] | None = None
         if not (key[1:] > key[:-1]).all():  # inboxes usually arrive in order already
             order = np.argsort(key, kind="stable")
             key, pair = key[order], pair[order]
