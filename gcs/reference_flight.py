@@ -107,6 +107,8 @@ class ReferenceFlight:
         self.t_s = 0.0
         self._kernel = PhysicsKernel(self.params, self.n, self.dt / self.substeps, self.att_gains)
         self._oldest_setpoint_s: float | None = None
+        self._any_failsafe = False  # whether in_failsafe has any True
+        self._live_cache: tuple[list[int], list[int], frozenset[int]] | None = None
 
     # -- FaultTarget ---------------------------------------------------------------------------
     @property
@@ -191,11 +193,10 @@ class ReferenceFlight:
 
     def _control_tick(self, k: int, rec: _Recorder) -> None:
         pos, vel = self.state[POS].T, self.state[VEL].T
-        members = frozenset(self.agents)
+        live, rows, members = self._live()
         inboxes = self.network.receive(k)
-        live = sorted(self.agents)
         outs = self.core.tick(
-            [self.agents[i].row for i in live],
+            rows,
             k,
             self.t_s,
             pos[live],
@@ -235,6 +236,15 @@ class ReferenceFlight:
         rec.airborne[k] = -pos[:, 2] > AIRBORNE_ALTITUDE_M
         rec.armed[k] = self.armed
 
+    def _live(self) -> tuple[list[int], list[int], frozenset[int]]:
+        """The live agents (sorted), their rows in the batched core, and the membership view;
+        one view object while the agents do not change."""
+        members = frozenset(self.agents)
+        if self._live_cache is None or self._live_cache[2] != members:
+            live = sorted(members)
+            self._live_cache = (live, [self.agents[i].row for i in live], members)
+        return self._live_cache
+
     def _physics_step(self, t_s: float) -> None:
         attitude, thrust = self.attitude_sp, self.thrust_sp
         timeout = self.failsafe.offboard_timeout_s
@@ -248,6 +258,7 @@ class ReferenceFlight:
             attitude, thrust = attitude.copy(), thrust.copy()
             for i in np.flatnonzero(stale & ~self.in_failsafe):
                 self.in_failsafe[i] = True
+                self._any_failsafe = True
                 self._event(
                     "failsafe",
                     drone=int(i),
@@ -271,7 +282,7 @@ class ReferenceFlight:
         if impact is not None:
             for i in np.flatnonzero(impact > HARD_LANDING_M_S):
                 self._event("hard_landing", drone=int(i), impact_m_s=round(float(impact[i]), 2))
-        if not self.in_failsafe.any():
+        if not self._any_failsafe:
             return
         landed = self.in_failsafe & self.armed & (self.state[2] >= -1e-6)
         for i in np.flatnonzero(landed):

@@ -16,6 +16,8 @@ import numpy as np
 from protocols.descriptor_vector import CENTRE, I_PITCH, I_ROLL, I_YAW, SHAPE
 from protocols.frames import FloatArray, rot_zyx, rot_zyx_batch, zyx_from_rot, zyx_from_rot_batch
 
+#: Index rotations for the cross product: ``(a x b)_i = a_(i+1) b_(i+2) - a_(i+2) b_(i+1)``.
+_NEXT, _AFTER = np.array([1, 2, 0]), np.array([2, 0, 1])
 #: Heading is reported undefined while |s1 - s2| / (s1 + s2) is below this (ALGORITHM.md §2).
 HEADING_TIE_RATIO = 0.05
 
@@ -86,9 +88,7 @@ def align_axes_batch(sigma: FloatArray, desired_axes: FloatArray) -> tuple[Float
     r1, r2 = r12[:, 0], r12[:, 1]
     axes = np.empty((k_n, 3, 3))
     axes[:, :, :2] = np.swapaxes(r12, 1, 2)
-    axes[:, 0, 2] = r1[:, 1] * r2[:, 2] - r1[:, 2] * r2[:, 1]  # r3 = r1 x r2
-    axes[:, 1, 2] = r1[:, 2] * r2[:, 0] - r1[:, 0] * r2[:, 2]
-    axes[:, 2, 2] = r1[:, 0] * r2[:, 1] - r1[:, 1] * r2[:, 0]
+    axes[:, :, 2] = r1[:, _NEXT] * r2[:, _AFTER] - r1[:, _AFTER] * r2[:, _NEXT]  # r1 x r2
     s = (axes * (sym @ axes)).sum(axis=1)
     return axes, s
 
