@@ -33,7 +33,7 @@ Pure and I/O-free: no clock, no transport; time enters only as the round number.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from itertools import chain, pairwise
 from typing import Any
@@ -101,6 +101,41 @@ class ConsensusMessage:
     degree: int
 
 
+class EdgeSums(Mapping[int, FloatArray]):
+    """``Q_sender,j`` (18,) per neighbour j as a read-only mapping over the rows of one array:
+    ``ids`` the neighbours, ascending, and ``sums`` (len(ids), 18) theirs. What
+    :class:`BatchConsensus` puts in its messages' ``edge_sums``: made without a dict per
+    message, and read by batched receivers as arrays (any Mapping works as well)."""
+
+    __slots__ = ("_index", "ids", "sums")
+
+    def __init__(self, ids: Sequence[int], sums: FloatArray) -> None:
+        self.ids = ids
+        self.sums = sums
+        self._index: dict[int, int] | None = None
+
+    def _position(self, neighbour: int) -> int | None:
+        if self._index is None:
+            self._index = {j: k for k, j in enumerate(self.ids)}
+        return self._index.get(neighbour)
+
+    def __getitem__(self, neighbour: int) -> FloatArray:
+        k = self._position(neighbour)
+        if k is None:
+            raise KeyError(neighbour)
+        out: FloatArray = self.sums[k]
+        return out
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self.ids)
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def __repr__(self) -> str:
+        return f"EdgeSums({dict(self)!r})"
+
+
 @dataclass(frozen=True)
 class ConsensusOutput:
     """Result of one round: the estimate (18,) of the channel averages, the message to send, the
@@ -159,6 +194,41 @@ def _before_true(flags: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
     out[-1] = True
     out[:-1] = flags
     return out
+
+
+def _sums_for(
+    receivers: npt.NDArray[np.intp], which: npt.NDArray[np.intp], messages: list[ConsensusMessage]
+) -> tuple[npt.NDArray[np.bool_], FloatArray]:
+    """``messages[which[k]].edge_sums.get(receivers[k])`` for every k: whether it is there
+    (n,) and the ones that are (n_found, 18). :class:`EdgeSums` are looked up all at once (one
+    sorted key per (message, neighbour)), other mappings one by one."""
+    n = receivers.shape[0]
+    has = np.zeros(n, dtype=bool)
+    values = np.zeros((n, N_CHANNELS))
+    tables = [m.edge_sums for m in messages]
+    batched = [k for k, t in enumerate(tables) if isinstance(t, EdgeSums)]
+    arrays = [t for t in tables if isinstance(t, EdgeSums)]
+    rank = np.full(len(tables), -1, dtype=np.intp)
+    rank[batched] = np.arange(len(batched))
+    fast = rank[which] >= 0
+    if batched:
+        sel = np.flatnonzero(fast)
+        sizes = [len(t.ids) for t in arrays]
+        ids = np.fromiter(chain.from_iterable(t.ids for t in arrays), np.intp, sum(sizes))
+        span = int(max(ids.max(initial=0), receivers.max(initial=0))) + 1
+        keys = np.repeat(np.arange(len(batched)), sizes) * span + ids  # ascending
+        wanted = rank[which[sel]] * span + receivers[sel]
+        at = np.minimum(np.searchsorted(keys, wanted), max(keys.shape[0] - 1, 0))
+        found = keys[at] == wanted if keys.shape[0] else np.zeros(sel.shape[0], dtype=bool)
+        has[sel[found]] = True
+        if found.any():
+            values[sel[found]] = np.concatenate([t.sums for t in arrays])[at[found]]
+    for k in np.flatnonzero(~fast).tolist():
+        q = tables[which[k]].get(int(receivers[k]))
+        if q is not None:
+            has[k] = True
+            values[k] = q
+    return has, values[has]
 
 
 class BatchConsensus:
@@ -404,17 +474,9 @@ class BatchConsensus:
         """Peer ``ids[k]``'s newest message to row ``rows[k]`` is ``messages[which[k]]`` of
         round ``rounds[k]``: the round it was last heard in, and the ``Q_ji`` it carries."""
         self._latest[rows, ids] = rounds
-        mine = self._ids[rows].tolist()
-        sums = [messages[k].edge_sums.get(i) for k, i in zip(which.tolist(), mine, strict=True)]
-        values = [x for x in sums if x is not None]
-        if len(values) == len(sums):
-            has: npt.NDArray[np.bool_] | slice = slice(None)
-            self._has_q_for_me[rows, ids] = True
-        else:
-            has = np.array([x is not None for x in sums], dtype=bool)
-            self._has_q_for_me[rows, ids] = has
-        if values:
-            self._q_for_me[rows[has], ids[has]] = np.asarray(values, dtype=float)
+        has, values = _sums_for(self._ids[rows], which, messages)
+        self._has_q_for_me[rows, ids] = has
+        self._q_for_me[rows[has], ids[has]] = values
 
     def _member_mask(
         self, members: Sequence[frozenset[int] | None]
@@ -551,16 +613,15 @@ class BatchConsensus:
     ) -> list[ConsensusOutput]:
         pos, ids = np.nonzero(self._edge[rows])
         sums = self._q_own[rows[pos], ids]
+        sums.flags.writeable = False  # shared by the messages' EdgeSums
         bounds = np.searchsorted(pos, np.arange(rows.shape[0] + 1)).tolist()
         id_list = ids.tolist()
         heard_pos, heard_ids_all = np.nonzero(heard)
         heard_bounds = np.searchsorted(heard_pos, np.arange(rows.shape[0] + 1)).tolist()
         heard_list = heard_ids_all.tolist()
-        gamma_rows, sum_rows = list(gamma), list(sums)
+        gamma_rows = list(gamma)
         heard_sets = [frozenset(heard_list[lo:hi]) for lo, hi in pairwise(heard_bounds)]
-        edge_sums = [
-            dict(zip(id_list[lo:hi], sum_rows[lo:hi], strict=True)) for lo, hi in pairwise(bounds)
-        ]
+        edge_sums = [EdgeSums(id_list[lo:hi], sums[lo:hi]) for lo, hi in pairwise(bounds)]
         return [
             ConsensusOutput(
                 gamma_rows[p],

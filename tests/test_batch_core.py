@@ -210,3 +210,27 @@ def test_batched_and_one_by_one_agree(degree_normalised: bool) -> None:
     assert min(degrees) >= 1 and max(degrees) >= 3
     after_drop = reference.outputs[(TICKS - 1, 4)].message.edge_sums
     assert 5 not in after_drop  # the dead partner's edge was discarded
+
+
+def test_edge_sums_is_a_read_only_mapping_that_goes_on_the_wire() -> None:
+    """The batched core's messages carry their running sums as EdgeSums (rows of one array):
+    it behaves as the dict it replaces, and encodes to the same bytes."""
+    from drone_agent.consensus import ConsensusMessage, EdgeSums
+    from protocols.wire import decode_consensus, encode_consensus
+
+    rows = np.arange(3 * 18, dtype=float).reshape(3, 18)
+    sums = EdgeSums([2, 5, 9], rows)
+    plain = {2: rows[0], 5: rows[1], 9: rows[2]}
+    assert list(sums) == [2, 5, 9] and len(sums) == 3 and 5 in sums and 4 not in sums
+    assert sums.get(4) is None and np.array_equal(sums[9], rows[2])
+    with pytest.raises(KeyError):
+        sums[4]
+
+    def message(edge_sums: Any) -> ConsensusMessage:
+        return ConsensusMessage(3, 7, np.ones(18), edge_sums, frozenset({2, 5}), 2)
+
+    wire = encode_consensus(message(sums), (1.0, 2.0, -3.0), "swarm")
+    assert wire == encode_consensus(message(plain), (1.0, 2.0, -3.0), "swarm")
+    decoded = decode_consensus(wire, "swarm").message
+    assert sorted(decoded.edge_sums) == [2, 5, 9]
+    assert np.array_equal(decoded.edge_sums[5], rows[1])
