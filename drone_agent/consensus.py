@@ -103,34 +103,31 @@ class ConsensusMessage:
 
 class EdgeSums(Mapping[int, FloatArray]):
     """``Q_sender,j`` (18,) per neighbour j as a read-only mapping over the rows of one array:
-    ``ids`` the neighbours, ascending, and ``sums`` (len(ids), 18) theirs. What
+    ``ids`` (E,) the neighbours, ascending, and ``sums`` (E, 18) theirs. What
     :class:`BatchConsensus` puts in its messages' ``edge_sums``: made without a dict per
     message, and read by batched receivers as arrays (any Mapping works as well)."""
 
     __slots__ = ("_index", "ids", "sums")
 
-    def __init__(self, ids: Sequence[int], sums: FloatArray) -> None:
+    def __init__(self, ids: npt.NDArray[np.intp], sums: FloatArray) -> None:
         self.ids = ids
         self.sums = sums
         self._index: dict[int, int] | None = None
 
-    def _position(self, neighbour: int) -> int | None:
-        if self._index is None:
-            self._index = {j: k for k, j in enumerate(self.ids)}
-        return self._index.get(neighbour)
-
     def __getitem__(self, neighbour: int) -> FloatArray:
-        k = self._position(neighbour)
+        if self._index is None:
+            self._index = {j: k for k, j in enumerate(self.ids.tolist())}
+        k = self._index.get(neighbour)
         if k is None:
             raise KeyError(neighbour)
         out: FloatArray = self.sums[k]
         return out
 
     def __iter__(self) -> Iterator[int]:
-        return iter(self.ids)
+        return iter(self.ids.tolist())
 
     def __len__(self) -> int:
-        return len(self.ids)
+        return int(self.ids.shape[0])
 
     def __repr__(self) -> str:
         return f"EdgeSums({dict(self)!r})"
@@ -202,33 +199,22 @@ def _sums_for(
     """``messages[which[k]].edge_sums.get(receivers[k])`` for every k: whether it is there
     (n,) and the ones that are (n_found, 18). :class:`EdgeSums` are looked up all at once (one
     sorted key per (message, neighbour)), other mappings one by one."""
-    n = receivers.shape[0]
-    has = np.zeros(n, dtype=bool)
-    values = np.zeros((n, N_CHANNELS))
     tables = [m.edge_sums for m in messages]
-    batched = [k for k, t in enumerate(tables) if isinstance(t, EdgeSums)]
     arrays = [t for t in tables if isinstance(t, EdgeSums)]
-    rank = np.full(len(tables), -1, dtype=np.intp)
-    rank[batched] = np.arange(len(batched))
-    fast = rank[which] >= 0
-    if batched:
-        sel = np.flatnonzero(fast)
-        sizes = [len(t.ids) for t in arrays]
-        ids = np.fromiter(chain.from_iterable(t.ids for t in arrays), np.intp, sum(sizes))
-        span = int(max(ids.max(initial=0), receivers.max(initial=0))) + 1
-        keys = np.repeat(np.arange(len(batched)), sizes) * span + ids  # ascending
-        wanted = rank[which[sel]] * span + receivers[sel]
-        at = np.minimum(np.searchsorted(keys, wanted), max(keys.shape[0] - 1, 0))
-        found = keys[at] == wanted if keys.shape[0] else np.zeros(sel.shape[0], dtype=bool)
-        has[sel[found]] = True
-        if found.any():
-            values[sel[found]] = np.concatenate([t.sums for t in arrays])[at[found]]
-    for k in np.flatnonzero(~fast).tolist():
-        q = tables[which[k]].get(int(receivers[k]))
-        if q is not None:
-            has[k] = True
-            values[k] = q
-    return has, values[has]
+    if len(arrays) < len(tables):  # some plain mappings (decoded from the wire): one by one
+        sums = [tables[k].get(i) for k, i in zip(which.tolist(), receivers.tolist(), strict=True)]
+        has = np.array([x is not None for x in sums], dtype=bool)
+        found = [x for x in sums if x is not None]
+        return has, np.array(found, dtype=float).reshape(-1, N_CHANNELS)
+    sizes = [t.ids.shape[0] for t in arrays]
+    ids = np.concatenate([t.ids for t in arrays])
+    span = int(max(ids.max(initial=0), receivers.max(initial=0))) + 1
+    keys = np.repeat(np.arange(len(arrays)), sizes) * span + ids  # ascending
+    wanted = which * span + receivers
+    at = np.searchsorted(keys, wanted)
+    has = at < keys.shape[0]
+    has[has] = keys[at[has]] == wanted[has]
+    return has, np.concatenate([t.sums for t in arrays])[at[has]]
 
 
 class BatchConsensus:
@@ -614,14 +600,14 @@ class BatchConsensus:
         pos, ids = np.nonzero(self._edge[rows])
         sums = self._q_own[rows[pos], ids]
         sums.flags.writeable = False  # shared by the messages' EdgeSums
+        ids.flags.writeable = False
         bounds = np.searchsorted(pos, np.arange(rows.shape[0] + 1)).tolist()
-        id_list = ids.tolist()
         heard_pos, heard_ids_all = np.nonzero(heard)
         heard_bounds = np.searchsorted(heard_pos, np.arange(rows.shape[0] + 1)).tolist()
         heard_list = heard_ids_all.tolist()
         gamma_rows = list(gamma)
         heard_sets = [frozenset(heard_list[lo:hi]) for lo, hi in pairwise(heard_bounds)]
-        edge_sums = [EdgeSums(id_list[lo:hi], sums[lo:hi]) for lo, hi in pairwise(bounds)]
+        edge_sums = [EdgeSums(ids[lo:hi], sums[lo:hi]) for lo, hi in pairwise(bounds)]
         return [
             ConsensusOutput(
                 gamma_rows[p],

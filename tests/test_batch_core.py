@@ -219,7 +219,7 @@ def test_edge_sums_is_a_read_only_mapping_that_goes_on_the_wire() -> None:
     from protocols.wire import decode_consensus, encode_consensus
 
     rows = np.arange(3 * 18, dtype=float).reshape(3, 18)
-    sums = EdgeSums([2, 5, 9], rows)
+    sums = EdgeSums(np.array([2, 5, 9]), rows)
     plain = {2: rows[0], 5: rows[1], 9: rows[2]}
     assert list(sums) == [2, 5, 9] and len(sums) == 3 and 5 in sums and 4 not in sums
     assert sums.get(4) is None and np.array_equal(sums[9], rows[2])
