@@ -138,8 +138,8 @@ def simulate_worker(scenario: str, duration_s: float | None) -> dict[str, Any]:
 
 #: (label, function) parts timed per control tick; the name is looked up in the tree under test.
 _PARTS = (
-    ("agents (core, all rows)", "drone_agent.agent_core", "BatchAgentCore", "tick"),
-    ("agents (core, per agent)", "drone_agent.agent_core", "AgentCore", "tick"),
+    ("agents (core)", "drone_agent.agent_core", "BatchAgentCore", "tick"),
+    ("agents (core)", "drone_agent.agent_core", "AgentCore", "tick"),
     ("  consensus step", "drone_agent.consensus", "BatchConsensus", "step"),
     ("  consensus step", "drone_agent.consensus", "ConsensusEstimator", "step"),
     ("  descriptor frame (eigh, axes)", "protocols.descriptors", None, "align_axes_batch"),
@@ -331,13 +331,33 @@ def agent_batch(
 
 
 def profile_text(result: dict[str, Any]) -> str:
-    """The per-part table of the profile runs."""
-    out = []
-    for name, r in result.get("profile", {}).items():
-        out.append(f"== {name}: wall µs per control tick (timers, nested parts indented)")
-        for part, us in r["us_per_tick"].items():
-            out.append(f"  {part:<40s} {us:9.0f}")
-        out.append("  cProfile, top functions by own time (whole run, cProfile overhead included):")
+    """The per-part tables of the profile runs, before and after side by side."""
+    out = [
+        "Where one control tick of `swarm simulate` goes (wall µs per tick, timers around the",
+        "parts; indented parts are inside 'agents'; 'rest' is the loop, faults and recording).",
+        "Written by `python -m bench.agent_batch` (bench/agent_batch.py), the machine shared.",
+        "",
+    ]
+    profiles = result.get("profile", {})
+    cases = sorted({name.rsplit(", ", 1)[0] for name in profiles})
+    for case in cases:
+        before = profiles.get(f"{case}, before", {}).get("us_per_tick", {})
+        after = profiles.get(f"{case}, after", {}).get("us_per_tick", {})
+        out.append(f"== {case}")
+        out.append(f"  {'part':<40s} {'before':>9s} {'after':>9s}")
+        for table in (before, after):
+            top = [k for k in table if not k.startswith(" ") and not k.startswith("total")]
+            table["rest"] = table.get("total (flight loop)", 0.0) - sum(table[k] for k in top)
+        labels = list(dict.fromkeys([*before, *after]))
+        labels.sort(key=lambda k: (k.startswith("total"), k == "rest"))
+        for label in labels:
+            b, a = before.get(label), after.get(label)
+            cell_b = f"{b:9.0f}" if b is not None else f"{'-':>9s}"
+            cell_a = f"{a:9.0f}" if a is not None else f"{'-':>9s}"
+            out.append(f"  {label:<40s} {cell_b} {cell_a}")
+        out.append("")
+    for name, r in profiles.items():
+        out.append(f"-- {name}: cProfile, top functions by own time (cProfile overhead included)")
         out += ["    " + ln for ln in r["cprofile_top_tottime"]]
         out.append("")
     return "\n".join(out)

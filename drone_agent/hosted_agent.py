@@ -31,7 +31,7 @@ from drone_agent.flight_phase import FlightPhase, Order, Request, Settling, Vehi
 from drone_agent.transport import AgentTransport
 from drone_agent.vehicle_link import VehicleLink, VehicleSample
 from protocols.descriptor_vector import CENTRE
-from protocols.frames import FloatArray, quat_from_zyx
+from protocols.frames import quat_from_zyx
 from protocols.mavlink_conventions import MODE_HOLD, MODE_LAND, MODE_OFFBOARD
 from protocols.trajectory import DescriptorTrajectory
 from protocols.wire_plan import FlightCommand
@@ -73,29 +73,6 @@ class DueTick:
     def t_s(self) -> float:
         """The vehicle's simulated time of the tick (s)."""
         return self.sample.time_boot_ms / 1000.0
-
-    def core_inputs(
-        self,
-    ) -> tuple[
-        int,
-        float,
-        FloatArray,
-        FloatArray,
-        DescriptorTrajectory,
-        list[ConsensusMessage],
-        frozenset[int],
-    ]:
-        """The arguments of :meth:`AgentCore.tick` for this tick."""
-        s = self.sample
-        return (
-            self.tick,
-            self.t_s,
-            s.position_ned_m,
-            s.velocity_ned_m_s,
-            self.plan,
-            self.inbox,
-            self.members,
-        )
 
 
 class HostedAgent:
@@ -165,7 +142,17 @@ class HostedAgent:
         """Do what is due now: heartbeat, leaving on vehicle loss, the tick, arming, status."""
         due = self.prepare()
         if due is not None:
-            self.finish(due, self.core.tick(*due.core_inputs()))
+            s = due.sample
+            out = self.core.tick(
+                due.tick,
+                due.t_s,
+                s.position_ned_m,
+                s.velocity_ned_m_s,
+                due.plan,
+                due.inbox,
+                due.members,
+            )
+            self.finish(due, out)
 
     def prepare(self) -> DueTick | None:
         """Everything before the core: heartbeat, leaving on vehicle loss, collecting messages,
