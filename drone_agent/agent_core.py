@@ -23,7 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from drone_agent.consensus import BatchConsensus, ConsensusMessage, ConsensusParams
+from drone_agent.consensus import ConsensusMessage, ConsensusParams
+from drone_agent.consensus_batch import BatchConsensus
 from drone_agent.cooperative import CooperativeGains, virtual_acceleration_batch
 from drone_agent.moments import SwarmMoments, channels_batch, moments_from_averages_batch
 from drone_agent.thrust_attitude import ThrustLimits, attitude_thrust_batch
