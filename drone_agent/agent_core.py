@@ -1,26 +1,37 @@
 """One drone's brain, pure: consensus estimate of the swarm descriptors and the cooperative
 controller, from its own state, the shared plan and the neighbour messages of this round.
 
-The same core runs in the in-process reference flight (``swarm simulate``) and, later, inside each
-agent process behind MAVLink and Zenoh adapters. No clock, no I/O: time is given by the round
-number and the vehicle's simulated time.
+The same core runs in the in-process reference flight (``swarm simulate``) and inside each agent
+process behind MAVLink and Zenoh adapters. No clock, no I/O: time is given by the round number and
+the vehicle's simulated time.
+
+Batched: :class:`BatchAgentCore` holds K agents (one row each) and advances any subset of them
+in one call, as array operations over the rows: plan evaluation (once per distinct plan), the
+channels, the consensus step (drone_agent/consensus.py), moments, one stacked eigen-decomposition
+with the axes assigned to each row's desired axes, the cooperative field, thrust and attitude with
+their limits, and the setpoint checks. Rows never mix: each uses only its own vehicle state, plan,
+inbox, membership view and estimator state, so a row gives the same output whichever rows share
+its call. :class:`AgentCore` is one row of it (alone, the K = 1 case): there is one implementation.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import weakref
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
-from drone_agent.consensus import ConsensusEstimator, ConsensusMessage, ConsensusParams
-from drone_agent.cooperative import CooperativeGains, virtual_acceleration
-from drone_agent.moments import SwarmMoments, channels, moments_from_averages
-from drone_agent.thrust_attitude import AttitudeThrust, ThrustLimits, attitude_thrust
+from drone_agent.consensus import ConsensusMessage, ConsensusParams
+from drone_agent.consensus_batch import BatchConsensus
+from drone_agent.cooperative import CooperativeGains, virtual_acceleration_batch
+from drone_agent.moments import SwarmMoments, channels_batch, moments_from_averages_batch
+from drone_agent.thrust_attitude import ThrustLimits, attitude_thrust_batch
 from protocols.descriptor_vector import CENTRE, I_YAW
-from protocols.descriptors import desired_axes, frame_from_moments
+from protocols.descriptors import align_axes_batch, desired_axes_batch, frame_vector_batch
 from protocols.frames import FloatArray
-from protocols.trajectory import DescriptorTrajectory
+from protocols.trajectory import DescriptorTrajectory, StateTriple
 
 
 @dataclass(frozen=True)
@@ -64,14 +75,162 @@ class AgentOutput:
     desired: FloatArray | None = None
 
 
-class AgentCore:
-    """Estimator + controller of drone ``agent_id``. Call :meth:`tick` once per control round."""
+class BatchAgentCore:
+    """Estimators + controllers of the drones ``agent_ids``, one row each. Call :meth:`tick`
+    once per control round with the rows due in that round."""
 
-    def __init__(self, agent_id: int, config: AgentConfig) -> None:
+    def __init__(self, agent_ids: Sequence[int], config: AgentConfig) -> None:
+        self.agent_ids = tuple(int(i) for i in agent_ids)
+        self.config = config
+        self.consensus = BatchConsensus(self.agent_ids, config.consensus)
+        self.rejected_setpoints = [0] * len(self.agent_ids)
+        self._row = {agent: row for row, agent in enumerate(self.agent_ids)}
+        self._plan_keys: weakref.WeakKeyDictionary[DescriptorTrajectory, bytes] = (
+            weakref.WeakKeyDictionary()
+        )
+
+    def row_of(self, agent_id: int) -> int:
+        """The row of drone ``agent_id``."""
+        return self._row[agent_id]
+
+    def tick(
+        self,
+        rows: Sequence[int],
+        round_: int,
+        t_s: float,
+        positions_ned_m: FloatArray,
+        velocities_ned_m_s: FloatArray,
+        plans: Sequence[DescriptorTrajectory],
+        inboxes: Sequence[Iterable[ConsensusMessage]],
+        members: Sequence[frozenset[int] | None],
+    ) -> list[AgentOutput]:
+        """Estimate and control rows ``rows`` (distinct) for round ``round_`` at simulated time
+        ``t_s``: positions and velocities (len(rows), 3) NED of their own vehicles, and per row
+        its plan, its inbox and its membership view. One output per row, in order."""
+        if len(rows) == 0:
+            return []
+        x = np.asarray(positions_ned_m, dtype=float).reshape(-1, 3)
+        v = np.asarray(velocities_ned_m_s, dtype=float).reshape(-1, 3)
+        a_d, ad_dot, ad_ddot = self._references(plans, t_s)
+        zeta = channels_batch(x, v, a_d[:, CENTRE], ad_dot[:, CENTRE])
+        gamma, outs = self.consensus.step(rows, round_, zeta, inboxes, members)
+        moments = moments_from_averages_batch(gamma, a_d[:, CENTRE], ad_dot[:, CENTRE])
+        r_d = desired_axes_batch(a_d)
+        axes, s = align_axes_batch(moments.sigma_m2, r_d)
+        estimate = frame_vector_batch(moments.centre_ned_m, axes, s)
+        ready = np.zeros(len(outs), dtype=bool)
+        if t_s >= self.config.warmup_s:
+            ready[:] = np.isfinite(gamma).all(axis=1)
+        setpoints: list[Setpoint | None] = [None] * len(outs)
+        if ready.any():
+            setpoints = self._setpoints(
+                rows, ready, x, v, moments, (a_d, ad_dot, ad_ddot), (r_d, axes, s)
+            )
+        centre, rate = list(moments.centre_ned_m), list(moments.centre_rate_ned_m_s)
+        sigma, sigma_rate = list(moments.sigma_m2), list(moments.sigma_rate_m2_s)
+        estimates, desired = list(estimate), list(a_d)
+        return [
+            AgentOutput(
+                out.message,
+                estimates[k],
+                SwarmMoments(centre[k], rate[k], sigma[k], sigma_rate[k]),
+                setpoints[k],
+                out.active_neighbours,
+                flies,
+                out.disagreement,
+                desired[k],
+            )
+            for k, (out, flies) in enumerate(zip(outs, ready.tolist(), strict=True))
+        ]
+
+    def _references(self, plans: Sequence[DescriptorTrajectory], t_s: float) -> StateTriple:
+        """Each row's plan value, rate and acceleration (len(plans), 9), every distinct plan
+        evaluated once (plans with equal content, e.g. one plan decoded by each agent's own
+        transport, count as one)."""
+        groups: dict[bytes, list[int]] = {}
+        first: dict[bytes, DescriptorTrajectory] = {}
+        for k, plan in enumerate(plans):
+            key = self._plan_keys.get(plan)
+            if key is None:
+                key = b"%d|" % plan.seq + plan.t_knots_s.tobytes() + plan.coeffs.tobytes()
+                self._plan_keys[plan] = key
+            groups.setdefault(key, []).append(k)
+            first.setdefault(key, plan)
+        if len(groups) == 1:
+            (plan,) = first.values()
+            a, a_dot, a_ddot = plan.evaluate(t_s)
+            n = len(plans)
+            return a[None].repeat(n, 0), a_dot[None].repeat(n, 0), a_ddot[None].repeat(n, 0)
+        out = (np.empty((len(plans), 9)), np.empty((len(plans), 9)), np.empty((len(plans), 9)))
+        for key, ks in groups.items():
+            for dst, value in zip(out, first[key].evaluate(t_s), strict=True):
+                dst[ks] = value
+        return out
+
+    def _setpoints(
+        self,
+        rows: Sequence[int],
+        ready: npt.NDArray[np.bool_],
+        x: FloatArray,
+        v: FloatArray,
+        moments: SwarmMoments,
+        reference: StateTriple,
+        frame: tuple[FloatArray, FloatArray, FloatArray],
+    ) -> list[Setpoint | None]:
+        """The checked setpoints of the rows ready to fly (None for the others, and for any
+        command not finite or out of range, which is counted against its row)."""
+        idx = np.flatnonzero(ready)
+        if idx.shape[0] == ready.shape[0]:  # all ready (the usual case): no gathering
+            accel = virtual_acceleration_batch(x, v, moments, reference, self.config.gains, frame)
+            ref = reference
+        else:
+            pick = SwarmMoments(
+                moments.centre_ned_m[idx],
+                moments.centre_rate_ned_m_s[idx],
+                moments.sigma_m2[idx],
+                moments.sigma_rate_m2_s[idx],
+            )
+            ref = (reference[0][idx], reference[1][idx], reference[2][idx])
+            accel = virtual_acceleration_batch(
+                x[idx],
+                v[idx],
+                pick,
+                ref,
+                self.config.gains,
+                (frame[0][idx], frame[1][idx], frame[2][idx]),
+            )
+        yaw = ref[0][:, I_YAW]
+        limits = self.config.limits
+        roll, pitch, thrust_n, limited = attitude_thrust_batch(accel, yaw, limits)
+        command = np.stack([roll, pitch, yaw, thrust_n / limits.max_thrust_n])  # (4, K)
+        ok = np.isfinite(command).all(axis=0) & (command[3] >= 0.0) & (command[3] <= 1.0)
+        out: list[Setpoint | None] = [None] * len(ready)
+        for k, (r, p, y, t), lim, good in zip(
+            idx.tolist(), command.T.tolist(), limited.tolist(), ok.tolist(), strict=True
+        ):
+            if good:
+                out[k] = Setpoint(r, p, y, t, lim)
+            else:
+                self.rejected_setpoints[rows[k]] += 1
+        return out
+
+
+class AgentCore:
+    """Estimator + controller of drone ``agent_id``: its row of a :class:`BatchAgentCore` (a
+    batch of its own unless ``batch`` is given). Call :meth:`tick` once per control round."""
+
+    def __init__(
+        self, agent_id: int, config: AgentConfig, batch: BatchAgentCore | None = None
+    ) -> None:
         self.agent_id = agent_id
         self.config = config
-        self.estimator = ConsensusEstimator(agent_id, config.consensus)
-        self.rejected_setpoints = 0
+        self.batch = batch if batch is not None else BatchAgentCore((agent_id,), config)
+        self.row = self.batch.row_of(agent_id)
+
+    @property
+    def rejected_setpoints(self) -> int:
+        """Commands that failed the setpoint checks (not finite or out of range)."""
+        return self.batch.rejected_setpoints[self.row]
 
     def tick(
         self,
@@ -84,38 +243,13 @@ class AgentCore:
         members: frozenset[int] | None = None,
     ) -> AgentOutput:
         """Estimate and control for round ``round_`` at simulated time ``t_s``."""
-        reference = plan.evaluate(t_s)
-        a_d, ad_dot, _ = reference
-        zeta = channels(position_ned_m, velocity_ned_m_s, a_d[CENTRE], ad_dot[CENTRE])
-        out = self.estimator.step(round_, zeta, inbox, members)
-        moments = moments_from_averages(out.estimate, a_d[CENTRE], ad_dot[CENTRE])
-        frame = frame_from_moments(moments.centre_ned_m, moments.sigma_m2, desired_axes(a_d))
-        estimate = frame.vector()
-        ready = t_s >= self.config.warmup_s and bool(np.all(np.isfinite(out.estimate)))
-        setpoint = None
-        if ready:
-            v = virtual_acceleration(
-                position_ned_m, velocity_ned_m_s, moments, reference, self.config.gains
-            )
-            setpoint = self._setpoint(attitude_thrust(v, float(a_d[I_YAW]), self.config.limits))
-        return AgentOutput(
-            out.message,
-            estimate,
-            moments,
-            setpoint,
-            out.active_neighbours,
-            ready,
-            out.disagreement,
-            a_d,
-        )
-
-    def _setpoint(self, command: AttitudeThrust) -> Setpoint | None:
-        """The checked setpoint: None (and counted) if anything is not finite or out of range."""
-        thrust = command.thrust_n / self.config.limits.max_thrust_n
-        values = (command.roll_rad, command.pitch_rad, command.yaw_rad, thrust)
-        if not all(np.isfinite(values)) or not 0.0 <= thrust <= 1.0:
-            self.rejected_setpoints += 1
-            return None
-        return Setpoint(
-            command.roll_rad, command.pitch_rad, command.yaw_rad, thrust, command.limited
-        )
+        return self.batch.tick(
+            (self.row,),
+            round_,
+            t_s,
+            np.asarray(position_ned_m, dtype=float)[None],
+            np.asarray(velocity_ned_m_s, dtype=float)[None],
+            (plan,),
+            (inbox,),
+            (members,),
+        )[0]

@@ -24,6 +24,7 @@ def agent_config(scenario: Scenario) -> AgentConfig:
         heard_timeout_ticks=c.heard_timeout_ticks,
         history_ticks=max(25, c.heard_timeout_ticks + c.delay_ticks + 5),
         max_step_gain=c.max_step_gain,
+        channel_scale_m=c.channel_scale_m,
     )
     gains = CooperativeGains(
         kp=tuple(g.kp),

@@ -28,10 +28,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from drone_agent.moments import SwarmMoments
 from protocols.descriptor_vector import CENTRE, ORIENTATION, SHAPE
-from protocols.descriptors import align_axes, desired_axes
+from protocols.descriptors import align_axes_batch, desired_axes_batch
 from protocols.frames import FloatArray
 
 PAPER_KP = (0.5, 0.5, 1.75, 0.15, 0.15, 0.15, 0.5, 0.5, 0.5)
@@ -63,9 +64,8 @@ def skew(a: FloatArray) -> FloatArray:
 
 def euler_rate_matrix(roll: float, pitch: float) -> FloatArray:
     """E (3, 3) mapping ZYX Euler-angle rates (roll, pitch, yaw) to body rates (p, q, r)."""
-    sr, cr = np.sin(roll), np.cos(roll)
-    sp, cp = np.sin(pitch), np.cos(pitch)
-    return np.array([[1.0, 0.0, -sp], [0.0, cr, sr * cp], [0.0, -sr, cr * cp]])
+    out: FloatArray = euler_rate_matrix_batch(np.array([roll]), np.array([pitch]))[0]
+    return out
 
 
 def shape_matrix(
@@ -83,17 +83,48 @@ def shape_matrix(
     damping numerators per axis m (``-kd_m (Sigma'_dot_jk - ...)``), default 0. Flat axes get no
     variance row (``A_kk = 0``).
     """
-    s = np.asarray(variances_m2, dtype=float)
-    sg = np.maximum(s, min_variance_m2)
-    a = np.zeros((3, 3))
-    for k in range(3):
-        if not flat[k]:
-            a[k, k] = w_shape[k] / (2.0 * sg[k])
-    omega = skew(alpha)
-    for j, k, m in _PAIRS:
-        num = (s[k] - s[j]) * omega[j, k] + (0.0 if damping is None else damping[m])
-        a[j, k] = a[k, j] = num / (sg[j] + sg[k])
+    a: FloatArray = shape_matrix_batch(
+        np.asarray(variances_m2, dtype=float)[None],
+        np.asarray(w_shape, dtype=float)[None],
+        np.asarray(alpha, dtype=float)[None],
+        np.zeros((1, 3)) if damping is None else np.asarray(damping, dtype=float)[None],
+        min_variance_m2,
+        np.asarray(flat, dtype=bool)[None],
+    )[0]
     return a
+
+
+# The pairs of _PAIRS as index arrays (j, k per m), and the positions of (j, k), (k, j) and the
+# diagonal in a 3 x 3 matrix flattened to 9 (row-major).
+_J, _K = np.array([1, 0, 0]), np.array([2, 2, 1])
+_UPPER, _LOWER, _DIAGONAL = np.array([5, 2, 1]), np.array([7, 6, 3]), slice(None, None, 4)
+#: ``skew(v)[j, k] = _SKEW_SIGN[m] * v[m]`` for each pair (j, k, m).
+_SKEW_SIGN = np.array([-1.0, 1.0, -1.0])
+
+
+def _skew_pairs(v: FloatArray) -> FloatArray:
+    """``skew(v)[j, k]`` (K, 3) for each pair (j, k, m) of :data:`_PAIRS`, indexed by m."""
+    out: FloatArray = v * _SKEW_SIGN
+    return out
+
+
+def shape_matrix_batch(
+    variances_m2: FloatArray,
+    w_shape: FloatArray,
+    alpha: FloatArray,
+    damping: FloatArray,
+    min_variance_m2: float,
+    flat: npt.NDArray[np.bool_],
+) -> FloatArray:
+    """:func:`shape_matrix` of K agents: every argument with a leading K axis ((K, 3); ``flat``
+    (K, 3) bool) -> A (K, 3, 3)."""
+    s = variances_m2
+    sg = np.maximum(s, min_variance_m2)
+    a = np.zeros((s.shape[0], 9))
+    a[:, _DIAGONAL] = np.divide(w_shape, 2.0 * sg, out=np.zeros_like(sg), where=~flat)
+    num = (s[:, _K] - s[:, _J]) * _skew_pairs(alpha) + damping
+    a[:, _UPPER] = a[:, _LOWER] = num / (sg[:, _J] + sg[:, _K])
+    return a.reshape(-1, 3, 3)
 
 
 def pinv_block(offset_m: FloatArray, axes: FloatArray, variances_m2: FloatArray) -> FloatArray:
@@ -125,8 +156,8 @@ def pinv_block_zyx(offset_m: FloatArray, axes: FloatArray, variances_m2: FloatAr
 
 def rotation_error(axes: FloatArray, axes_desired: FloatArray) -> FloatArray:
     """Rotation error (3,) about the swarm axes: ``vee((R_d^T R - R^T R_d) / 2)`` (rad, small)."""
-    m = 0.5 * (axes_desired.T @ axes - axes.T @ axes_desired)
-    return np.array([m[2, 1], m[0, 2], m[1, 0]])
+    out: FloatArray = rotation_error_batch(axes[None], axes_desired[None])[0]
+    return out
 
 
 def virtual_acceleration(
@@ -140,44 +171,116 @@ def virtual_acceleration(
 
     ``swarm``: the estimated moments; ``reference``: a_d, a_d_dot, a_d_ddot (9,) each.
     """
+    batch = SwarmMoments(*(np.asarray(f, dtype=float)[None] for f in _moment_fields(swarm)))
+    v: FloatArray = virtual_acceleration_batch(
+        np.asarray(position_ned_m, dtype=float)[None],
+        np.asarray(velocity_ned_m_s, dtype=float)[None],
+        batch,
+        (reference[0][None], reference[1][None], reference[2][None]),
+        gains,
+    )[0]
+    return v
+
+
+def _moment_fields(m: SwarmMoments) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The fields of ``m`` in declaration order."""
+    return m.centre_ned_m, m.centre_rate_ned_m_s, m.sigma_m2, m.sigma_rate_m2_s
+
+
+def virtual_acceleration_batch(
+    positions_ned_m: FloatArray,
+    velocities_ned_m_s: FloatArray,
+    swarm: SwarmMoments,
+    reference: tuple[FloatArray, FloatArray, FloatArray],
+    gains: CooperativeGains,
+    frame: tuple[FloatArray, FloatArray, FloatArray] | None = None,
+) -> FloatArray:
+    """:func:`virtual_acceleration` of K drones, each with its own estimate and plan value:
+    positions and velocities (K, 3), ``swarm`` with fields (K, 3) and (K, 3, 3), ``reference``
+    (K, 9) each. ``frame``: ``(R_d, R, s)`` if already known (desired axes (K, 3, 3), the
+    estimate's axes assigned to them (K, 3, 3) and variances (K, 3)). Returns v (K, 3)."""
     a_d, ad_dot, ad_ddot = reference
     kp, kd = np.asarray(gains.kp), np.asarray(gains.kd)
     s_min = gains.min_variance_m2
-    r_d = desired_axes(a_d)
-    axes, s = align_axes(swarm.sigma_m2, r_d)
-    sigma_rate = axes.T @ swarm.sigma_rate_m2_s @ axes
+    if frame is None:
+        r_d = desired_axes_batch(a_d)
+        axes, s = align_axes_batch(swarm.sigma_m2, r_d)
+    else:
+        r_d, axes, s = frame
+    axes_t = np.swapaxes(axes, 1, 2)
+    sigma_rate = axes_t @ swarm.sigma_rate_m2_s @ axes
 
     w_mu = (
-        ad_ddot[CENTRE]
-        - kd[CENTRE] * (swarm.centre_rate_ned_m_s - ad_dot[CENTRE])
-        - kp[CENTRE] * (swarm.centre_ned_m - a_d[CENTRE])
+        ad_ddot[:, CENTRE]
+        - kd[CENTRE] * (swarm.centre_rate_ned_m_s - ad_dot[:, CENTRE])
+        - kp[CENTRE] * (swarm.centre_ned_m - a_d[:, CENTRE])
     )
-    s_d, s_d_dot, s_d_ddot = a_d[SHAPE], ad_dot[SHAPE], ad_ddot[SHAPE]
-    w_s = s_d_ddot - kd[SHAPE] * (np.diag(sigma_rate) - s_d_dot) - kp[SHAPE] * (s - s_d)
-    flat = (bool(s_d[0] < s_min), bool(s_d[1] < s_min), bool(s_d[2] < s_min))
+    s_d, s_d_dot, s_d_ddot = a_d[:, SHAPE], ad_dot[:, SHAPE], ad_ddot[:, SHAPE]
+    rate_diag = sigma_rate.reshape(-1, 9)[:, _DIAGONAL]
+    w_s = s_d_ddot - kd[SHAPE] * (rate_diag - s_d_dot) - kp[SHAPE] * (s - s_d)
+    flat = s_d < s_min
 
-    roll_d, pitch_d = float(a_d[3]), float(a_d[4])
-    e_d = euler_rate_matrix(roll_d, pitch_d)
-    to_swarm = axes.T @ r_d
-    omega_d = to_swarm @ (e_d @ ad_dot[ORIENTATION])
-    alpha = to_swarm @ (e_d @ ad_ddot[ORIENTATION]) - kp[ORIENTATION] * rotation_error(axes, r_d)
-    w_rate = skew(omega_d)
-    damping = np.empty(3)
-    for j, k, m in _PAIRS:
-        damping[m] = -kd[3 + m] * (sigma_rate[j, k] - (s[k] - s[j]) * w_rate[j, k])
-    a = shape_matrix(s, w_s, alpha, damping, s_min, flat)
+    e_d = euler_rate_matrix_batch(a_d[:, 3], a_d[:, 4])
+    to_swarm = axes_t @ r_d
+    # the desired angular rate and acceleration, in the swarm frame: columns (K, 3, 2)
+    angular = to_swarm @ (e_d @ _columns(ad_dot[:, ORIENTATION], ad_ddot[:, ORIENTATION]))
+    omega_d = angular[:, :, 0]
+    alpha = angular[:, :, 1] - kp[ORIENTATION] * rotation_error_batch(axes, r_d)
+    twist = (s[:, _K] - s[:, _J]) * _skew_pairs(omega_d)
+    damping = -kd[ORIENTATION] * (sigma_rate.reshape(-1, 9)[:, _UPPER] - twist)
+    a = shape_matrix_batch(s, w_s, alpha, damping, s_min, flat)
 
-    p = np.asarray(position_ned_m, dtype=float) - swarm.centre_ned_m
-    p_dot = np.asarray(velocity_ned_m_s, dtype=float) - swarm.centre_rate_ned_m_s
-    p_swarm, p_dot_swarm = axes.T @ p, axes.T @ p_dot
-    v_swarm = a @ p_swarm
-    for k in range(3):
-        if flat[k]:
-            v_swarm[k] -= gains.flat_kp * p_swarm[k] + gains.flat_kd * p_dot_swarm[k]
+    p = positions_ned_m - swarm.centre_ned_m
+    p_dot = velocities_ned_m_s - swarm.centre_rate_ned_m_s
+    offsets = axes_t @ _columns(p, p_dot)  # p and p_dot in the swarm frame
+    p_swarm, p_dot_swarm = offsets[:, :, 0], offsets[:, :, 1]
     sg = np.maximum(s, s_min)
-    b = sigma_rate / (sg[:, None] + sg[None, :])
-    for k in range(3):
-        if flat[k]:  # the flat-axis PD holds it: no spreading rate there is "explained" (its
-            b[k, k] = 0.0  # 1/(2 s_min) gain turned estimate noise into a growing split)
-    v_swarm -= gains.null_damping_per_s * (p_dot_swarm - b @ p_swarm)
-    return w_mu + axes @ v_swarm
+    b = sigma_rate / (sg[:, :, None] + sg[:, None, :])
+    # the flat-axis PD holds a flat axis: no spreading rate there is "explained" (its
+    # 1/(2 s_min) gain turned estimate noise into a growing split)
+    b_flat = b.reshape(-1, 9)
+    b_flat[:, _DIAGONAL] = np.where(flat, 0.0, b_flat[:, _DIAGONAL])
+    fields = np.concatenate([a, b], axis=1) @ offsets[:, :, :1]  # A p and B p: (K, 6, 1)
+    v_swarm = fields[:, :3, 0]
+    v_swarm = np.where(
+        flat, v_swarm - (gains.flat_kp * p_swarm + gains.flat_kd * p_dot_swarm), v_swarm
+    )
+    v_swarm = v_swarm - gains.null_damping_per_s * (p_dot_swarm - fields[:, 3:, 0])
+    out: FloatArray = w_mu + _matvec(axes, v_swarm)
+    return out
+
+
+def _columns(u: FloatArray, w: FloatArray) -> FloatArray:
+    """Vectors (K, 3) u and w as the two columns of (K, 3, 2)."""
+    out = np.empty((u.shape[0], 3, 2))
+    out[:, :, 0] = u
+    out[:, :, 1] = w
+    return out
+
+
+def _matvec(m: FloatArray, v: FloatArray) -> FloatArray:
+    """Row-wise ``m[k] @ v[k]``: matrices (K, 3, 3), vectors (K, 3) -> (K, 3)."""
+    out: FloatArray = (m @ v[:, :, None])[:, :, 0]
+    return out
+
+
+def euler_rate_matrix_batch(roll: FloatArray, pitch: FloatArray) -> FloatArray:
+    """:func:`euler_rate_matrix` of K angle pairs (K,): (K, 3, 3)."""
+    sr, cr = np.sin(roll), np.cos(roll)
+    sp, cp = np.sin(pitch), np.cos(pitch)
+    e = np.zeros((roll.shape[0], 3, 3))
+    e[:, 0, 0] = 1.0
+    e[:, 0, 2] = -sp
+    e[:, 1, 1] = cr
+    e[:, 1, 2] = sr * cp
+    e[:, 2, 1] = -sr
+    e[:, 2, 2] = cr * cp
+    return e
+
+
+def rotation_error_batch(axes: FloatArray, axes_desired: FloatArray) -> FloatArray:
+    """:func:`rotation_error` of K frames (K, 3, 3) -> (K, 3)."""
+    # (R^T R_d) = (R_d^T R)^T: the vee of half their difference, entries (2, 1), (0, 2), (1, 0)
+    p = (np.swapaxes(axes_desired, 1, 2) @ axes).reshape(-1, 9)
+    out: FloatArray = 0.5 * (p[:, [7, 2, 3]] - p[:, [5, 6, 1]])
+    return out

@@ -2,9 +2,13 @@
 
 Each hosted agent keeps its own vehicle link, its own keys, liveliness token and estimator state,
 and reaches its siblings only through the bus, exactly as it reaches remote agents; the agents of
-one process share one Zenoh session (issue 4, "Hosting for scale"). An agent joins the swarm
-(declares its transport and token) once its vehicle has answered, since its position names its
-spatial cell.
+one process share one Zenoh session (issue 4, "Hosting for scale"). Their cores are the rows of one
+:class:`~drone_agent.agent_core.BatchAgentCore`: on each pass the agents due at the same tick (same
+tick number and vehicle time: one simulator drives them, so their samples of a tick arrive
+together) run in one batched call, between each agent's own :meth:`HostedAgent.prepare` (messages,
+neighbour wait, plan) and :meth:`HostedAgent.finish` (publish, flight phase, setpoint). An agent
+joins the swarm (declares its transport and token) once its vehicle has answered, since its
+position names its spatial cell.
 """
 
 from __future__ import annotations
@@ -15,8 +19,10 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from drone_agent.agent_core import AgentConfig, AgentCore
-from drone_agent.hosted_agent import HostedAgent, RunOptions
+import numpy as np
+
+from drone_agent.agent_core import AgentConfig, AgentCore, BatchAgentCore
+from drone_agent.hosted_agent import DueTick, HostedAgent, RunOptions
 from drone_agent.transport import AgentTransport, Bus, Position
 from drone_agent.vehicle_link import VehicleLink
 from protocols.trajectory import DescriptorTrajectory
@@ -80,6 +86,7 @@ class AgentHost:
         wall_clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self._slots = [_Slot(d, link) for d, link in zip(drones, links, strict=True)]
+        self._core = BatchAgentCore(drones, config)
         self._bus = bus
         self._factory = transport_factory
         self._config = config
@@ -137,21 +144,46 @@ class AgentHost:
                     if slot.agent is None:
                         slot.agent = self._join(slot, sample.position_ned_m)
                     slot.agent.on_sample(sample)
+            due: dict[tuple[int, int], list[tuple[HostedAgent, DueTick]]] = {}
             for slot in self._slots:
                 if slot.agent is None:
                     self._greet(slot)
-                else:
-                    slot.agent.service()
-                    if slot.agent.left and not slot.left_reported:
-                        slot.left_reported = True
-                        if on_leave is not None:
-                            on_leave(slot.agent)
+                    continue
+                tick = slot.agent.prepare()
+                if tick is not None:
+                    when = (tick.tick, tick.sample.time_boot_ms)
+                    due.setdefault(when, []).append((slot.agent, tick))
+            for group in due.values():
+                self._run_cores(group)
+            for slot in self._slots:
+                if slot.agent is not None and slot.agent.left and not slot.left_reported:
+                    slot.left_reported = True
+                    if on_leave is not None:
+                        on_leave(slot.agent)
             if self._slots and all(s.agent is not None and s.agent.left for s in self._slots):
                 break
             now = self._clock()
             if on_second is not None and now - last_report >= 1.0:
                 on_second(self)
                 last_report = now
+
+    def _run_cores(self, group: list[tuple[HostedAgent, DueTick]]) -> None:
+        """The cores of the agents due at one tick (same tick, same vehicle time), in one
+        batched call; each agent then finishes its own tick."""
+        ticks = [t for _, t in group]
+        first = ticks[0]
+        outs = self._core.tick(
+            [t.core.row for t in ticks],
+            first.tick,
+            first.t_s,
+            np.array([t.sample.position_ned_m for t in ticks], dtype=float),
+            np.array([t.sample.velocity_ned_m_s for t in ticks], dtype=float),
+            [t.plan for t in ticks],
+            [t.inbox for t in ticks],
+            [t.members for t in ticks],
+        )
+        for (agent, tick), out in zip(group, outs, strict=True):
+            agent.finish(tick, out)
 
     def _greet(self, slot: _Slot) -> None:
         """Until the vehicle answers: heartbeat it once a second so it learns our address."""
@@ -162,7 +194,7 @@ class AgentHost:
 
     def _join(self, slot: _Slot, position: Position) -> HostedAgent:
         transport = self._factory(self._bus, slot.drone, position)
-        core = AgentCore(slot.drone, self._config)
+        core = AgentCore(slot.drone, self._config, self._core)
         return HostedAgent(core, slot.link, transport, self._plan, self._options, self._clock)
 
     def close(self) -> None:

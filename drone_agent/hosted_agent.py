@@ -1,7 +1,9 @@
 """One drone's agent at run time: its vehicle link, its transport and its core, tick by tick.
 
 Each control tick (named by the vehicle's ``time_boot_ms``, protocols/mavlink_conventions.py) the
-agent gathers the consensus messages that arrived, runs :class:`AgentCore`, publishes its message,
+agent gathers the consensus messages that arrived, runs :class:`AgentCore` (:meth:`prepare`, the
+core, :meth:`finish`; a host runs the cores of its agents due at the same tick in one batched
+call), publishes its message,
 lets :class:`~drone_agent.flight_phase.FlightPhase` decide what to do with the vehicle (fly the
 formation, land, hold, stay on the ground), and answers the vehicle with that SET_ATTITUDE_TARGET
 echoing the tick (also on the ground, for lockstep). For reproducible consensus it waits, up to
@@ -53,6 +55,25 @@ class RunOptions:
     heartbeat_period_s: float = 1.0
     status_every_ticks: int = 2
     command_retry_s: float = 0.5
+
+
+@dataclass(frozen=True)
+class DueTick:
+    """One agent's due tick, between :meth:`HostedAgent.prepare` and :meth:`HostedAgent.finish`:
+    the core inputs (its vehicle's sample, plan, inbox and membership view) and the command."""
+
+    core: AgentCore
+    tick: int
+    sample: VehicleSample
+    plan: DescriptorTrajectory
+    command: FlightCommand
+    inbox: list[ConsensusMessage]
+    members: frozenset[int]
+
+    @property
+    def t_s(self) -> float:
+        """The vehicle's simulated time of the tick (s)."""
+        return self.sample.time_boot_ms / 1000.0
 
 
 class HostedAgent:
@@ -120,8 +141,29 @@ class HostedAgent:
     # -- the loop ------------------------------------------------------------------------------
     def service(self) -> None:
         """Do what is due now: heartbeat, leaving on vehicle loss, the tick, arming, status."""
+        due = self.prepare()
+        if due is not None:
+            s = due.sample
+            out = self.core.tick(
+                due.tick,
+                due.t_s,
+                s.position_ned_m,
+                s.velocity_ned_m_s,
+                due.plan,
+                due.inbox,
+                due.members,
+            )
+            self.finish(due, out)
+
+    def prepare(self) -> DueTick | None:
+        """Everything before the core: heartbeat, leaving on vehicle loss, collecting messages,
+        and whether a tick is due (a newer vehicle sample, and every recent neighbour's message
+        of the previous round, or ``neighbour_wait_s`` waited). Returns the core's inputs of the
+        due tick, to be run (alone or batched with other agents due at the same tick) and handed
+        to :meth:`finish`; None if nothing is due, or if the tick was done without the core (no
+        plan yet: the agent stays on the ground)."""
         if self.left:
-            return
+            return None
         now = self.clock()
         if now - self._last_heartbeat >= self.options.heartbeat_period_s:
             self.link.send_heartbeat()
@@ -131,23 +173,46 @@ class HostedAgent:
             and now - self._last_sample_wall > self.options.vehicle_timeout_s
         ):
             self.leave(f"no state from its vehicle for {self.options.vehicle_timeout_s:g} s")
-            return
+            return None
         lost = self._vehicle_lost()
         if lost is not None:
             self.leave(lost)
-            return
+            return None
         self._collect()
         sample = self.sample
         if sample is None or self._tick_of(sample) <= self.last_tick:
-            return
+            return None
         tick = self._tick_of(sample)
         if self._pending_since is None:
             self._pending_since = now
         waited = now - self._pending_since
         if not self._neighbours_ready(tick) and waited < self.options.neighbour_wait_s:
-            return
+            return None
         self._pending_since = None
-        self._compute(tick, sample)
+        plan, command = self._plan()
+        self.last_tick = tick
+        if plan is None:  # no plan yet: stay on the ground (an airborne vehicle lands)
+            self._carry_out(self._decide(FlightCommand.GROUND, None, 0.0, sample), sample)
+            self._after_tick(tick)
+            return None
+        inbox, self._inbox = self._inbox, []
+        return DueTick(self.core, tick, sample, plan, command, inbox, self.transport.members())
+
+    def finish(self, due: DueTick, out: AgentOutput) -> None:
+        """Everything after the core: update the readiness to fly (flight_phase.Readiness),
+        publish the consensus message with this agent's settled level, decide and send what the
+        vehicle does this tick, and the status."""
+        sample = due.sample
+        self.last_output = out
+        self.readiness.update(out, due.inbox, due.members, self.phase.committed)
+        message = replace(out.message, ready_hops=self.readiness.level)
+        self.transport.publish_consensus(message, sample.position_ned_m)
+        assert out.desired is not None  # the core gives the plan's value of the tick
+        commanded_altitude = -float(out.desired[CENTRE][2])
+        self._carry_out(self._decide(due.command, out.setpoint, commanded_altitude, sample), sample)
+        self._after_tick(due.tick)
+
+    def _after_tick(self, tick: int) -> None:
         if tick % self.options.status_every_ticks == 0:
             # on the simulated-time grid, so the ground station compares like with like
             self._publish_status()
@@ -173,31 +238,6 @@ class HostedAgent:
         if self.fallback_plan is not None:
             return self.fallback_plan, FlightCommand.FLY
         return None, FlightCommand.GROUND
-
-    def _compute(self, tick: int, sample: VehicleSample) -> None:
-        plan, command = self._plan()
-        self.last_tick = tick
-        if plan is None:  # no plan yet: stay on the ground (an airborne vehicle lands)
-            self._carry_out(self._decide(FlightCommand.GROUND, None, 0.0, sample), sample)
-            return
-        t_s = sample.time_boot_ms / 1000.0
-        inbox, self._inbox = self._inbox, []
-        out = self.core.tick(
-            tick,
-            t_s,
-            sample.position_ned_m,
-            sample.velocity_ned_m_s,
-            plan,
-            inbox,
-            self.transport.members(),
-        )
-        self.last_output = out
-        self.readiness.update(out, inbox, self.transport.members(), self.phase.committed)
-        message = replace(out.message, ready_hops=self.readiness.level)
-        self.transport.publish_consensus(message, sample.position_ned_m)
-        assert out.desired is not None  # the core gives the plan's value of the tick
-        commanded_altitude = -float(out.desired[CENTRE][2])
-        self._carry_out(self._decide(command, out.setpoint, commanded_altitude, sample), sample)
 
     def _decide(
         self,

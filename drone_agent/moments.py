@@ -69,7 +69,9 @@ def channels_batch(
 
 @dataclass(frozen=True)
 class SwarmMoments:
-    """Centre, covariance and their rates, NED: mu (3,) m, sigma (3, 3) m^2, rates per second."""
+    """Centre, covariance and their rates, NED: mu (3,) m, sigma (3, 3) m^2, rates per second
+    (with a leading K axis on every field when it holds K agents' views, as from
+    :func:`moments_from_averages_batch`)."""
 
     centre_ned_m: FloatArray
     centre_rate_ned_m_s: FloatArray
@@ -81,15 +83,37 @@ def moments_from_averages(
     averages: FloatArray, ref_centre_ned_m: FloatArray, ref_centre_rate_ned_m_s: FloatArray
 ) -> SwarmMoments:
     """Swarm moments from the (estimated) averages of the 18 channels."""
-    m1 = averages[0:3]
-    m2 = unsym6(averages[3:9])
-    m3 = averages[9:12]
-    m4 = unsym6(averages[12:18])
-    sigma = m2 - np.outer(m1, m1)
-    sigma_rate = m4 - np.outer(m3, m1) - np.outer(m1, m3)
+    batch = moments_from_averages_batch(
+        np.asarray(averages, dtype=float)[None, :],
+        np.asarray(ref_centre_ned_m, dtype=float)[None, :],
+        np.asarray(ref_centre_rate_ned_m_s, dtype=float)[None, :],
+    )
     return SwarmMoments(
-        centre_ned_m=np.asarray(ref_centre_ned_m, dtype=float) + m1,
-        centre_rate_ned_m_s=np.asarray(ref_centre_rate_ned_m_s, dtype=float) + m3,
+        batch.centre_ned_m[0],
+        batch.centre_rate_ned_m_s[0],
+        batch.sigma_m2[0],
+        batch.sigma_rate_m2_s[0],
+    )
+
+
+def moments_from_averages_batch(
+    averages: FloatArray, ref_centre_ned_m: FloatArray, ref_centre_rate_ned_m_s: FloatArray
+) -> SwarmMoments:
+    """As :func:`moments_from_averages` for K agents at once: averages (K, 18), references
+    (K, 3); the fields of the result carry the leading K axis ((K, 3) and (K, 3, 3))."""
+    m1 = averages[:, 0:3]
+    m3 = averages[:, 9:12]
+    m2 = np.empty((averages.shape[0], 3, 3))
+    m2[:, _SYM_I, _SYM_J] = averages[:, 3:9]
+    m2[:, _SYM_J, _SYM_I] = averages[:, 3:9]
+    m4 = np.empty_like(m2)
+    m4[:, _SYM_I, _SYM_J] = averages[:, 12:18]
+    m4[:, _SYM_J, _SYM_I] = averages[:, 12:18]
+    sigma = m2 - m1[:, :, None] * m1[:, None, :]
+    sigma_rate = m4 - m3[:, :, None] * m1[:, None, :] - m1[:, :, None] * m3[:, None, :]
+    return SwarmMoments(
+        centre_ned_m=ref_centre_ned_m + m1,
+        centre_rate_ned_m_s=ref_centre_rate_ned_m_s + m3,
         sigma_m2=sigma,
         sigma_rate_m2_s=sigma_rate,
     )

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from protocols.frames import G_M_S2, FloatArray
 
@@ -53,23 +54,39 @@ def attitude_thrust(
     accel_ned_m_s2: FloatArray, yaw_rad: float, limits: ThrustLimits
 ) -> AttitudeThrust:
     """Thrust and attitude that realise the commanded acceleration v (3,) at heading ``yaw_rad``."""
-    v = np.asarray(accel_ned_m_s2, dtype=float)
+    roll, pitch, thrust, limited = attitude_thrust_batch(
+        np.asarray(accel_ned_m_s2, dtype=float)[None], np.array([yaw_rad], dtype=float), limits
+    )
+    return AttitudeThrust(
+        float(roll[0]), float(pitch[0]), float(yaw_rad), float(thrust[0]), bool(limited[0])
+    )
+
+
+def attitude_thrust_batch(
+    accel_ned_m_s2: FloatArray, yaw_rad: FloatArray, limits: ThrustLimits
+) -> tuple[FloatArray, FloatArray, FloatArray, npt.NDArray[np.bool_]]:
+    """:func:`attitude_thrust` of K commands: accelerations (K, 3), headings (K,) ->
+    ``(roll_rad, pitch_rad, thrust_n, limited)``, (K,) each (the yaw setpoint is the heading)."""
+    v = accel_ned_m_s2
     m = limits.mass_kg
     t_min, t_max = limits.thrust_range_n
-    up = G_M_S2 - float(v[2])
-    up_limited = min(max(up, t_min / m), t_max / m)
-    horiz = v[:2].copy()
-    h_max = min(
+    up = G_M_S2 - v[:, 2]
+    up_limited = np.minimum(np.maximum(up, t_min / m), t_max / m)
+    horiz = v[:, :2].copy()
+    h_max = np.minimum(
         np.tan(limits.max_tilt_rad) * up_limited,
-        np.sqrt(max((t_max / m) ** 2 - up_limited**2, 0.0)),
+        np.sqrt(np.maximum((t_max / m) ** 2 - up_limited**2, 0.0)),
     )
-    h_norm = float(np.hypot(horiz[0], horiz[1]))
+    h_norm = np.hypot(horiz[:, 0], horiz[:, 1])
     limited = up_limited != up
-    if h_norm > h_max:
-        horiz *= h_max / h_norm
-        limited = True
-    thrust = m * float(np.sqrt(horiz @ horiz + up_limited**2))
+    cut = h_norm > h_max
+    if cut.any():
+        horiz[cut] *= (h_max[cut] / h_norm[cut])[:, None]
+        limited |= cut
+    thrust = m * np.sqrt(horiz[:, 0] * horiz[:, 0] + horiz[:, 1] * horiz[:, 1] + up_limited**2)
     cy, sy = np.cos(yaw_rad), np.sin(yaw_rad)
-    pitch = float(np.arctan2(-(horiz[0] * cy + horiz[1] * sy), up_limited))
-    roll = float(np.arcsin(np.clip(m * (horiz[1] * cy - horiz[0] * sy) / thrust, -1.0, 1.0)))
-    return AttitudeThrust(roll, pitch, float(yaw_rad), thrust, limited)
+    pitch = np.arctan2(-(horiz[:, 0] * cy + horiz[:, 1] * sy), up_limited)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lateral = m * (horiz[:, 1] * cy - horiz[:, 0] * sy) / thrust
+    roll = np.arcsin(np.clip(lateral, -1.0, 1.0))
+    return roll, pitch, thrust, limited

@@ -10,6 +10,7 @@ from collections import defaultdict
 from collections.abc import Sequence
 
 import numpy as np
+import numpy.typing as npt
 
 from drone_agent.consensus import ConsensusMessage
 from drone_agent.link_faults import LinkFaults
@@ -29,7 +30,10 @@ class InProcessNetwork:
         self.rng = rng
         self.base_delay_ticks = base_delay_ticks
         self.conditions = LinkFaults()
-        self._in_flight: dict[int, list[tuple[int, ConsensusMessage]]] = defaultdict(list)
+        # arrival round -> batches of (receivers, index into messages, messages), in send order
+        self._in_flight: dict[int, list[tuple[list[int], list[int], list[ConsensusMessage]]]] = (
+            defaultdict(list)
+        )
         self.sent = 0
         self.delivered = 0
         self.lost = 0
@@ -42,28 +46,73 @@ class InProcessNetwork:
         return ok
 
     def send(self, round_: int, messages: Sequence[ConsensusMessage], in_range: FloatArray) -> None:
-        """Put this round's messages on the air; they reach receivers in range after the delay."""
-        c = self.conditions
-        for msg in messages:
-            i = msg.sender
-            for j in range(self.n):
-                if j == i or not in_range[i, j]:
-                    continue
-                self.sent += 1
-                if c.blocks(i, j):
-                    self.lost += 1
-                    continue
-                loss = c.loss_for(i, j)
-                if loss > 0.0 and self.rng.random() < loss:
-                    self.lost += 1
-                    continue
-                delay = self.base_delay_ticks + c.delay_for(i, j)
-                self._in_flight[round_ + delay].append((j, msg))
+        """Put this round's messages on the air; they reach receivers in range after the delay.
+
+        Per (message, receiver in range) in message order, receivers ascending: a cut or the
+        partition stops it; else it is lost with its link's probability (one draw of ``rng`` per
+        link with a loss, in that order); else it arrives after the base plus its link's delay."""
+        if not messages:
+            return
+        senders = np.array([m.sender for m in messages], dtype=np.intp)
+        reach = np.array(in_range, dtype=bool)[senders]
+        reach[np.arange(senders.shape[0]), senders] = False
+        which, receivers = np.nonzero(reach)
+        self.sent += int(receivers.shape[0])
+        blocked, loss, delay = self._link_matrices()
+        i = senders[which]
+        keep = np.ones(receivers.shape[0], dtype=bool)
+        if blocked is not None:
+            keep &= ~blocked[i, receivers]
+        if loss is not None:
+            p = loss[i, receivers]
+            draw = keep & (p > 0.0)
+            keep[draw] = self.rng.random(int(draw.sum())) >= p[draw]
+        self.lost += int(receivers.shape[0] - keep.sum())
+        which, receivers, i = which[keep], receivers[keep], i[keep]
+        ticks = np.full(receivers.shape[0], self.base_delay_ticks, dtype=np.int64)
+        if delay is not None:
+            ticks += delay[i, receivers]
+        msgs = list(messages)
+        for d in np.unique(ticks).tolist():
+            on = ticks == d
+            self._in_flight[round_ + d].append((receivers[on].tolist(), which[on].tolist(), msgs))
+
+    def _link_matrices(
+        self,
+    ) -> tuple[
+        npt.NDArray[np.bool_] | None, npt.NDArray[np.float64] | None, npt.NDArray[np.int64] | None
+    ]:
+        """The faults as (N, N) matrices [sender, receiver]: blocked, loss probability, added
+        delay (ticks); None where no link has that fault."""
+        c, n = self.conditions, self.n
+        blocked = None
+        if c.cut or c.partition is not None:
+            blocked = np.zeros((n, n), dtype=bool)
+            for a, b in c.cut:
+                if 0 <= a < n and 0 <= b < n:
+                    blocked[a, b] = True
+            if c.partition is not None:
+                group = np.array([c.partition.get(k, -1) for k in range(n)])
+                blocked |= group[:, None] != group[None, :]
+        loss = None
+        if c.loss > 0.0 or any(v > 0.0 for v in c.link_loss.values()):
+            loss = np.full((n, n), float(c.loss))
+            for (a, b), v in c.link_loss.items():
+                if 0 <= a < n and 0 <= b < n:
+                    loss[a, b] = v
+        delay = None
+        if c.extra_delay_ticks or any(c.link_delay_ticks.values()):
+            delay = np.full((n, n), int(c.extra_delay_ticks), dtype=np.int64)
+            for (a, b), v in c.link_delay_ticks.items():
+                if 0 <= a < n and 0 <= b < n:
+                    delay[a, b] = v
+        return blocked, loss, delay
 
     def receive(self, round_: int) -> list[list[ConsensusMessage]]:
         """The inboxes (one list per drone) of messages that arrive at round ``round_``."""
         inboxes: list[list[ConsensusMessage]] = [[] for _ in range(self.n)]
-        for j, msg in self._in_flight.pop(round_, []):
-            inboxes[j].append(msg)
-            self.delivered += 1
+        for receivers, which, msgs in self._in_flight.pop(round_, []):
+            for j, k in zip(receivers, which, strict=True):
+                inboxes[j].append(msgs[k])
+            self.delivered += len(receivers)
         return inboxes

@@ -1,6 +1,7 @@
 """The whole swarm in one process (``swarm simulate``): vehicles, agents and radio, no network.
 
-Every drone runs the same :class:`~drone_agent.agent_core.AgentCore` as the distributed agents,
+Every drone runs the same agent core as the distributed agents (all of them as the rows of one
+:class:`~drone_agent.agent_core.BatchAgentCore`, one call per control tick),
 the vehicles run the same dynamics and inner loop as the SITL simulator, and consensus messages
 pass through an in-memory radio with the scenario's faults. It is the reference the distributed
 system is measured against, and a fast tuning tool. Deterministic for a given seed; no I/O.
@@ -14,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from drone_agent.agent_core import AgentCore, AgentOutput
+from drone_agent.agent_core import AgentCore, AgentOutput, BatchAgentCore
 from drone_agent.config import agent_config
 from drone_agent.flight_phase import FlightPhase, Readiness, Request, VehicleView
 from drone_agent.link_faults import LinkFaults
@@ -59,10 +60,9 @@ class _Recorder:
         self.t = np.zeros(n_ticks)
         self.pos = np.zeros((n_ticks, n, 3))
         self.vel = np.zeros((n_ticks, n, 3))
-        self.euler = np.zeros((n_ticks, n, 3))
+        self.quat = np.zeros((n_ticks, 4, n))  # turned into Euler angles after the flight
+        self.rotor_speed = np.zeros((n_ticks, 4, n))  # into thrust and moments after the flight
         self.rates = np.zeros((n_ticks, n, 3))
-        self.thrust = np.zeros((n_ticks, n))
-        self.moments = np.zeros((n_ticks, n, 3))
         self.desired = np.zeros((n_ticks, 9))
         self.estimate = np.full((n_ticks, n, 9), np.nan)
         self.member = np.zeros((n_ticks, n), dtype=bool)
@@ -86,7 +86,10 @@ class ReferenceFlight:
         self.rng = rng if rng is not None else np.random.default_rng(scenario.seed)
         yaw0 = np.radians([d.yaw_deg for d in scenario.drones])
         self.state = initial_state(scenario.positions_ned_m(), yaw0)
-        self.agents: dict[int, AgentCore] = {i: AgentCore(i, self.config) for i in range(self.n)}
+        self.core = BatchAgentCore(range(self.n), self.config)
+        self.agents: dict[int, AgentCore] = {
+            i: AgentCore(i, self.config, self.core) for i in range(self.n)
+        }
         self.readiness = [Readiness(self.config) for _ in range(self.n)]
         self.phases = [FlightPhase(self.config.limits) for _ in range(self.n)]
         delay = max(1, scenario.consensus.delay_ticks)
@@ -106,6 +109,10 @@ class ReferenceFlight:
         self.events: list[FlightEvent] = []
         self._actions: list[TimedAction] = timeline(scenario)
         self.t_s = 0.0
+        self._kernel = PhysicsKernel(self.params, self.n, self.dt / self.substeps, self.att_gains)
+        self._oldest_setpoint_s: float | None = None
+        self._any_failsafe = False  # whether in_failsafe has any True
+        self._live_cache: tuple[list[int], list[int], frozenset[int]] | None = None
 
     # -- FaultTarget ---------------------------------------------------------------------------
     @property
@@ -142,16 +149,23 @@ class ReferenceFlight:
             if progress is not None:
                 progress(self.t_s)
             if k < n_ticks - 1:
+                armed = self.last_setpoint_s[self.armed]
+                self._oldest_setpoint_s = float(armed.min()) if armed.shape[0] else None
                 for sub in range(self.substeps):
                     self._physics_step(self.t_s + sub * self.dt / self.substeps)
         self._event("run_end", lost=sorted(self.lost_at))
+        # per-tick conversions done once over the whole record (same arithmetic per sample)
+        n_ticks_n = rec.quat.shape[0] * self.n
+        euler = euler_from_quat_batch(rec.quat.transpose(1, 0, 2).reshape(4, n_ticks_n))
+        rotor_speed = rec.rotor_speed.transpose(1, 0, 2).reshape(4, n_ticks_n)
+        thrust, moments = wrench_from_rotor_speeds(rotor_speed, self.params)
         return FlightRecord(
             t_s=rec.t,
             position_ned_m=rec.pos,
             velocity_ned_m_s=rec.vel,
-            euler_rad=rec.euler,
-            thrust_n=rec.thrust,
-            moments_nm=rec.moments,
+            euler_rad=np.ascontiguousarray(euler.reshape(3, -1, self.n).transpose(1, 2, 0)),
+            thrust_n=thrust.reshape(-1, self.n),
+            moments_nm=np.ascontiguousarray(moments.reshape(3, -1, self.n).transpose(1, 2, 0)),
             desired=rec.desired,
             estimate=rec.estimate,
             member=rec.member,
@@ -183,39 +197,60 @@ class ReferenceFlight:
 
     def _control_tick(self, k: int, rec: _Recorder) -> None:
         pos, vel = self.state[POS].T, self.state[VEL].T
-        members = frozenset(self.agents)
+        live, rows, members = self._live()
         inboxes = self.network.receive(k)
+        outs = self.core.tick(
+            rows,
+            k,
+            self.t_s,
+            pos[live],
+            vel[live],
+            [self.plan] * len(live),
+            [inboxes[i] for i in live],
+            [members] * len(live),
+        )
+        if outs:
+            rec.estimate[k, live] = [out.estimate for out in outs]
+            rec.neighbours[k, live] = [len(out.active_neighbours) for out in outs]
+        yaw = euler_from_quat_batch(self.state[QUAT])[2]
         messages = []
-        euler = euler_from_quat_batch(self.state[QUAT])
-        for i, agent in self.agents.items():
-            out = agent.tick(k, self.t_s, pos[i], vel[i], self.plan, inboxes[i], members)
+        flying: list[int] = []
+        commands: list[tuple[float, float, float, float]] = []
+        for i, out in zip(live, outs, strict=True):
             phase, readiness = self.phases[i], self.readiness[i]
             ready = readiness.update(out, inboxes[i], members, phase.committed)
             messages.append(replace(out.message, ready_hops=readiness.level))
-            rec.estimate[k, i] = out.estimate
-            rec.neighbours[k, i] = len(out.active_neighbours)
             if self.crashed[i]:
                 continue
-            self._carry_out(i, out, phase.committed or ready, -float(pos[i, 2]), euler[2, i])
+            sp = self._decide(i, out, phase.committed or ready, -float(pos[i, 2]), yaw[i])
+            if sp is not None:
+                flying.append(i)
+                commands.append(sp)
+        if flying:
+            values = np.array(commands).T
+            self.attitude_sp[:, flying] = values[:3]
+            self.thrust_sp[flying] = values[3]
+            self.last_setpoint_s[flying] = self.t_s
         self.network.send(k, messages, self.network.in_range(pos))
-        thrust, moments = wrench_from_rotor_speeds(self.rotor_speed, self.params)
         rec.t[k] = self.t_s
         rec.pos[k], rec.vel[k] = pos, vel
-        rec.euler[k] = euler_from_quat_batch(self.state[QUAT]).T
+        rec.quat[k] = self.state[QUAT]
         rec.rates[k] = self.state[RATES].T
-        rec.thrust[k], rec.moments[k] = thrust, moments.T
-        rec.desired[k] = self.plan.evaluate(self.t_s)[0]
+        rec.rotor_speed[k] = self.rotor_speed
+        rec.desired[k] = outs[0].desired if outs else self.plan.evaluate(self.t_s)[0]
         rec.member[k] = self.member
         rec.airborne[k] = -pos[:, 2] > AIRBORNE_ALTITUDE_M
         rec.armed[k] = self.armed
 
-    def _carry_out(
+    def _decide(
         self, i: int, out: AgentOutput, ready: bool, altitude_m: float, yaw_rad: float
-    ) -> None:
+    ) -> tuple[float, float, float, float] | None:
         """What the agent's flight phase decides for its vehicle (drone_agent/flight_phase.py,
-        the same decision as every ``swarm agent``). The scenario's plan always says FLY. The
-        vehicle here has no flight modes: arming takes the offboard setpoints at once, and a
-        hold (no valid setpoint in the air) flies the order's level hover setpoint."""
+        the same decision as every ``swarm agent``): arms it when asked, and returns the
+        setpoint (roll, pitch, yaw, thrust) of an armed vehicle, None for a disarmed one. The
+        scenario's plan always says FLY. The vehicle here has no flight modes: arming takes the
+        offboard setpoints at once, and a hold (no valid setpoint in the air) flies the order's
+        level hover setpoint."""
         arming = not self.armed[i] and not self.in_failsafe[i]
         vehicle = VehicleView(
             armed=bool(self.armed[i]),
@@ -232,19 +267,33 @@ class ReferenceFlight:
             self.armed[i] = True
             self._event("armed", drone=i)
         if not self.armed[i]:
-            return
+            return None
         sp = order.setpoint
-        self.attitude_sp[:, i] = (sp.roll_rad, sp.pitch_rad, sp.yaw_rad)
-        self.thrust_sp[i] = sp.thrust_normalised
-        self.last_setpoint_s[i] = self.t_s
+        return (sp.roll_rad, sp.pitch_rad, sp.yaw_rad, sp.thrust_normalised)
+
+    def _live(self) -> tuple[list[int], list[int], frozenset[int]]:
+        """The live agents (sorted), their rows in the batched core, and the membership view;
+        one view object while the agents do not change."""
+        members = frozenset(self.agents)
+        if self._live_cache is None or self._live_cache[2] != members:
+            live = sorted(members)
+            self._live_cache = (live, [self.agents[i].row for i in live], members)
+        return self._live_cache
 
     def _physics_step(self, t_s: float) -> None:
         attitude, thrust = self.attitude_sp, self.thrust_sp
-        stale = self.armed & (t_s - self.last_setpoint_s > self.failsafe.offboard_timeout_s)
-        if stale.any():
+        timeout = self.failsafe.offboard_timeout_s
+        # no vehicle can be stale while the oldest armed one's last setpoint is recent enough
+        # (t - last is monotonic in last; the armed set only shrinks between control ticks)
+        oldest = self._oldest_setpoint_s
+        stale = None
+        if oldest is not None and t_s - oldest > timeout:
+            stale = self.armed & (t_s - self.last_setpoint_s > timeout)
+        if stale is not None and stale.any():
             attitude, thrust = attitude.copy(), thrust.copy()
             for i in np.flatnonzero(stale & ~self.in_failsafe):
                 self.in_failsafe[i] = True
+                self._any_failsafe = True
                 self._event(
                     "failsafe",
                     drone=int(i),
@@ -262,17 +311,13 @@ class ReferenceFlight:
             )
             attitude[:, stale], thrust[stale] = att, thr
         # inner_loop + step_with_contact, fused (same arithmetic: sitl_sim.physics_kernel)
-        kernel: PhysicsKernel | None = getattr(self, "_physics_kernel", None)
-        if kernel is None:
-            kernel = PhysicsKernel(self.params, self.n, self.dt / self.substeps, self.att_gains)
-            self._physics_kernel = kernel
-        self.state, self.rotor_speed, impact = kernel.substep(
+        self.state, self.rotor_speed, impact = self._kernel.substep(
             self.state, attitude, thrust, self.armed
         )
         if impact is not None:
             for i in np.flatnonzero(impact > HARD_LANDING_M_S):
                 self._event("hard_landing", drone=int(i), impact_m_s=round(float(impact[i]), 2))
-        if not self.in_failsafe.any():
+        if not self._any_failsafe:
             return
         landed = self.in_failsafe & self.armed & (self.state[2] >= -1e-6)
         for i in np.flatnonzero(landed):

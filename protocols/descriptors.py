@@ -14,8 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from protocols.descriptor_vector import CENTRE, I_PITCH, I_ROLL, I_YAW, SHAPE
-from protocols.frames import FloatArray, rot_zyx, zyx_from_rot
+from protocols.frames import FloatArray, rot_zyx, rot_zyx_batch, zyx_from_rot, zyx_from_rot_batch
 
+#: Index rotations for the cross product: ``(a x b)_i = a_(i+1) b_(i+2) - a_(i+2) b_(i+1)``.
+_NEXT, _AFTER = np.array([1, 2, 0]), np.array([2, 0, 1])
 #: Heading is reported undefined while |s1 - s2| / (s1 + s2) is below this (ALGORITHM.md §2).
 HEADING_TIE_RATIO = 0.05
 
@@ -50,22 +52,44 @@ def align_axes(sigma: FloatArray, desired_axes: FloatArray) -> tuple[FloatArray,
     result is a proper rotation. Returns ``(R (3, 3), s (3,))`` with ``sigma = R diag(s) R^T``.
     Equal eigenvalues give a valid (if arbitrary within the tie) frame, never NaN.
     """
-    sym = 0.5 * (sigma + sigma.T)
-    _, evecs = np.linalg.eigh(sym)
-    overlap = np.abs(desired_axes.T @ evecs)  # [desired k, eigen j]
-    order = [-1, -1]
-    free = [0, 1, 2]
-    # Assign the most confident pair first, then the next among what is left.
-    for _ in range(2):
-        pairs = [(k, j) for k in (0, 1) if order[k] < 0 for j in free]
-        best = max(pairs, key=lambda kj: overlap[kj])
-        order[best[0]] = best[1]
-        free.remove(best[1])
-    r1 = evecs[:, order[0]] * np.sign(desired_axes[:, 0] @ evecs[:, order[0]] or 1.0)
-    r2 = evecs[:, order[1]] * np.sign(desired_axes[:, 1] @ evecs[:, order[1]] or 1.0)
-    r3 = np.cross(r1, r2)
-    axes = np.column_stack([r1, r2, r3])
-    s = np.array([r1 @ sym @ r1, r2 @ sym @ r2, r3 @ sym @ r3])
+    axes, s = align_axes_batch(np.asarray(sigma, dtype=float)[None], desired_axes[None])
+    return axes[0], s[0]
+
+
+def align_axes_batch(sigma: FloatArray, desired_axes: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """:func:`align_axes` of K matrices at once: ``sigma`` and ``desired_axes`` (K, 3, 3) ->
+    ``(R (K, 3, 3), s (K, 3))``, one stacked eigen-decomposition.
+
+    The assignment is greedy, most confident first: of the overlaps ``|d_k . e_j|`` of the first
+    two desired axes (k = 0, 1) with the three eigenvectors, the largest pair (k, j) is taken (the
+    first in (k, j) order on a tie), then the other desired axis takes the largest of the two
+    eigenvectors left. A matrix that is not finite gives NaN axes and variances.
+    """
+    k_n = sigma.shape[0]
+    sym = 0.5 * (sigma + np.swapaxes(sigma, 1, 2))
+    finite = np.isfinite(sym.reshape(k_n, 9)).all(axis=1)
+    if finite.all():
+        evecs = np.linalg.eigh(sym)[1]
+    else:
+        evecs = np.full((k_n, 3, 3), np.nan)
+        if finite.any():
+            evecs[finite] = np.linalg.eigh(sym[finite])[1]
+    overlap = np.abs(np.swapaxes(desired_axes, 1, 2) @ evecs)  # [K, desired k, eigen j]
+    rows = np.arange(k_n)
+    first = np.argmax(overlap[:, :2, :].reshape(k_n, 6), axis=1)
+    k1, j1 = first // 3, first % 3
+    rest = overlap[rows, 1 - k1, :]
+    rest[rows, j1] = -np.inf
+    j2 = np.argmax(rest, axis=1)
+    chosen = np.where((k1 == 0)[:, None], np.stack([j1, j2], axis=1), np.stack([j2, j1], axis=1))
+    e = evecs[rows[:, None], :, chosen]  # (K, 2, 3): the eigenvectors for desired axes 0 and 1
+    along = (np.swapaxes(desired_axes[:, :, :2], 1, 2) * e).sum(axis=2)
+    r12 = e * np.where(along < 0.0, -1.0, 1.0)[:, :, None]  # signed along the desired axis
+    r1, r2 = r12[:, 0], r12[:, 1]
+    axes = np.empty((k_n, 3, 3))
+    axes[:, :, :2] = np.swapaxes(r12, 1, 2)
+    axes[:, :, 2] = r1[:, _NEXT] * r2[:, _AFTER] - r1[:, _AFTER] * r2[:, _NEXT]  # r1 x r2
+    s = (axes * (sym @ axes)).sum(axis=1)
     return axes, s
 
 
@@ -104,6 +128,22 @@ def descriptors(positions_ned_m: FloatArray, desired: FloatArray | None = None) 
 def desired_axes(a_desired: FloatArray) -> FloatArray:
     """Rotation (3, 3) whose columns are the desired length, width and height axes."""
     return rot_zyx(float(a_desired[I_YAW]), float(a_desired[I_PITCH]), float(a_desired[I_ROLL]))
+
+
+def desired_axes_batch(a_desired: FloatArray) -> FloatArray:
+    """:func:`desired_axes` of K descriptor vectors (K, 9): rotations (K, 3, 3)."""
+    return rot_zyx_batch(a_desired[:, I_YAW], a_desired[:, I_PITCH], a_desired[:, I_ROLL])
+
+
+def frame_vector_batch(centre_ned_m: FloatArray, axes: FloatArray, s: FloatArray) -> FloatArray:
+    """:meth:`SwarmFrame.vector` of K frames: centres (K, 3), axes (K, 3, 3), variances (K, 3)
+    -> descriptor vectors (K, 9)."""
+    yaw, pitch, roll = zyx_from_rot_batch(axes)
+    a = np.empty((centre_ned_m.shape[0], 9))
+    a[:, CENTRE] = centre_ned_m
+    a[:, I_ROLL], a[:, I_PITCH], a[:, I_YAW] = roll, pitch, yaw
+    a[:, SHAPE] = s
+    return a
 
 
 def heading_defined(variances_m2: FloatArray) -> bool:

@@ -58,6 +58,14 @@ def zyx_from_rot(r: FloatArray) -> tuple[float, float, float]:
     return yaw, pitch, roll
 
 
+def zyx_from_rot_batch(r: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """:func:`zyx_from_rot` of rotation matrices (N, 3, 3): ``(yaw, pitch, roll)``, (N,) each."""
+    pitch = np.arcsin(np.clip(-r[:, 2, 0], -1.0, 1.0))
+    yaw = np.arctan2(r[:, 1, 0], r[:, 0, 0])
+    roll = np.arctan2(r[:, 2, 1], r[:, 2, 2])
+    return yaw, pitch, roll
+
+
 def quat_from_zyx(yaw: float, pitch: float, roll: float) -> FloatArray:
     """Quaternion ``(w, x, y, z)`` body -> world of ZYX angles in radians."""
     cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)

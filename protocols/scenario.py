@@ -106,7 +106,8 @@ class ConsensusConfig:
     """[consensus]: gain rho, tanh slope c, coupling f (ALGORITHM.md §3); degree-normalised rho;
     heard-set timeout (control ticks); partner-dead timeout (s); ground warm-up before arming (s);
     message delay (control ticks); the step cap that keeps large, dense radio graphs stable
-    (``max_step_gain``, drone_agent/consensus.py; 0 turns it off)."""
+    (``max_step_gain``, drone_agent/consensus.py; 0 turns it off); the channel scale (m) below
+    which the estimator's ``tanh`` stays linear (``channel_scale_m``, the same module)."""
 
     rho: float = 2.0
     c: float = 1.0
@@ -117,6 +118,7 @@ class ConsensusConfig:
     warmup_s: float = 3.0
     delay_ticks: int = 1
     max_step_gain: float = 1.4
+    channel_scale_m: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -340,6 +342,7 @@ _CONSENSUS_BOUNDS = {
     "warmup_s": {"ge": 0},
     "delay_ticks": {"ge": 0},
     "max_step_gain": {"ge": 0, "lt": 2},
+    "channel_scale_m": {"gt": 0},
 }
 
 

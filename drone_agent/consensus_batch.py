@@ -1,0 +1,513 @@
+"""The consensus estimator of K agents at once, as array operations (drone_agent/consensus.py
+has the maths and the rules; :class:`~drone_agent.consensus.ConsensusEstimator` is one row of
+this).
+
+Per step, what must look at each message is Python (listing the distinct message objects, their
+senders and rounds, the ``Q_ji`` they carry for a plain mapping); everything else, the filing of
+the values (validity, membership, duplicates, the newest message per peer, rounds kept for later)
+and every pairing rule with the tanh increments, is array operations over all the (agent,
+neighbour, round) values of the step. Pure and I/O-free.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from itertools import chain, pairwise
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from drone_agent.consensus import (
+    ConsensusMessage,
+    ConsensusOutput,
+    ConsensusParams,
+    EdgeSums,
+)
+from drone_agent.moments import N_CHANNELS
+from protocols.frames import FloatArray
+
+#: Round tag of an empty history slot (no real round is this old).
+_NO_ROUND = -(2**62)
+
+
+@dataclass
+class _Mail:
+    """The messages of one step: ``messages`` the distinct message objects and ``senders`` (U,)
+    theirs; ``which`` (n,) the message of each (row, message) value, rows in turn, ``counts``
+    values per row, ``carried`` positions of values filed again (waiting from earlier steps)."""
+
+    messages: list[ConsensusMessage]
+    senders: npt.NDArray[np.intp]
+    which: npt.NDArray[np.intp]
+    counts: list[int]
+    carried: list[int]
+
+
+@dataclass
+class _Due:
+    """The (agent, neighbour, round) values due for pairing in one step, deduplicated (the last
+    copy of a (sender, round) wins) and ordered by (agent, neighbour, round): ``pos`` the agent's
+    position in the step's batch, ``sender``, ``round`` and ``msg`` (index into ``messages``, the
+    distinct message objects of the step), all (T,)."""
+
+    pos: npt.NDArray[np.intp]
+    sender: npt.NDArray[np.intp]
+    round: npt.NDArray[np.int64]
+    msg: npt.NDArray[np.intp]
+    messages: list[ConsensusMessage]
+
+
+def _after_true(flags: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """``[True, *flags]``."""
+    out = np.empty(flags.shape[0] + 1, dtype=bool)
+    out[0] = True
+    out[1:] = flags
+    return out
+
+
+def _before_true(flags: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """``[*flags, True]``."""
+    out = np.empty(flags.shape[0] + 1, dtype=bool)
+    out[-1] = True
+    out[:-1] = flags
+    return out
+
+
+def _sums_for(
+    receivers: npt.NDArray[np.intp], which: npt.NDArray[np.intp], messages: list[ConsensusMessage]
+) -> tuple[npt.NDArray[np.bool_], FloatArray]:
+    """``messages[which[k]].edge_sums.get(receivers[k])`` for every k: whether it is there
+    (n,) and the ones that are (n_found, 18). :class:`EdgeSums` are looked up all at once (one
+    sorted key per (message, neighbour)), other mappings one by one."""
+    tables = [m.edge_sums for m in messages]
+    arrays = [t for t in tables if isinstance(t, EdgeSums)]
+    if len(arrays) < len(tables):  # some plain mappings (decoded from the wire): one by one
+        sums = [tables[k].get(i) for k, i in zip(which.tolist(), receivers.tolist(), strict=True)]
+        has = np.array([x is not None for x in sums], dtype=bool)
+        found = [x for x in sums if x is not None]
+        return has, np.array(found, dtype=float).reshape(-1, N_CHANNELS)
+    sizes = [t.ids.shape[0] for t in arrays]
+    ids = np.concatenate([t.ids for t in arrays])
+    span = int(max(ids.max(initial=0), receivers.max(initial=0))) + 1
+    keys = np.repeat(np.arange(len(arrays)), sizes) * span + ids  # ascending
+    wanted = which * span + receivers
+    at = np.searchsorted(keys, wanted)
+    has = at < keys.shape[0]
+    has[has] = keys[at[has]] == wanted[has]
+    return has, np.concatenate([t.sums for t in arrays])[at[has]]
+
+
+class BatchConsensus:
+    """The consensus state of K agents, one row each (ids ``agent_ids``), advanced together.
+
+    Each row is exactly one :class:`ConsensusEstimator`: it uses only its own inbox, own channels,
+    own membership view and own state; rows never read each other. The state is held as arrays
+    over (row, neighbour id): running sums ``Q_ij`` (``_q_own``, ``_q_recv``, (K, M, 18)), whether
+    an edge exists and the last round it integrated, the newest round heard from each peer and the
+    ``Q_ji`` it sent, and a ring of the last ``history_ticks`` rounds of the row's own gamma,
+    degree and heard-set (slot ``round % history_ticks``, tagged with its round). M grows with the
+    largest neighbour id seen (ids are drone indices, below 1000 for a scenario; the memory is
+    about 3 K M 18 doubles). Only what must look at each message (validity, the newest message
+    per peer, duplicates, rounds from the future kept for later) is Python; every pairing rule of
+    the module docstring and the tanh increments are array operations over all the (agent,
+    neighbour, round) values of the step at once.
+    """
+
+    def __init__(self, agent_ids: Sequence[int], params: ConsensusParams) -> None:
+        params.validate()
+        self.params = params
+        self.agent_ids = tuple(int(i) for i in agent_ids)
+        self._ids = np.array(self.agent_ids, dtype=np.intp)
+        if len(set(self.agent_ids)) != len(self.agent_ids):
+            raise ValueError(f"agent ids must be distinct, got {self.agent_ids}")
+        k, h = len(self.agent_ids), params.history_ticks
+        self._m = 0
+        self._q_own = np.zeros((k, 0, N_CHANNELS))
+        self._q_recv = np.zeros((k, 0, N_CHANNELS))
+        self._edge = np.zeros((k, 0), dtype=bool)
+        self._edge_round = np.zeros((k, 0), dtype=np.int64)
+        self._peer = np.zeros((k, 0), dtype=bool)
+        self._latest = np.zeros((k, 0), dtype=np.int64)
+        self._q_for_me = np.zeros((k, 0, N_CHANNELS))
+        self._has_q_for_me = np.zeros((k, 0), dtype=bool)
+        self._hist_round = np.full((k, h), _NO_ROUND, dtype=np.int64)
+        self._hist_gamma = np.zeros((k, h, N_CHANNELS))
+        self._hist_largest = np.zeros((k, h))  # max |gamma| of the round
+        self._hist_degree = np.zeros((k, h), dtype=np.int64)
+        self._hist_heard = np.zeros((k, h, 0), dtype=bool)
+        # rounds not yet integrable (from the future), per row: (sender, round) -> message
+        self._later: list[dict[tuple[int, int], ConsensusMessage]] = [{} for _ in range(k)]
+        self._last_round: list[int | None] = [None] * k
+        self.dropped_messages = [0] * k
+        self._masks: dict[int, tuple[frozenset[int], npt.NDArray[np.bool_]]] = {}
+        self._grow(max(self.agent_ids, default=0) + 1)
+
+    # -- inspection ----------------------------------------------------------------------------
+    def edges(self, row: int) -> tuple[int, ...]:
+        """Neighbours of row ``row`` with edge state (integrating or frozen), sorted."""
+        return tuple(int(j) for j in np.flatnonzero(self._edge[row]))
+
+    def edge_sum(self, row: int, neighbour: int) -> FloatArray:
+        """``eta_ij`` (18,) row ``row`` uses for the edge to ``neighbour`` (zeros if none)."""
+        if neighbour >= self._m or not self._edge[row, neighbour]:
+            return np.zeros(N_CHANNELS)
+        out: FloatArray = 0.5 * (self._q_own[row, neighbour] - self._q_recv[row, neighbour])
+        return out
+
+    # -- the step ------------------------------------------------------------------------------
+    def step(
+        self,
+        rows: Sequence[int],
+        round_: int,
+        zeta: FloatArray,
+        inboxes: Sequence[Iterable[ConsensusMessage]],
+        members: Sequence[frozenset[int] | None],
+    ) -> tuple[FloatArray, list[ConsensusOutput]]:
+        """Advance rows ``rows`` (distinct) to round ``round_``: ``zeta`` (len(rows), 18) their
+        channels, ``inboxes[k]`` the messages row ``rows[k]`` received since its last step,
+        ``members[k]`` its liveliness view (None keeps every partner). Returns the estimates
+        (len(rows), 18) and one output per row (whose estimate is its row of them)."""
+        rows_arr = np.asarray(rows, dtype=np.intp).reshape(-1)
+        for row in rows_arr.tolist():
+            last = self._last_round[row]
+            if last is not None and round_ <= last:
+                raise ValueError(f"round {round_} is not after round {last}")
+            self._last_round[row] = round_
+        mail = self._gather(rows_arr, inboxes)
+        if mail is not None and int(mail.senders.max()) >= self._m:
+            self._grow(int(mail.senders.max()) + 1)
+        member_mask = self._member_mask(members)
+        due = None if mail is None else self._receive(rows_arr, round_, mail, member_mask)
+        if member_mask is not None:
+            self._discard_dead(rows_arr, member_mask)
+        timeout = self.params.heard_timeout_ticks
+        heard = self._peer[rows_arr] & (self._latest[rows_arr] >= round_ - timeout)
+        degree = heard.sum(axis=1)
+        active, disagreement = self._integrate(rows_arr, round_, due)
+        gamma = self.params.f * 0.5 * self._eta_total(rows_arr) + np.asarray(zeta, dtype=float)
+        slot = round_ % self.params.history_ticks
+        self._hist_round[rows_arr, slot] = round_
+        self._hist_gamma[rows_arr, slot] = gamma
+        self._hist_largest[rows_arr, slot] = np.abs(gamma).max(axis=1)
+        self._hist_degree[rows_arr, slot] = degree
+        self._hist_heard[rows_arr, slot] = heard
+        return gamma, self._outputs(rows_arr, round_, gamma, heard, active, disagreement)
+
+    def _grow(self, m: int) -> None:
+        """Make room for neighbour ids below ``m`` (at least doubling)."""
+        m = max(m, 2 * self._m)
+        pad = m - self._m
+
+        def wider(a: npt.NDArray[Any], axis: int, fill: float | bool = 0) -> npt.NDArray[Any]:
+            shape = list(a.shape)
+            shape[axis] = pad
+            return np.concatenate([a, np.full(shape, fill, dtype=a.dtype)], axis=axis)
+
+        self._q_own, self._q_recv = wider(self._q_own, 1), wider(self._q_recv, 1)
+        self._q_for_me = wider(self._q_for_me, 1)
+        self._edge, self._peer = wider(self._edge, 1, False), wider(self._peer, 1, False)
+        self._has_q_for_me = wider(self._has_q_for_me, 1, False)
+        self._edge_round, self._latest = wider(self._edge_round, 1, -1), wider(self._latest, 1, -1)
+        self._hist_heard = wider(self._hist_heard, 2, False)
+        self._m = m
+
+    def _gather(
+        self, rows: npt.NDArray[np.intp], inboxes: Sequence[Iterable[ConsensusMessage]]
+    ) -> _Mail | None:
+        """The step's messages, row by row, each row's waiting values first (filed again as if
+        they had just arrived), as indices into the distinct message objects (one message
+        reaches many rows in process)."""
+        msgs: list[ConsensusMessage] = []
+        counts: list[int] = []
+        carried: list[int] = []  # positions in msgs of values filed again
+        for row, inbox in zip(rows.tolist(), inboxes, strict=True):
+            waiting = self._later[row]
+            n = len(msgs)
+            if waiting:
+                carried += range(n, n + len(waiting))
+                msgs += waiting.values()
+                waiting.clear()
+            msgs += inbox
+            counts.append(len(msgs) - n)
+        if not msgs:
+            return None
+        # distinct objects by identity (their order is irrelevant: only indexed)
+        ids = np.fromiter(map(id, msgs), np.int64, len(msgs))
+        order = np.argsort(ids)
+        first = _after_true(ids[order[1:]] != ids[order[:-1]])
+        which = np.empty(len(msgs), dtype=np.intp)
+        which[order] = np.cumsum(first) - 1
+        messages = [msgs[k] for k in order[first].tolist()]
+        senders = np.array([m.sender for m in messages], dtype=np.intp)
+        return _Mail(messages, senders, which, counts, carried)
+
+    def _receive(
+        self,
+        rows: npt.NDArray[np.intp],
+        round_: int,
+        mail: _Mail,
+        member_mask: npt.NDArray[np.bool_] | None,
+    ) -> _Due | None:
+        """File each message: drop own and too-old ones (counted) and those of partners the
+        row's membership view does not list; keep the newest message per peer (the first copy of
+        its highest round) for the heard-set and the ``Q_ji`` it carries; return the values due
+        for pairing (rounds before ``round_``; the last copy of a (sender, round) wins) and keep
+        the later rounds waiting."""
+        messages, which, carried = mail.messages, mail.which, mail.carried
+        j = mail.senders[which]
+        q = np.array([m.round for m in messages], dtype=np.int64)[which]
+        pos = np.repeat(np.arange(rows.shape[0]), mail.counts)
+        me = self._ids[rows][pos]
+        valid = (j != me) & (q >= round_ - self.params.history_ticks) & (j >= 0)
+        if carried:
+            valid[carried] = True
+        if not valid.all():
+            dropped = np.bincount(pos[~valid], minlength=rows.shape[0])
+            for p in np.flatnonzero(dropped).tolist():
+                self.dropped_messages[int(rows[p])] += int(dropped[p])
+        if member_mask is not None:
+            valid &= member_mask[pos, j]
+        if not valid.all():
+            sel = np.flatnonzero(valid)
+            if sel.shape[0] == 0:
+                return None
+            pos, j, q, which = pos[sel], j[sel], q[sel], which[sel]
+        order, same_pair, same_value = self._sorted(pos, j, q, rows.shape[0])
+        if order is not None:
+            pos, j, q, which = pos[order], j[order], q[order], which[order]
+        row = rows[pos]
+        self._peer[row, j] = True
+        # newest per (row, peer): the first copy of the highest round
+        ends = np.flatnonzero(_before_true(~same_pair))
+        duplicates = bool(same_value.any())
+        if duplicates:
+            first_copy = _after_true(~same_value)
+            copy_start = np.maximum.accumulate(np.where(first_copy, np.arange(q.shape[0]), 0))
+            newest = copy_start[ends]
+        else:
+            newest = ends
+        newer = newest[q[newest] > self._latest[row[newest], j[newest]]]
+        self._note_newest(row[newer], j[newer], q[newer], which[newer], messages)
+        if duplicates:  # the last copy of a (sender, round) is the one paired
+            last_copy = np.flatnonzero(_before_true(~same_value))
+            pos, j, q, which, row = (
+                pos[last_copy],
+                j[last_copy],
+                q[last_copy],
+                which[last_copy],
+                row[last_copy],
+            )
+        is_due = q < round_
+        if not is_due.all():
+            for k in np.flatnonzero(~is_due).tolist():
+                self._later[int(row[k])][(int(j[k]), int(q[k]))] = messages[which[k]]
+            pos, j, q, which = pos[is_due], j[is_due], q[is_due], which[is_due]
+        return _Due(pos, j, q, which, messages)
+
+    def _sorted(
+        self,
+        pos: npt.NDArray[np.intp],
+        j: npt.NDArray[np.intp],
+        q: npt.NDArray[np.int64],
+        n_rows: int,
+    ) -> tuple[npt.NDArray[np.intp] | None, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+        """The stable order by (agent, sender, round) (arrival order among equals; None if the
+        values are in that order already), and whether each value in that order has the same
+        (agent, sender) / (agent, sender, round) as the next one."""
+        q_lo = int(q.min())
+        span = int(q.max()) - q_lo + 1
+        if span * self._m * n_rows >= 2**62:  # rounds too far apart for one key
+            by_key = np.lexsort((q, j, pos))
+            pos, j, q = pos[by_key], j[by_key], q[by_key]
+            same_pair = (pos[1:] == pos[:-1]) & (j[1:] == j[:-1])
+            return by_key, same_pair, same_pair & (q[1:] == q[:-1])
+        pair = pos * self._m + j
+        key = pair * span + (q - q_lo)
+        order: npt.NDArray[np.intp] | None = None
+        if not (key[1:] > key[:-1]).all():  # inboxes usually arrive in order already
+            order = np.argsort(key, kind="stable")
+            key, pair = key[order], pair[order]
+        return order, pair[1:] == pair[:-1], key[1:] == key[:-1]
+
+    def _note_newest(
+        self,
+        rows: npt.NDArray[np.intp],
+        ids: npt.NDArray[np.intp],
+        rounds: npt.NDArray[np.int64],
+        which: npt.NDArray[np.intp],
+        messages: list[ConsensusMessage],
+    ) -> None:
+        """Peer ``ids[k]``'s newest message to row ``rows[k]`` is ``messages[which[k]]`` of
+        round ``rounds[k]``: the round it was last heard in, and the ``Q_ji`` it carries."""
+        self._latest[rows, ids] = rounds
+        has, values = _sums_for(self._ids[rows], which, messages)
+        self._has_q_for_me[rows, ids] = has
+        self._q_for_me[rows[has], ids[has]] = values
+
+    def _member_mask(
+        self, members: Sequence[frozenset[int] | None]
+    ) -> npt.NDArray[np.bool_] | None:
+        """(len(rows), M) True where the row's membership view lists the id; None if no row has
+        a view."""
+        if all(m is None for m in members):
+            return None
+        out = np.ones((len(members), self._m), dtype=bool)
+        first = members[0]
+        if first is not None and all(view is first for view in members):
+            out[:] = self._mask_of(first)
+            return out
+        for pos, view in enumerate(members):
+            if view is not None:
+                out[pos] = self._mask_of(view)
+        return out
+
+    def _mask_of(self, view: frozenset[int]) -> npt.NDArray[np.bool_]:
+        """(M,) True for the ids in ``view``; remembered for the same view object (agents hand
+        over one view for many ticks)."""
+        cached = self._masks.get(id(view))
+        if cached is not None and cached[0] is view and cached[1].shape[0] == self._m:
+            return cached[1]
+        mask = np.zeros(self._m, dtype=bool)
+        mask[[j for j in view if 0 <= j < self._m]] = True
+        if len(self._masks) >= 64:
+            self._masks.clear()
+        self._masks[id(view)] = (view, mask)
+        return mask
+
+    def _discard_dead(self, rows: npt.NDArray[np.intp], member_mask: npt.NDArray[np.bool_]) -> None:
+        """Rule 5: drop every state towards partners the row's membership view no longer lists."""
+        dead = (self._peer[rows] | self._edge[rows]) & ~member_mask
+        if not dead.any():
+            return
+        pos, ids = np.nonzero(dead)
+        r = rows[pos]
+        self._q_own[r, ids] = 0.0
+        self._q_recv[r, ids] = 0.0
+        self._edge[r, ids] = False
+        self._edge_round[r, ids] = -1
+        self._peer[r, ids] = False
+        self._latest[r, ids] = -1
+        self._has_q_for_me[r, ids] = False
+
+    def _integrate(
+        self, rows: npt.NDArray[np.intp], round_: int, due: _Due | None
+    ) -> tuple[list[tuple[int, ...]], FloatArray]:
+        """Rules 2, 3 and 6 and the delay-scaled gain over every due (agent, neighbour, round):
+        integrate those whose own value of that round is still in the history, newer than the
+        edge's last integrated round, and where both ends heard each other in that round.
+        Returns the active neighbours per row and the disagreement per row."""
+        n_rows = rows.shape[0]
+        disagreement = np.zeros(n_rows)
+        active: list[tuple[int, ...]] = [()] * n_rows
+        if due is None:
+            return active, disagreement
+        pos, j, q = due.pos, due.sender, due.round
+        row = rows[pos]
+        slot = q % self.params.history_ticks
+        ok = (self._hist_round[row, slot] == q) & self._hist_heard[row, slot, j]
+        ok &= ~self._edge[row, j] | (q > self._edge_round[row, j])
+        ok &= self._heard_by(due)[due.msg, self._ids[row]]
+        if not ok.any():
+            return active, disagreement
+        pos, j, q, row, slot, msg = pos[ok], j[ok], q[ok], row[ok], slot[ok], due.msg[ok]
+        gamma_i = self._hist_gamma[row, slot]
+        gamma_msg = np.array([m.gamma for m in due.messages], dtype=float)
+        gamma_j = gamma_msg[msg]
+        rho = np.full(q.shape[0], self.params.rho)
+        degree_j = np.array([m.degree for m in due.messages], dtype=np.int64)[msg]
+        pair_degree = np.maximum(np.maximum(self._hist_degree[row, slot], degree_j), 1)
+        if self.params.degree_normalised:
+            rho = rho / pair_degree
+        rho = np.minimum(rho, self.params.rho_cap / pair_degree)  # the step cap (consensus.py)
+        rho = rho / np.maximum(round_ - q, 1)  # delay-scaled gain (module doc)
+        diff = gamma_i - gamma_j
+        # max |gamma| per own round (kept with the history) and per message
+        largest_j = np.abs(gamma_msg).max(axis=1)[msg]
+        scale = 1.0 + np.maximum(self._hist_largest[row, slot], largest_j)
+        starts = np.flatnonzero(_after_true(pos[1:] != pos[:-1]))
+        disagreement[pos[starts]] = np.maximum.reduceat(np.abs(diff).max(axis=1) / scale, starts)
+        scale_k = self.params.channel_scales  # per channel (consensus.py: channel scale)
+        increment = (
+            (rho * self.params.dt_s)[:, None] * scale_k * np.tanh(self.params.c * diff / scale_k)
+        )
+        first = _after_true((pos[1:] != pos[:-1]) | (j[1:] != j[:-1]))
+        if first.all():  # one round per edge (the usual case)
+            self._q_own[row, j] -= increment
+            self._edge_round[row, j] = q
+        else:
+            # entries are ordered by (agent, neighbour, round): several rounds on one edge add
+            # up in round order, as one agent integrating them one after the other
+            np.subtract.at(self._q_own, (row, j), increment)
+            np.maximum.at(self._edge_round, (row, j), q)
+        self._edge[row, j] = True
+        bounds = np.searchsorted(pos[first], np.arange(n_rows + 1))
+        ids = j[first].tolist()
+        for p in np.flatnonzero(np.diff(bounds)).tolist():
+            active[p] = tuple(ids[bounds[p] : bounds[p + 1]])
+        return active, disagreement
+
+    def _heard_by(self, due: _Due) -> npt.NDArray[np.bool_]:
+        """(messages, M) True where the message's heard-set lists the id."""
+        heard = np.zeros((len(due.messages), self._m), dtype=bool)
+        sizes = [len(m.heard) for m in due.messages]
+        total = sum(sizes)
+        if total:
+            owner = np.repeat(np.arange(len(due.messages)), sizes)
+            ids = np.fromiter(chain.from_iterable(m.heard for m in due.messages), np.intp, total)
+            keep = (ids >= 0) & (ids < self._m)
+            heard[owner[keep], ids[keep]] = True
+        return heard
+
+    def _eta_total(self, rows: npt.NDArray[np.intp]) -> FloatArray:
+        """``sum_j (Q_ij - Q_ji)`` (len(rows), 18) over each row's edges, ``Q_ji`` refreshed from
+        the newest message of j that carried one (rule 1), summed in neighbour order."""
+        total = np.zeros((rows.shape[0], N_CHANNELS))
+        pos, ids = np.nonzero(self._edge[rows])
+        if pos.shape[0] == 0:
+            return total
+        r = rows[pos]
+        fresh = self._has_q_for_me[r, ids]
+        self._q_recv[r[fresh], ids[fresh]] = self._q_for_me[r[fresh], ids[fresh]]
+        d = self._q_own[r, ids] - self._q_recv[r, ids]
+        starts = np.flatnonzero(_after_true(pos[1:] != pos[:-1]))
+        total[pos[starts]] = np.add.reduceat(d, starts, axis=0)
+        return total
+
+    def _outputs(
+        self,
+        rows: npt.NDArray[np.intp],
+        round_: int,
+        gamma: FloatArray,
+        heard: npt.NDArray[np.bool_],
+        active: list[tuple[int, ...]],
+        disagreement: FloatArray,
+    ) -> list[ConsensusOutput]:
+        pos, ids = np.nonzero(self._edge[rows])
+        sums = self._q_own[rows[pos], ids]
+        sums.flags.writeable = False  # shared by the messages' EdgeSums
+        ids.flags.writeable = False
+        bounds = np.searchsorted(pos, np.arange(rows.shape[0] + 1)).tolist()
+        heard_pos, heard_ids_all = np.nonzero(heard)
+        heard_bounds = np.searchsorted(heard_pos, np.arange(rows.shape[0] + 1)).tolist()
+        heard_list = heard_ids_all.tolist()
+        gamma_rows = list(gamma)
+        heard_sets = [frozenset(heard_list[lo:hi]) for lo, hi in pairwise(heard_bounds)]
+        edge_sums = [EdgeSums(ids[lo:hi], sums[lo:hi]) for lo, hi in pairwise(bounds)]
+        return [
+            ConsensusOutput(
+                gamma_rows[p],
+                ConsensusMessage(
+                    sender=self.agent_ids[row],
+                    round=round_,
+                    gamma=gamma_rows[p],
+                    edge_sums=edge_sums[p],
+                    heard=heard_sets[p],
+                    degree=len(heard_sets[p]),
+                ),
+                active[p],
+                dis,
+            )
+            for p, (row, dis) in enumerate(zip(rows.tolist(), disagreement.tolist(), strict=True))
+        ]
