@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.agent_batch import agent_batch
 from bench.end_to_end import end_to_end
 from bench.physics import physics_step
 from bench.physics_tick import physics_tick
@@ -30,6 +31,7 @@ Benchmark = Callable[[], dict[str, Any]]
 BENCHMARKS: dict[str, Benchmark] = {
     "physics_step": physics_step,
     "physics_tick": physics_tick,
+    "agent_batch": agent_batch,
     "zenoh_latency": zenoh_latency,
     "zenoh_router": zenoh_router,
     "sitl": sitl_rtf,
