@@ -27,6 +27,7 @@ from drone_agent.consensus import (
 )
 from drone_agent.moments import N_CHANNELS
 from protocols.frames import FloatArray
+from protocols.mavlink_conventions import MAX_VEHICLES
 
 #: Round tag of an empty history slot (no real round is this old).
 _NO_ROUND = -(2**62)
@@ -229,7 +230,11 @@ class BatchConsensus:
                 carried += range(n, n + len(waiting))
                 msgs += waiting.values()
                 waiting.clear()
-            msgs += inbox
+            for msg in inbox:  # ids beyond any swarm's would make every edge array huge
+                if 0 <= msg.sender < MAX_VEHICLES:
+                    msgs.append(msg)
+                else:
+                    self.dropped_messages[row] += 1
             counts.append(len(msgs) - n)
         if not msgs:
             return None

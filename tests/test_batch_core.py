@@ -234,3 +234,16 @@ def test_edge_sums_is_a_read_only_mapping_that_goes_on_the_wire() -> None:
     decoded = decode_consensus(wire, "swarm").message
     assert sorted(decoded.edge_sums) == [2, 5, 9]
     assert np.array_equal(decoded.edge_sums[5], rows[1])
+
+
+def test_a_sender_id_beyond_any_swarm_is_dropped_not_grown_into() -> None:
+    """A forged message from sender 65535 would size every edge array by it: it is dropped and
+    counted, and the estimator carries on."""
+    from drone_agent.consensus import ConsensusEstimator, ConsensusMessage, ConsensusParams
+
+    est = ConsensusEstimator(0, ConsensusParams())
+    forged = ConsensusMessage(65535, 0, np.ones(18), {}, frozenset({0}), 1)
+    est.step(0, np.zeros(18), [])
+    out = est.step(1, np.zeros(18), [forged])
+    assert out.active_neighbours == () and np.all(np.isfinite(out.estimate))
+    assert est.dropped_messages == 1
