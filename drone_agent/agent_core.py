@@ -27,6 +27,7 @@ from drone_agent.consensus import ConsensusMessage, ConsensusParams
 from drone_agent.consensus_batch import BatchConsensus
 from drone_agent.cooperative import CooperativeGains, virtual_acceleration_batch
 from drone_agent.moments import SwarmMoments, channels_batch, moments_from_averages_batch
+from drone_agent.separation_layer import SeparationConfig, SeparationLayer
 from drone_agent.thrust_attitude import ThrustLimits, attitude_thrust_batch
 from protocols.descriptor_vector import CENTRE, I_YAW
 from protocols.descriptors import align_axes_batch, desired_axes_batch, frame_vector_batch
@@ -38,7 +39,8 @@ from protocols.trajectory import DescriptorTrajectory, StateTriple
 class AgentConfig:
     """What one agent needs to know: gains, limits, the warm-up before it may arm, and when its
     estimate counts as settled: disagreement with its neighbours (ConsensusOutput) below
-    ``settle_tolerance`` for ``settle_ticks`` ticks in a row with the same membership."""
+    ``settle_tolerance`` for ``settle_ticks`` ticks in a row with the same membership; the
+    separation layer (drone_agent/separation_layer.py; None: off)."""
 
     consensus: ConsensusParams
     gains: CooperativeGains
@@ -46,6 +48,7 @@ class AgentConfig:
     warmup_s: float = 3.0
     settle_ticks: int = 25
     settle_tolerance: float = 0.02
+    separation: SeparationConfig | None = None
 
 
 @dataclass(frozen=True)
@@ -63,7 +66,8 @@ class Setpoint:
 class AgentOutput:
     """One tick's result. ``setpoint`` is None while the agent must not fly (warm-up, or a bad
     command that failed its checks); ``estimate`` (9,) is its view of the swarm descriptors;
-    ``desired`` (9,) the plan's descriptors this tick (None where not given)."""
+    ``desired`` (9,) the plan's descriptors this tick (None where not given); ``separating``:
+    the separation layer changed this tick's command (a neighbour, the floor or the fence)."""
 
     message: ConsensusMessage
     estimate: FloatArray
@@ -73,6 +77,7 @@ class AgentOutput:
     ready_to_fly: bool
     disagreement: float = 0.0
     desired: FloatArray | None = None
+    separating: bool = False
 
 
 class BatchAgentCore:
@@ -84,6 +89,16 @@ class BatchAgentCore:
         self.config = config
         self.consensus = BatchConsensus(self.agent_ids, config.consensus)
         self.rejected_setpoints = [0] * len(self.agent_ids)
+        self.separation = (
+            None
+            if config.separation is None
+            else SeparationLayer(
+                config.separation,
+                config.limits,
+                config.consensus.dt_s,
+                config.consensus.heard_timeout_ticks,
+            )
+        )
         self._row = {agent: row for row, agent in enumerate(self.agent_ids)}
         self._plan_keys: weakref.WeakKeyDictionary[DescriptorTrajectory, bytes] = (
             weakref.WeakKeyDictionary()
@@ -113,7 +128,7 @@ class BatchAgentCore:
         v = np.asarray(velocities_ned_m_s, dtype=float).reshape(-1, 3)
         a_d, ad_dot, ad_ddot = self._references(plans, t_s)
         zeta = channels_batch(x, v, a_d[:, CENTRE], ad_dot[:, CENTRE])
-        gamma, outs = self.consensus.step(rows, round_, zeta, inboxes, members)
+        gamma, outs = self.consensus.step(rows, round_, zeta, inboxes, members, (x, v))
         moments = moments_from_averages_batch(gamma, a_d[:, CENTRE], ad_dot[:, CENTRE])
         r_d = desired_axes_batch(a_d)
         axes, s = align_axes_batch(moments.sigma_m2, r_d)
@@ -122,9 +137,17 @@ class BatchAgentCore:
         if t_s >= self.config.warmup_s:
             ready[:] = np.isfinite(gamma).all(axis=1)
         setpoints: list[Setpoint | None] = [None] * len(outs)
+        separating = [False] * len(outs)
         if ready.any():
-            setpoints = self._setpoints(
-                rows, ready, x, v, moments, (a_d, ad_dot, ad_ddot), (r_d, axes, s)
+            setpoints, separating = self._setpoints(
+                rows,
+                ready,
+                x,
+                v,
+                moments,
+                (a_d, ad_dot, ad_ddot),
+                (r_d, axes, s),
+                (round_, inboxes),
             )
         centre, rate = list(moments.centre_ned_m), list(moments.centre_rate_ned_m_s)
         sigma, sigma_rate = list(moments.sigma_m2), list(moments.sigma_rate_m2_s)
@@ -139,6 +162,7 @@ class BatchAgentCore:
                 flies,
                 out.disagreement,
                 desired[k],
+                separating[k],
             )
             for k, (out, flies) in enumerate(zip(outs, ready.tolist(), strict=True))
         ]
@@ -176,9 +200,12 @@ class BatchAgentCore:
         moments: SwarmMoments,
         reference: StateTriple,
         frame: tuple[FloatArray, FloatArray, FloatArray],
-    ) -> list[Setpoint | None]:
+        heard: tuple[int, Sequence[Iterable[ConsensusMessage]]],
+    ) -> tuple[list[Setpoint | None], list[bool]]:
         """The checked setpoints of the rows ready to fly (None for the others, and for any
-        command not finite or out of range, which is counted against its row)."""
+        command not finite or out of range, which is counted against its row), and whether the
+        separation layer changed each row's command; ``heard``: the round and the rows'
+        inboxes (where their neighbours are)."""
         idx = np.flatnonzero(ready)
         if idx.shape[0] == ready.shape[0]:  # all ready (the usual case): no gathering
             accel = virtual_acceleration_batch(x, v, moments, reference, self.config.gains, frame)
@@ -199,6 +226,21 @@ class BatchAgentCore:
                 self.config.gains,
                 (frame[0][idx], frame[1][idx], frame[2][idx]),
             )
+        changed = [False] * len(ready)
+        if self.separation is not None:
+            round_, inboxes = heard
+            filtered = self.separation.filter(
+                [self.agent_ids[rows[k]] for k in idx.tolist()],
+                round_,
+                x[idx],
+                v[idx],
+                accel,
+                [inboxes[k] for k in idx.tolist()],
+                common_accel_ned_m_s2=ref[2][:, CENTRE],
+            )
+            accel = filtered.accel_ned_m_s2
+            for k in np.flatnonzero(filtered.active).tolist():
+                changed[int(idx[k])] = True
         yaw = ref[0][:, I_YAW]
         limits = self.config.limits
         roll, pitch, thrust_n, limited = attitude_thrust_batch(accel, yaw, limits)
@@ -212,7 +254,7 @@ class BatchAgentCore:
                 out[k] = Setpoint(r, p, y, t, lim)
             else:
                 self.rejected_setpoints[rows[k]] += 1
-        return out
+        return out, changed
 
 
 class AgentCore:

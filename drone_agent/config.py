@@ -7,6 +7,7 @@ import math
 from drone_agent.agent_core import AgentConfig
 from drone_agent.consensus import ConsensusParams
 from drone_agent.cooperative import CooperativeGains
+from drone_agent.separation_layer import SeparationConfig
 from drone_agent.thrust_attitude import ThrustLimits
 from protocols.frames import G_M_S2
 from protocols.scenario import Scenario
@@ -41,4 +42,16 @@ def agent_config(scenario: Scenario) -> AgentConfig:
         max_thrust_ratio=g.max_thrust_ratio,
         max_tilt_rad=math.radians(g.max_tilt_deg),
     )
-    return AgentConfig(consensus=consensus, gains=gains, limits=limits, warmup_s=c.warmup_s)
+    safety = scenario.safety
+    separation = SeparationConfig(
+        min_separation_m=safety.min_separation_m,
+        geofence_m=safety.geofence_m,
+        ceiling_m=safety.ceiling_m,
+    )
+    return AgentConfig(
+        consensus=consensus,
+        gains=gains,
+        limits=limits,
+        warmup_s=c.warmup_s,
+        separation=separation,
+    )

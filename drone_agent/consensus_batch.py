@@ -165,11 +165,14 @@ class BatchConsensus:
         zeta: FloatArray,
         inboxes: Sequence[Iterable[ConsensusMessage]],
         members: Sequence[frozenset[int] | None],
+        motion: tuple[FloatArray, FloatArray] | None = None,
     ) -> tuple[FloatArray, list[ConsensusOutput]]:
         """Advance rows ``rows`` (distinct) to round ``round_``: ``zeta`` (len(rows), 18) their
         channels, ``inboxes[k]`` the messages row ``rows[k]`` received since its last step,
-        ``members[k]`` its liveliness view (None keeps every partner). Returns the estimates
-        (len(rows), 18) and one output per row (whose estimate is its row of them)."""
+        ``members[k]`` its liveliness view (None keeps every partner); ``motion``: the rows'
+        positions and velocities (len(rows), 3) NED, put on their messages for the neighbours'
+        separation layer. Returns the estimates (len(rows), 18) and one output per row (whose
+        estimate is its row of them)."""
         rows_arr = np.asarray(rows, dtype=np.intp).reshape(-1)
         for row in rows_arr.tolist():
             last = self._last_round[row]
@@ -194,7 +197,8 @@ class BatchConsensus:
         self._hist_largest[rows_arr, slot] = np.abs(gamma).max(axis=1)
         self._hist_degree[rows_arr, slot] = degree
         self._hist_heard[rows_arr, slot] = heard
-        return gamma, self._outputs(rows_arr, round_, gamma, heard, active, disagreement)
+        outputs = self._outputs(rows_arr, round_, gamma, heard, active, disagreement, motion)
+        return gamma, outputs
 
     def _grow(self, m: int) -> None:
         """Make room for neighbour ids below ``m`` (at least doubling)."""
@@ -488,7 +492,15 @@ class BatchConsensus:
         heard: npt.NDArray[np.bool_],
         active: list[tuple[int, ...]],
         disagreement: FloatArray,
+        motion: tuple[FloatArray, FloatArray] | None = None,
     ) -> list[ConsensusOutput]:
+        n_rows = rows.shape[0]
+        if motion is None:
+            positions: list[FloatArray | None] = [None] * n_rows
+            velocities: list[FloatArray | None] = [None] * n_rows
+        else:
+            positions = list(np.array(motion[0], dtype=float).reshape(-1, 3))
+            velocities = list(np.array(motion[1], dtype=float).reshape(-1, 3))
         pos, ids = np.nonzero(self._edge[rows])
         sums = self._q_own[rows[pos], ids]
         sums.flags.writeable = False  # shared by the messages' EdgeSums
@@ -510,6 +522,8 @@ class BatchConsensus:
                     edge_sums=edge_sums[p],
                     heard=heard_sets[p],
                     degree=len(heard_sets[p]),
+                    position_ned_m=positions[p],
+                    velocity_ned_m_s=velocities[p],
                 ),
                 active[p],
                 dis,

@@ -304,6 +304,8 @@ class HostedAgent:
             health |= Health.ESTIMATE_FINITE
         if self.converged:
             health |= Health.CONVERGED
+        if out is not None and out.separating:
+            health |= Health.SEPARATING
         received = self.transport.plan()
         if received is not None or self.fallback_plan is not None:
             health |= Health.PLAN

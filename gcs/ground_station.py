@@ -321,7 +321,8 @@ class GroundStation:
                 status = decode_status(self._statuses.popleft(), self._o.swarm_id)
             except WireError:
                 continue
-            self.watch.on_status(status, self.telemetry.vehicles)
+            if kind := self.watch.on_status(status, self.telemetry.vehicles):
+                self.events.record(status.t_s, kind, drone=status.drone)
             self.telemetry.log_agent_status(status)
         while self._liveliness:
             key, alive = self._liveliness.popleft()

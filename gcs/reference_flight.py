@@ -92,6 +92,8 @@ class ReferenceFlight:
         }
         self.readiness = [Readiness(self.config) for _ in range(self.n)]
         self.phases = [FlightPhase(self.config.limits) for _ in range(self.n)]
+        #: the separation layer changes the drone's command (events on each change)
+        self.separating = [False] * self.n
         delay = max(1, scenario.consensus.delay_ticks)
         self.network = InProcessNetwork(self.n, scenario.comms.range_m, self.rng, delay)
         self.failsafe = FailsafeConfig()
@@ -217,6 +219,9 @@ class ReferenceFlight:
         flying: list[int] = []
         commands: list[tuple[float, float, float, float]] = []
         for i, out in zip(live, outs, strict=True):
+            if out.separating != self.separating[i]:
+                self.separating[i] = out.separating
+                self._event("separation" if out.separating else "separation_end", drone=i)
             phase, readiness = self.phases[i], self.readiness[i]
             ready = readiness.update(out, inboxes[i], members, phase.committed)
             messages.append(replace(out.message, ready_hops=readiness.level))

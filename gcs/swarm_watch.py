@@ -15,7 +15,7 @@ import numpy as np
 
 from gcs.telemetry import VehicleState
 from protocols.descriptors import descriptors
-from protocols.wire_status import AgentStatus
+from protocols.wire_status import AgentStatus, Health
 
 _SEVERITY_EMERGENCY = 0
 _CRASH_WORDS = ("crash", "destroyed", "all motors off")
@@ -54,12 +54,25 @@ class SwarmWatch:
 
     def on_status(
         self, status: AgentStatus, vehicles: Mapping[int, VehicleState] | None = None
-    ) -> None:
+    ) -> str | None:
         """Take an agent's status; updates its link quality: messages received since its last
         status over those the drones in its radio range should have sent, one per drone per round
-        (:meth:`senders`)."""
+        (:meth:`senders`). Returns the event to log when its separation layer starts or stops
+        changing its command (``separation``, ``separation_end``), else None."""
         before = self.latest.get(status.drone)
         self.latest[status.drone] = status
+        was = before is not None and Health.SEPARATING in before.health
+        now = Health.SEPARATING in status.health
+        event = None if was == now else "separation" if now else "separation_end"
+        self._update_link(status, before, vehicles)
+        return event
+
+    def _update_link(
+        self,
+        status: AgentStatus,
+        before: AgentStatus | None,
+        vehicles: Mapping[int, VehicleState] | None,
+    ) -> None:
         if before is None or status.round <= before.round:
             return
         senders = self.senders(status, vehicles)

@@ -68,6 +68,7 @@ class Health(IntFlag):
     ESTIMATE_FINITE = 2
     CONVERGED = 4  #: estimator settled (warm-up done)
     PLAN = 8  #: holds a plan
+    SEPARATING = 16  #: its separation layer changed its command (drone_agent/separation.py)
 
 
 _MODES = frozenset(int(m) for m in AgentMode)

@@ -182,11 +182,13 @@ def test_one_seed_one_scenario() -> None:
     assert a == b and a != c
 
 
-def test_small_dense_swarms_keep_the_default_consensus() -> None:
+def test_every_swarm_keeps_the_default_consensus_and_large_ones_rest_longer() -> None:
     small = generate(GeneratorOptions(9, "grid", spacing_m=2.0, range_m=10.0), None).scenario
     assert not small.consensus.degree_normalised and small.consensus.rho == 2.0
-    sparse = generate(GeneratorOptions(9, "grid", range_m=4.0), None).scenario
-    assert sparse.consensus.degree_normalised and sparse.consensus.rho == 8.0
+    assert small.consensus.warmup_s == 3.0
+    large = generate(GeneratorOptions(100, "grid", range_m=6.0), None).scenario
+    assert not large.consensus.degree_normalised and large.consensus.rho == 2.0
+    assert large.consensus.warmup_s == 6.0
 
 
 @pytest.mark.parametrize(

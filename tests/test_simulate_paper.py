@@ -119,6 +119,8 @@ def test_report_contents(report: Path) -> None:
     kinds = [e["kind"] for e in read_events(report / "events.jsonl")]
     assert kinds[0] == "run_start" and kinds[-1] == "run_end"
     assert "agent_left" in kinds and kinds.count("armed") == 9
+    # the separation layer never had to act: the formation keeps the drones 2 m apart
+    assert "separation" not in kinds
     for png in ("paths.png", "descriptors.png", "controls.png"):
         data = (report / png).read_bytes()
         assert data.startswith(b"\x89PNG") and len(data) > 20_000
