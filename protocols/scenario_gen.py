@@ -229,7 +229,7 @@ def _consensus(n: int, degree_min: int) -> dict[str, float]:
     a 2.5 m grid at range 6 m, bench/settling.py, plus N ticks of 20 ms)."""
     if n <= 9 and degree_min == n - 1:
         return {"warmup_s": 3.0}
-    return {"warmup_s": round(3.0 + 0.03 * n, 2)}
+    return {"warmup_s": math.ceil(2.0 * (3.0 + 0.03 * n)) / 2.0}  # to the half second
 
 
 # --- faults ------------------------------------------------------------------------------------

@@ -19,7 +19,8 @@ def msg(sender: int, round_: int, pos: tuple[float, float, float] | None = (0.0,
         vel: tuple[float, float, float] | None = (0.0, 0.0, 0.0)) -> ConsensusMessage:  # fmt: skip
     return ConsensusMessage(
         sender, round_, np.zeros(18), {}, frozenset(), 0,
-        None if pos is None else np.array(pos), None if vel is None else np.array(vel),
+        position_ned_m=None if pos is None else np.array(pos),
+        velocity_ned_m_s=None if vel is None else np.array(vel),
     )  # fmt: skip
 
 

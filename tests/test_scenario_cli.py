@@ -112,13 +112,13 @@ def test_check_sums_a_scenario_up() -> None:
     out = proc.stdout
     assert "valid (version 1)" in out
     assert "drones     25; closest two on the ground 2.50 m apart" in out
-    assert "duration   46 s" in out
+    assert "duration   45 s" in out
     assert "range 6 m: connected at the start; neighbours per drone min 7 / mean 12.0 / max 20" in (
         out
     )
     assert "agent drop-out, drone" in out and "vehicle crash, drone" in out
     assert "20% loss on every link" in out
-    assert "waypoints  6, t = 0..46 s" in out
+    assert "waypoints  6, t = 0..45 s" in out
     assert "keep the drones at least 2.50 m apart" in out
     assert "the plan stays inside the ground station's geofence" in out
 
