@@ -38,14 +38,13 @@ from protocols.mavlink_conventions import MAX_VEHICLES
 @dataclass(frozen=True)
 class SeparationConfig:
     """What the layer needs: the minimum separation (m), the geofence (north and east within
-    ``± geofence_m``, altitude up to ``ceiling_m``), the altitude floor (m; None: off), and
-    ``enabled`` (False: commands pass unfiltered, for comparisons)."""
+    ``± geofence_m``, altitude up to ``ceiling_m``) and the altitude floor (m; None: off). No
+    separation layer at all: ``AgentConfig.separation`` None."""
 
     min_separation_m: float = 1.0
     geofence_m: float = 1000.0
     ceiling_m: float = 60.0
     floor_m: float | None = 0.5
-    enabled: bool = True
 
     def params(self, limits: ThrustLimits) -> SeparationParams:
         """The filter's parameters for a vehicle of ``limits``."""
@@ -81,8 +80,6 @@ class SeparationLayer:
         self._pos = np.zeros((0, MAX_VEHICLES, 3))
         self._vel = np.zeros((0, MAX_VEHICLES, 3))
         self._round = np.zeros((0, MAX_VEHICLES), dtype=np.int64)
-        #: ticks in which the filter changed each agent's command
-        self.active_ticks: dict[int, int] = {}
 
     def _row(self, agent: int) -> int:
         row = self._rows.get(agent)
@@ -142,11 +139,6 @@ class SeparationLayer:
         self._hear(rows, inboxes)
         accel = np.asarray(accel_ned_m_s2, dtype=float).reshape(-1, 3)
         k = accel.shape[0]
-        if not self.config.enabled:
-            none = np.zeros(k, dtype=bool)
-            return SeparationResult(
-                accel, none, np.full(k, np.inf), np.zeros(k, dtype=np.intp), none, none, none, none
-            )
         age = round_ - self._round[rows]  # (K, MAX_VEHICLES)
         heard = (age >= 0) & (age <= self.max_age_rounds)
         heard[np.arange(k), np.asarray(ids, dtype=np.intp)] = False  # not oneself
@@ -169,7 +161,4 @@ class SeparationLayer:
             self.params,
             common_accel_ned_m_s2=common_accel_ned_m_s2,
         )
-        for row in np.flatnonzero(result.active).tolist():
-            agent = ids[row]
-            self.active_ticks[agent] = self.active_ticks.get(agent, 0) + 1
         return result
