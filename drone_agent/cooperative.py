@@ -36,6 +36,10 @@ from protocols.descriptors import align_axes_batch, desired_axes_batch
 from protocols.frames import FloatArray
 
 PAPER_KP = (0.5, 0.5, 1.75, 0.15, 0.15, 0.15, 0.5, 0.5, 0.5)
+#: Orientation PD gains (roll, pitch, yaw about the swarm axes): natural frequency 1 rad/s,
+#: damping 0.9 (the paper's 0.15 with k_d = 1.8 sqrt(k_p) gave a 3 s time constant).
+ORIENTATION_KP = (1.0, 1.0, 1.0)
+ORIENTATION_KD = (1.8, 1.8, 1.8)
 #: Off-diagonal pairs (j, k) of the swarm frame and the axis m each pair rotates about.
 _PAIRS = ((1, 2, 0), (0, 2, 1), (0, 1, 2))
 
@@ -44,9 +48,18 @@ _PAIRS = ((1, 2, 0), (0, 2, 1), (0, 1, 2))
 class CooperativeGains:
     """Outer-loop gains, descriptor order (mu_x, mu_y, mu_z, roll, pitch, yaw, s1, s2, s3).
 
-    ``kd`` defaults to 1.8 sqrt(kp) (ALGORITHM.md §6). ``flat_kp``/``flat_kd``: local PD that holds
-    a drone on a commanded-flat axis (1/s^2, 1/s); ``null_damping_per_s``: null-space damping;
-    ``min_variance_m2``: guard below which a commanded variance counts as flat.
+    ``kd`` defaults to 1.8 sqrt(kp) (ALGORITHM.md §6); the orientation entries of ``kp``/``kd``
+    (3..5) are not used: orientation has its own gains. ``flat_kp``/``flat_kd``: local PD that
+    holds a drone on a commanded-flat axis (1/s^2, 1/s); ``null_damping_per_s``: null-space
+    damping; ``min_variance_m2``: guard below which a commanded variance counts as flat.
+
+    Orientation (roll, pitch, yaw about the swarm's own axes): PD gains ``orientation_kp``
+    (1/s^2) and ``orientation_kd`` (1/s) on the rotation error and rate error, with limits on
+    the feedback only (the plan's own rate and acceleration are fed forward in full): the rate
+    the position error asks for moves the formation's RMS radius in that plane at most
+    ``orientation_max_speed_m_s``, and the feedback's angular acceleration accelerates it at most
+    ``orientation_max_accel_m_s2`` (about 6 deg of tilt at the RMS radius, twice that at the
+    edge of a grid), so take-off transients and large commands stay inside the tilt limit.
     """
 
     kp: tuple[float, ...] = PAPER_KP
@@ -55,6 +68,10 @@ class CooperativeGains:
     flat_kd: float = 1.75
     null_damping_per_s: float = 1.0
     min_variance_m2: float = 0.05
+    orientation_kp: tuple[float, float, float] = ORIENTATION_KP
+    orientation_kd: tuple[float, float, float] = ORIENTATION_KD
+    orientation_max_speed_m_s: float = 1.0
+    orientation_max_accel_m_s2: float = 1.0
 
 
 def skew(a: FloatArray) -> FloatArray:
@@ -123,7 +140,7 @@ def shape_matrix_batch(
     a = np.zeros((s.shape[0], 9))
     a[:, _DIAGONAL] = np.divide(w_shape, 2.0 * sg, out=np.zeros_like(sg), where=~flat)
     num = (s[:, _K] - s[:, _J]) * _skew_pairs(alpha) + damping
-    a[:, _UPPER] = a[:, _LOWER] = num / (sg[:, _J] + sg[:, _K])
+    a[:, _UPPER] = a[:, _LOWER] = num / np.maximum(s[:, _J] + s[:, _K], min_variance_m2)
     return a.reshape(-1, 3, 3)
 
 
@@ -209,6 +226,7 @@ def virtual_acceleration_batch(
         r_d, axes, s = frame
     axes_t = np.swapaxes(axes, 1, 2)
     sigma_rate = axes_t @ swarm.sigma_rate_m2_s @ axes
+    rate_flat = sigma_rate.reshape(-1, 9)
 
     w_mu = (
         ad_ddot[:, CENTRE]
@@ -216,38 +234,95 @@ def virtual_acceleration_batch(
         - kp[CENTRE] * (swarm.centre_ned_m - a_d[:, CENTRE])
     )
     s_d, s_d_dot, s_d_ddot = a_d[:, SHAPE], ad_dot[:, SHAPE], ad_ddot[:, SHAPE]
-    rate_diag = sigma_rate.reshape(-1, 9)[:, _DIAGONAL]
-    w_s = s_d_ddot - kd[SHAPE] * (rate_diag - s_d_dot) - kp[SHAPE] * (s - s_d)
+    w_s = s_d_ddot - kd[SHAPE] * (rate_flat[:, _DIAGONAL] - s_d_dot) - kp[SHAPE] * (s - s_d)
     flat = s_d < s_min
+    sg = np.maximum(s, s_min)
+    pair_sum = np.maximum(s[:, _J] + s[:, _K], s_min)  # s_j + s_k, indexed by m
 
+    # the plan's angular rate and acceleration (body of the desired frame: omega = E eta_dot,
+    # omega_dot = E eta_ddot + E_dot eta_dot), then in the estimated swarm frame
+    eta_dot, eta_ddot = ad_dot[:, ORIENTATION], ad_ddot[:, ORIENTATION]
     e_d = euler_rate_matrix_batch(a_d[:, 3], a_d[:, 4])
-    to_swarm = axes_t @ r_d
-    # the desired angular rate and acceleration, in the swarm frame: columns (K, 3, 2)
-    angular = to_swarm @ (e_d @ _columns(ad_dot[:, ORIENTATION], ad_ddot[:, ORIENTATION]))
-    omega_d = angular[:, :, 0]
-    alpha = angular[:, :, 1] - kp[ORIENTATION] * rotation_error_batch(axes, r_d)
-    twist = (s[:, _K] - s[:, _J]) * _skew_pairs(omega_d)
-    damping = -kd[ORIENTATION] * (sigma_rate.reshape(-1, 9)[:, _UPPER] - twist)
-    a = shape_matrix_batch(s, w_s, alpha, damping, s_min, flat)
+    body_d = e_d @ _columns(eta_dot, eta_ddot)
+    body_d[:, :, 1] += euler_rate_derivative_batch(a_d[:, 3], a_d[:, 4], eta_dot)
+    angular = (axes_t @ r_d) @ body_d
+    omega_d, alpha_d = angular[:, :, 0], angular[:, :, 1]
+
+    # rotation feedback, per axis m of the pair (j, k): the rate error from the estimated
+    # Sigma_dot' (Sigma_dot'_jk = (s_k - s_j) [W]_jk + ...), a PD with limits on the feedback
+    spread = (s[:, _K] - s[:, _J]) * _SKEW_SIGN  # [skew(v)]_jk (s_k - s_j) = spread_m v_m
+    twist = spread * omega_d
+    guard = np.where(spread < 0.0, -1.0, 1.0) * np.maximum(np.abs(spread), s_min)
+    rate_error = (rate_flat[:, _UPPER] - twist) / guard
+    radius = np.sqrt(pair_sum)  # RMS radius of the formation in the plane of the pair
+    okp, okd = np.asarray(gains.orientation_kp), np.asarray(gains.orientation_kd)
+    max_rate = gains.orientation_max_speed_m_s / radius
+    max_alpha = gains.orientation_max_accel_m_s2 / radius
+    wanted_rate = np.clip(okp / okd * rotation_error_batch(axes, r_d), -max_rate, max_rate)
+    alpha_fb = np.clip(-okd * (rate_error + wanted_rate), -max_alpha, max_alpha)
+    comp_diag, comp_pairs = plan_rate_terms(s, sg, omega_d, s_d_dot)
+    a = shape_matrix_batch(s, w_s + comp_diag, alpha_d + alpha_fb, comp_pairs, s_min, flat)
 
     p = positions_ned_m - swarm.centre_ned_m
     p_dot = velocities_ned_m_s - swarm.centre_rate_ned_m_s
     offsets = axes_t @ _columns(p, p_dot)  # p and p_dot in the swarm frame
     p_swarm, p_dot_swarm = offsets[:, :, 0], offsets[:, :, 1]
-    sg = np.maximum(s, s_min)
-    b = sigma_rate / (sg[:, :, None] + sg[:, None, :])
+    # the explained motion p_dot = G p: the plan's rotation W_d plus the symmetric G_s that
+    # makes G Sigma' + Sigma' G^T the estimated Sigma_dot' (so the damping below leaves mu and
+    # Sigma alone to first order, and a formation turning with the plan is not braked)
+    g = np.zeros((p.shape[0], 9))
+    g[:, _UPPER] = (rate_flat[:, _UPPER] - twist) / pair_sum + _skew_pairs(omega_d)
+    g[:, _LOWER] = (rate_flat[:, _UPPER] - twist) / pair_sum - _skew_pairs(omega_d)
     # the flat-axis PD holds a flat axis: no spreading rate there is "explained" (its
     # 1/(2 s_min) gain turned estimate noise into a growing split)
-    b_flat = b.reshape(-1, 9)
-    b_flat[:, _DIAGONAL] = np.where(flat, 0.0, b_flat[:, _DIAGONAL])
-    fields = np.concatenate([a, b], axis=1) @ offsets[:, :, :1]  # A p and B p: (K, 6, 1)
+    g[:, _DIAGONAL] = np.where(flat, 0.0, rate_flat[:, _DIAGONAL] / (2.0 * sg))
+    a = a + plan_null_field(s, sg, pair_sum, omega_d, alpha_d, s_d_dot)
+    fields = np.concatenate([a, g.reshape(-1, 3, 3)], axis=1) @ offsets[:, :, :1]  # A p, G p
     v_swarm = fields[:, :3, 0]
+    unexplained = p_dot_swarm - fields[:, 3:, 0]
     v_swarm = np.where(
-        flat, v_swarm - (gains.flat_kp * p_swarm + gains.flat_kd * p_dot_swarm), v_swarm
+        flat, v_swarm - (gains.flat_kp * p_swarm + gains.flat_kd * unexplained), v_swarm
     )
-    v_swarm = v_swarm - gains.null_damping_per_s * (p_dot_swarm - fields[:, 3:, 0])
+    v_swarm = v_swarm - gains.null_damping_per_s * unexplained
     out: FloatArray = w_mu + _matvec(axes, v_swarm)
     return out
+
+
+def plan_null_field(
+    s: FloatArray,
+    sg: FloatArray,
+    pair_sum: FloatArray,
+    omega: FloatArray,
+    alpha: FloatArray,
+    s_dot: FloatArray,
+) -> FloatArray:
+    """The null-space part N (K, 3, 3) of the plan's field (module doc, "The plan's whole
+    field"): ``N_jk = s_j D_jk / (s_j + s_k)``, ``N_kj = -s_k D_jk / (s_j + s_k)`` with
+    ``D = 2 skew(alpha) + skew(omega) (Ṡ S⁻¹ + S⁻¹ Ṡ)`` entrywise on the pairs. ``N S`` is
+    antisymmetric: it moves no drone's share of mu or Sigma, it turns the lattice with them."""
+    ratio = s_dot / sg
+    d = _skew_pairs(2.0 * alpha + omega * (ratio[:, _J] + ratio[:, _K])) / pair_sum
+    s_pos = np.maximum(s, 0.0)
+    n = np.zeros((s.shape[0], 9))
+    n[:, _UPPER] = s_pos[:, _J] * d
+    n[:, _LOWER] = -s_pos[:, _K] * d
+    return n.reshape(-1, 3, 3)
+
+
+def plan_rate_terms(
+    s: FloatArray, sg: FloatArray, omega: FloatArray, s_dot: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """The terms of ``Rᵀ Σ̈ R`` that the affine field leaves out, for a formation moving as the
+    plan does (module doc, "Terms the field leaves out"): ``C = W²S + SW² + [W, Ṡ] − Ṡ² S⁻¹ / 2``
+    with ``W = skew(omega)``. Variances ``s`` (K, 3) (``sg`` the guarded ones), the plan's angular
+    rate about the swarm axes ``omega`` (K, 3) and variance rates ``s_dot`` (K, 3). Returns the
+    diagonal ``C_kk`` (K, 3) and the pairs ``C_jk`` (K, 3), indexed by m as :data:`_PAIRS`."""
+    w2 = omega * omega
+    diag = 2.0 * (w2 - w2.sum(axis=1, keepdims=True)) * s - s_dot * s_dot / (2.0 * sg)
+    pairs = omega[:, _J] * omega[:, _K] * (s[:, _J] + s[:, _K]) + _skew_pairs(omega) * (
+        s_dot[:, _K] - s_dot[:, _J]
+    )
+    return diag, pairs
 
 
 def _columns(u: FloatArray, w: FloatArray) -> FloatArray:
@@ -276,6 +351,22 @@ def euler_rate_matrix_batch(roll: FloatArray, pitch: FloatArray) -> FloatArray:
     e[:, 2, 1] = -sr
     e[:, 2, 2] = cr * cp
     return e
+
+
+def euler_rate_derivative_batch(
+    roll: FloatArray, pitch: FloatArray, eta_dot: FloatArray
+) -> FloatArray:
+    """``E_dot eta_dot`` (K, 3): the part of the body angular acceleration ``omega_dot = E eta_ddot
+    + E_dot eta_dot`` that the Euler-angle rates ``eta_dot`` = (roll, pitch, yaw rates) (K, 3)
+    give by turning E itself (ALGORITHM.md §1, eq. 38)."""
+    sr, cr = np.sin(roll), np.cos(roll)
+    sp, cp = np.sin(pitch), np.cos(pitch)
+    rd, pd, yd = eta_dot[:, 0], eta_dot[:, 1], eta_dot[:, 2]
+    out = np.empty_like(eta_dot)
+    out[:, 0] = -cp * pd * yd
+    out[:, 1] = -sr * rd * pd + cr * cp * rd * yd - sr * sp * pd * yd
+    out[:, 2] = -cr * rd * pd - sr * cp * rd * yd - cr * sp * pd * yd
+    return out
 
 
 def rotation_error_batch(axes: FloatArray, axes_desired: FloatArray) -> FloatArray:
