@@ -34,6 +34,10 @@ def agent_config(scenario: Scenario) -> AgentConfig:
         flat_kd=g.flat_kd,
         null_damping_per_s=g.null_damping_per_s,
         min_variance_m2=g.min_variance_m2,
+        orientation_kp=g.orientation_kp,
+        orientation_kd=g.orientation_kd,
+        orientation_max_speed_m_s=g.orientation_max_speed_m_s,
+        orientation_max_accel_m_s2=g.orientation_max_accel_m_s2,
     )
     limits = ThrustLimits(
         mass_kg=v.mass_kg,

@@ -20,6 +20,45 @@ estimated thickening with a 10 /s gain and push every drone further from the pla
 radio graphs (25 drones, 6 m range) the estimate noise was enough to split the swarm vertically
 after take-off. The flat-axis PD alone holds that axis.
 
+Terms the field leaves out (issue 15). With ``Sigma' = R^T Sigma R = S`` (diagonal), swarm-frame
+rate ``W = skew(omega)`` (``R_dot = R W``) and ``M = R^T Sigma_dot R = [W, S] + S_dot``, the
+kinematics of the descriptors are::
+
+    R^T Sigma_ddot R = [W, M] + [W_dot, S] + [W, S_dot] + S_ddot        ([X, Y] = XY - YX)
+
+while the field gives ``R^T Sigma_ddot R = A S + S A + 2 P'`` with ``P' = R^T (1/N sum p_dot
+p_dot^T) R``, the 2 p_dot p_dot^T term. Matching them for the commanded ``W_dot`` and ``S_ddot``
+needs ``A S + S A = [W_dot_cmd, S] + S_ddot_cmd + C`` with ``C = [W, M] + [W, S_dot] - 2 P'``. For
+a formation that moves as the plan does, ``p_dot = R G R^T p`` with ``G = W + S_dot S^-1 / 2``
+(lattice coordinates fixed: p = R S^1/2 q), ``P' = G S G^T`` and ``C`` simplifies to::
+
+    C = W^2 S + S W^2 + [W, S_dot] - S_dot^2 S^-1 / 2
+    C_kk = 2 (omega_k^2 - |omega|^2) s_k - s_dot_k^2 / (2 s_k)
+    C_jk = omega_j omega_k (s_j + s_k) + W_jk (s_dot_k - s_dot_j)
+
+(:func:`plan_rate_terms`), taken with the plan's rate omega_d and variance rates; ``A_kk`` gains
+``C_kk / (2 s_k)`` and ``A_jk`` gains ``C_jk / (s_j + s_k)``. A pure rotation gives ``A = W^2``
+(centripetal); a stretch at constant rate gives ``A_kk = -s_dot^2 / (4 s^2)``. The plan's angular
+acceleration is ``omega_dot = E eta_ddot + E_dot eta_dot`` (:func:`euler_rate_derivative_batch`;
+the E_dot term was left out too).
+
+The plan's whole field. The drones of that formation accelerate as ``p_ddot = R F R^T p`` with
+``F = W_dot + W^2 + W S_dot S^-1 + S_ddot^1/2 S^-1/2``, which is not symmetric: A is its
+symmetric part in the sense ``A S + S A = F S + S F^T``. The rest, ``N = F - A`` with ``N_jk =
+s_j D_jk / (s_j + s_k)``, ``N_kj = -s_k D_jk / (s_j + s_k)``, ``D_jk = 2 W_dot_jk + W_jk (s_dot_j /
+s_j + s_dot_k / s_k)``, has ``N S`` antisymmetric: it moves neither mu nor Sigma, it turns the
+lattice with the formation (:func:`plan_null_field`). With both, every drone's command is its
+own acceleration on the plan (tests/test_cooperative.py checks it against finite differences).
+
+Orientation feedback: its own PD (``CooperativeGains.orientation_*``) on the rotation error and on
+the rate error ``omega - omega_d`` read from ``Sigma_dot'_jk - (s_k - s_j) W_d,jk = (s_k - s_j)
+(W - W_d)_jk``, with the rate it asks for and its acceleration limited (per axis, at the
+formation's RMS radius ``sqrt(s_j + s_k)`` in the plane of the pair). The explained motion of the
+null-space damping and of the flat-axis PD is ``G p`` with ``G = W_d + G_s``, ``G_s`` symmetric
+with ``G_s S + S G_s = Sigma_dot' - [W_d, S]``: a formation turning with the plan is not braked
+(the flat-axis PD damped every tilt rate of a planar formation with its 1.75 /s before, the
+12-15 s lag of issue 15), and mu and Sigma are still untouched by that damping to first order.
+
 Pure and I/O-free.
 """
 
@@ -36,10 +75,11 @@ from protocols.descriptors import align_axes_batch, desired_axes_batch
 from protocols.frames import FloatArray
 
 PAPER_KP = (0.5, 0.5, 1.75, 0.15, 0.15, 0.15, 0.5, 0.5, 0.5)
-#: Orientation PD gains (roll, pitch, yaw about the swarm axes): natural frequency 1 rad/s,
-#: damping 0.9 (the paper's 0.15 with k_d = 1.8 sqrt(k_p) gave a 3 s time constant).
-ORIENTATION_KP = (1.0, 1.0, 1.0)
-ORIENTATION_KD = (1.8, 1.8, 1.8)
+#: Orientation PD gains (roll, pitch, yaw about the swarm axes): natural frequency 0.71 rad/s,
+#: damping 0.9 (the paper's 0.15 gave 0.39 rad/s; 1.0 tracked no better with the plan's rates
+#: fed forward and made the paper flight's shape error twice as large).
+ORIENTATION_KP = (0.5, 0.5, 0.5)
+ORIENTATION_KD = (1.8 * 0.5**0.5,) * 3
 #: Off-diagonal pairs (j, k) of the swarm frame and the axis m each pair rotates about.
 _PAIRS = ((1, 2, 0), (0, 2, 1), (0, 1, 2))
 
@@ -96,8 +136,8 @@ def shape_matrix(
     """The symmetric matrix A (3, 3) of the affine field, in the swarm frame.
 
     ``w_shape`` (3,): commanded variance accelerations (m^2/s^2); ``alpha`` (3,): commanded angular
-    acceleration of the swarm frame about its own axes (rad/s^2); ``damping`` (3,): the rotation
-    damping numerators per axis m (``-kd_m (Sigma'_dot_jk - ...)``), default 0. Flat axes get no
+    acceleration of the swarm frame about its own axes (rad/s^2); ``damping`` (3,): numerators added to
+    each pair (j, k) of axis m (the terms of the module doc), default 0. Flat axes get no
     variance row (``A_kk = 0``).
     """
     a: FloatArray = shape_matrix_batch(

@@ -46,6 +46,8 @@ SUPPORTED_VERSIONS = (1,)
 MIN_DRONES, MAX_DRONES = 2, 1000
 MIN_SEPARATION_M = 0.5
 PAPER_KP = (0.5, 0.5, 1.75, 0.15, 0.15, 0.15, 0.5, 0.5, 0.5)
+#: Orientation's own PD gains (roll, pitch, yaw), drone_agent/cooperative.py.
+ORIENTATION_KP = (0.5, 0.5, 0.5)
 Vec3 = tuple[float, float, float]
 
 
@@ -84,9 +86,13 @@ class RatesConfig:
 
 @dataclass(frozen=True)
 class GainsConfig:
-    """[gains]: outer-loop kp, kd (9,) in descriptor order (1/s², 1/s); attitude PD (roll, pitch,
-    yaw); flat-axis PD; null-space damping (1/s); limits: tilt (deg), thrust as a fraction of the
-    weight (min) and of the maximum thrust (max), smallest variance used in the inversion (m²)."""
+    """[gains]: outer-loop kp, kd (9,) in descriptor order (1/s², 1/s; the orientation entries
+    3..5 are not used: orientation has its own gains, below); attitude PD (roll, pitch, yaw);
+    flat-axis PD; null-space damping (1/s); limits: tilt (deg), thrust as a fraction of the
+    weight (min) and of the maximum thrust (max), smallest variance used in the inversion (m²).
+    The formation's orientation (roll, pitch, yaw about its own axes): PD ``orientation_kp``
+    (1/s²), ``orientation_kd`` (1/s, default 1.8 sqrt(kp)), and the limits of that feedback: the
+    speed (m/s) and acceleration (m/s²) it may give the formation's RMS radius."""
 
     kp: tuple[float, ...] = PAPER_KP
     kd: tuple[float, ...] = tuple(1.8 * math.sqrt(k) for k in PAPER_KP)
@@ -99,6 +105,10 @@ class GainsConfig:
     min_thrust_ratio: float = 0.2
     max_thrust_ratio: float = 0.85
     min_variance_m2: float = 0.05
+    orientation_kp: Vec3 = ORIENTATION_KP
+    orientation_kd: Vec3 = tuple(1.8 * math.sqrt(k) for k in ORIENTATION_KP)  # type: ignore[assignment]
+    orientation_max_speed_m_s: float = 1.0
+    orientation_max_accel_m_s2: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -332,6 +342,8 @@ _GAINS_BOUNDS: dict[str, dict[str, float]] = {
     "min_thrust_ratio": {"ge": 0, "lt": 1},
     "max_thrust_ratio": {"gt": 0, "le": 1},
     "min_variance_m2": {"gt": 0},
+    "orientation_max_speed_m_s": {"gt": 0},
+    "orientation_max_accel_m_s2": {"gt": 0},
 }
 _CONSENSUS_BOUNDS = {
     "rho": {"gt": 0},
@@ -366,9 +378,18 @@ def _rates(t: Table) -> RatesConfig:
 def _gains(t: Table) -> GainsConfig:
     kp = t.numbers("kp", 9, PAPER_KP, ge=0)
     kd = t.numbers("kd", 9, tuple(1.8 * math.sqrt(k) for k in kp), ge=0)
+    okp = t.vec3("orientation_kp", ORIENTATION_KP, gt=0)
+    okd = t.vec3("orientation_kd", tuple(1.8 * math.sqrt(k) for k in okp), gt=0)
     bounds = {"ge": 0.0}  # every gain not in _GAINS_BOUNDS
     names = GainsConfig.__dataclass_fields__
-    return t.section(GainsConfig, {n: _GAINS_BOUNDS.get(n, bounds) for n in names}, kp=kp, kd=kd)
+    return t.section(
+        GainsConfig,
+        {n: _GAINS_BOUNDS.get(n, bounds) for n in names},
+        kp=kp,
+        kd=kd,
+        orientation_kp=okp,
+        orientation_kd=okd,
+    )
 
 
 def _drones(top: Table) -> tuple[DroneConfig, ...]:

@@ -9,6 +9,8 @@ from scipy.spatial.transform import Rotation
 
 from drone_agent.cooperative import (
     CooperativeGains,
+    euler_rate_derivative_batch,
+    euler_rate_matrix,
     pinv_block,
     pinv_block_zyx,
     virtual_acceleration,
@@ -142,3 +144,87 @@ def test_an_estimated_spreading_rate_does_not_push_a_flat_axis_apart() -> None:
     # back down (NED +z) with the flat-axis PD's stiffness, not away from the plane
     assert v[2] > 0.0
     assert v[2] == pytest.approx(gains.flat_kp * 0.5, rel=0.05)
+
+
+def _whitened(n: int, seed: int, flat: bool) -> FloatArray:
+    """Lattice coordinates q (n, 3): zero mean, (1/n) sum q q^T = I (the third row 0 if flat)."""
+    q = np.random.default_rng(seed).normal(size=(n, 3))
+    k = 2 if flat else 3
+    q[:, k:] = 0.0
+    q -= q.mean(axis=0)
+    chol = np.linalg.cholesky(q[:, :k].T @ q[:, :k] / n)
+    q[:, :k] = q[:, :k] @ np.linalg.inv(chol).T
+    return q
+
+
+def _moving_plan(t: float, flat: bool) -> FloatArray:
+    """A plan that moves every descriptor at once: centre, roll, pitch, heading, variances."""
+    return np.array(
+        [
+            1.0 + 0.3 * t * t,
+            -2.0 + np.sin(t),
+            -5.0 - 0.2 * t,
+            0.2 * np.sin(0.7 * t),
+            0.1 - 0.3 * np.cos(0.5 * t),
+            0.4 + 0.6 * t + 0.3 * t * t,
+            6.0 + np.sin(0.8 * t),
+            3.0 + 0.5 * t,
+            0.0 if flat else 1.2 + 0.3 * np.cos(t),
+        ]
+    )
+
+
+@pytest.mark.parametrize("flat", [False, True], ids=["3-D", "planar"])
+def test_plan_rates_give_each_drone_its_true_acceleration(flat: bool) -> None:
+    """The derivation of the module doc against finite differences: drones placed exactly on a
+    formation that follows a plan moving every descriptor (p_i = R(t) S(t)^1/2 q_i), estimate
+    exact: each drone's command is its own second difference (the compensated terms, E_dot and
+    the plan's null-space field all in), not just the right Sigma_ddot."""
+    q, h = _whitened(12, 3, flat), 1e-4
+
+    def positions(t: float) -> FloatArray:
+        a = _moving_plan(t, flat)
+        r = rot_zyx(a[5], a[4], a[3])
+        return a[:3] + (r @ (np.sqrt(a[6:])[:, None] * q.T)).T
+
+    for t in (0.3, 0.8, 1.7):
+        x, xp, xm = positions(t), positions(t + h), positions(t - h)
+        v, acc = (xp - xm) / (2 * h), (xp - 2 * x + xm) / h**2
+        a, ap, am = _moving_plan(t, flat), _moving_plan(t + h, flat), _moving_plan(t - h, flat)
+        ref = (a, (ap - am) / (2 * h), (ap - 2 * a + am) / h**2)
+        m = true_moments(x, v)
+        out = np.array(
+            [virtual_acceleration(x[i], v[i], m, ref, CooperativeGains()) for i in range(12)]
+        )
+        np.testing.assert_allclose(out, acc, atol=2e-6 * np.abs(acc).max())
+        # and without the plan's rates the error is large (the test can fail)
+        still = (a, np.zeros(9), np.zeros(9))
+        off = np.array(
+            [virtual_acceleration(x[i], v[i], m, still, CooperativeGains()) for i in range(12)]
+        )
+        assert np.abs(off - acc).max() > 0.1
+
+
+def test_euler_rate_derivative_against_finite_differences() -> None:
+    """omega_dot = E eta_ddot + E_dot eta_dot (ALGORITHM.md §1, eq. 38) for the plan above."""
+    h = 1e-4
+
+    def omega(t: float) -> FloatArray:
+        a = _moving_plan(t, False)
+        rate = (_moving_plan(t + h, False) - _moving_plan(t - h, False)) / (2 * h)
+        out: FloatArray = euler_rate_matrix(a[3], a[4]) @ rate[3:6]
+        return out
+
+    t, d = 0.9, 1e-3
+    a = _moving_plan(t, False)
+    rate = (_moving_plan(t + h, False) - _moving_plan(t - h, False)) / (2 * h)
+    accel = (_moving_plan(t + h, False) - 2 * a + _moving_plan(t - h, False)) / h**2
+    got = (
+        euler_rate_matrix(a[3], a[4]) @ accel[3:6]
+        + euler_rate_derivative_batch(a[3:4], a[4:5], rate[None, 3:6])[0]
+    )
+    np.testing.assert_allclose(got, (omega(t + d) - omega(t - d)) / (2 * d), atol=1e-6)
+    # E itself: R^T R_dot = skew(E eta_dot)
+    r = [rot_zyx(*_moving_plan(s, False)[[5, 4, 3]]) for s in (t - h, t, t + h)]
+    w = r[1].T @ (r[2] - r[0]) / (2 * h)
+    np.testing.assert_allclose([w[2, 1], w[0, 2], w[1, 0]], omega(t), atol=1e-6)
