@@ -8,7 +8,8 @@ three angle rows wrapped to [−π, π); "RMS" is sqrt(mean(e²)), "max" is max 
   the desired orientation at ``t``; NaN with fewer than 2 members. Orientation rows are *masked*
   (left out) where the heading is undefined: |s1 − s2|/(s1 + s2) < 0.05 on the true variances.
 - **tracking**: per descriptor, RMS and max of |a_true − a_d| over samples with t ≥ ``settle_s``
-  (faults included); angles also in degrees. ``centroid_m``: the Euclidean norm of the centre
+  (faults included); angles also in degrees, and ``heading_deg``, ``pitch_deg``, ``roll_deg``
+  (RMS and max in degrees) beside ``centroid_m``: the Euclidean norm of the centre
   error; ``shape_m2``: at each sample the RMS over the three variance errors; RMS and max over time.
 - **tracking_steady**: the same, leaving out ``[t_loss, t_loss + 10 s)`` after each drone lost:
   the steady-state figures (ALGORITHM.md §7 "away from the drop-out"); the transient itself is
@@ -43,7 +44,7 @@ import numpy.typing as npt
 
 from gcs.events import jsonable
 from gcs.flight_record import FlightRecord
-from protocols.descriptor_vector import CENTRE, NAMES, ORIENTATION, SHAPE
+from protocols.descriptor_vector import CENTRE, I_PITCH, I_ROLL, I_YAW, NAMES, ORIENTATION, SHAPE
 from protocols.descriptors import covariance, desired_axes, frame_from_moments, heading_defined
 from protocols.frames import FloatArray, wrap_pi
 
@@ -154,6 +155,11 @@ def tracking_errors(
         },
         "centroid_m": _stat(centroid, t),
         "shape_m2": _stat(shape, t),
+        # the formation's orientation beside centroid and shape, in degrees (issue 15)
+        **{
+            f"{name}_deg": _stat(np.degrees(e[:, k]), t)
+            for name, k in (("heading", I_YAW), ("pitch", I_PITCH), ("roll", I_ROLL))
+        },
     }
 
 

@@ -33,6 +33,9 @@ _MAX_POINTS = 20_000
 _LINK_COLOUR = "tab:orange"
 
 
+_ERROR_COLOUR = "tab:red"
+
+
 def _colours(n: int) -> list[Any]:
     """One colour per drone."""
     import matplotlib as mpl
@@ -178,6 +181,15 @@ def plot_descriptors(record: FlightRecord, path: str | Path) -> Path:
         _fault_marks(ax, record)
         if k in (I_ROLL, I_PITCH, I_YAW):
             _angle_limits(ax, _display(true_k, a_d[:, k], k), np.degrees(a_d[:, k]))
+            # the error on its own scale: sub-degree tracking is invisible on the angle's
+            error = np.degrees(wrap_pi(true_k - a_d[:, k]))
+            twin = ax.twinx()
+            twin.plot(t[sl], error[sl], color=_ERROR_COLOUR, lw=0.8)
+            twin.tick_params(axis="y", colors=_ERROR_COLOUR, labelsize=8)
+            twin.set_ylabel("error [deg]", color=_ERROR_COLOUR, fontsize=8)
+            finite = error[np.isfinite(error)]
+            bound = max(0.1, 1.1 * float(np.abs(finite).max())) if finite.size else 1.0
+            twin.set_ylim(-bound, bound)
         ax.set_title(title, fontsize=10)
         ax.grid(alpha=0.3)
     for ax in axes[-1]:
@@ -217,6 +229,7 @@ def _descriptor_legend(record: FlightRecord, heading_undefined: bool) -> list[An
         Line2D([], [], color="tab:blue", lw=1.4, label="true (centralised)"),
         Line2D([], [], color="0.55", lw=0.8, label="estimate of each agent"),
         Line2D([], [], color="black", ls="--", lw=1.0, label="command"),
+        Line2D([], [], color=_ERROR_COLOUR, lw=0.8, label="angle error (right axis)"),
     ]
     if record.link_faults:
         handles.append(Patch(color=_LINK_COLOUR, alpha=0.3, label="link cut"))

@@ -38,6 +38,11 @@ def summary_lines(metrics: dict[str, Any], files: Sequence[Path]) -> list[str]:
         f"  shape tracking, steady       {_rms_max(steady, 'shape_m2', ' m2')}",
         f"  centroid tracking, all       {_rms_max(tr, 'centroid_m', ' m')}",
         f"  shape tracking, all          {_rms_max(tr, 'shape_m2', ' m2')}",
+        *(
+            f"  {f'{name} tracking, {label}':<29}{_rms_max(block, name + '_deg', ' deg')}"
+            for label, block in (("steady", steady), ("all", tr))
+            for name in ("heading", "pitch", "roll")
+        ),
         f"  consensus error, steady      {_rms_max(cons, 'centroid_m', ' m')}",
         f"  min separation airborne      {_fmt(sep.get('min_m'), ' m', 2)}"
         f" (drones {sep.get('pair')} at t = {_fmt(sep.get('t_s'), ' s', 1)})",
