@@ -25,11 +25,15 @@ import numpy.typing as npt
 
 from drone_agent.consensus import ConsensusMessage, ConsensusParams
 from drone_agent.consensus_batch import BatchConsensus
-from drone_agent.cooperative import CooperativeGains, virtual_acceleration_batch
+from drone_agent.cooperative import (
+    CooperativeGains,
+    euler_rate_matrix_batch,
+    virtual_acceleration_batch,
+)
 from drone_agent.moments import SwarmMoments, channels_batch, moments_from_averages_batch
 from drone_agent.separation_layer import SeparationConfig, SeparationLayer
 from drone_agent.thrust_attitude import ThrustLimits, attitude_thrust_batch
-from protocols.descriptor_vector import CENTRE, I_YAW
+from protocols.descriptor_vector import CENTRE, I_PITCH, I_ROLL, I_YAW, ORIENTATION
 from protocols.descriptors import align_axes_batch, desired_axes_batch, frame_vector_batch
 from protocols.frames import FloatArray
 from protocols.trajectory import DescriptorTrajectory, StateTriple
@@ -127,10 +131,16 @@ class BatchAgentCore:
         x = np.asarray(positions_ned_m, dtype=float).reshape(-1, 3)
         v = np.asarray(velocities_ned_m_s, dtype=float).reshape(-1, 3)
         a_d, ad_dot, ad_ddot = self._references(plans, t_s)
-        zeta = channels_batch(x, v, a_d[:, CENTRE], ad_dot[:, CENTRE])
-        gamma, outs = self.consensus.step(rows, round_, zeta, inboxes, members, (x, v))
-        moments = moments_from_averages_batch(gamma, a_d[:, CENTRE], ad_dot[:, CENTRE])
         r_d = desired_axes_batch(a_d)
+        # channels in the plan's turning frame (drone_agent/moments.py)
+        omega_d = (
+            euler_rate_matrix_batch(a_d[:, I_ROLL], a_d[:, I_PITCH]) @ ad_dot[:, ORIENTATION, None]
+        )[:, :, 0]
+        zeta = channels_batch(x, v, a_d[:, CENTRE], ad_dot[:, CENTRE], (r_d, omega_d))
+        gamma, outs = self.consensus.step(rows, round_, zeta, inboxes, members, (x, v))
+        moments = moments_from_averages_batch(
+            gamma, a_d[:, CENTRE], ad_dot[:, CENTRE], (r_d, omega_d)
+        )
         axes, s = align_axes_batch(moments.sigma_m2, r_d)
         estimate = frame_vector_batch(moments.centre_ned_m, axes, s)
         ready = np.zeros(len(outs), dtype=bool)

@@ -7,7 +7,17 @@ ALGORITHM.md §3: every drone knows the shared reference centre mu_d(t) and its 
 
 whose swarm averages m1, M2, m3, M4 give ``mu = mu_d + m1``, ``Sigma = M2 - m1 m1^T``,
 ``mu_dot = mu_d_dot + m3``, ``Sigma_dot = M4 - m3 m1^T - m1 m3^T``. Centring on the shared reference
-avoids the cancellation of raw moments far from the origin. Pure and I/O-free.
+avoids the cancellation of raw moments far from the origin.
+
+In the plan's frame (issue 15): given the plan's axes R_d (columns: length, width, height axes in
+NED) and its angular rate omega_d about them (``R_d_dot = R_d W_d``), the channels are taken of
+``z = R_d^T y`` and ``z_dot = R_d^T y_dot - W_d z``, the offset and its rate as seen from the
+plan's own turning frame. A formation that turns with the plan has constant channels there, so
+the consensus tracks constants instead of chasing a turning second moment (on a sparse radio
+graph that chase left the estimated heading 1-3 deg behind during a turn). The averages go back
+exactly: ``m1 = R_d m1'``, ``M2 = R_d M2' R_d^T``, ``m3 = R_d (m3' + W_d m1')``,
+``M4 = R_d (M4' + W_d M2' - M2' W_d) R_d^T``. Every agent evaluates the same plan at the same
+round time, so every agent uses the same frame. Pure and I/O-free.
 """
 
 from __future__ import annotations
@@ -55,10 +65,16 @@ def channels_batch(
     velocities_ned_m_s: FloatArray,
     ref_centre_ned_m: FloatArray,
     ref_centre_rate_ned_m_s: FloatArray,
+    plan_frame: tuple[FloatArray, FloatArray] | None = None,
 ) -> FloatArray:
-    """Channels (N, 18) of N drones at once (positions and velocities (N, 3))."""
+    """Channels (N, 18) of N drones at once (positions and velocities (N, 3)); ``plan_frame``:
+    the plan's axes (N, 3, 3) and angular rate about them (N, 3) (module doc), None: NED."""
     y = np.asarray(positions_ned_m, dtype=float) - ref_centre_ned_m
     yd = np.asarray(velocities_ned_m_s, dtype=float) - ref_centre_rate_ned_m_s
+    if plan_frame is not None:
+        axes, omega = plan_frame
+        y = (y[:, None, :] @ axes)[:, 0]  # R^T y, row-wise
+        yd = (yd[:, None, :] @ axes)[:, 0] - np.cross(omega, y)
     out = np.empty((y.shape[0], N_CHANNELS))
     out[:, 0:3] = y
     out[:, 3:9] = y[:, _SYM_I] * y[:, _SYM_J]
@@ -97,10 +113,14 @@ def moments_from_averages(
 
 
 def moments_from_averages_batch(
-    averages: FloatArray, ref_centre_ned_m: FloatArray, ref_centre_rate_ned_m_s: FloatArray
+    averages: FloatArray,
+    ref_centre_ned_m: FloatArray,
+    ref_centre_rate_ned_m_s: FloatArray,
+    plan_frame: tuple[FloatArray, FloatArray] | None = None,
 ) -> SwarmMoments:
     """As :func:`moments_from_averages` for K agents at once: averages (K, 18), references
-    (K, 3); the fields of the result carry the leading K axis ((K, 3) and (K, 3, 3))."""
+    (K, 3), ``plan_frame`` as in :func:`channels_batch` ((K, 3, 3), (K, 3)); the fields of the
+    result carry the leading K axis ((K, 3) and (K, 3, 3))."""
     m1 = averages[:, 0:3]
     m3 = averages[:, 9:12]
     m2 = np.empty((averages.shape[0], 3, 3))
@@ -109,6 +129,14 @@ def moments_from_averages_batch(
     m4 = np.empty_like(m2)
     m4[:, _SYM_I, _SYM_J] = averages[:, 12:18]
     m4[:, _SYM_J, _SYM_I] = averages[:, 12:18]
+    if plan_frame is not None:  # back from the plan's turning frame (module doc)
+        axes, omega = plan_frame
+        axes_t = np.swapaxes(axes, 1, 2)
+        m3 = ((m3 + np.cross(omega, m1))[:, None, :] @ axes_t)[:, 0]
+        turn = _skew_batch(omega) @ m2
+        m4 = axes @ (m4 + turn + np.swapaxes(turn, 1, 2)) @ axes_t
+        m2 = axes @ m2 @ axes_t
+        m1 = (m1[:, None, :] @ axes_t)[:, 0]
     sigma = m2 - m1[:, :, None] * m1[:, None, :]
     sigma_rate = m4 - m3[:, :, None] * m1[:, None, :] - m1[:, :, None] * m3[:, None, :]
     return SwarmMoments(
@@ -117,6 +145,14 @@ def moments_from_averages_batch(
         sigma_m2=sigma,
         sigma_rate_m2_s=sigma_rate,
     )
+
+
+def _skew_batch(v: FloatArray) -> FloatArray:
+    """Skew-symmetric matrices (K, 3, 3) of vectors (K, 3)."""
+    out = np.zeros((v.shape[0], 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+    return out
 
 
 def true_moments(positions_ned_m: FloatArray, velocities_ned_m_s: FloatArray) -> SwarmMoments:

@@ -9,7 +9,12 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from drone_agent.moments import channels_batch, moments_from_averages, true_moments
+from drone_agent.moments import (
+    channels_batch,
+    moments_from_averages,
+    moments_from_averages_batch,
+    true_moments,
+)
 from drone_agent.thrust_attitude import ThrustLimits, attitude_thrust
 from protocols.descriptors import descriptors, heading_defined, swarm_frame
 from protocols.frames import E3, G_M_S2, FloatArray, rot_zyx
@@ -132,3 +137,29 @@ def test_attitude_thrust_respects_limits(v: FloatArray, yaw: float) -> None:
     assert t_min - 1e-9 <= sp.thrust_n <= t_max + 1e-9
     tilt = np.arccos(np.cos(sp.roll_rad) * np.cos(sp.pitch_rad))
     assert tilt <= LIMITS.max_tilt_rad + 1e-9
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    x=_positions,
+    v=_positions,
+    ref=arrays(np.float64, (6,), elements=st.floats(-100, 100)),
+    angles=arrays(np.float64, (6,), elements=st.floats(-1.5, 1.5)),
+)
+def test_moments_from_channels_in_the_plans_turning_frame_are_exact(
+    x: FloatArray, v: FloatArray, ref: FloatArray, angles: FloatArray
+) -> None:
+    """Channels taken in a turning plan frame (axes R_d, rate omega_d) give the same moments."""
+    n = min(len(x), len(v))
+    x, v = x[:n], v[:n] / 10
+    frame = (rot_zyx(*angles[:3])[None], angles[3:][None])
+    avg = channels_batch(x, v, ref[:3], ref[3:], (frame[0].repeat(n, 0), frame[1].repeat(n, 0)))
+    got = moments_from_averages_batch(avg.mean(axis=0)[None], ref[None, :3], ref[None, 3:], frame)
+    want = true_moments(x, v)
+    scale = 1.0 + float(np.abs(x - ref[:3]).max()) ** 2
+    np.testing.assert_allclose(got.centre_ned_m[0], want.centre_ned_m, atol=1e-9 * scale)
+    np.testing.assert_allclose(got.sigma_m2[0], want.sigma_m2, atol=1e-9 * scale)
+    np.testing.assert_allclose(
+        got.centre_rate_ned_m_s[0], want.centre_rate_ned_m_s, atol=1e-8 * scale
+    )
+    np.testing.assert_allclose(got.sigma_rate_m2_s[0], want.sigma_rate_m2_s, atol=1e-8 * scale)
