@@ -51,13 +51,16 @@ def _angle_deg(u: FloatArray, w: FloatArray) -> float:
     return float(np.degrees(np.arccos(np.clip(abs(float(u @ w)), 0.0, 1.0))))
 
 
-def orientation_track(report: Path, scenario_path: Path, dt_s: float = 0.1) -> OrientationTrack:
-    """The angles of the module doc for the flight in ``report`` of the scenario file."""
+def orientation_track(
+    report: Path, scenario_path: Path, dt_s: float = 0.1, end_s: float | None = None
+) -> OrientationTrack:
+    """The angles of the module doc for the flight in ``report`` of the scenario file (flown to
+    ``end_s``, default its duration)."""
     scenario = load_scenario(scenario_path)
     n = scenario.n_drones
     lost_at = {f.drone: f.t_s for f in scenario.faults if isinstance(f, Dropout | Crash)}
     plan = scenario.trajectory()
-    t = np.arange(0.0, scenario.duration_s - dt_s / 2, dt_s)
+    t = np.arange(0.0, (end_s or scenario.duration_s) - dt_s / 2, dt_s)
     pos = read_tlog(report / "flight.tlog").resample(t, n, max_age_s=1.0)
     out = np.full((3, t.shape[0]), np.nan)
     for k, tk in enumerate(t):

@@ -1,0 +1,122 @@
+"""The formation's orientation tracks the plan (issue 15), judged from flight.tlog alone
+(tests/orientation_judge.py), in ``swarm simulate`` and distributed (``swarm up``: real child
+processes, UDP MAVLink, Zenoh):
+
+- scenarios/tilt9.toml: 9 drones (3 x 3 grid, radio range 10 m) climb to 6 m and tilt their
+  planar formation to roll 10 deg, pitch 15 deg, heading 30 deg between t = 10 and 25 s: the
+  plane normal and the length axis within 1 deg of the command from 5 s after it ends (measured
+  0.00 deg; before issue 15: 6.3 deg at 30 s, 3.4 deg at 40 s);
+- scenarios/turn45_16.toml: 16 drones (radio range 6 m) turn 45 deg while their length spread
+  stretches 15 % in 12 s: the heading lags by at most 2 deg at any time and 0.5 deg once the plan
+  holds (measured 0.16 deg and 0.06 deg; before: 3 deg during a slower 30 deg turn);
+- the paper flight's per-drone tilt bar (25 deg) holds through the take-off with the new gains,
+  and the summary and metrics.json report heading, pitch and roll errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+from orientation_judge import orientation_track
+from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
+
+pytestmark = pytest.mark.slow
+
+TILT = ROOT / "scenarios" / "tilt9.toml"
+TURN = ROOT / "scenarios" / "turn45_16.toml"
+TILT_END_S = 25.0  # the tilt command ends
+TURN_START_S, TURN_END_S = 11.5, 23.5
+#: the distributed tilt flight stops here (the bar needs 5 s after the command and a little more)
+UP_TILT_S = 33.0
+
+
+def _simulate(scenario: Path, out: Path) -> str:
+    done = subprocess.run(
+        swarm_command("simulate", str(scenario), "--report", str(out), "--no-plots"),
+        capture_output=True,
+        text=True,
+        env=ENV,
+        cwd=ROOT,
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    return done.stdout
+
+
+def _up(scenario: Path, out: Path, n: int, *extra: str) -> str:
+    done = subprocess.run(
+        swarm_command(
+            "up",
+            str(scenario),
+            "--report",
+            str(out),
+            "--base-port",
+            str(free_port_block(n)),
+            "--gcs-port",
+            str(free_udp_port()),
+            "--agents-per-process",
+            "4",
+            *extra,
+        ),
+        capture_output=True,
+        text=True,
+        env=ENV,
+        cwd=ROOT,
+        timeout=900,
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    return done.stdout
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, str]]:
+    """The four flights: (report folder, printed summary) by name."""
+    root = tmp_path_factory.mktemp("orientation")
+    return {
+        "simulate tilt": (root / "st", _simulate(TILT, root / "st")),
+        "simulate turn": (root / "su", _simulate(TURN, root / "su")),
+        "up tilt": (root / "ut", _up(TILT, root / "ut", 9, "--duration-s", str(UP_TILT_S))),
+        "up turn": (root / "uu", _up(TURN, root / "uu", 16)),
+    }
+
+
+@pytest.mark.parametrize("how", ["simulate", "up"])
+def test_a_tilted_planar_formation_is_within_1_deg_5_s_after_the_command(
+    flights: dict[str, tuple[Path, str]], how: str
+) -> None:
+    report, _ = flights[f"{how} tilt"]
+    end = UP_TILT_S if how == "up" else None
+    track = orientation_track(report, TILT, end_s=end)
+    normal, length, _ = track.worst(TILT_END_S + 5.0)
+    assert normal <= 1.0 and length <= 1.0, (normal, length)
+    # and on the way: the formation follows the tilt, it does not wait for it to end
+    normal, length, _ = track.worst(10.0, TILT_END_S)
+    assert normal <= 2.0 and length <= 2.0, (normal, length)
+
+
+@pytest.mark.parametrize("how", ["simulate", "up"])
+def test_a_heading_turn_with_a_stretch_lags_at_most_2_deg_and_half_a_degree_in_the_hold(
+    flights: dict[str, tuple[Path, str]], how: str
+) -> None:
+    report, _ = flights[f"{how} turn"]
+    track = orientation_track(report, TURN)
+    _, _, anytime = track.worst(TURN_START_S)
+    _, _, holding = track.worst(TURN_END_S)
+    assert anytime <= 2.0 and holding <= 0.5, (anytime, holding)
+
+
+@pytest.mark.parametrize("name", ["simulate tilt", "up turn"])
+def test_the_summary_and_metrics_report_orientation_errors(
+    flights: dict[str, tuple[Path, str]], name: str
+) -> None:
+    report, printed = flights[name]
+    metrics = json.loads((report / "metrics.json").read_text())
+    for angle in ("heading", "pitch", "roll"):
+        assert f"{angle} tracking, steady" in printed and f"{angle} tracking, all" in printed
+        for block in ("tracking", "tracking_steady"):
+            stat = metrics[block][f"{angle}_deg"]
+            assert stat["rms"] is not None and 0.0 <= stat["rms"] <= stat["max"] < 1.0, stat
+    assert metrics["max_tilt_deg"]["value"] <= 25.0, metrics["max_tilt_deg"]
+    assert metrics["collisions"]["count"] == 0
