@@ -136,9 +136,9 @@ def shape_matrix(
     """The symmetric matrix A (3, 3) of the affine field, in the swarm frame.
 
     ``w_shape`` (3,): commanded variance accelerations (m^2/s^2); ``alpha`` (3,): commanded angular
-    acceleration of the swarm frame about its own axes (rad/s^2); ``damping`` (3,): numerators added to
-    each pair (j, k) of axis m (the terms of the module doc), default 0. Flat axes get no
-    variance row (``A_kk = 0``).
+    acceleration of the swarm frame about its own axes (rad/s^2); ``damping`` (3,): numerators
+    added to each pair (j, k) of axis m (the terms of the module doc), default 0. Flat axes get
+    no variance row (``A_kk = 0``).
     """
     a: FloatArray = shape_matrix_batch(
         np.asarray(variances_m2, dtype=float)[None],
