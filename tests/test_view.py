@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 import urllib.request
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -232,13 +233,16 @@ def _free_tcp_port() -> int:
         return int(s.getsockname()[1])
 
 
-def test_replay_serves_the_web_viewer(report: Path, tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def replay_url(report: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """``swarm replay`` of the report on free ports, running while the module's tests use it;
+    the web viewer's URL it printed."""
     web, grpc = _free_tcp_port(), _free_tcp_port()
-    out = tmp_path / "replay.out"
+    out = tmp_path_factory.mktemp("replay") / "replay.out"
     with out.open("wb") as f:
         proc = subprocess.Popen(
             swarm_command("replay", str(report), "--web-port", str(web), "--grpc-port", str(grpc),
-                          "--duration-s", "30"),
+                          "--duration-s", "300"),
             stdout=f, stderr=subprocess.STDOUT, env=ENV, cwd=ROOT,
         )  # fmt: skip
     try:
@@ -248,11 +252,46 @@ def test_replay_serves_the_web_viewer(report: Path, tmp_path: Path) -> None:
             time.sleep(0.1)
         url = out.read_text().split("web viewer at ", 1)[1].split()[0]
         assert url.startswith(f"http://127.0.0.1:{web}/?url=rerun+http://127.0.0.1:{grpc}/")
-        with urllib.request.urlopen(url, timeout=10) as page:
-            assert page.status == 200 and b"<html" in page.read().lower()
+        yield url
     finally:
         proc.terminate()
         proc.wait(15)
+
+
+def test_replay_serves_the_web_viewer(replay_url: str) -> None:
+    with urllib.request.urlopen(replay_url, timeout=10) as page:
+        assert page.status == 200 and b"<html" in page.read().lower()
+
+
+def test_headless_chromium_shows_the_recording_in_the_viewer(
+    replay_url: str, tmp_path: Path
+) -> None:
+    """The served web viewer, loaded by headless Chromium (software WebGL), draws the flight:
+    within a minute its screenshot holds the flying drones' colour, which only the recording's
+    points bring (the viewer's own UI is grey and blue). Skipped where no Chromium is installed
+    (Debian's package ``chromium``; no browser download)."""
+    from headless_chromium import HeadlessChromium, chromium
+    from PIL import Image
+
+    from gcs.rerun_log import MODE_RGB
+    from gcs.view_scene import Mode
+
+    executable = chromium()
+    if executable is None:
+        pytest.skip("no headless Chromium here (Debian: apt-get install chromium)")
+    green = np.array(MODE_RGB[Mode.FLYING])
+    with HeadlessChromium(executable, replay_url, tmp_path / "profile") as browser:
+        deadline = time.monotonic() + 60
+        while True:
+            pixels = browser.screenshot()
+            drones = int((np.abs(pixels - green).max(axis=2) <= 12).sum())
+            if drones >= 20 or time.monotonic() > deadline:
+                break
+            time.sleep(1.0)
+    Image.fromarray(pixels.astype(np.uint8)).save(tmp_path / "viewer.png")  # to look at
+    assert pixels.shape[1] == 1280
+    assert np.unique(pixels.reshape(-1, 3), axis=0).shape[0] > 500  # a UI, not a blank page
+    assert drones >= 20, f"no drones drawn after 60 s: {tmp_path / 'viewer.png'}"
 
 
 def test_view_help(capsys: pytest.CaptureFixture[str]) -> None:
