@@ -24,11 +24,11 @@ import pytest
 from agent_harness import write_scenario
 from sitl_client import ENV, ROOT, swarm_command
 
-from gcs import recording as recording_module
-from gcs.cli import main
-from gcs.events import read_events
-from gcs.simulate import simulate
-from gcs.tlog import read_tlog
+from gcs.cli.main import main
+from gcs.reference.simulate import simulate
+from gcs.report.events import read_events
+from gcs.report.tlog import read_tlog
+from gcs.view import recording as recording_module
 from protocols.scenario import load_scenario
 
 pytestmark = pytest.mark.timeout(120)
@@ -179,8 +179,8 @@ def test_recording_draws_the_links_the_tlog_names_and_not_the_cut_one(report: Pa
 
 
 def test_links_of_a_large_swarm_are_thinned_to_the_cap() -> None:
-    from gcs.rerun_log import MAX_LINKS, thin
-    from gcs.view_scene import link_pairs
+    from gcs.view.rerun_log import MAX_LINKS, thin
+    from gcs.view.scene import link_pairs
 
     n, k = 250, 20  # each agent integrates its 20 successors (mod n), some only one way
     ids = np.array([[(i + d) % n for d in range(1, k + 1)] for i in range(n)], dtype=float)
@@ -198,8 +198,8 @@ def test_links_of_a_large_swarm_are_thinned_to_the_cap() -> None:
 
 
 def test_live_view_of_a_growing_tlog_sends_the_same_samples(report: Path, tmp_path: Path) -> None:
-    from gcs.live_view import LiveView
-    from gcs.rerun_log import recording
+    from gcs.view.live import LiveView
+    from gcs.view.rerun_log import recording
 
     live = tmp_path / "live"
     live.mkdir()
@@ -273,8 +273,8 @@ def test_headless_chromium_shows_the_recording_in_the_viewer(
     from headless_chromium import HeadlessChromium, chromium
     from PIL import Image
 
-    from gcs.rerun_log import MODE_RGB
-    from gcs.view_scene import Mode
+    from gcs.view.rerun_log import MODE_RGB
+    from gcs.view.scene import Mode
 
     executable = chromium()
     if executable is None:
@@ -324,7 +324,8 @@ def test_without_rerun_the_view_commands_say_how_to_install_it(
 
 def test_nothing_else_imports_rerun() -> None:
     code = (
-        "import sys, gcs.cli, gcs.simulate, gcs.ground_station, gcs.gcs_report, gcs.view_cli, "
+        "import sys, gcs.cli.main, gcs.reference.simulate, gcs.station.ground_station, "
+        "gcs.report.from_logs, gcs.cli.view, "
         "sitl_sim.server, drone_agent.agent_cli; "
         "sys.exit(1 if any(m == 'rerun' or m.startswith('rerun.') for m in sys.modules) else 0)"
     )
@@ -382,7 +383,7 @@ def test_swarm_up_view_serves_the_live_viewer(tmp_path: Path) -> None:
 # -- the scene's arithmetic, without Rerun's I/O ---------------------------------------------
 @pytest.mark.parametrize("euler", [(0.0, 0.0, 1.2), (0.3, -0.2, 2.9), (-0.5, 0.4, -1.0)])
 def test_ellipsoid_quaternion_is_the_descriptor_orientation(euler: tuple[float, ...]) -> None:
-    from gcs.rerun_log import quaternions_xyzw
+    from gcs.view.rerun_log import quaternions_xyzw
     from protocols.frames import rot_zyx
 
     x, y, z, w = quaternions_xyzw(np.array([euler]))[0]
@@ -396,7 +397,7 @@ def test_ellipsoid_quaternion_is_the_descriptor_orientation(euler: tuple[float, 
 
 
 def test_min_separation_and_modes() -> None:
-    from gcs.view_scene import Mode, event_lines, min_separation, modes
+    from gcs.view.scene import Mode, event_lines, min_separation, modes
 
     rng = np.random.default_rng(3)
     pos = rng.normal(size=(20, 5, 3)) * 3
