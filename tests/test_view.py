@@ -267,31 +267,34 @@ def test_headless_chromium_shows_the_recording_in_the_viewer(
     replay_url: str, tmp_path: Path
 ) -> None:
     """The served web viewer, loaded by headless Chromium (software WebGL), draws the flight:
-    within a minute its screenshot holds the flying drones' colour, which only the recording's
-    points bring (the viewer's own UI is grey and blue). Skipped where no Chromium is installed
-    (Debian's package ``chromium``; no browser download)."""
+    within a minute its screenshot holds the flying drones' colour and the links' colour, which
+    only the recording brings (the viewer's own UI is grey and blue; a page without the
+    recording has neither). Skipped where no Chromium is installed (Debian's package
+    ``chromium``; no browser download)."""
     from headless_chromium import HeadlessChromium, chromium
     from PIL import Image
 
-    from gcs.view.rerun_log import MODE_RGB
+    from gcs.view.rerun_log import LINK_BOTH_RGB, MODE_RGB
     from gcs.view.scene import Mode
 
     executable = chromium()
     if executable is None:
         pytest.skip("no headless Chromium here (Debian: apt-get install chromium)")
-    green = np.array(MODE_RGB[Mode.FLYING])
+    green, blue = np.array(MODE_RGB[Mode.FLYING]), np.array(LINK_BOTH_RGB)
     with HeadlessChromium(executable, replay_url, tmp_path / "profile") as browser:
         deadline = time.monotonic() + 60
         while True:
             pixels = browser.screenshot()
             drones = int((np.abs(pixels - green).max(axis=2) <= 12).sum())
-            if drones >= 20 or time.monotonic() > deadline:
+            links = int((np.abs(pixels - blue).max(axis=2) <= 20).sum())
+            if (drones >= 20 and links >= 100) or time.monotonic() > deadline:
                 break
             time.sleep(1.0)
     Image.fromarray(pixels.astype(np.uint8)).save(tmp_path / "viewer.png")  # to look at
     assert pixels.shape[1] == 1280
     assert np.unique(pixels.reshape(-1, 3), axis=0).shape[0] > 500  # a UI, not a blank page
     assert drones >= 20, f"no drones drawn after 60 s: {tmp_path / 'viewer.png'}"
+    assert links >= 100, f"no links drawn after 60 s: {tmp_path / 'viewer.png'}"
 
 
 def test_view_help(capsys: pytest.CaptureFixture[str]) -> None:

@@ -49,7 +49,7 @@ _COMMANDED_RGB, _ACTUAL_RGB, _ESTIMATE_RGB = (160, 160, 160), (60, 120, 230), (2
 #: At most this many links drawn per row (each two points; 1.5 UI points wide at any zoom): the
 #: 250-drone scenario's ~1,700 links thinned, its flight.rrd 19 MB instead of 16 MB without links.
 MAX_LINKS = 600
-_LINK_BOTH_RGB, _LINK_ONE_WAY_RGB = (90, 170, 255), (240, 210, 40)
+LINK_BOTH_RGB, LINK_ONE_WAY_RGB = (90, 170, 255), (240, 210, 40)
 #: Link rows worked out at once (bounds the (rows, N, K) neighbour ids held).
 _LINK_BATCH = 64
 _PALETTE = np.array([MODE_RGB[m] for m in Mode], dtype=np.uint8)
@@ -199,7 +199,7 @@ def _links(rec: rr.RecordingStream, scene: Scene, start: int) -> None:
             pairs, both = link_pairs(ids[r], pos)
             keep = thin(pairs.shape[0])
             strips += list(np.stack([pos[pairs[keep, 0]], pos[pairs[keep, 1]]], axis=1))
-            colours += [_LINK_BOTH_RGB if x else _LINK_ONE_WAY_RGB for x in both[keep]]
+            colours += [LINK_BOTH_RGB if x else LINK_ONE_WAY_RGB for x in both[keep]]
             counts.append(keep.size)
             totals.append(pairs.shape[0])
         rec.send_columns(
