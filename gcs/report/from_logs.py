@@ -29,13 +29,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from gcs.reference.simulate import _write_trajectory
 from gcs.report.events import read_events
 from gcs.report.flight_record import FlightRecord, LinkFault, scenario_link_cuts
 from gcs.report.metrics import compute_metrics
 from gcs.report.plots import write_plots
-from gcs.view.recording import write_recording
-from gcs.reference.simulate import _write_trajectory
 from gcs.report.tlog import TlogTrack, VehicleTrack, read_tlog
+from gcs.view.recording import write_recording
 from protocols.frames import FloatArray
 from protocols.scenario import Scenario
 from protocols.trajectory import DescriptorTrajectory
