@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs.tlog import read_tlog
+from gcs.report.tlog import read_tlog
 from protocols.descriptors import align_axes, desired_axes
 from protocols.frames import FloatArray, zyx_from_rot
 from protocols.scenario import Crash, Dropout, load_scenario
