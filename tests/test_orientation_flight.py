@@ -15,13 +15,13 @@ processes, UDP MAVLink, Zenoh):
 from __future__ import annotations
 
 import json
+import socket
 import subprocess
 from pathlib import Path
 
 import pytest
 from orientation_judge import orientation_track
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
-from test_drill_flight import _default_ports_lock
 
 pytestmark = pytest.mark.slow
 
@@ -48,17 +48,16 @@ def _simulate(scenario: Path, out: Path) -> str:
     return done.stdout
 
 
+def _free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
 def _up(scenario: Path, out: Path, n: int, *extra: str) -> str:
-    # swarm up's Zenoh rendezvous takes the default port when it is free: under the machine-wide
-    # lock of the default ports, or another swarm on this machine may meet ours there
-    with _default_ports_lock():
-        done = _run_up(scenario, out, n, *extra)
-    assert done.returncode == 0, done.stdout + done.stderr
-    return done.stdout
-
-
-def _run_up(scenario: Path, out: Path, n: int, *extra: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
+    # a Zenoh router of this run's own on a free port: swarm up's default rendezvous takes the
+    # default port when it is free, where another swarm on this machine may meet ours
+    done = subprocess.run(
         swarm_command(
             "up",
             str(scenario),
@@ -70,6 +69,10 @@ def _run_up(scenario: Path, out: Path, n: int, *extra: str) -> subprocess.Comple
             str(free_udp_port()),
             "--agents-per-process",
             "4",
+            "--router",
+            f"tcp/127.0.0.1:{_free_tcp_port()}",
+            "--only",
+            "router,gcs,sim,agents",
             *extra,
         ),
         capture_output=True,
@@ -78,6 +81,8 @@ def _run_up(scenario: Path, out: Path, n: int, *extra: str) -> subprocess.Comple
         cwd=ROOT,
         timeout=900,
     )
+    assert done.returncode == 0, done.stdout + done.stderr
+    return done.stdout
 
 
 @pytest.fixture(scope="module")
