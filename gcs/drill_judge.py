@@ -390,13 +390,19 @@ def measure(
     rejected: Mapping[str, int] | None = None,
     ended: Sequence[str] = (),
     extra: Mapping[str, Any] | None = None,
+    leaving: Iterable[int] = (),
 ) -> Measurement:
-    """The measurements of one drill's window (module doc)."""
-    s = series(w)
-    during = s.t_s >= w.t_start_s - 5e-4
-    sep, _ = separation(w.t_s[during], w.position_ned_m[during], w.airborne[during])
+    """The measurements of one drill's window (module doc). The ``leaving`` drones (those the
+    drill takes out: a crashed vehicle falls for a while before the ground station hears of its
+    crash) are left out of the formation and estimate errors from the drill's start."""
+    during = w.t_s >= w.t_start_s - 5e-4
     first = int(np.argmax(during)) if during.any() else 0
     lost = tuple(int(i) for i in np.flatnonzero(w.member[first] & ~w.member[-1]))
+    judged = w.member.copy()
+    for i in leaving:
+        judged[during, i] = False
+    s = series(replace(w, member=judged))
+    sep, _ = separation(w.t_s[during], w.position_ned_m[during], w.airborne[during])
     return Measurement(
         peak_centroid_m=_peak(s.centroid_m[during]),
         peak_spread=_peak(s.spread[during]),

@@ -49,6 +49,7 @@ from gcs.drill_judge import (
     table,
     to_json,
 )
+from gcs.tlog import TlogReader, TlogTrack, read_tlog
 
 #: Altitude of a session's steady formation (m).
 ALTITUDE_M = 3.0
@@ -94,7 +95,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     run.add_argument("scenario", type=Path, nargs="?", help="scenario file (or --drones N)")
     run.add_argument("--drones", type=int, metavar="N", help="N drones on a grid (default 9)")
-    run.add_argument("--only", metavar="A,B", help="run only these drills (names from --list)")
+    run.add_argument(
+        "--only", metavar="A,B", help="run only these drills, in this order (names from --list)"
+    )
     run.add_argument("--list", action="store_true", help="list the drills and their criteria")
     run.add_argument("--seed", type=int, help="the run's random draws (with --drones; default 0)")
     run.add_argument(
@@ -135,7 +138,7 @@ def specs_of(args: argparse.Namespace, n_drones: int) -> tuple[DrillSpec, ...]:
             f"--only: unknown drill {', '.join(unknown) or '(none given)'}; "
             f"the drills: {', '.join(known)}"
         )
-    return tuple(s for s in specs if s.name in names)
+    return tuple(known[n] for n in dict.fromkeys(names))  # in the order given
 
 
 def list_lines(specs: Sequence[DrillSpec]) -> list[str]:
@@ -213,10 +216,12 @@ class Swarm:
     dir: Path
     n: int
     swarm_id: str
-    bus: Any = None
+    bus: Any
     latest: dict[int, Any] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
     restarted: list[subprocess.Popen[bytes]] = field(default_factory=list)
+    tlog: TlogReader = field(default_factory=TlogReader)
+    tlog_offset: int = 0
 
     # -- what the agents say -------------------------------------------------------------------
     def on_status(self, _key: str, payload: bytes) -> None:
@@ -385,6 +390,7 @@ def _free_udp_block(n: int) -> int:
 def _swarm(args: argparse.Namespace, n: int, folder: Path) -> Iterator[Swarm]:
     """``swarm up`` on free ports with its report in ``folder``, and a Zenoh peer of it."""
     from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
+    from gcs.commands import Request, encode_request
     from protocols.keys import SwarmKeys
 
     base = _free_udp_block(n)
@@ -402,7 +408,7 @@ def _swarm(args: argparse.Namespace, n: int, folder: Path) -> Iterator[Swarm]:
     folder.mkdir(parents=True, exist_ok=True)
     with (folder.parent / "swarm-up.log").open("wb") as out:
         proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT)
-    swarm = Swarm(proc, folder, n, args.swarm_id)
+    swarm = Swarm(proc, folder, n, args.swarm_id, None)
     try:
         deadline = time.monotonic() + 60.0
         while not run_file.exists():
@@ -410,13 +416,16 @@ def _swarm(args: argparse.Namespace, n: int, folder: Path) -> Iterator[Swarm]:
                 raise DrillsError(f"swarm up did not start: {swarm._tail()}")
             time.sleep(0.2)
         endpoint = json.loads(run_file.read_text())["zenoh"]
-        swarm.bus = ZenohBus.open(ZenohSettings(listen=("tcp/127.0.0.1:0",), connect=(endpoint,)))
+        swarm.bus = ZenohBus.open(ZenohSettings(connect=(endpoint,)))
         swarm.bus.subscribe_callback(SwarmKeys(args.swarm_id, 1.0).status_all(), swarm.on_status)
         deadline = time.monotonic() + 120.0
         while len(swarm.latest) < n:
             if proc.poll() is not None or time.monotonic() > deadline:
                 raise DrillsError(f"the agents did not all report: {swarm._tail()}")
             time.sleep(0.2)
+        while swarm.requests([encode_request(Request("status", {}))], 2.0)[0] is None:
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise DrillsError(f"the ground station does not answer: {swarm._tail()}")
         yield swarm
     finally:
         if proc.poll() is None:
@@ -632,19 +641,32 @@ def _plan(folder: Path) -> Any:
 def _window(
     swarm: Swarm, t_from: float, t_to: float, t_start: float, t_recover: float
 ) -> tuple[Window, list[dict[str, Any]]]:
-    """The judged samples between ``t_from`` and ``t_to`` from the ground station's logs."""
-    return window_from_logs(swarm.dir, swarm.n, t_from, t_to, t_start, t_recover)
+    """The judged samples between ``t_from`` and ``t_to`` from the ground station's logs (the
+    flight log read on from where the last call stopped)."""
+    path = swarm.dir / "flight.tlog"
+    with path.open("rb") as f:
+        f.seek(swarm.tlog_offset)
+        swarm.tlog_offset += swarm.tlog.feed(f.read())
+    track = swarm.tlog.track()
+    return window_from_logs(swarm.dir, swarm.n, t_from, t_to, t_start, t_recover, track)
 
 
 def window_from_logs(
-    folder: Path, n: int, t_from: float, t_to: float, t_start: float, t_recover: float
+    folder: Path,
+    n: int,
+    t_from: float,
+    t_to: float,
+    t_start: float,
+    t_recover: float,
+    track: TlogTrack | None = None,
 ) -> tuple[Window, list[dict[str, Any]]]:
-    """A :class:`Window` of the report folder's flight.tlog, events.jsonl and plan."""
+    """A :class:`Window` of the report folder's flight.tlog (or ``track``, read from it),
+    events.jsonl and plan."""
     from gcs.events import read_events
     from gcs.gcs_report import MAX_AGE_S, _hold
-    from gcs.tlog import read_tlog
 
-    track = read_tlog(folder / "flight.tlog")
+    if track is None:
+        track = read_tlog(folder / "flight.tlog")
     events = read_events(folder / "events.jsonl")
     t = np.arange(max(0.0, t_from), t_to + 1e-9, 1.0 / RATE_HZ)
     if t.size < 2:

@@ -227,3 +227,16 @@ def test_table_and_json_say_pass_and_fail() -> None:
     out = to_json([ok, bad], {"drones": 6})
     assert out["passed"] is False and out["drones"] == 6
     assert [d["passed"] for d in out["drills"]] == [True, False]
+
+
+def test_a_drone_the_drill_takes_out_is_not_judged_in_the_formation() -> None:
+    """A crashed drone falls before its crash is heard: left out from the drill's start (2 s),
+    the survivors' formation is judged; it still counts as lost."""
+    w = window(t_start=2.0)
+    falling = w.t_s >= 2.0
+    w.position_ned_m[falling, 5, 2] = -3.0 + 2.0 * (w.t_s[falling] - 2.0)  # down at 1 m/s ...
+    w.member[w.t_s >= 3.0, 5] = False  # ... heard crashed 1 s later
+    w.desired[:] = descriptors(GRID[:5])
+    assert measure(w).peak_centroid_m > 0.1
+    m = measure(w, leaving=[5])
+    assert m.peak_centroid_m == pytest.approx(0.0, abs=1e-9) and m.lost == (5,)
