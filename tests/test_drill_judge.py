@@ -1,13 +1,13 @@
-"""The judge of ``swarm drills run`` (gcs/drill_judge.py) on made-up windows whose answers are
-known: a still formation on its plan, one shifted or stretched, estimates off by a known share,
-drones that leave and come back."""
+"""The judge of ``swarm drills run`` (gcs/report/drill_judge.py) on made-up windows whose
+answers are known: a still formation on its plan, one shifted or stretched, estimates off by a
+known share, drones that leave and come back."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from gcs.drill_judge import (
+from gcs.report.drill_judge import (
     CENTROID_TOL_M,
     Criteria,
     DrillSpec,
