@@ -52,6 +52,18 @@ delay at 50 Hz); dividing by the lag keeps it converging up to the heard-set tim
 may then integrate different amounts on an edge, which rule 1 makes harmless: ``eta_ij`` is the
 average of both ends' sums, antisymmetric whatever each end added.
 
+Not in ALGORITHM.md: *incarnations* (issue 14, rejoin). A restarted agent (same drone id) must
+never have its new running sums mixed with the old ones, on either end of an edge, even when it
+comes back before its neighbours' liveliness view has dropped it. Every message carries the
+sender's ``incarnation`` (the round of its agent's first step: a restarted agent starts at a later
+round, so a later life has a larger number) and, per edge sum ``Q_sender,j``, the incarnation of
+j that sum was made with (``edge_incarnations``). A receiver keeps the newest incarnation heard
+per peer: a message of an older one is dropped (counted as stale), and one of a newer one drops
+every state towards that peer first (sums, edge, heard rounds, waiting values) and starts a new
+edge; a ``Q_ji`` is taken only when it was made with the receiver's own current incarnation.
+A sender of an older build says neither (incarnation 0, no edge incarnations): it is heard as
+before.
+
 Pure and I/O-free: no clock, no transport; time enters only as the round number.
 """
 
@@ -143,6 +155,9 @@ class ConsensusMessage:
     ``position_ned_m`` (3,) and ``velocity_ned_m_s`` (3,): where the sender was and how fast it
     moved in this round (NED), for the receivers' separation layer (drone_agent/separation.py);
     None when not known (set by the wire decoder; the estimator does not use them).
+    ``incarnation``: which life of the sender's agent sent it (the round of its first step; 0 from
+    a sender that does not say); ``edge_incarnations``: per neighbour j of ``edge_sums``, the
+    incarnation of j that ``Q_sender,j`` was made with (None: not said, every sum is taken).
     """
 
     sender: int
@@ -154,6 +169,34 @@ class ConsensusMessage:
     ready_hops: int = 0
     position_ned_m: FloatArray | None = None
     velocity_ned_m_s: FloatArray | None = None
+    incarnation: int = 0
+    edge_incarnations: Mapping[int, int] | None = None
+
+
+class EdgeIncarnations(Mapping[int, int]):
+    """The partners' incarnations ``tags`` (E,) of an :class:`EdgeSums` over the same ``ids``:
+    what :class:`BatchConsensus` puts in its messages' ``edge_incarnations``."""
+
+    __slots__ = ("ids", "tags")
+
+    def __init__(self, ids: npt.NDArray[np.intp], tags: npt.NDArray[np.int64]) -> None:
+        self.ids = ids
+        self.tags = tags
+
+    def __getitem__(self, neighbour: int) -> int:
+        hits = np.flatnonzero(self.ids == neighbour)
+        if hits.shape[0] == 0:
+            raise KeyError(neighbour)
+        return int(self.tags[hits[0]])
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self.ids.tolist())
+
+    def __len__(self) -> int:
+        return int(self.ids.shape[0])
+
+    def __repr__(self) -> str:
+        return f"EdgeIncarnations({dict(self)!r})"
 
 
 class EdgeSums(Mapping[int, FloatArray]):
@@ -214,8 +257,19 @@ class ConsensusEstimator:
 
     @property
     def dropped_messages(self) -> int:
-        """Messages ignored: our own, or older than the history."""
+        """Messages ignored: our own, older than the history, or of an earlier incarnation of
+        their sender."""
         return self._batch.dropped_messages[0]
+
+    @property
+    def stale_messages(self) -> int:
+        """Messages ignored because a later incarnation of their sender was heard."""
+        return self._batch.stale_messages[0]
+
+    @property
+    def incarnation(self) -> int | None:
+        """This agent's incarnation (the round of its first step); None before it."""
+        return self._batch.incarnation(0)
 
     @property
     def edges(self) -> tuple[int, ...]:
