@@ -21,9 +21,9 @@ import numpy.typing as npt
 
 from drone_agent.consensus import (
     ConsensusMessage,
-    EdgeIncarnations,
     ConsensusOutput,
     ConsensusParams,
+    EdgeIncarnations,
     EdgeSums,
 )
 from drone_agent.moments import N_CHANNELS
