@@ -108,6 +108,11 @@ class BatchAgentCore:
         """The row of drone ``agent_id``."""
         return self._row[agent_id]
 
+    def restart_row(self, row: int) -> None:
+        """Row ``row``'s agent starts a new life (restarted in its process): its estimator
+        starts afresh with a new incarnation (BatchConsensus.restart)."""
+        self.consensus.restart(row)
+
     def tick(
         self,
         rows: Sequence[int],
