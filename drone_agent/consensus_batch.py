@@ -165,6 +165,8 @@ class BatchConsensus:
         self._has_q_for_me = np.zeros((k, 0), dtype=bool)
         self._inc = np.zeros((k, 0), dtype=np.int64)  # newest incarnation heard per peer, -1 none
         self._own_inc = np.full(k, -1, dtype=np.int64)  # -1: not started
+        #: rows that only listen (set_observing): they say they hear nobody
+        self.observing = np.zeros(k, dtype=bool)
         self._hist_round = np.full((k, h), _NO_ROUND, dtype=np.int64)
         self._hist_gamma = np.zeros((k, h, N_CHANNELS))
         self._hist_largest = np.zeros((k, h))  # max |gamma| of the round
@@ -209,6 +211,16 @@ class BatchConsensus:
         self._hist_heard[row] = False
         self._later[row] = {}
         self._last_round[row] = None
+        self.observing[row] = False
+
+    def set_observing(self, row: int, observing: bool) -> None:
+        """Row ``row`` only listens (True) or takes part again (False). A listening row's
+        messages say it hears nobody and carry no running sums, so by rule 3 no neighbour
+        integrates an edge with it (its channels do not count in anyone's average), while it
+        integrates its edges one-sidedly: its estimate follows its neighbours' estimate of the
+        swarm without it. Used by a returning agent until its vehicle is back near the formation
+        (drone_agent/hosted_agent.py); :meth:`restart` it when it takes part again."""
+        self.observing[row] = observing
 
     # -- the step ------------------------------------------------------------------------------
     def step(
@@ -605,7 +617,12 @@ class BatchConsensus:
         else:
             positions = list(np.array(motion[0], dtype=float).reshape(-1, 3))
             velocities = list(np.array(motion[1], dtype=float).reshape(-1, 3))
-        pos, ids = np.nonzero(self._edge[rows])
+        listening = self.observing[rows]
+        edges = self._edge[rows]
+        if listening.any():  # a listening row says it hears nobody, sends no sums
+            heard = heard & ~listening[:, None]
+            edges = edges & ~listening[:, None]
+        pos, ids = np.nonzero(edges)
         sums = self._q_own[rows[pos], ids]
         tags = self._inc[rows[pos], ids]
         sums.flags.writeable = False  # shared by the messages' EdgeSums

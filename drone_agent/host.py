@@ -220,6 +220,7 @@ class AgentHost:
             [t.plan for t in ticks],
             [t.inbox for t in ticks],
             [t.members for t in ticks],
+            [t.climb_to for t in ticks],
         )
         for (agent, tick), out in zip(group, outs, strict=True):
             agent.finish(tick, out)

@@ -199,3 +199,35 @@ def test_batch_restart_of_a_row_is_a_fresh_estimator() -> None:
                 inboxes[i] = [m for m in msgs if m.sender != i]
     assert batch.incarnation(RESTARTED) == 80
     assert batch.incarnation(0) == 0
+
+
+def test_an_observing_row_follows_its_neighbours_without_counting() -> None:
+    """A listening row (a returning agent still climbing back) says it hears nobody and sends no
+    sums: no neighbour integrates an edge with it, so the others' average is their own, and its
+    estimate follows theirs; restarted, it is a member like any other."""
+    zeta = _zeta() / 100.0  # a few m: away from the tanh saturation
+    batch = BatchConsensus(tuple(range(N)), PARAMS)
+    batch.set_observing(RESTARTED, True)
+    inbox: dict[int, list[ConsensusMessage]] = {i: [] for i in range(N)}
+    others = [i for i in range(N) if i != RESTARTED]
+    gamma = np.zeros((N, 18))
+    for r in range(300):
+        if r == 200:
+            batch.restart(RESTARTED)  # a member from now on
+        gamma, outs = batch.step(list(range(N)), r, zeta, [inbox[i] for i in range(N)], [None] * N)
+        msgs = [o.message for o in outs]
+        if r < 200:
+            mine = msgs[RESTARTED]
+            assert mine.heard == frozenset() and len(mine.edge_sums) == 0 and mine.degree == 0
+            assert all(RESTARTED not in m.edge_sums for m in msgs)
+            assert all(RESTARTED in m.heard for m in msgs if m.sender != RESTARTED and r > 1)
+        if r == 199:
+            own_mean = zeta[others].mean(axis=0)
+            scale = np.abs(own_mean).max()
+            assert np.abs(gamma[others] - own_mean).max() < 1e-3 * scale
+            assert np.abs(gamma[RESTARTED] - own_mean).max() < 1e-3 * scale
+        for i in range(N):
+            inbox[i] = [m for m in msgs if m.sender != i]
+    mean = zeta.mean(axis=0)
+    assert np.abs(gamma - mean).max() < 0.02 * np.abs(mean).max()
+    assert batch.incarnation(RESTARTED) == 200

@@ -2,8 +2,8 @@
 
 One ``swarm up`` run (lockstep, one agent process per drone) of five drones hovering at 3 m:
 
-1. ``swarm drill restart --drone 1 --gap-s 6``: drone 1's agent is killed inside its process; its
-   vehicle's offboard-loss failsafe holds, lands and disarms it; six simulated seconds later a new
+1. ``swarm drill restart --drone 1 --gap-s 8``: drone 1's agent is killed inside its process; its
+   vehicle's offboard-loss failsafe holds, lands and disarms it; eight simulated seconds later a new
    agent of drone 1 starts, re-arms the vehicle on the ground and climbs back into the formation.
 2. ``swarm drill dropout --drone 3`` (SIGKILL of drone 3's agent process), then ``swarm agent``
    typed again for drone 3 with the same flags: the vehicle is still in the air (held by its
@@ -40,7 +40,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 FIVE = [(0.0, 0.0, 0.0), (0.0, 3.0, 0.0), (4.0, 0.0, 0.0), (4.0, 3.0, 0.0), (2.0, 1.5, 0.0)]
 ALTITUDE_M = 3.0
 RESTARTED, RETYPED = 1, 3
-GAP_S = 6.0
+GAP_S = 8.0
 DURATION_S = 80.0
 ESTIMATE_WITHIN_S = 10.0
 SLOT_WITHIN_S = 30.0
@@ -117,18 +117,18 @@ def test_agents_killed_in_flight_come_back_into_the_formation(tmp_path: Path) ->
             assert flying, {d: (s.mode, s.t_s) for d, s in obs.statuses().items()}
             # 1. the restart drill: the vehicle lands meanwhile, the new agent re-arms it
             done = _drill(
-                obs.endpoint, "restart", "--drone", str(RESTARTED), "--gap-s", "6", "--json"
+                obs.endpoint, "restart", "--drone", str(RESTARTED), "--gap-s", "8", "--json"
             )
             assert done.returncode == 0, done.stdout + done.stderr
             reply = json.loads(done.stdout)
             assert reply == {
                 "drill": "restart",
                 "sent": True,
-                "what": f"restart drone {RESTARTED} after 6 s",
+                "what": f"restart drone {RESTARTED} after 8 s",
                 "drone": RESTARTED,
                 "gap_s": GAP_S,
             }
-            wait_sim(42.0)
+            wait_sim(45.0)
             # 2. the agent process of drone 3 killed; `swarm agent` typed again for drone 3
             pids = json.loads((report / "logs" / "run.json").read_text())["agents"]
             pid = int(pids[str(RETYPED)])
