@@ -43,6 +43,8 @@ class FlightRecord:
     - ``airborne`` (T, N): the vehicle is off the ground.
     - ``neighbours`` (T, N): number of neighbours each agent integrates with.
     - ``armed`` (T, N): the vehicle is armed; ``body_rates_rad_s`` (T, N, 3): p, q, r.
+    - ``lost_at_s``: drones lost by the end and when; ``returns``: (drone, left s, back s) for
+      each absence a drone came back from (its agent restarted).
     """
 
     t_s: FloatArray
@@ -60,6 +62,7 @@ class FlightRecord:
     lost_at_s: dict[int, float] = field(default_factory=dict)
     armed: BoolArray | None = None
     body_rates_rad_s: FloatArray | None = None
+    returns: list[tuple[int, float, float]] = field(default_factory=list)
 
     @property
     def n_drones(self) -> int:
