@@ -17,7 +17,6 @@ from gcs.report.drill_judge import (
     joins,
     judge,
     measure,
-    membership,
     reconverge_time,
     rejoin_facts,
     series,
@@ -25,6 +24,7 @@ from gcs.report.drill_judge import (
     table,
     to_json,
 )
+from gcs.report.from_logs import membership
 from protocols.descriptors import descriptors
 
 RATE = 25.0
@@ -115,7 +115,7 @@ def test_membership_follows_joins_losses_and_rejoins() -> None:
         {"t_s": 4.0, "kind": "crash", "drone": 0},
         {"t_s": 5.0, "kind": "command", "drone": None},
     ]
-    member = membership(events, t, 3)
+    member = membership(events, t, 3)[0]  # the report's, which the drills use
     assert member[:, 0].tolist() == [x < 4.0 for x in t]
     assert member[:, 1].tolist() == [x < 3.0 or x >= 6.0 for x in t]
     assert not member[:, 2].any()

@@ -5,8 +5,8 @@ a table of verdicts and figures, write ``drills.json`` and ``drills.png``, exit 
 This is the adapter: the swarm is ``swarm up`` (a child process, its report in
 ``DIR/swarm``; ``--drones N`` an operator session flown up with ``takeoff``, or a scenario file
 whose plan ends in a long hold), the drills are what ``swarm drill`` and the operator commands
-send (one Zenoh peer of the run: fault commands, ground-station requests, consensus garbage), a
-restart is the dropout drill then the killed agent's command line started again, and every
+send (one Zenoh peer of the run: fault commands, the restart drill among them, ground-station
+requests, consensus garbage), and every
 figure is judged by :mod:`gcs.report.drill_judge` from the ground station's flight.tlog and
 events.jsonl, message counters from the agents' statuses and process ends from /proc.
 
@@ -42,7 +42,6 @@ from gcs.report.drill_judge import (
     joins,
     judge,
     measure,
-    membership,
     rejoin_facts,
     series,
     split_north,
@@ -219,7 +218,6 @@ class Swarm:
     bus: Any
     latest: dict[int, Any] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
-    restarted: list[subprocess.Popen[bytes]] = field(default_factory=list)
     tlog: TlogReader = field(default_factory=TlogReader)
     tlog_offset: int = 0
 
@@ -345,15 +343,6 @@ class Swarm:
                 roles[int(entry.name)] = role
         return roles
 
-    def agent_argv(self, drone: int) -> list[str] | None:
-        """The command line of drone ``drone``'s agent process (from swarm up's run file)."""
-        try:
-            pid = json.loads((self.dir / "logs" / "run.json").read_text())["agents"][str(drone)]
-            raw = Path(f"/proc/{int(pid)}/cmdline").read_bytes()
-        except (OSError, ValueError, KeyError):
-            return None
-        return [a.decode() for a in raw.split(b"\0") if a]
-
 
 def _role(argv: Sequence[str]) -> str | None:
     if not argv:
@@ -435,11 +424,6 @@ def _swarm(args: argparse.Namespace, n: int, folder: Path) -> Iterator[Swarm]:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait(10)
-        for p in swarm.restarted:
-            if p.poll() is None:
-                p.terminate()
-                with suppress(subprocess.TimeoutExpired):
-                    p.wait(10)
         if swarm.bus is not None:
             swarm.bus.close()
 
@@ -512,31 +496,11 @@ def _do(swarm: Swarm, step: Step) -> dict[str, Any]:
     if step.kind == "move":
         reply = swarm.command("move", dict(step.args))
         return {"action": f"move: {reply.reason}", "move_accepted": reply.accepted}
-    if step.kind == "restart":
-        return _restart(swarm, int(step.args["drone"]), float(step.args["after_s"]))
     if step.kind == "garbage":
         return _garbage(swarm, int(step.args["count"]), float(step.args["spread_s"]))
     if step.kind == "flood":
         return _flood(swarm, int(step.args["count"]))
     raise ValueError(f"unknown step {step.kind}")
-
-
-def _restart(swarm: Swarm, drone: int, after_s: float) -> dict[str, Any]:
-    """Kill drone ``drone``'s agent (the dropout drill) and start the same command line again
-    ``after_s`` simulated seconds later."""
-    argv = swarm.agent_argv(drone)
-    if argv is None:
-        return {"action": f"restart: no agent process known for drone {drone}", "accepted": False}
-    reply = swarm.command("dropout", {"drone": drone})
-    t_kill = swarm.now()
-    swarm.wait_until_sim(t_kill + after_s)
-    log = swarm.dir / "logs" / f"agent-{drone}-restarted.log"
-    with log.open("ab") as out:
-        swarm.restarted.append(subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT))
-    return {
-        "action": f"dropout: {reply.reason}; agent started again at t = {swarm.now():.2f} s",
-        "accepted": reply.accepted,
-    }
 
 
 def _garbage(swarm: Swarm, count: int, spread_s: float) -> dict[str, Any]:
@@ -663,7 +627,7 @@ def window_from_logs(
     """A :class:`Window` of the report folder's flight.tlog (or ``track``, read from it),
     events.jsonl and plan."""
     from gcs.report.events import read_events
-    from gcs.report.from_logs import MAX_AGE_S, _hold
+    from gcs.report.from_logs import MAX_AGE_S, _hold, membership
 
     if track is None:
         track = read_tlog(folder / "flight.tlog")
@@ -676,7 +640,7 @@ def window_from_logs(
     for sysid, v in track.vehicles.items():
         if 1 <= sysid <= n:
             est[:, sysid - 1] = _hold(t, v.status_t_s, v.status, MAX_AGE_S)[:, :9]
-    member = membership(events, t, n) & np.all(np.isfinite(pos), axis=-1)
+    member = membership(events, t, n)[0] & np.all(np.isfinite(pos), axis=-1)
     with np.errstate(invalid="ignore"):
         airborne = np.isfinite(pos[..., 2]) & (-pos[..., 2] > 0.3)
     desired = _plan(folder).evaluate_many(t)[0]

@@ -20,8 +20,9 @@ samples rebuilt from the ground station's flight.tlog and events.jsonl):
   not at the end), **messages rejected** by reason and **processes that ended** (given by the
   runner, which counts them).
 
-Members: a drone is in the swarm from its agent's ``agent_joined`` event until its
-``dropout_detected`` or ``crash``, and again after a later ``agent_joined`` (a rejoin).
+Members: as the ground station's report has them (:func:`gcs.report.from_logs.membership`): from
+an ``agent_joined`` event until the ``dropout_detected`` or ``crash``, and again after a later
+``agent_joined`` (a restarted agent rejoins; a crashed drone never does).
 """
 
 from __future__ import annotations
@@ -66,8 +67,6 @@ class Step:
       with ``args["split"] = "north"`` is resolved by the runner with :func:`split_north`);
     - ``gcs``: a ground-station drill request (``args["name"]``: crash, dropout, gcs-restart;
       ``args["drone"]``);
-    - ``restart``: kill drone ``args["drone"]``'s agent process (the dropout drill) and, after
-      ``args["after_s"]``, start it again with the same command line;
     - ``garbage``: ``args["count"]`` malformed, foreign and wrong-version payloads on the
       consensus keys of every cell a drone is in;
     - ``flood``: ``args["count"]`` operator requests to the ground station, as fast as it answers;
@@ -159,7 +158,7 @@ def catalogue(n_drones: int, loss: float = 0.5) -> tuple[DrillSpec, ...]:
     The link-fault drills move the formation 1 m (east, then back west in the next one) while
     the fault lasts: in a still hover every estimate stays right without a single message, so
     only a formation that moves shows whether the estimator holds."""
-    from protocols.wire_fault import Clear, Delay, LinkCut, Loss, Partition
+    from protocols.wire_fault import Clear, Delay, LinkCut, Loss, Partition, Restart
 
     if n_drones < 4:
         raise ValueError(f"the drills need at least 4 drones, got {n_drones}")
@@ -237,10 +236,11 @@ def catalogue(n_drones: int, loss: float = 0.5) -> tuple[DrillSpec, ...]:
         ),
         DrillSpec(
             "restart",
-            f"SIGKILL drone {restarted}'s agent, start it again 3 s later: it rejoins",
-            (Step(0.0, "restart", {"drone": restarted, "after_s": 3.0}),),
+            f"kill drone {restarted}'s agent, a new one 3 s later (swarm drill restart): it "
+            "rejoins",
+            (Step(0.0, "fault", {"fault": Restart(restarted, 3.0)}),),
             3.0, 30.0,
-            Criteria(rejoin=restarted, may_end=frozenset({f"agent {restarted}"})),
+            Criteria(rejoin=restarted),
         ),
     )  # fmt: skip
 
@@ -252,32 +252,7 @@ def split_north(positions_ned_m: Mapping[int, Sequence[float]]) -> tuple[tuple[i
     return tuple(sorted(order[:half])), tuple(sorted(order[half:]))
 
 
-# -- membership --------------------------------------------------------------------------------
-def membership(
-    events: Iterable[Mapping[str, Any]], t_grid_s: FloatArray, n_drones: int
-) -> BoolArray:
-    """(T, N): drone i is a member from its ``agent_joined`` to its ``dropout_detected`` or
-    ``crash`` event, and again from a later ``agent_joined`` (the events in time order)."""
-    t = np.asarray(t_grid_s, dtype=float)
-    member = np.zeros((t.size, n_drones), dtype=bool)
-    state = [False] * n_drones
-    since = [0.0] * n_drones
-    for event in sorted(events, key=lambda e: float(e.get("t_s", 0.0))):
-        i, kind = event.get("drone"), event.get("kind")
-        if not isinstance(i, int) or not 0 <= i < n_drones:
-            continue
-        t_e = float(event["t_s"])
-        if kind == "agent_joined" and not state[i]:
-            state[i], since[i] = True, t_e
-        elif kind in ("dropout_detected", "crash") and state[i]:
-            member[(t >= since[i] - 5e-4) & (t < t_e), i] = True
-            state[i] = False
-    for i in range(n_drones):
-        if state[i]:
-            member[t >= since[i] - 5e-4, i] = True
-    return member
-
-
+# -- membership ----------------------------------------------------------------------------------
 def joins(events: Iterable[Mapping[str, Any]], drone: int) -> list[float]:
     """Times (s) of drone ``drone``'s ``agent_joined`` events."""
     return sorted(
