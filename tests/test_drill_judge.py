@@ -4,6 +4,8 @@ known share, drones that leave and come back."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -240,3 +242,22 @@ def test_a_drone_the_drill_takes_out_is_not_judged_in_the_formation() -> None:
     assert measure(w).peak_centroid_m > 0.1
     m = measure(w, leaving=[5])
     assert m.peak_centroid_m == pytest.approx(0.0, abs=1e-9) and m.lost == (5,)
+
+
+def test_a_liveliness_flap_is_bridged_and_a_member_not_heard_is_not_measured() -> None:
+    """Drone 2 absent 0.2 s (a flap: bridged) and drone 3 for 3 s (a restart: kept); while a
+    member's position is unknown the sample is not measured (NaN), never judged on the rest."""
+    from gcs.report.drill_judge import bridge_flaps
+
+    w = window()
+    flap = (w.t_s >= 4.0) & (w.t_s < 4.2)
+    gap = (w.t_s >= 5.0) & (w.t_s < 8.0)
+    w.member[flap, 2] = False
+    w.member[gap, 3] = False
+    bridged = bridge_flaps(w.member, w.t_s)
+    assert bridged[:, 2].all()
+    assert bridged[:, 3].tolist() == (~gap).tolist()
+    w.position_ned_m[flap, 2] = np.nan
+    s = series(replace(w, member=bridged))
+    assert np.all(np.isnan(s.centroid_m[flap])) and not s.converged[flap].any()
+    assert np.nanmax(s.centroid_m[~gap]) < 1e-9  # never the centroid of the other five

@@ -38,6 +38,7 @@ from gcs.report.drill_judge import (
     DrillSpec,
     Step,
     Window,
+    bridge_flaps,
     catalogue,
     joins,
     judge,
@@ -640,7 +641,7 @@ def window_from_logs(
     for sysid, v in track.vehicles.items():
         if 1 <= sysid <= n:
             est[:, sysid - 1] = _hold(t, v.status_t_s, v.status, MAX_AGE_S)[:, :9]
-    member = membership(events, t, n)[0] & np.all(np.isfinite(pos), axis=-1)
+    member = bridge_flaps(membership(events, t, n)[0], t)
     with np.errstate(invalid="ignore"):
         airborne = np.isfinite(pos[..., 2]) & (-pos[..., 2] > 0.3)
     desired = _plan(folder).evaluate_many(t)[0]

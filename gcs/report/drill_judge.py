@@ -55,6 +55,8 @@ REJOIN_ESTIMATE_S = 10.0
 REJOIN_SLOT_M = 0.2
 #: ... within this long of its return (s).
 REJOIN_SLOT_S = 30.0
+#: An absence shorter than this (s) is a liveliness flap, not a drop-out (:func:`bridge_flaps`).
+FLAP_S = 1.0
 #: The move of the link-fault drills takes this long (s).
 MOVE_S = 4.0
 
@@ -253,6 +255,26 @@ def split_north(positions_ned_m: Mapping[int, Sequence[float]]) -> tuple[tuple[i
 
 
 # -- membership ----------------------------------------------------------------------------------
+def bridge_flaps(member: BoolArray, t_s: FloatArray, max_gap_s: float = FLAP_S) -> BoolArray:
+    """``member`` (T, N) with every absence shorter than ``max_gap_s`` that ends with the drone
+    back filled in: a liveliness flap (the ground station saw an agent's token go and come back
+    at once, e.g. a lease missed on a busy machine) is no drop-out; its vehicle flew on."""
+    out = member.copy()
+    for i in range(member.shape[1]):
+        col = member[:, i]
+        k = 1
+        while k < col.size:
+            if col[k - 1] and not col[k]:
+                end = k
+                while end < col.size and not col[end]:
+                    end += 1
+                if end < col.size and t_s[end] - t_s[k] < max_gap_s:
+                    out[k:end, i] = True
+                k = end
+            k += 1
+    return out
+
+
 def joins(events: Iterable[Mapping[str, Any]], drone: int) -> list[float]:
     """Times (s) of drone ``drone``'s ``agent_joined`` events."""
     return sorted(
@@ -295,8 +317,9 @@ class Series:
 def series(w: Window) -> Series:
     """The formation and estimate errors of every sample of ``w``."""
     pos = w.position_ned_m
-    have = np.all(np.isfinite(pos), axis=-1) & w.member
-    truth = descriptors_of(pos, have, w.desired)
+    known = np.all(np.isfinite(pos), axis=-1)
+    truth = descriptors_of(pos, w.member & known, w.desired)
+    truth[np.any(w.member & ~known, axis=1)] = np.nan  # a member not heard: not measurable
     with np.errstate(invalid="ignore"):
         centroid = np.linalg.norm(truth[:, CENTRE] - w.desired[:, CENTRE], axis=1)
         want = np.sqrt(np.maximum(w.desired[:, SHAPE], 0.0))
