@@ -124,7 +124,7 @@ def test_the_router_enforces_the_rights(secrets: Path, router: str) -> None:
             commands.append(b"q")
             query.reply(f"swarm/{SWARM_ID}/command", b"ok")  # type: ignore[attr-defined]
 
-        gcs.cli.session.declare_queryable(f"swarm/{SWARM_ID}/command", answer)
+        gcs.session.declare_queryable(f"swarm/{SWARM_ID}/command", answer)
         gcs.subscribe_callback(f"swarm/{SWARM_ID}/plan", lambda _k, p: plans.append(p))
         other_agent.subscribe_callback(
             f"swarm/{SWARM_ID}/consensus/**", lambda _k, p: (consensus.append(p), got.set())
