@@ -17,8 +17,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from drone_agent.consensus import ConsensusEstimator, ConsensusMessage, ConsensusParams
+from drone_agent.consensus import ConsensusEstimator, ConsensusParams
 from drone_agent.consensus_batch import BatchConsensus
+from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
 from protocols.wire import decode_consensus, encode_consensus
 
