@@ -34,6 +34,7 @@ from agent_harness import SWARM, observer, within_bound, write_scenario
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
 
 from gcs.report.events import read_events
+from gcs.report.from_logs import absences
 from gcs.report.tlog import TlogTrack, read_tlog
 from protocols.descriptors import descriptors
 from protocols.wire_status import AgentMode
@@ -139,9 +140,11 @@ def test_agents_killed_in_flight_come_back_into_the_formation(tmp_path: Path) ->
             pid = int(pids[str(RETYPED)])
             argv = Path(f"/proc/{pid}/cmdline").read_bytes().decode().split("\0")[:-1]
             assert "agent" in argv
-            done = _drill(obs.endpoint, "dropout", "--drone", str(RETYPED))
-            assert done.returncode == 0 and "accepted" in done.stdout, done.stdout + done.stderr
-            assert obs.wait_until(lambda: obs.alive.get(RETYPED) is False, 30.0)
+            for _ in range(2):  # on a loaded machine the reply may come too late: it is done
+                done = _drill(obs.endpoint, "dropout", "--drone", str(RETYPED))
+                if obs.wait_until(lambda: not Path(f"/proc/{pid}").exists(), 30.0):
+                    break
+            assert not Path(f"/proc/{pid}").exists(), done.stdout + done.stderr
             with (tmp_path / "agent3.log").open("wb") as log:
                 retyped = subprocess.Popen(
                     argv, stdout=log, stderr=subprocess.STDOUT, env=ENV, cwd=ROOT
@@ -175,11 +178,13 @@ def _judge(
 ) -> None:
     """The bars for one restarted drone, from events.jsonl and flight.tlog."""
     mine = [e for e in events if e.get("drone") == drone]
-    left = [e["t_s"] for e in mine if e["kind"] == "dropout_detected"]
-    assert len(left) == 1, mine
-    back = [e["t_s"] for e in mine if e["kind"] == "agent_joined" and e["t_s"] > left[0]]
-    assert back, mine
-    t_left, t_back = left[0], back[0]
+    drilled = [e["t_s"] for e in mine if e["kind"] == "drill" and e.get("accepted")]
+    assert drilled, mine
+    # its absence: the first from the drill on (a loaded machine's liveliness may flap besides)
+    gaps = [g for g in absences(events, 5) if g["drone"] == drone]
+    gap_of_drill = [g for g in gaps if g["left_s"] >= drilled[0] - 0.1]
+    assert gap_of_drill and gap_of_drill[0]["back_s"] is not None, gaps
+    t_left, t_back = gap_of_drill[0]["left_s"], gap_of_drill[0]["back_s"]
     v = track.vehicles[drone + 1]
     t, pos = v.t_s, v.position_ned_m
     # its slot: where it hovered in the second before its agent was killed
