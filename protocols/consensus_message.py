@@ -30,6 +30,7 @@ class ConsensusMessage:
     ``incarnation``: which life of the sender's agent sent it (the round of its first step; 0 from
     a sender that does not say); ``edge_incarnations``: per neighbour j of ``edge_sums``, the
     incarnation of j that ``Q_sender,j`` was made with (None: not said, every sum is taken).
+    The rules: drone_agent/consensus.py, "incarnations".
     """
 
     sender: int

@@ -61,7 +61,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="drills against a running swarm: link cuts, loss, delay, partitions, crashes",
         description=(
             "Faults against a running swarm. Link faults (link-cut, loss, delay, partition, "
-            "clear) go to every agent over Zenoh and are applied on their receive side; crash "
+            "clear) go to every agent over Zenoh and are applied on their receive side; restart "
+            "kills one drone's agent and starts a new one after a gap (the agent process does it); "
+            "crash "
             "asks the ground station to stop every motor of one vehicle; dropout and gcs-restart "
             "(a swarm started by swarm up) kill one agent's process and restart the ground "
             "station. The ground station records each drill in events.jsonl."
