@@ -172,6 +172,7 @@ def test_judge_passes_a_drill_within_its_criteria() -> None:
             "estimate within 2 % after 12 s > 10 s",
         ),
         (Criteria(), {"extra": {"steady_at_start": False}}, "not steady at its start"),
+        (Criteria(), {"extra": {"gone_before_start": [4, 8]}}, "gone before its start: [4, 8]"),
         (Criteria(), {"extra": {"move_accepted": False, "move": "no"}}, "refused"),
     ],
 )

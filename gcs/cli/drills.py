@@ -169,9 +169,11 @@ def run(args: argparse.Namespace) -> int:
         _say(f"{n} drones up ({args.clock} clock); logs in {report / 'swarm' / 'logs'}")
         if args.scenario is None:
             swarm.command("takeoff", {"altitude_m": ALTITUDE_M})
+        gone: set[int] = set()  # the drones the drills so far took out
         for spec in specs:
-            result = _run_drill(swarm, spec)
+            result = _run_drill(swarm, spec, gone)
             results.append(result)
+            gone |= spec.criteria.lost
             _say(f"{spec.name}: {'PASS' if result.passed else 'FAIL'}")
         swarm.shutdown()
     info = {
@@ -430,12 +432,15 @@ def _swarm(args: argparse.Namespace, n: int, folder: Path) -> Iterator[Swarm]:
 
 
 # -- one drill ---------------------------------------------------------------------------------
-def _run_drill(swarm: Swarm, spec: DrillSpec) -> DrillResult:
-    """Wait for steady flight, carry out the drill's steps, judge its window."""
+def _run_drill(swarm: Swarm, spec: DrillSpec, gone: set[int]) -> DrillResult:
+    """Wait for steady flight, carry out the drill's steps, judge its window. ``gone``: the
+    drones earlier drills took out; any other drone missing at the start is reported."""
     steady = _wait_steady(swarm)
     t0 = swarm.now()
     counters0, procs0 = swarm.counters(), swarm.processes()
-    extra: dict[str, Any] = {"steady_at_start": steady}
+    members = set(_positions(swarm))
+    missing = sorted(set(range(swarm.n)) - members - gone)
+    extra: dict[str, Any] = {"steady_at_start": steady, "gone_before_start": missing}
     for step in sorted(spec.steps, key=lambda s: s.at_s):
         swarm.wait_until_sim(t0 + step.at_s)
         facts = _do(swarm, step)

@@ -463,6 +463,8 @@ def judge(spec: DrillSpec, m: Measurement, t_start_s: float = float("nan")) -> D
     c, fail = spec.criteria, []
     if m.extra.get("steady_at_start") is False:
         fail.append("not steady at its start")
+    if m.extra.get("gone_before_start"):
+        fail.append(f"drones gone before its start: {m.extra['gone_before_start']}")
     for said, reason in (("accepted", "reply"), ("move_accepted", "move")):
         if m.extra.get(said) is False:
             fail.append(f"refused by the ground station: {m.extra.get(reason)}")
