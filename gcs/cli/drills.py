@@ -6,9 +6,9 @@ This is the adapter: the swarm is ``swarm up`` (a child process, its report in
 ``DIR/swarm``; ``--drones N`` an operator session flown up with ``takeoff``, or a scenario file
 whose plan ends in a long hold), the drills are what ``swarm drill`` and the operator commands
 send (one Zenoh peer of the run: fault commands, the restart drill among them, ground-station
-requests, consensus garbage), and every
-figure is judged by :mod:`gcs.report.drill_judge` from the ground station's flight.tlog and
-events.jsonl, message counters from the agents' statuses and process ends from /proc.
+requests, consensus garbage), and every figure is judged by :mod:`gcs.report.drill_judge` from
+the ground station's flight.tlog and events.jsonl (:mod:`gcs.report.drill_logs`), message
+counters from the agents' statuses and process ends from /proc.
 
 Exit codes: 0 every drill passed, 1 a drill failed, 2 usage error or the swarm did not fly.
 """
@@ -38,7 +38,6 @@ from gcs.report.drill_judge import (
     DrillSpec,
     Step,
     Window,
-    bridge_flaps,
     catalogue,
     joins,
     judge,
@@ -49,12 +48,11 @@ from gcs.report.drill_judge import (
     table,
     to_json,
 )
-from gcs.report.tlog import TlogReader, TlogTrack, read_tlog
+from gcs.report.drill_logs import RATE_HZ, plot_drills, window_from_logs
+from gcs.report.tlog import TlogReader
 
 #: Altitude of a session's steady formation (m).
 ALTITUDE_M = 3.0
-#: Samples per simulated second of the judged record (the telemetry rate of swarm up).
-RATE_HZ = 25.0
 #: How long (simulated s) to wait for a steady formation before a drill starts anyway.
 STEADY_WAIT_S = 60.0
 #: Wall seconds allowed per simulated second while waiting (lockstep slows on a busy machine).
@@ -185,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
         "wall_time_s": round(time.monotonic() - wall0, 1),
     }
     (report / "drills.json").write_text(json.dumps(to_json(results, info), indent=2) + "\n")
-    _plot(report / "swarm", results, n, report / "drills.png")
+    plot_drills(report / "swarm", results, n, report / "drills.png")
     for line in table(results):
         print(line)
     print(f"wrote {report / 'drills.json'} and {report / 'drills.png'}")
@@ -592,22 +590,6 @@ def _gcs_rejections(events: list[dict[str, Any]], t0: float, t1: float) -> dict[
 
 
 # -- what the ground station logged ----------------------------------------------------------
-def _plan(folder: Path) -> Any:
-    from protocols.trajectory import DescriptorTrajectory
-
-    for _ in range(20):
-        try:
-            data = json.loads((folder / "trajectory.json").read_text())
-            return DescriptorTrajectory(
-                int(data["seq"]),
-                np.array(data["t_knots_s"]),
-                np.array(data["coeffs_ascending_powers"]),
-            )
-        except (OSError, ValueError, KeyError):
-            time.sleep(0.05)
-    raise ValueError(f"no plan in {folder / 'trajectory.json'}")
-
-
 def _window(
     swarm: Swarm, t_from: float, t_to: float, t_start: float, t_recover: float
 ) -> tuple[Window, list[dict[str, Any]]]:
@@ -621,79 +603,9 @@ def _window(
     return window_from_logs(swarm.dir, swarm.n, t_from, t_to, t_start, t_recover, track)
 
 
-def window_from_logs(
-    folder: Path,
-    n: int,
-    t_from: float,
-    t_to: float,
-    t_start: float,
-    t_recover: float,
-    track: TlogTrack | None = None,
-) -> tuple[Window, list[dict[str, Any]]]:
-    """A :class:`Window` of the report folder's flight.tlog (or ``track``, read from it),
-    events.jsonl and plan."""
-    from gcs.report.events import read_events
-    from gcs.report.from_logs import MAX_AGE_S, _hold, membership
-
-    if track is None:
-        track = read_tlog(folder / "flight.tlog")
-    events = read_events(folder / "events.jsonl")
-    t = np.arange(max(0.0, t_from), t_to + 1e-9, 1.0 / RATE_HZ)
-    if t.size < 2:
-        raise ValueError("no samples")
-    pos = track.resample(t, n, max_age_s=MAX_AGE_S)
-    est = np.full((t.size, n, 9), np.nan)
-    for sysid, v in track.vehicles.items():
-        if 1 <= sysid <= n:
-            est[:, sysid - 1] = _hold(t, v.status_t_s, v.status, MAX_AGE_S)[:, :9]
-    member = bridge_flaps(membership(events, t, n)[0], t)
-    with np.errstate(invalid="ignore"):
-        airborne = np.isfinite(pos[..., 2]) & (-pos[..., 2] > 0.3)
-    desired = _plan(folder).evaluate_many(t)[0]
-    return Window(t, pos, est, desired, member, airborne, t_start, t_recover), events
-
-
 def _positions(swarm: Swarm) -> dict[int, list[float]]:
     """Each member drone's latest position (NED m) from the flight log."""
     t = swarm.now()
     w, _ = _window(swarm, t - 1.0, t, t, t)
     last = w.position_ned_m[-1]
     return {i: list(last[i]) for i in range(swarm.n) if w.member[-1, i]}
-
-
-def _plot(folder: Path, results: Sequence[DrillResult], n: int, path: Path) -> None:
-    """Formation and estimate errors over the whole run, each drill's window shaded."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    if not results:
-        return
-    end = max(r.t_start_s + r.spec.length_s for r in results)
-    try:
-        w, _ = window_from_logs(folder, n, 0.0, end, 0.0, 0.0)
-    except (OSError, ValueError):
-        return
-    s = series(w)
-    fig, axes = plt.subplots(3, 1, figsize=(12, 8), sharex=True)
-    for ax, values, label in (
-        (axes[0], s.centroid_m, "centroid error (m)"),
-        (axes[1], 100 * s.spread, "spread error (%)"),
-        (axes[2], 100 * s.estimate, "worst estimate error (%)"),
-    ):
-        ax.plot(s.t_s, values, lw=0.8)
-        ax.set_ylabel(label)
-        ax.set_yscale("symlog", linthresh=0.05 if ax is axes[0] else 2.0)
-        for r in results:
-            colour = "tab:green" if r.passed else "tab:red"
-            ax.axvspan(r.t_start_s, r.t_start_s + r.spec.length_s, color=colour, alpha=0.12)
-    for r in results:
-        axes[0].text(
-            r.t_start_s, axes[0].get_ylim()[1], r.spec.name, rotation=90, va="top", fontsize=7
-        )
-    axes[-1].set_xlabel("simulated time (s)")
-    fig.suptitle("swarm drills run: green PASS, red FAIL")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
