@@ -10,13 +10,14 @@ system is measured against, and a fast tuning tool. Deterministic for a given se
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from drone_agent.agent_core import AgentCore, AgentOutput, BatchAgentCore
 from drone_agent.config import agent_config
+from drone_agent.consensus import ConsensusMessage
 from drone_agent.flight_phase import FlightPhase, Readiness, Request, VehicleView
 from drone_agent.link_faults import LinkFaults
 from gcs.fault_timeline import TimedAction, link_faults, timeline
@@ -224,7 +225,9 @@ class ReferenceFlight:
                 self._event("separation" if out.separating else "separation_end", drone=i)
             phase, readiness = self.phases[i], self.readiness[i]
             ready = readiness.update(out, inboxes[i], members, phase.committed)
-            messages.append(replace(out.message, ready_hops=readiness.level))
+            messages.append(
+                ConsensusMessage(**{**vars(out.message), "ready_hops": readiness.level})
+            )
             if self.crashed[i]:
                 continue
             sp = self._decide(i, out, phase.committed or ready, -float(pos[i, 2]), yaw[i])
