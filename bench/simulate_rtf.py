@@ -1,6 +1,6 @@
 """``swarm simulate``'s real-time factor against the number of drones.
 
-``python -m bench.simulate_rtf [--sizes 9,25,50,100,250] [--repeats 3] [--profile]``
+``python -m bench.simulate_rtf [--sizes 9,25,50,100,250] [--repeats 3] [--profile] [--max-s S]``
 (in ``make bench``; about 10 minutes on the 2-core machine when it is quiet).
 
 The flights, whole, with their faults: N = 9 ``scenarios/paper.toml`` (200 s, a vehicle crash at
@@ -30,6 +30,7 @@ at N = 9 and N = 100).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import statistics
@@ -69,8 +70,9 @@ def scenario_path(n: int, folder: Path) -> Path:
 
 
 # -- the child ---------------------------------------------------------------------------------
-def run_one(scenario: Path) -> dict[str, Any]:
-    """Fly ``scenario`` with :func:`gcs.simulate.simulate` in this process; the figures."""
+def run_one(scenario: Path, max_s: float | None = None) -> dict[str, Any]:
+    """Fly ``scenario`` (its first ``max_s`` seconds, if given) with
+    :func:`gcs.simulate.simulate` in this process; the figures."""
     from gcs import reference_flight
     from gcs.simulate import simulate
     from protocols.scenario import load_scenario
@@ -87,6 +89,8 @@ def run_one(scenario: Path) -> dict[str, Any]:
 
     reference_flight.ReferenceFlight.run = timed  # type: ignore[method-assign]
     sc = load_scenario(scenario)
+    if max_s is not None and max_s < sc.duration_s:
+        sc = dataclasses.replace(sc, duration_s=max_s)
     with tempfile.TemporaryDirectory() as tmp:
         c0 = time.process_time()
         result = simulate(sc, Path(tmp) / "report", plots=False, recording=False)
@@ -130,31 +134,50 @@ def _child(args: Sequence[str]) -> dict[str, Any]:
 
 
 def simulate_rtf(
-    sizes: Sequence[int] = SIZES, repeats: int = 3, profile: bool = False
+    sizes: Sequence[int] = SIZES,
+    repeats: int = 3,
+    profile: bool = False,
+    max_s: float | None = None,
 ) -> dict[str, Any]:
-    """Every size ``repeats`` times in turns; medians (module docstring)."""
+    """Every size ``repeats`` times in turns; medians (module docstring). The JSON, plot and
+    table are written after each repeat (a long run interrupted keeps what it measured)."""
     runs: dict[int, list[dict[str, Any]]] = {n: [] for n in sizes}
+    result: dict[str, Any] = {}
     with tempfile.TemporaryDirectory() as tmp:
         paths = {n: scenario_path(n, Path(tmp)) for n in sizes}
         for _ in range(repeats):
             for n in sizes:
                 load = os.getloadavg()[0]
-                r = _child(["child", str(paths[n])])
+                args = ["child", str(paths[n])] + ([] if max_s is None else [str(max_s)])
+                r = _child(args)
                 r["load_1min"] = round(load, 1)
                 runs[n].append(r)
                 print(json.dumps(r), flush=True)
+            result = _summary(runs, max_s)
+    if profile:
+        OUT_PROFILE.write_text(profile_text(), encoding="utf-8")
+        result["profile"] = str(OUT_PROFILE.relative_to(ROOT))
+        OUT_JSON.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    return result
+
+
+def _summary(runs: dict[int, list[dict[str, Any]]], max_s: float | None) -> dict[str, Any]:
+    """Medians per size; writes the JSON, the plot and the table."""
     rows = []
-    for n in sizes:
-        rs = runs[n]
+    for rs in runs.values():
+        if not rs:
+            continue
         row = dict(rs[0])
         for key in ("rtf_wall", "rtf_cpu", "us_per_tick", "report_s"):
             row[key] = round(statistics.median(r[key] for r in rs), 3)
         row["rtf_cpu_runs"] = [r["rtf_cpu"] for r in rs]
         row["load_1min"] = [r["load_1min"] for r in rs]
         rows.append(row)
+    command = "python -m bench.simulate_rtf" + ("" if max_s is None else f" --max-s {max_s:g}")
     result: dict[str, Any] = {
-        "command": "python -m bench.simulate_rtf",
-        "repeats": repeats,
+        "command": command,
+        "max_s": max_s,
+        "repeats": [len(rs) for rs in runs.values()],
         "rows": rows,
         "targets": {str(n): rtf for n, rtf in TARGETS.items()},
         "targets_met": {
@@ -167,9 +190,6 @@ def simulate_rtf(
     }
     _plot(rows, OUT_PNG)
     OUT_TABLE.write_text(table(rows) + "\n", encoding="utf-8")
-    if profile:
-        OUT_PROFILE.write_text(profile_text(), encoding="utf-8")
-        result["profile"] = str(OUT_PROFILE.relative_to(ROOT))
     OUT_JSON.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
     return result
 
@@ -247,7 +267,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     child processes' entries."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "child":
-        print(json.dumps(run_one(Path(argv[1]))))
+        print(json.dumps(run_one(Path(argv[1]), float(argv[2]) if len(argv) > 2 else None)))
         return 0
     if argv and argv[0] == "profile":
         from bench.agent_batch import profile_worker
@@ -258,9 +278,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--sizes", default=",".join(map(str, SIZES)))
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--profile", action="store_true")
+    parser.add_argument("--max-s", type=float, help="fly only each scenario's first S seconds")
     args = parser.parse_args(argv)
     sizes = [int(x) for x in args.sizes.split(",")]
-    result = simulate_rtf(sizes, args.repeats, args.profile)
+    result = simulate_rtf(sizes, args.repeats, args.profile, args.max_s)
     print(table(result["rows"]))
     print(f"wrote {OUT_JSON.relative_to(ROOT)}, {OUT_TABLE.relative_to(ROOT)}, "
           f"{OUT_PNG.relative_to(ROOT)}")  # fmt: skip
