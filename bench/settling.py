@@ -37,9 +37,10 @@ from typing import Any
 
 import numpy as np
 
-from drone_agent.consensus import ConsensusMessage, ConsensusParams
+from drone_agent.consensus import ConsensusParams
 from drone_agent.consensus_batch import BatchConsensus
 from drone_agent.moments import channels_batch, moments_from_averages, moments_from_averages_batch
+from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
 
 TOLERANCE = 0.02

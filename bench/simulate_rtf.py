@@ -7,8 +7,8 @@ The flights, whole, with their faults: N = 9 ``scenarios/paper.toml`` (200 s, a 
 30 s, 5 % loss); N = 25, 100, 250 ``scenarios/large_grid{N}.toml`` (take-off, a 20 m move with a
 30° turn and a 15 % stretch, an agent drop-out, a vehicle crash, 20 % loss on every link);
 N = 50 the same generator options at 50 drones (made in a temporary folder). Each run is a
-fresh child process running :func:`gcs.simulate.simulate` (what ``swarm simulate --no-plots``
-does, without the Rerun recording):
+fresh child process running :func:`gcs.reference.simulate.simulate` (what ``swarm simulate
+--no-plots`` does, without the Rerun recording):
 
 - ``rtf_wall``: simulated seconds over the flight loop's wall time, as ``metrics.json`` reports;
 - ``rtf_cpu``: over the flight loop's process CPU time (``time.process_time``): what the code
@@ -72,9 +72,9 @@ def scenario_path(n: int, folder: Path) -> Path:
 # -- the child ---------------------------------------------------------------------------------
 def run_one(scenario: Path, max_s: float | None = None) -> dict[str, Any]:
     """Fly ``scenario`` (its first ``max_s`` seconds, if given) with
-    :func:`gcs.simulate.simulate` in this process; the figures."""
-    from gcs import reference_flight
-    from gcs.simulate import simulate
+    :func:`gcs.reference.simulate.simulate` in this process; the figures."""
+    from gcs.reference import flight as reference_flight
+    from gcs.reference.simulate import simulate
     from protocols.scenario import load_scenario
 
     cpu: dict[str, float] = {}

@@ -336,7 +336,7 @@ class _Drills:
     simulator's."""
 
     def __init__(self, scenario: Scenario, faults: LinkFaults, host: AgentHost) -> None:
-        from gcs.fault_timeline import timeline
+        from drone_agent.fault_timeline import timeline
 
         self._actions = [a for a in timeline(scenario) if a.fault_kind != "crash"]
         self._target = _HostFaults(faults, host)
@@ -350,7 +350,7 @@ class _Drills:
 
 
 class _HostFaults:
-    """The fault target of one agent process (gcs.fault_timeline.FaultTarget)."""
+    """The fault target of one agent process (drone_agent.fault_timeline.FaultTarget)."""
 
     def __init__(self, faults: LinkFaults, host: AgentHost) -> None:
         self._faults = faults

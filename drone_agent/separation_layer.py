@@ -27,7 +27,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drone_agent.consensus import ConsensusMessage
 from drone_agent.neighbours import NeighbourTable
 from drone_agent.separation import (
     AccelBox,
@@ -37,6 +36,7 @@ from drone_agent.separation import (
     nobody_near,
 )
 from drone_agent.thrust_attitude import ThrustLimits
+from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
 
 

@@ -104,9 +104,9 @@ def test_the_pre_check_clears_only_agents_the_filter_leaves_alone() -> None:
 def test_the_layer_gives_the_filter_of_every_agent() -> None:
     """The layer (pre-check, then the filter on the agents it is not sure of) against the
     filter on every agent, from the same heard neighbours, close and far."""
-    from drone_agent.consensus import ConsensusMessage
     from drone_agent.separation import filter_accelerations
     from drone_agent.separation_layer import SeparationLayer
+    from protocols.consensus_message import ConsensusMessage
 
     config = agent_config(SCENARIO)
     rng = np.random.default_rng(5)

@@ -1,5 +1,5 @@
-"""Run logs: the MAVLink telemetry log (gcs.tlog), read back by us and by pymavlink's
-mavlogdump, and the JSON-lines events log (gcs.events)."""
+"""Run logs: the MAVLink telemetry log (gcs.report.tlog), read back by us and by pymavlink's
+mavlogdump, and the JSON-lines events log (gcs.report.events)."""
 
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gcs.events import EventLog, read_events
-from gcs.metrics import tracking_from_positions
-from gcs.tlog import TlogWriter, read_tlog
+from gcs.report.events import EventLog, read_events
+from gcs.report.metrics import tracking_from_positions
+from gcs.report.tlog import TlogWriter, read_tlog
 
 DT = 0.02
 N_DRONES, N_SAMPLES = 3, 100

@@ -21,11 +21,11 @@ import pytest
 from agent_harness import write_scenario
 from sitl_client import ENV, ROOT, swarm_command
 
-from gcs import recording as recording_module
-from gcs.cli import main
-from gcs.events import read_events
-from gcs.simulate import simulate
-from gcs.tlog import read_tlog
+from gcs.cli.main import main
+from gcs.reference.simulate import simulate
+from gcs.report.events import read_events
+from gcs.report.tlog import read_tlog
+from gcs.view import recording as recording_module
 from protocols.scenario import load_scenario
 
 pytestmark = pytest.mark.timeout(120)
@@ -110,8 +110,8 @@ def test_recording_matches_the_tlog_and_events(report: Path) -> None:
 
 
 def test_live_view_of_a_growing_tlog_sends_the_same_samples(report: Path, tmp_path: Path) -> None:
-    from gcs.live_view import LiveView
-    from gcs.rerun_log import recording
+    from gcs.view.live import LiveView
+    from gcs.view.rerun_log import recording
 
     live = tmp_path / "live"
     live.mkdir()
@@ -194,7 +194,8 @@ def test_without_rerun_the_view_commands_say_how_to_install_it(
 
 def test_nothing_else_imports_rerun() -> None:
     code = (
-        "import sys, gcs.cli, gcs.simulate, gcs.ground_station, gcs.gcs_report, gcs.view_cli, "
+        "import sys, gcs.cli.main, gcs.reference.simulate, gcs.station.ground_station, "
+        "gcs.report.from_logs, gcs.cli.view, "
         "sitl_sim.server, drone_agent.agent_cli; "
         "sys.exit(1 if any(m == 'rerun' or m.startswith('rerun.') for m in sys.modules) else 0)"
     )
@@ -244,7 +245,7 @@ def test_swarm_up_view_serves_the_live_viewer(tmp_path: Path) -> None:
 # -- the scene's arithmetic, without Rerun's I/O ---------------------------------------------
 @pytest.mark.parametrize("euler", [(0.0, 0.0, 1.2), (0.3, -0.2, 2.9), (-0.5, 0.4, -1.0)])
 def test_ellipsoid_quaternion_is_the_descriptor_orientation(euler: tuple[float, ...]) -> None:
-    from gcs.rerun_log import quaternions_xyzw
+    from gcs.view.rerun_log import quaternions_xyzw
     from protocols.frames import rot_zyx
 
     x, y, z, w = quaternions_xyzw(np.array([euler]))[0]
@@ -258,7 +259,7 @@ def test_ellipsoid_quaternion_is_the_descriptor_orientation(euler: tuple[float, 
 
 
 def test_min_separation_and_modes() -> None:
-    from gcs.view_scene import Mode, event_lines, min_separation, modes
+    from gcs.view.scene import Mode, event_lines, min_separation, modes
 
     rng = np.random.default_rng(3)
     pos = rng.normal(size=(20, 5, 3)) * 3
