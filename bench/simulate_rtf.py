@@ -241,7 +241,8 @@ def profile_text() -> str:
         "the parts, nested parts indented; 'rest' is the loop, readiness, flight phase, faults and",
         "the in-loop recording), and cProfile's top functions by own time (its overhead",
         "included). Written by `python -m bench.simulate_rtf --profile` (bench/simulate_rtf.py);",
-        "the machine is shared, so compare shares rather than absolute figures.",
+        "the machine is shared (last run at load 22-40: wall time per tick was 20-40x what it",
+        "is on a quiet machine), so compare shares rather than absolute figures.",
         "",
     ]
     for label, n, seconds in (("N=9 paper, first 40 s", 9, 40.0), ("N=100 grid, 20 s", 100, 20.0)):
@@ -250,12 +251,15 @@ def profile_text() -> str:
             load = os.getloadavg()[0]
             r = _child(["profile", str(path), str(seconds)])
         out.append(f"== {label} (1-min load average {load:.1f} at the start)")
+        from bench.agent_batch import _PARTS
+
         parts = dict(r["us_per_tick"])
         total = parts.pop("total (flight loop)")
         parts["rest"] = total - sum(us for part, us in parts.items() if not part.startswith(" "))
         parts["total (flight loop)"] = total
-        for part, us in parts.items():
-            out.append(f"  {part:44s} {us:9.0f}")
+        for part in dict.fromkeys([p[0] for p in _PARTS] + ["rest", "total (flight loop)"]):
+            if part in parts:
+                out.append(f"  {part:44s} {parts[part]:9.0f}")
         out.append("")
         out += ["  " + line for line in r["cprofile_top_tottime"]]
         out.append("")
