@@ -238,7 +238,7 @@ def profile_text() -> str:
     first 40 s) and N = 100 (large_grid100, first 20 s), each in a fresh process."""
     out = [
         "Where one 50 Hz control tick of `swarm simulate` goes (wall µs per tick, timers around",
-        "the parts, nested parts indented; 'rest' is the loop, readiness, flight phase, faults and",
+        "the parts, nested parts indented; 'rest' is the loop, the fault timeline and",
         "the in-loop recording), and cProfile's top functions by own time (its overhead",
         "included). Written by `python -m bench.simulate_rtf --profile` (bench/simulate_rtf.py);",
         "the machine is shared (last run at load 22-40: wall time per tick was 20-40x what it",
