@@ -56,7 +56,7 @@ class FlightEvent:
 class _Recorder:
     """Collects the per-tick samples of a flight into arrays."""
 
-    def __init__(self, n_ticks: int, n: int) -> None:
+    def __init__(self, n_ticks: int, n: int, links_every: int = 0) -> None:
         self.t = np.zeros(n_ticks)
         self.pos = np.zeros((n_ticks, n, 3))
         self.vel = np.zeros((n_ticks, n, 3))
@@ -69,6 +69,9 @@ class _Recorder:
         self.airborne = np.zeros((n_ticks, n), dtype=bool)
         self.armed = np.zeros((n_ticks, n), dtype=bool)
         self.neighbours = np.zeros((n_ticks, n), dtype=int)
+        #: every ``links_every`` ticks (0: never), the neighbours each live agent integrated
+        self.links_every = links_every
+        self.neighbour_ids: dict[int, dict[int, tuple[int, ...]]] = {}
 
 
 class ReferenceFlight:
@@ -139,10 +142,14 @@ class ReferenceFlight:
             self.lost_at[drone] = self.t_s
 
     # -- the loop ------------------------------------------------------------------------------
-    def run(self, progress: Callable[[float], None] | None = None) -> FlightRecord:
-        """Fly the whole scenario; ``progress`` is called with the simulated time every tick."""
+    def run(
+        self, progress: Callable[[float], None] | None = None, links_every: int = 0
+    ) -> FlightRecord:
+        """Fly the whole scenario; ``progress`` is called with the simulated time every tick.
+        With ``links_every`` > 0, the record keeps the ids of the neighbours each agent
+        integrated every that many ticks (``FlightRecord.neighbour_ids``)."""
         n_ticks = round(self.scenario.duration_s / self.dt) + 1
-        rec = _Recorder(n_ticks, self.n)
+        rec = _Recorder(n_ticks, self.n, links_every)
         self._event("run_start", drones=self.n, duration_s=self.scenario.duration_s)
         for k in range(n_ticks):
             self.t_s = k * self.dt
@@ -177,6 +184,7 @@ class ReferenceFlight:
             lost_at_s=dict(self.lost_at),
             armed=rec.armed,
             body_rates_rad_s=rec.rates,
+            neighbour_ids=rec.neighbour_ids,
         )
 
     def _event(self, kind: str, **fields: Any) -> None:
@@ -214,6 +222,10 @@ class ReferenceFlight:
         if outs:
             rec.estimate[k, live] = [out.estimate for out in outs]
             rec.neighbours[k, live] = [len(out.active_neighbours) for out in outs]
+            if rec.links_every and k % rec.links_every == 0:
+                rec.neighbour_ids[k] = {
+                    i: out.active_neighbours for i, out in zip(live, outs, strict=True)
+                }
         yaw = euler_from_quat_batch(self.state[QUAT])[2]
         messages = []
         flying: list[int] = []

@@ -66,7 +66,7 @@ def simulate(
     report_dir.mkdir(parents=True, exist_ok=True)
     flight = ReferenceFlight(scenario)
     wall0 = time.perf_counter()
-    record = flight.run(progress)
+    record = flight.run(progress, links_every=status_stride(scenario.rates.dt_control_s))
     wall = time.perf_counter() - wall0
     files = [
         _write_tlog(
@@ -111,6 +111,11 @@ def simulate(
     return SimulationResult(record, flight.events, metrics, files)
 
 
+def status_stride(dt_s: float) -> int:
+    """Every how many samples ``dt_s`` apart an agent's status is logged (:data:`STATUS_HZ`)."""
+    return max(1, round(1.0 / (STATUS_HZ * dt_s)))
+
+
 def _silent_from(flight: ReferenceFlight) -> dict[int, float]:
     """A crashed vehicle stops answering once it has hit the ground."""
     out: dict[int, float] = {}
@@ -129,12 +134,12 @@ def _write_tlog(
     silent_from: dict[int, float],
 ) -> Path:
     """Telemetry of every vehicle at ``hz`` (system id = index + 1), heartbeats at 1 Hz, each
-    live agent's status (estimate, neighbours; as the ground station logs it, mode unknown: NaN)
-    at :data:`STATUS_HZ`, and a STATUSTEXT for each event about a drone. Vehicles in
+    live agent's status (estimate, neighbour count and ids; as the ground station logs it, mode
+    unknown: NaN) at :data:`STATUS_HZ`, and a STATUSTEXT for each event about a drone. Vehicles in
     ``silent_from`` stop after that time."""
     t = record.t_s
     stride = max(1, round(1.0 / (hz * (t[1] - t[0])))) if t.size > 1 else 1
-    status_stride = max(1, round(1.0 / (STATUS_HZ * (t[1] - t[0])))) if t.size > 1 else 1
+    status_every = status_stride(t[1] - t[0]) if t.size > 1 else 1
     hb_stride = max(1, round(1.0 / (t[1] - t[0]))) if t.size > 1 else 1
     rates = record.body_rates_rad_s
     armed = record.armed
@@ -147,7 +152,7 @@ def _write_tlog(
                 if isinstance(drone, int) and ev.kind in _EVENT_SEVERITY:
                     text = f"{ev.kind}: {ev.fields.get('reason', ev.fields.get('description', ''))}"
                     log.write_statustext(ev.t_s, drone + 1, _EVENT_SEVERITY[ev.kind], text[:150])
-            if k % stride and k % hb_stride and k % status_stride:
+            if k % stride and k % hb_stride and k % status_every:
                 continue
             for i in range(record.n_drones):
                 if t[k] > silent_from.get(i, np.inf):
@@ -172,10 +177,11 @@ def _write_tlog(
                         record.euler_rad[k, i],
                         body,
                     )
-                if k % status_stride == 0 and np.all(np.isfinite(record.estimate[k, i])):
+                if k % status_every == 0 and np.all(np.isfinite(record.estimate[k, i])):
                     on = float(armed[k, i]) if armed is not None else 1.0
                     values = [*record.estimate[k, i], record.neighbours[k, i], np.nan, on]
-                    log.write_agent_status(float(t[k]), i + 1, np.array(values, dtype=float))
+                    ids = record.neighbour_ids.get(k, {}).get(i)  # None: not kept
+                    log.write_agent_status(float(t[k]), i + 1, np.array(values, dtype=float), ids)
     return path
 
 

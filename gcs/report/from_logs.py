@@ -12,10 +12,10 @@ ACTUATOR_OUTPUT_STATUS (protocols/mavlink_conventions.py); collective thrust (N)
 (N m) follow from them with the mixer's geometry (:func:`sitl_sim.mixer.wrench_from_rotor_forces`)
 and the scenario's vehicle parameters. A vehicle that sent none has zero thrust and moments.
 
-Link cuts (shaded in the plots): the scenario's own (:func:`drone_agent.fault_timeline.link_faults`, the
-agents apply them) and the ``link_cut`` drills the ground station logged in ``events.jsonl``
-(:mod:`gcs.station.drills`), each ending at its duration, a ``link_restore`` of the pair, a ``clear``
-or the end of the run.
+Link cuts (shaded in the plots): the scenario's own
+(:func:`gcs.report.flight_record.scenario_link_cuts`; the agents apply them) and the ``link_cut``
+drills the ground station logged in ``events.jsonl`` (:mod:`gcs.station.drills`), each ending at
+its duration, a ``link_restore`` of the pair, a ``clear`` or the end of the run.
 """
 
 from __future__ import annotations
@@ -29,13 +29,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from gcs.reference.simulate import _write_trajectory
 from gcs.report.events import read_events
 from gcs.report.flight_record import FlightRecord, LinkFault, scenario_link_cuts
 from gcs.report.metrics import compute_metrics
 from gcs.report.plots import write_plots
-from gcs.view.recording import write_recording
-from gcs.reference.simulate import _write_trajectory
 from gcs.report.tlog import TlogTrack, VehicleTrack, read_tlog
+from gcs.view.recording import write_recording
 from protocols.frames import FloatArray
 from protocols.scenario import Scenario
 from protocols.trajectory import DescriptorTrajectory

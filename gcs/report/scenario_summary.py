@@ -1,9 +1,9 @@
 """What ``swarm scenario check`` says about a scenario: a summary, and whether its plan stays
 inside the operator envelope (the ground station's geofence, tilt and spread limits). Pure.
 
-The envelope (gcs/station/planner.py, its defaults) is what the ground station holds operator commands
-to; a scenario's own plan is not a command, but a plan outside it would be refused the moment an
-operator tried to continue it, so ``check`` and ``new`` hold scenarios to it too.
+The envelope (gcs/station/planner.py, its defaults) is what the ground station holds operator
+commands to; a scenario's own plan is not a command, but a plan outside it would be refused the
+moment an operator tried to continue it, so ``check`` and ``new`` hold scenarios to it too.
 """
 
 from __future__ import annotations

@@ -11,7 +11,9 @@ byte-identical logs). As MAVProxy does, the two low bits of the timestamp carry 
 vehicle time from that field, not from the record timestamp, and from ``time_usec`` (µs) for
 ACTUATOR_OUTPUT_STATUS (the rotor forces, N, of rotors 1..4: protocols/mavlink_conventions.py).
 The ground station also logs each agent's status as DEBUG_FLOAT_ARRAY "AGENT" from the agent's
-component (191), ``time_usec`` = simulated time (same file), so the log alone holds the flight.
+component (191), ``time_usec`` = simulated time (same file), so the log alone holds the flight;
+layout 1 (``array_id``) carries the ids of the neighbours the agent integrated, layout 0 (older
+logs) does not and reads back with those ids unknown (protocols/mavlink_conventions.py).
 
 pymavlink is used only as a codec, one per (system id, component): the autopilot (1) for vehicle
 telemetry, the onboard computer (191) for agent statuses; each carries its own sequence numbers.
@@ -24,6 +26,7 @@ import os
 os.environ["MAVLINK20"] = "1"  # before any pymavlink import (DEPENDENCIES.md)
 
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -37,6 +40,8 @@ from protocols.frames import FloatArray
 from protocols.mavlink_conventions import (
     ACTUATOR_ROTORS,
     AGENT_COMPID,
+    AGENT_NEIGHBOUR_SLOTS,
+    AGENT_STATUS_LAYOUT,
     AGENT_STATUS_NAME,
     AGENT_STATUS_VALUES,
 )
@@ -131,14 +136,28 @@ class TlogWriter:
         self.write_packet(t_s, mav.local_position_ned_encode(ms, x, y, z, vx, vy, vz).pack(mav))
         self.write_packet(t_s, mav.attitude_encode(ms, roll, pitch, yaw, p, q, r).pack(mav))
 
-    def write_agent_status(self, t_s: float, sysid: int, values: FloatArray) -> None:
+    def write_agent_status(
+        self,
+        t_s: float,
+        sysid: int,
+        values: FloatArray,
+        neighbour_ids: Sequence[int] | None = None,
+    ) -> None:
         """An agent's status (``values``: protocols/mavlink_conventions.py AGENT_STATUS_VALUES,
-        NaN allowed) as DEBUG_FLOAT_ARRAY "AGENT" from (``sysid``, 191) at simulated ``t_s``."""
+        NaN allowed) as DEBUG_FLOAT_ARRAY "AGENT" from (``sysid``, 191) at simulated ``t_s``.
+
+        ``neighbour_ids``: the indices of the neighbours whose messages the agent integrated
+        (layout 1; the lowest AGENT_NEIGHBOUR_SLOTS of them); None writes layout 0 (unknown)."""
         data = [float(v) for v in values][:AGENT_STATUS_VALUES]
+        data += [float("nan")] * (AGENT_STATUS_VALUES - len(data))
+        layout = 0
+        if neighbour_ids is not None:
+            layout = AGENT_STATUS_LAYOUT
+            data += [float(j) for j in sorted(neighbour_ids)[:AGENT_NEIGHBOUR_SLOTS]]
         data += [float("nan")] * (58 - len(data))
         mav = self.codec(sysid, AGENT_COMPID)
         usec = max(0, round(t_s * 1e6))
-        msg = mav.debug_float_array_encode(usec, AGENT_STATUS_NAME.encode(), 0, data)
+        msg = mav.debug_float_array_encode(usec, AGENT_STATUS_NAME.encode(), layout, data)
         self.write_packet(t_s, msg.pack(mav))
 
     def write_heartbeat(
@@ -194,7 +213,10 @@ class VehicleTrack:
     - ``actuator_t_s`` (M,): ACTUATOR_OUTPUT_STATUS time_usec / 1e6, s; ``rotor_forces_n`` (M, 4)
       the forces of rotors 1..4, N (empty when the log has none).
     - ``status_t_s`` (S,): the agent's status times (DEBUG_FLOAT_ARRAY "AGENT"), s;
-      ``status`` (S, AGENT_STATUS_VALUES): estimate (9), neighbours, mode, armed (empty if none).
+      ``status`` (S, AGENT_STATUS_VALUES): estimate (9), neighbours, mode, armed (empty if none);
+      ``status_layout`` (S,) each status's layout (1: neighbour ids carried; 0: unknown);
+      ``status_neighbours`` (S, AGENT_NEIGHBOUR_SLOTS) the ids of the neighbours integrated
+      (ascending, NaN-padded; all NaN in layout 0): :meth:`neighbour_ids`.
     - ``heartbeat_t_s`` (H,): record times of the autopilot's HEARTBEATs, s; ``armed`` (H,) its
       armed flag; ``custom_mode`` (H,) its PX4 custom mode (protocols/mavlink_conventions.py).
     - ``named`` : NAMED_VALUE_FLOAT name -> (K, 2) rows of (time_boot_ms / 1000 s, value), e.g.
@@ -212,10 +234,24 @@ class VehicleTrack:
     rotor_forces_n: FloatArray = field(default_factory=lambda: np.zeros((0, ACTUATOR_ROTORS)))
     status_t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
     status: FloatArray = field(default_factory=lambda: np.zeros((0, AGENT_STATUS_VALUES)))
+    status_layout: npt.NDArray[np.int64] = field(
+        default_factory=lambda: np.zeros(0, dtype=np.int64)
+    )
+    status_neighbours: FloatArray = field(
+        default_factory=lambda: np.zeros((0, AGENT_NEIGHBOUR_SLOTS))
+    )
     heartbeat_t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
     armed: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
     custom_mode: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     named: dict[str, FloatArray] = field(default_factory=dict)
+
+    def neighbour_ids(self, k: int) -> tuple[int, ...] | None:
+        """The neighbours status ``k`` says its agent integrated; None where the layout carries
+        none (layout 0: unknown)."""
+        if self.status_layout[k] != AGENT_STATUS_LAYOUT:
+            return None
+        ids = self.status_neighbours[k]
+        return tuple(int(j) for j in ids[np.isfinite(ids)])
 
 
 @dataclass(frozen=True)
@@ -329,8 +365,13 @@ class TlogReader:
             self._act.setdefault(sysid, []).append((msg.time_usec / 1000.0, *forces))
         elif mtype == "DEBUG_FLOAT_ARRAY" and msg.get_srcComponent() == AGENT_COMPID:
             if _name(msg.name) == AGENT_STATUS_NAME:
-                values = msg.data[:AGENT_STATUS_VALUES]
-                self._agent.setdefault(sysid, []).append((msg.time_usec / 1000.0, *values))
+                layout = int(msg.array_id)
+                values = list(msg.data[:AGENT_STATUS_VALUES])
+                ids = list(msg.data[AGENT_STATUS_VALUES:58])
+                if layout != AGENT_STATUS_LAYOUT:  # 0 (older logs): no ids there
+                    ids = [float("nan")] * AGENT_NEIGHBOUR_SLOTS
+                row = (msg.time_usec / 1000.0, *values, float(layout), *ids)
+                self._agent.setdefault(sysid, []).append(row)
         elif mtype == "HEARTBEAT" and msg.get_srcComponent() == _AUTOPILOT_COMPONENT:
             armed = float(bool(msg.base_mode & common.MAV_MODE_FLAG_SAFETY_ARMED))
             beat = (t_rec * 1000.0, armed, float(msg.custom_mode))
@@ -400,7 +441,8 @@ def _track(
 ) -> VehicleTrack:
     """Rows ``(time ms, values...)`` of each message, sorted by time, as a track."""
     p, a, f = _by_time(pos, 7), _by_time(att, 7), _by_time(act, 1 + ACTUATOR_ROTORS)
-    st = _by_time(agent, 1 + AGENT_STATUS_VALUES)
+    st = _by_time(agent, 2 + AGENT_STATUS_VALUES + AGENT_NEIGHBOUR_SLOTS)
+    end = 1 + AGENT_STATUS_VALUES
     hb = _by_time(beats, 3)
     return VehicleTrack(
         t_s=p[:, 0] / 1000.0,
@@ -412,7 +454,9 @@ def _track(
         actuator_t_s=f[:, 0] / 1000.0,
         rotor_forces_n=f[:, 1:],
         status_t_s=st[:, 0] / 1000.0,
-        status=st[:, 1:],
+        status=st[:, 1:end],
+        status_layout=st[:, end].astype(np.int64),
+        status_neighbours=st[:, end + 1 :],
         heartbeat_t_s=hb[:, 0] / 1000.0,
         armed=hb[:, 1] > 0.5,
         custom_mode=hb[:, 2].astype(np.int64),

@@ -123,7 +123,9 @@ class TelemetryReceiver:
     def log_agent_status(self, status: AgentStatus) -> None:
         """Record an agent's status in the tlog (protocols/mavlink_conventions.py "AGENT")."""
         values = [*status.estimate, len(status.neighbours), int(status.mode), int(status.armed)]
-        self._tlog.write_agent_status(status.t_s, status.drone + 1, np.array(values, dtype=float))
+        self._tlog.write_agent_status(
+            status.t_s, status.drone + 1, np.array(values, dtype=float), status.neighbours
+        )
 
     def send_command(self, drone: int, command: int, *params: float) -> None:
         """COMMAND_LONG ``command`` with up to 7 ``params`` to vehicle ``drone`` (index; system id

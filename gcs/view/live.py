@@ -36,6 +36,7 @@ from gcs.view.scene import (
     EVENTS,
     TLOG,
     TRAJECTORY,
+    LinkLog,
     Scene,
     read_plan,
     scene_from_record,
@@ -88,7 +89,7 @@ class LiveView:
         events = read_events(events_path) if events_path.exists() else []
         # only the samples not sent yet and the trail before them are worked out again
         offset = _window_start(record.t_s, self._sent_t_s)
-        scene = scene_from_record(_tail(record, offset), events)
+        scene = scene_from_record(_tail(record, offset), events, LinkLog.from_track(track, n))
         if not self._setup_done:
             log_setup(self.rec, scene.n_drones)
             self._setup_done = True
@@ -150,6 +151,10 @@ def _try_plan(path: Path) -> DescriptorTrajectory | None:
 
 
 def _head(scene: Scene, stop: int) -> Scene:
-    """``scene`` cut to its first ``stop`` samples (events kept)."""
-    cut = {f.name: getattr(scene, f.name)[:stop] for f in fields(scene) if f.name != "events"}
+    """``scene`` cut to its first ``stop`` samples (events and links, by time, kept)."""
+    cut = {
+        f.name: getattr(scene, f.name)[:stop]
+        for f in fields(scene)
+        if f.name not in ("events", "links")
+    }
     return replace(scene, **cut)

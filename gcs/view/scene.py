@@ -9,6 +9,11 @@ so each sample time carries the logged position of that time.
 
 Mode of a drone at a sample (its colour in the view): ``GROUND`` (not airborne), ``FLYING``,
 ``FAILSAFE`` (after a ``failsafe`` event about it) and ``LOST`` (after its drop-out or crash).
+
+Radio links (:class:`LinkLog`, :func:`link_pairs`): at a sample, drones i and j are linked when
+the latest status of i (at most ``MAX_AGE_S`` old, as the report's estimates) says it integrated
+j's message that tick, or j's says so of i; ``both`` when both did. Statuses of tlog layout 0
+(older logs) carry no ids: their agents draw no links.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ import numpy.typing as npt
 
 from gcs.report.events import read_events
 from gcs.report.flight_record import FlightRecord
-from gcs.report.from_logs import build_record
+from gcs.report.from_logs import MAX_AGE_S, _hold, build_record
 from gcs.report.metrics import true_descriptors
 from gcs.report.tlog import TlogTrack, read_tlog
 from protocols.frames import FloatArray
@@ -68,7 +73,8 @@ class Scene:
     descriptors (NaN where fewer than 2 members); ``min_separation_m`` (T,) between airborne
     drones (NaN with fewer than 2); ``consensus_error_m`` (T,) the worst distance of an agent's
     centre estimate from the true centre; ``neighbours_mean`` (T,) the agents' mean number of
-    neighbours; ``events`` in time order."""
+    neighbours; ``events`` in time order; ``links`` the neighbours each agent integrated (None:
+    unknown, nothing drawn): :func:`link_pairs`."""
 
     t_s: FloatArray
     position_ned_m: FloatArray
@@ -80,10 +86,62 @@ class Scene:
     consensus_error_m: FloatArray
     neighbours_mean: FloatArray
     events: tuple[EventLine, ...]
+    links: LinkLog | None = None
 
     @property
     def n_drones(self) -> int:
         return int(self.position_ned_m.shape[1])
+
+
+@dataclass(frozen=True)
+class LinkLog:
+    """The neighbour ids the agents' statuses carried: per drone index i (a tuple of N),
+    ``t_s[i]`` (S_i,) the status times, s, and ``ids[i]`` (S_i, K) the ids of the neighbours
+    integrated, NaN-padded (all NaN for a status of layout 0, which carries none)."""
+
+    t_s: tuple[FloatArray, ...]
+    ids: tuple[FloatArray, ...]
+
+    @staticmethod
+    def from_track(track: TlogTrack, n_drones: int) -> LinkLog | None:
+        """The links of the statuses in ``track`` (drones 0..n_drones-1); None if no status of
+        it carries neighbour ids (a log older than layout 1)."""
+        tracks = [track.vehicles.get(i + 1) for i in range(n_drones)]
+        if not any(v is not None and (v.status_layout == 1).any() for v in tracks):
+            return None
+        return LinkLog(
+            tuple(np.zeros(0) if v is None else v.status_t_s for v in tracks),
+            tuple(np.zeros((0, 0)) if v is None else v.status_neighbours for v in tracks),
+        )
+
+    def integrated(self, t_s: FloatArray, max_age_s: float = MAX_AGE_S) -> FloatArray:
+        """(T, N, K) at each time of ``t_s`` (T,), each agent's neighbour ids in its latest
+        status at most ``max_age_s`` old (the report's sample-and-hold of the statuses, as its
+        estimates); NaN where there is none, or it carries no ids."""
+        t_grid = np.asarray(t_s, dtype=float)
+        width = max((a.shape[1] for a in self.ids), default=0)
+        out = np.full((t_grid.size, len(self.ids), width), np.nan)
+        for i, (t, ids) in enumerate(zip(self.t_s, self.ids, strict=True)):
+            if t.size:
+                out[:, i, : ids.shape[1]] = _hold(t_grid, t, ids, max_age_s)
+        return out
+
+
+def link_pairs(
+    ids: FloatArray, position_ned_m: FloatArray
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+    """The radio links of one sample between drones whose positions (N, 3) are known, from each
+    agent's integrated neighbours ``ids`` (N, K) (:meth:`LinkLog.integrated`): (L, 2) pairs i < j
+    in ascending order, and (L,) whether both directions integrated (else only one did)."""
+    n = position_ned_m.shape[0]
+    rows, cols = np.nonzero(np.isfinite(ids))
+    i, j = rows, ids[rows, cols].astype(np.int64)
+    seen = np.isfinite(position_ned_m[:, 0])
+    ok = (j >= 0) & (j < n) & (j != i)
+    ok[ok] &= seen[i[ok]] & seen[j[ok]]
+    key = np.minimum(i[ok], j[ok]) * n + np.maximum(i[ok], j[ok])
+    pairs, count = np.unique(key, return_counts=True)
+    return np.stack([pairs // n, pairs % n], axis=1), count > 1
 
 
 def read_plan(path: Path) -> DescriptorTrajectory | None:
@@ -120,7 +178,7 @@ def scene_from_report(report_dir: Path, n_drones: int | None = None) -> Scene | 
     )
     if record is None:
         return None
-    return scene_from_record(record, events)
+    return scene_from_record(record, events, LinkLog.from_track(track, n))
 
 
 def _simulated_membership(
@@ -141,8 +199,10 @@ def _simulated_membership(
     return replace(record, member=member, lost_at_s=lost)
 
 
-def scene_from_record(record: FlightRecord, events: Sequence[Mapping[str, Any]]) -> Scene:
-    """The scene of a flight record and its events."""
+def scene_from_record(
+    record: FlightRecord, events: Sequence[Mapping[str, Any]], links: LinkLog | None = None
+) -> Scene:
+    """The scene of a flight record, its events and its agents' links."""
     record = _simulated_membership(record, events)
     heard = np.isfinite(record.position_ned_m[..., 0]) & (
         record.member | np.any(record.position_ned_m != 0.0, axis=-1)
@@ -171,6 +231,7 @@ def scene_from_record(record: FlightRecord, events: Sequence[Mapping[str, Any]])
         consensus_error_m=consensus,
         neighbours_mean=neighbours,
         events=tuple(event_lines(events)),
+        links=links,
     )
 
 
