@@ -17,8 +17,8 @@ estimate within the agents' bound (2 %, or 0.05 near zero: agent_harness.within_
 formation bar) with the drone in it, within 0.2 m of the formation's altitude, within 30 s. Not a
 fixed slot: the formation is defined by its descriptors, so while a drone is away the others
 spread to keep the variances and the returning drone is taken in where the formation has room
-(measured 0.68 m from the place it left after the landed 8 s gap, 0.17 m after the 1.3 s one in
-the air; printed). The report's metrics list both returns;
+(measured 0.7-1.3 m from the place it left after a landed gap, 0.17 m after a 1.3 s one in the
+air; printed). The report's metrics list both returns;
 no two drones came closer than 0.5 m.
 """
 
