@@ -279,7 +279,23 @@ def run(args: argparse.Namespace) -> int:
     options = RunOptions(control_period_ms=period_ms, arm=not args.no_arm)
     host = AgentHost(drones, links, bus, transport, config, plan, options)
     drills = _Drills(scenario, faults, host) if scenario else None
-    live = FaultDrills(bus, args.swarm_id, faults, config.consensus.dt_s, host_round(host))
+
+    def restart(drone: int, gap_s: float) -> None:  # the restart drill (swarm drill restart)
+        done = host.restart(drone, gap_s)
+        if done is not None:
+            print(f"agents: {done}", file=sys.stderr, flush=True)
+
+    def back(drone: int, time_boot_ms: int) -> None:
+        print(
+            f"agents: drone {drone}: a new agent starts at t={time_boot_ms / 1000:.2f}s "
+            "(restart drill)",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    live = FaultDrills(
+        bus, args.swarm_id, faults, config.consensus.dt_s, host_round(host), restart=restart
+    )
 
     def stop(_sig: int, _frame: FrameType | None) -> None:
         host.stop()
@@ -304,7 +320,12 @@ def run(args: argparse.Namespace) -> int:
         )
 
     try:
-        host.run(on_second=None if args.quiet else report, on_loop=each_loop, on_leave=left)
+        host.run(
+            on_second=None if args.quiet else report,
+            on_loop=each_loop,
+            on_leave=left,
+            on_return=back,
+        )
     finally:
         live.close()
         host.close()

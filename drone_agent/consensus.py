@@ -48,9 +48,29 @@ estimate only so fast.
 Not in ALGORITHM.md: *delay-scaled gain*. The increment for round q made at round r is divided by
 the lag ``r - q`` (1 with the normal one-tick delay). A message delay lengthens the feedback loop
 and the fixed gain then oscillates (measured on 9 drones, full graph: unstable from 40 ms extra
-delay at 50 Hz); dividing by the lag keeps it converging up to the heard-set timeout. The two ends
-may then integrate different amounts on an edge, which rule 1 makes harmless: ``eta_ij`` is the
-average of both ends' sums, antisymmetric whatever each end added.
+delay at 50 Hz); dividing by the lag keeps it converging (slower, as the lag grows) up to the
+history (``history_ticks``). The two ends may then integrate different amounts on an edge, which
+rule 1 makes harmless: ``eta_ij`` is the average of both ends' sums, antisymmetric whatever each
+end added.
+
+Rule 3's "heard" is by *arrival*: a peer is heard while a message of it (of any round within the
+history) arrived in the last ``heard_timeout_ticks`` rounds — not while its newest round is that
+recent. A link that delivers every round but late (a 100 ms delay is 5 rounds at 50 Hz) is up,
+and rule 2 pairs its late values with the own values of their round; judged by the message's
+round it was down for both ends, and a swarm moving under such a delay flew on frozen edges
+(issue 14's delay drill: estimates 137 % off, two drones 0.42 m apart).
+
+Not in ALGORITHM.md: *incarnations* (issue 14, rejoin). A restarted agent (same drone id) must
+never have its new running sums mixed with the old ones, on either end of an edge, even when it
+comes back before its neighbours' liveliness view has dropped it. Every message carries the
+sender's ``incarnation`` (the round of its agent's first step: a restarted agent starts at a later
+round, so a later life has a larger number) and, per edge sum ``Q_sender,j``, the incarnation of
+j that sum was made with (``edge_incarnations``). A receiver keeps the newest incarnation heard
+per peer: a message of an older one is dropped (counted as stale), and one of a newer one drops
+every state towards that peer first (sums, edge, heard rounds, waiting values) and starts a new
+edge; a ``Q_ji`` is taken only when it was made with the receiver's own current incarnation.
+A sender of an older build says neither (incarnation 0, no edge incarnations): it is heard as
+before.
 
 Pure and I/O-free: no clock, no transport; time enters only as the round number.
 """
@@ -167,8 +187,19 @@ class ConsensusEstimator:
 
     @property
     def dropped_messages(self) -> int:
-        """Messages ignored: our own, or older than the history."""
+        """Messages ignored: our own, older than the history, or of an earlier incarnation of
+        their sender."""
         return self._batch.dropped_messages[0]
+
+    @property
+    def stale_messages(self) -> int:
+        """Messages ignored because a later incarnation of their sender was heard."""
+        return self._batch.stale_messages[0]
+
+    @property
+    def incarnation(self) -> int | None:
+        """This agent's incarnation (the round of its first step); None before it."""
+        return self._batch.incarnation(0)
 
     @property
     def edges(self) -> tuple[int, ...]:
