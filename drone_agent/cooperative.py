@@ -54,10 +54,11 @@ Orientation feedback: its own PD (``CooperativeGains.orientation_*``) on the rot
 the rate error ``omega - omega_d`` read from ``Sigma_dot'_jk - (s_k - s_j) W_d,jk = (s_k - s_j)
 (W - W_d)_jk``, with the rate it asks for and its acceleration limited (per axis, at the
 formation's RMS radius ``sqrt(s_j + s_k)`` in the plane of the pair). The explained motion of the
-null-space damping and of the flat-axis PD is ``G p`` with ``G = W_d + G_s``, ``G_s`` symmetric
-with ``G_s S + S G_s = Sigma_dot' - [W_d, S]``: a formation turning with the plan is not braked
-(the flat-axis PD damped every tilt rate of a planar formation with its 1.75 /s before, the
-12-15 s lag of issue 15), and mu and Sigma are still untouched by that damping to first order.
+null-space damping is ``G p`` with ``G = W_d + G_s``, ``G_s`` symmetric with ``G_s S + S G_s =
+Sigma_dot' - [W_d, S]``, and the flat-axis PD damps ``h_dot - (W_d p)_h``, the rate beyond the
+plan's own turn: a formation turning with the plan is not braked (the flat-axis PD damped every
+tilt rate of a planar formation with its 1.75 /s before, the 12-15 s lag of issue 15), and mu
+and Sigma are still untouched by that damping to first order.
 
 Pure and I/O-free.
 """
@@ -320,8 +321,11 @@ def virtual_acceleration_batch(
     fields = np.concatenate([a, g.reshape(-1, 3, 3)], axis=1) @ offsets[:, :, :1]  # A p, G p
     v_swarm = fields[:, :3, 0]
     unexplained = p_dot_swarm - fields[:, 3:, 0]
+    # the flat-axis PD damps the offset rate beyond the plan's own turn (not G p: its estimated
+    # part, times the lever of a drone far out, broke the 250-drone grid at a drop-out)
+    planned = p_dot_swarm - np.cross(omega_d, p_swarm)
     v_swarm = np.where(
-        flat, v_swarm - (gains.flat_kp * p_swarm + gains.flat_kd * unexplained), v_swarm
+        flat, v_swarm - (gains.flat_kp * p_swarm + gains.flat_kd * planned), v_swarm
     )
     v_swarm = v_swarm - gains.null_damping_per_s * unexplained
     out: FloatArray = w_mu + _matvec(axes, v_swarm)
