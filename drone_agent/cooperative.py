@@ -324,9 +324,7 @@ def virtual_acceleration_batch(
     # the flat-axis PD damps the offset rate beyond the plan's own turn (not G p: its estimated
     # part, times the lever of a drone far out, broke the 250-drone grid at a drop-out)
     planned = p_dot_swarm - np.cross(omega_d, p_swarm)
-    v_swarm = np.where(
-        flat, v_swarm - (gains.flat_kp * p_swarm + gains.flat_kd * planned), v_swarm
-    )
+    v_swarm = np.where(flat, v_swarm - (gains.flat_kp * p_swarm + gains.flat_kd * planned), v_swarm)
     v_swarm = v_swarm - gains.null_damping_per_s * unexplained
     out: FloatArray = w_mu + _matvec(axes, v_swarm)
     return out
