@@ -6,9 +6,12 @@ core, :meth:`finish`; a host runs the cores of its agents due at the same tick i
 call), publishes its message,
 lets :class:`~drone_agent.flight_phase.FlightPhase` decide what to do with the vehicle (fly the
 formation, land, hold, stay on the ground), and answers the vehicle with that SET_ATTITUDE_TARGET
-echoing the tick (also on the ground, for lockstep). For reproducible consensus it waits, up to
-``neighbour_wait_s`` of wall time, until every neighbour heard recently has sent its message of
-the previous round.
+echoing the tick (also on the ground, for lockstep). Before a tick it waits for its neighbours'
+messages of the previous round: in realtime up to ``neighbour_wait_s`` of wall time, for every
+neighbour heard recently; in lockstep (``RunOptions.lockstep``, with a
+:class:`~drone_agent.round_gate.RoundGate`) for every live drone's round-done marker, however long
+it takes, so that its inbox, membership view and command timing depend on simulated time alone
+and two runs of a scenario repeat exactly.
 
 Safety: it arms only once the plan says fly and every agent's estimate has settled (flight_phase's
 Readiness: the swarm leaves the ground together); an airborne vehicle is
@@ -29,6 +32,7 @@ import numpy as np
 from drone_agent.agent_core import AgentCore, AgentOutput, Setpoint
 from drone_agent.consensus import ConsensusMessage
 from drone_agent.flight_phase import FlightPhase, Order, Readiness, Request, VehicleView
+from drone_agent.round_gate import RoundGate
 from drone_agent.transport import AgentTransport
 from drone_agent.vehicle_link import VehicleLink, VehicleSample
 from protocols.descriptor_vector import CENTRE
@@ -55,6 +59,9 @@ class RunOptions:
     heartbeat_period_s: float = 1.0
     status_every_ticks: int = 2
     command_retry_s: float = 0.5
+    #: lockstep: wait for every live drone's previous round (drone_agent/round_gate.py), retry
+    #: commands on simulated time
+    lockstep: bool = False
 
 
 @dataclass(frozen=True)
@@ -87,8 +94,15 @@ class HostedAgent:
         fallback_plan: DescriptorTrajectory | None,
         options: RunOptions,
         wall_clock: Callable[[], float],
+        gate: RoundGate | None = None,
     ) -> None:
+        if options.lockstep and gate is None:
+            raise ValueError("a lockstep agent needs its round gate")
         self.core, self.link, self.transport = core, link, transport
+        self.gate = gate if options.lockstep else None
+        #: the newest round whose messages are due (tick - 1 while computing a tick): the
+        #: link-fault clock of its transport
+        self.round_now = -1
         self.fallback_plan = fallback_plan
         self.options = options
         self.clock = wall_clock
@@ -178,17 +192,30 @@ class HostedAgent:
         if lost is not None:
             self.leave(lost)
             return None
-        self._collect()
+        gate = self.gate
+        if gate is None:
+            if self.sample is not None:
+                self.round_now = max(self.last_tick, self._tick_of(self.sample) - 1)
+            self._collect()
         sample = self.sample
         if sample is None or self._tick_of(sample) <= self.last_tick:
             return None
         tick = self._tick_of(sample)
-        if self._pending_since is None:
-            self._pending_since = now
-        waited = now - self._pending_since
-        if not self._neighbours_ready(tick) and waited < self.options.neighbour_wait_s:
-            return None
-        self._pending_since = None
+        if gate is not None:
+            # lockstep: every live drone's round tick - 1 is in before anything is taken in
+            if not gate.ready(tick, now):
+                return None
+            self.round_now = tick - 1
+            self._collect()
+            members = gate.members()
+        else:
+            if self._pending_since is None:
+                self._pending_since = now
+            waited = now - self._pending_since
+            if not self._neighbours_ready(tick) and waited < self.options.neighbour_wait_s:
+                return None
+            self._pending_since = None
+            members = self.transport.members()
         plan, command = self._plan()
         self.last_tick = tick
         if plan is None:  # no plan yet: stay on the ground (an airborne vehicle lands)
@@ -196,7 +223,7 @@ class HostedAgent:
             self._after_tick(tick)
             return None
         inbox, self._inbox = self._inbox, []
-        return DueTick(self.core, tick, sample, plan, command, inbox, self.transport.members())
+        return DueTick(self.core, tick, sample, plan, command, inbox, members)
 
     def finish(self, due: DueTick, out: AgentOutput) -> None:
         """Everything after the core: update the readiness to fly (flight_phase.Readiness),
@@ -213,6 +240,8 @@ class HostedAgent:
         self._after_tick(due.tick)
 
     def _after_tick(self, tick: int) -> None:
+        if self.gate is not None:
+            self.gate.book.finished(self.drone, tick)
         if tick % self.options.status_every_ticks == 0:
             # on the simulated-time grid, so the ground station compares like with like
             self._publish_status()
@@ -273,7 +302,8 @@ class HostedAgent:
         self.mode = order.mode
         if order.request == Request.NONE:
             return
-        now = self.clock()
+        # lockstep: retried on simulated time, so the commands reach the vehicle at the same ticks
+        now = sample.time_boot_ms / 1000.0 if self.gate is not None else self.clock()
         if now - self._last_command < self.options.command_retry_s:
             return
         self._last_command = now
