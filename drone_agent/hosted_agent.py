@@ -294,13 +294,18 @@ class HostedAgent:
         )
 
     def _carry_out(self, order: Order, sample: VehicleSample) -> None:
-        """Send the order's setpoint (echoing the tick) and, at most every ``command_retry_s``
-        of wall time, its request to the autopilot."""
+        """Send, at most every ``command_retry_s`` (of wall time; of simulated time in
+        lockstep), the order's request to the autopilot, then its setpoint echoing the tick. The
+        echo goes last: in lockstep it lets the simulator step, which must not happen before the
+        tick's commands are in (they would act a tick later, or not, as the datagrams race)."""
+        self._request(order.request, sample)
         sp = order.setpoint
         q = quat_from_zyx(sp.yaw_rad, sp.pitch_rad, sp.roll_rad)
         self.link.send_setpoint(sample.time_boot_ms, q, sp.thrust_normalised)
         self.mode = order.mode
-        if order.request == Request.NONE:
+
+    def _request(self, request: Request, sample: VehicleSample) -> None:
+        if request == Request.NONE:
             return
         # lockstep: retried on simulated time, so the commands reach the vehicle at the same ticks
         now = sample.time_boot_ms / 1000.0 if self.gate is not None else self.clock()
@@ -308,14 +313,14 @@ class HostedAgent:
             return
         self._last_command = now
         status = self.link.status
-        if order.request == Request.ARM_OFFBOARD:
+        if request == Request.ARM_OFFBOARD:
             if not self.link.in_offboard:
                 self.link.set_offboard()
             if not status.armed:
                 self.link.arm(True)
-        elif order.request == Request.LAND_MODE:
+        elif request == Request.LAND_MODE:
             self.link.set_land()
-        elif order.request == Request.HOLD_MODE:
+        elif request == Request.HOLD_MODE:
             self.link.set_hold()
 
     @property
