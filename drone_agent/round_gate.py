@@ -32,6 +32,9 @@ from protocols.keys import SwarmKeys
 from protocols.wire import WireError
 from protocols.wire_round import RoundDone, decode_round_done, encode_round_done
 
+#: Markers kept between two polls (oldest dropped beyond: a newer marker says more).
+MARKER_CAPACITY = 1024
+
 
 class RoundBook(ClosesOnExit):
     """What one agent process knows of the swarm's rounds: the newest round each drone has
@@ -46,17 +49,18 @@ class RoundBook(ClosesOnExit):
         #: drones whose token went away, with the wall time we noticed (set by poll's caller)
         self.gone: set[int] = set()
         self._lock = threading.Lock()
-        self._payloads: deque[bytes] = deque(maxlen=1 << 16)
         self._changes: deque[tuple[int, bool]] = deque()
         self._to_send: dict[int, list[int]] = {}
         self._newest: dict[int, int] = {}  # hosted drone -> newest round finished
         self.rejected = 0
         self._declared: list[Closeable] = []
-        self._publisher = bus.publisher(keys.round_done(min(hosted)), Congestion.RELIABLE)
+        # DROP as the consensus messages (never blocking the agents' thread); a marker lost in
+        # congestion is made up for by :meth:`repeat`
+        self._publisher = bus.publisher(keys.round_done(min(hosted)), Congestion.DROP)
         self._declared.append(self._publisher)
-        self._declared.append(
-            bus.subscribe_callback(keys.round_done_all(), lambda _k, p: self._payloads.append(p))
-        )
+        # pulled (no Python on Zenoh's threads), drained by :meth:`poll`
+        self._inbox = bus.subscribe(keys.round_done_all(), MARKER_CAPACITY)
+        self._declared.append(self._inbox)
         self._declared.append(bus.watch_liveliness(keys.alive_all(), self._on_liveliness))
 
     def _on_liveliness(self, key: str, alive: bool) -> None:
@@ -75,9 +79,9 @@ class RoundBook(ClosesOnExit):
             else:
                 self.alive.discard(drone)
                 self.gone.add(drone)
-        while self._payloads:
+        for _key, payload in self._inbox.drain():
             try:
-                marker = decode_round_done(self._payloads.popleft(), self._keys.swarm_id)
+                marker = decode_round_done(payload, self._keys.swarm_id)
             except WireError:
                 self.rejected += 1
                 continue

@@ -54,11 +54,13 @@ def _fly(tmp_path: Path, endpoint: str, name: str, *extra: str) -> Path:
 def test_two_lockstep_runs_log_identical_vehicle_telemetry(tmp_path: Path, rendezvous: str) -> None:
     hosted = vehicle_samples(_fly(tmp_path, rendezvous, "hosted", "--agents-per-process", "9"))
     apart = vehicle_samples(_fly(tmp_path, rendezvous, "apart"))
-    # every vehicle, both messages, the whole flight (the ground station logs at 25 Hz)
+    # every vehicle, both messages, the whole flight (the ground station logs at 25 Hz; a ground
+    # station that starts late on a loaded machine misses the first samples of its run)
     expected = 2 * 9 * round(DURATION_S * 25)
-    assert len(hosted) >= 0.98 * expected, len(hosted)
-    assert hosted.keys() == apart.keys()
-    differ = sorted(k for k in hosted if hosted[k] != apart[k])
+    both = hosted.keys() & apart.keys()
+    assert len(both) >= 0.95 * expected, len(both)
+    assert all(t < 2000 for _, _, t in hosted.keys() ^ apart.keys())
+    differ = sorted(k for k in both if hosted[k] != apart[k])
     assert not differ, (len(differ), differ[:3], [(hosted[k], apart[k]) for k in differ[:1]])
     # the flight flew: every drone climbed to the plan's 5 m
     heights = [
