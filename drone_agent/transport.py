@@ -36,10 +36,13 @@ Position = Sequence[float] | FloatArray
 
 class Congestion(StrEnum):
     """What a publisher does when the network cannot keep up: DROP for periodic, loss-tolerant
-    messages (consensus, status), BLOCK for messages that must arrive (plans, commands)."""
+    messages (consensus, status), BLOCK for messages that must arrive (plans, commands),
+    RELIABLE for latency-bound messages that must arrive (BLOCK, sent at once: lockstep consensus
+    and its round-done markers)."""
 
     DROP = "drop"
     BLOCK = "block"
+    RELIABLE = "reliable"
 
 
 class ClosesOnExit:
