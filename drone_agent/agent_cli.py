@@ -29,6 +29,8 @@ from protocols.mavlink_signing import SigningKeyError, load_signing_key
 from protocols.scenario import Scenario, ScenarioError, load_scenario
 
 RENDEZVOUS_PORT = 7447
+#: Zenoh lease (ms) of a lockstep agent's session: how long a frozen agent looks alive.
+LOCKSTEP_LEASE_MS = 5000
 
 
 class AgentCliError(Exception):
@@ -167,12 +169,18 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
         from drone_agent.zenoh_config import ROUTER_LEASE_MS, ROUTER_WAIT_MS
 
         client = args.zenoh_mode == "client"
+        lease_ms = ROUTER_LEASE_MS if client else ZenohSettings.lease_ms
+        if getattr(args, "lockstep", False):
+            # a process starved of CPU for a second must not look dead (its token would go and
+            # come back, changing its neighbours' rosters at a wall-clock moment); a killed one's
+            # token still goes at once, when its sockets close
+            lease_ms = max(lease_ms, LOCKSTEP_LEASE_MS)
         return ZenohSettings(
             mode=args.zenoh_mode,
             listen=tuple(listen or ()) if not client else (),
             connect=tuple(connect or ()),
             connect_timeout_ms=ROUTER_WAIT_MS if client else 0,
-            lease_ms=ROUTER_LEASE_MS if client else ZenohSettings.lease_ms,
+            lease_ms=lease_ms,
         )
     except ValueError as exc:
         raise AgentCliError(str(exc)) from None

@@ -32,7 +32,7 @@ from protocols.trajectory import DescriptorTrajectory
 
 TransportFactory = Callable[[Bus, int, Position], AgentTransport]
 #: Lockstep: with no tick computed for this long (wall s), re-send the newest round markers.
-REPEAT_MARKERS_S = 0.5
+REPEAT_MARKERS_S = 0.2
 
 
 class DroneIdError(ValueError):
