@@ -57,7 +57,7 @@ def maths_worker(n: int, k: int, ticks: int) -> dict[str, Any]:
     BatchAgentCore, i.e. before)."""
     from drone_agent import agent_core
     from drone_agent.config import agent_config
-    from gcs.inprocess_network import InProcessNetwork
+    from gcs.reference.network import InProcessNetwork
     from protocols.scenario import load_scenario
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -111,12 +111,12 @@ def maths_worker(n: int, k: int, ticks: int) -> dict[str, Any]:
 
 
 def simulate_worker(scenario: str, duration_s: float | None) -> dict[str, Any]:
-    """``swarm simulate`` (:func:`gcs.simulate.simulate`, no plots) of a scenario file (or
+    """``swarm simulate`` (:func:`gcs.reference.simulate.simulate`, no plots) of a scenario file (or
     ``grid``), in this process so that the tree under test is what runs: its real-time factor
     as metrics.json reports it (the flight loop's wall time)."""
     import dataclasses
 
-    from gcs.simulate import simulate
+    from gcs.reference.simulate import simulate
     from protocols.scenario import load_scenario
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -149,9 +149,9 @@ _PARTS = (
     ("  thrust and attitude", "drone_agent.thrust_attitude", None, "attitude_thrust_batch"),
     ("  thrust and attitude", "drone_agent.thrust_attitude", None, "attitude_thrust"),
     ("  plan evaluation", "protocols.trajectory", "DescriptorTrajectory", "evaluate"),
-    ("radio (in-memory, send + receive)", "gcs.inprocess_network", "InProcessNetwork", "send"),
-    ("radio (in-memory, send + receive)", "gcs.inprocess_network", "InProcessNetwork", "receive"),
-    ("physics (10 sub-steps)", "gcs.reference_flight", "ReferenceFlight", "_physics_step"),
+    ("radio (in-memory, send + receive)", "gcs.reference.network", "InProcessNetwork", "send"),
+    ("radio (in-memory, send + receive)", "gcs.reference.network", "InProcessNetwork", "receive"),
+    ("physics (10 sub-steps)", "gcs.reference.flight", "ReferenceFlight", "_physics_step"),
 )
 
 
@@ -161,7 +161,7 @@ def profile_worker(scenario: str, duration_s: float) -> dict[str, Any]:
     import dataclasses
     import importlib
 
-    from gcs.reference_flight import ReferenceFlight
+    from gcs.reference.flight import ReferenceFlight
     from protocols.scenario import load_scenario
 
     with tempfile.TemporaryDirectory() as tmp:

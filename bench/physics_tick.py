@@ -313,7 +313,7 @@ def hover_scenario_text(n: int, duration_s: float) -> str:
 def _profile_flight(scenario: Any, reference: bool) -> dict[str, float]:
     """Wall µs per control tick of one in-process flight, per part."""
     import drone_agent.agent_core as agent_core
-    import gcs.reference_flight as rf
+    import gcs.reference.flight as rf
 
     parts: dict[str, float] = {}
     undo: list[tuple[Any, str, Any]] = []

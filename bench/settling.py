@@ -33,8 +33,9 @@ from typing import Any
 
 import numpy as np
 
-from drone_agent.consensus import ConsensusEstimator, ConsensusMessage, ConsensusParams
+from drone_agent.consensus import ConsensusEstimator, ConsensusParams
 from drone_agent.moments import channels_batch, moments_from_averages
+from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
 
 TOLERANCE = 0.02

@@ -64,9 +64,9 @@ def run_worker(
 
     A host receives once per tick; the probe (one drone) polls every ``POLL_S`` and records
     latencies and which (sender, round) arrived."""
-    from drone_agent.consensus import ConsensusMessage
     from drone_agent.transport_link import AgentLink, LinkSettings
     from drone_agent.zenoh_transport import ZenohBus
+    from protocols.consensus_message import ConsensusMessage
 
     positions = grid_positions(n)
     edges = {i: {j: np.full(18, 0.5) for j in _neighbours(positions, i)} for i in drones}

@@ -364,7 +364,7 @@ class _Drills:
     the drone's agent before it computes its tick of ``t``. Crashes are the simulator's."""
 
     def __init__(self, scenario: Scenario, faults: LinkFaults, host: AgentHost) -> None:
-        from gcs.fault_timeline import timeline
+        from drone_agent.fault_timeline import timeline
 
         actions = [a for a in timeline(scenario) if a.fault_kind != "crash"]
         self._links = [a for a in actions if a.fault_kind != "dropout"]
@@ -387,7 +387,7 @@ class _Drills:
 
 
 class _HostFaults:
-    """The fault target of one agent process (gcs.fault_timeline.FaultTarget)."""
+    """The fault target of one agent process (drone_agent.fault_timeline.FaultTarget)."""
 
     def __init__(self, faults: LinkFaults, host: AgentHost) -> None:
         self._faults = faults

@@ -23,12 +23,13 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from drone_agent.consensus import ConsensusMessage, ConsensusParams
+from drone_agent.consensus import ConsensusParams
 from drone_agent.consensus_batch import BatchConsensus
 from drone_agent.cooperative import CooperativeGains, virtual_acceleration_batch
 from drone_agent.moments import SwarmMoments, channels_batch, moments_from_averages_batch
 from drone_agent.separation_layer import SeparationConfig, SeparationLayer
 from drone_agent.thrust_attitude import ThrustLimits, attitude_thrust_batch
+from protocols.consensus_message import ConsensusMessage
 from protocols.descriptor_vector import CENTRE, I_YAW
 from protocols.descriptors import align_axes_batch, desired_axes_batch, frame_vector_batch
 from protocols.frames import FloatArray

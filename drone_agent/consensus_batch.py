@@ -19,13 +19,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from drone_agent.consensus import (
-    ConsensusMessage,
-    ConsensusOutput,
-    ConsensusParams,
-    EdgeSums,
-)
+from drone_agent.consensus import ConsensusOutput, ConsensusParams
 from drone_agent.moments import N_CHANNELS
+from protocols.consensus_message import ConsensusMessage, EdgeSums
 from protocols.frames import FloatArray
 from protocols.mavlink_conventions import MAX_VEHICLES
 

@@ -32,8 +32,8 @@ from dataclasses import dataclass
 from enum import Enum
 
 from drone_agent.agent_core import AgentConfig, AgentOutput, Setpoint
-from drone_agent.consensus import ConsensusMessage
 from drone_agent.thrust_attitude import ThrustLimits
+from protocols.consensus_message import ConsensusMessage
 from protocols.frames import G_M_S2
 from protocols.wire_plan import LAND_HANDOVER_ALTITUDE_M, FlightCommand
 from protocols.wire_status import AgentMode

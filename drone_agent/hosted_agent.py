@@ -30,11 +30,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from drone_agent.agent_core import AgentCore, AgentOutput, Setpoint
-from drone_agent.consensus import ConsensusMessage
 from drone_agent.flight_phase import FlightPhase, Order, Readiness, Request, VehicleView
 from drone_agent.round_gate import RoundGate
 from drone_agent.transport import AgentTransport
 from drone_agent.vehicle_link import VehicleLink, VehicleSample
+from protocols.consensus_message import ConsensusMessage
 from protocols.descriptor_vector import CENTRE
 from protocols.frames import quat_from_zyx
 from protocols.mavlink_conventions import MODE_HOLD, MODE_LAND, MODE_OFFBOARD

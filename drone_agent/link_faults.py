@@ -25,8 +25,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from drone_agent.consensus import ConsensusMessage
 from drone_agent.transport import AgentTransport, ClosesOnExit, LinkCounters, Position
+from protocols.consensus_message import ConsensusMessage
 from protocols.wire import ConsensusPacket
 from protocols.wire_plan import PlanMessage
 from protocols.wire_status import AgentStatus

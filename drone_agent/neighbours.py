@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from drone_agent.consensus import ConsensusMessage
+from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
 
 BoolArray = npt.NDArray[np.bool_]

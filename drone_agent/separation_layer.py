@@ -23,7 +23,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drone_agent.consensus import ConsensusMessage
 from drone_agent.separation import (
     AccelBox,
     SeparationParams,
@@ -31,6 +30,7 @@ from drone_agent.separation import (
     filter_accelerations,
 )
 from drone_agent.thrust_attitude import ThrustLimits
+from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
 from protocols.mavlink_conventions import MAX_VEHICLES
 

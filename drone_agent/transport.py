@@ -24,7 +24,7 @@ from enum import StrEnum
 from types import TracebackType
 from typing import Protocol, Self
 
-from drone_agent.consensus import ConsensusMessage
+from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
 from protocols.wire import ConsensusPacket
 from protocols.wire_plan import PlanMessage

@@ -19,7 +19,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drone_agent.consensus import ConsensusMessage
 from drone_agent.transport import (
     Bus,
     Closeable,
@@ -30,6 +29,7 @@ from drone_agent.transport import (
     Position,
     Publisher,
 )
+from protocols.consensus_message import ConsensusMessage
 from protocols.keys import Cell, SwarmKeys, cell_size_for, neighbourhood, track_cell
 from protocols.wire import (
     MAX_CONSENSUS_BYTES,

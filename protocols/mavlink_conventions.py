@@ -27,10 +27,16 @@ thrust ``T = F1+F2+F3+F4``, moments ``l = D(F1-F3)``, ``m = D(F2-F4)``, ``n = k(
 (``sitl_sim.mixer.wrench_from_rotor_forces``).
 
 Agent status in the ground station's log: DEBUG_FLOAT_ARRAY (id 350) named "AGENT" from system
-``i + 1``, component 191, ``time_usec`` = the status's simulated time (µs); ``data[0..8]`` the
-agent's estimate of the descriptors (m, rad, m²; NaN if it has none), ``data[9]`` its neighbour
-count, ``data[10]`` its mode (protocols/wire_status.AgentMode), ``data[11]`` armed (0/1), the rest
-NaN. Only the ground station writes it (into flight.tlog); agents publish their status on Zenoh.
+``i + 1``, component 191, ``time_usec`` = the status's simulated time (µs), ``array_id`` the
+layout version (:data:`AGENT_STATUS_LAYOUT`); ``data[0..8]`` the agent's estimate of the
+descriptors (m, rad, m²; NaN if it has none), ``data[9]`` its neighbour count, ``data[10]`` its
+mode (protocols/wire_status.AgentMode), ``data[11]`` armed (0/1). Layout 1 adds, in
+``data[12..57]``, the indices (system id - 1) of the neighbours whose messages the agent integrated
+that tick (the status's ``neighbours``), ascending, NaN after the last; an agent integrating more
+than :data:`AGENT_NEIGHBOUR_SLOTS` carries its lowest 46 (``data[9]`` still counts them all).
+Layout 0 (``array_id`` 0, logs written before layout 1) has NaN there: its neighbours are unknown.
+Only the ground station (and ``swarm simulate``'s recorder) writes it (into flight.tlog); agents
+publish their status on Zenoh.
 
 Lockstep handshake (needs nothing beyond standard MAVLink; SPEC.md "Time"):
 1. The simulator sends the state of control tick k to each agent: ATTITUDE and
@@ -70,6 +76,10 @@ AGENT_COMPID = 191
 AGENT_STATUS_NAME = "AGENT"
 #: Values of the agent status in the log: estimate (9), neighbours, mode, armed.
 AGENT_STATUS_VALUES = 12
+#: The agent status's layout version (DEBUG_FLOAT_ARRAY ``array_id``): 1 carries neighbour ids.
+AGENT_STATUS_LAYOUT = 1
+#: Neighbour ids an agent status carries (layout 1): the 58 floats less the 12 values.
+AGENT_NEIGHBOUR_SLOTS = 58 - AGENT_STATUS_VALUES
 
 DEFAULT_BASE_PORT = 14540
 DEFAULT_GCS_PORT = 14550

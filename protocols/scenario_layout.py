@@ -144,7 +144,7 @@ class RadioGraph:
 
 def radio_graph(positions_ned_m: FloatArray, range_m: float) -> RadioGraph:
     """The radio graph of drones at ``positions_ned_m`` (N, 3): links strictly shorter than
-    ``range_m`` (m), as gcs/inprocess_network.py and the Zenoh link decide."""
+    ``range_m`` (m), as gcs/reference/network.py and the Zenoh link decide."""
     x = np.asarray(positions_ned_m, dtype=float)
     d = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=-1)
     adjacency = d < range_m

@@ -57,7 +57,7 @@ from typing import Any
 
 import numpy as np
 
-from drone_agent.consensus import ConsensusMessage
+from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
 from protocols.keys import MAX_DRONE_ID, validate_swarm_id
 

@@ -49,7 +49,7 @@ class FlightCommand(IntEnum):
 
     GROUND = 0  #: stay disarmed on the ground (consensus runs); airborne vehicles land
     FLY = 1  #: arm once converged and follow the trajectory
-    #: follow the trajectory (gcs.planner.land: stop, level, descend) down to
+    #: follow the trajectory (gcs.station.planner.land: stop, level, descend) down to
     #: LAND_HANDOVER_ALTITUDE_M, then autopilot LAND: touchdown, disarm
     LAND = 2
 

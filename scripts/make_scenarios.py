@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from gcs.scenario_summary import envelope_problem
+from gcs.report.scenario_summary import envelope_problem
 from protocols.scenario_gen import FaultRequest, GeneratorOptions, generate
 
 ROOT = Path(__file__).resolve().parents[1]

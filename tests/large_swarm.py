@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs.tlog import read_tlog
+from gcs.report.tlog import read_tlog
 from protocols.descriptors import desired_axes
 from protocols.scenario import Crash, Dropout, load_scenario
 

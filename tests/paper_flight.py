@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs.tlog import TlogTrack, read_tlog
+from gcs.report.tlog import TlogTrack, read_tlog
 from protocols.scenario import Crash, load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -24,8 +24,8 @@ from agent_harness import (
 )
 from sitl_client import free_port_block, sim_process
 
-from drone_agent.consensus import ConsensusMessage
 from drone_agent.transport import Congestion
+from protocols.consensus_message import ConsensusMessage
 from protocols.keys import SwarmKeys
 from protocols.wire import encode_consensus
 from protocols.wire_status import AgentStatus, decode_status

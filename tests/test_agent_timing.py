@@ -1,12 +1,12 @@
-"""The report's agent timing (gcs/agent_timing.py): figures from the simulator's NAMED_VALUE_FLOAT
-in flight.tlog, overload intervals, and each failsafe explained."""
+"""The report's agent timing (gcs/report/agent_timing.py): figures from the simulator's
+NAMED_VALUE_FLOAT in flight.tlog, overload intervals, and each failsafe explained."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from gcs.agent_timing import explain_failsafes, summary_lines, timing_metrics
-from gcs.tlog import TlogTrack, VehicleTrack
+from gcs.report.agent_timing import explain_failsafes, summary_lines, timing_metrics
+from gcs.report.tlog import TlogTrack, VehicleTrack
 
 
 def _track(named: dict[str, np.ndarray]) -> VehicleTrack:

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drone_agent.consensus import ConsensusEstimator, ConsensusParams
-from gcs.inprocess_network import InProcessNetwork
+from gcs.reference.network import InProcessNetwork
 from protocols.frames import FloatArray
 
 Signal = Callable[[int], FloatArray]

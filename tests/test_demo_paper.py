@@ -37,9 +37,9 @@ import pytest
 from paper_flight import ENV, ROOT, SWARM, flight_of, min_airborne_separation, paper_flight
 from sitl_client import free_port_block, free_udp_port
 
-from gcs.events import read_events
-from gcs.metrics import descriptors_of, tracking_from_positions
-from gcs.tlog import TlogTrack, read_tlog
+from gcs.report.events import read_events
+from gcs.report.metrics import descriptors_of, tracking_from_positions
+from gcs.report.tlog import TlogTrack, read_tlog
 
 pytestmark = pytest.mark.slow
 CRASHED, CRASH_T_S = 1, 30.0

@@ -49,8 +49,8 @@ from sitl_client import ENV
 
 from drone_agent.agent_cli import RENDEZVOUS_PORT
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, tcp_listen_free
-from gcs.events import read_events
-from gcs.tlog import read_tlog
+from gcs.report.events import read_events
+from gcs.report.tlog import read_tlog
 from protocols.descriptors import descriptors
 from protocols.keys import SwarmKeys
 from protocols.mavlink_conventions import DEFAULT_BASE_PORT, DEFAULT_GCS_PORT

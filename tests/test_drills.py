@@ -35,8 +35,8 @@ from sitl_client import (
 )
 
 from drone_agent.transport import Congestion
-from gcs.events import read_events
-from gcs.tlog import read_tlog
+from gcs.report.events import read_events
+from gcs.report.tlog import read_tlog
 from protocols.keys import SwarmKeys
 from protocols.wire_status import AgentMode
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from drone_agent.agent_cli import fault_rng
-from drone_agent.consensus import ConsensusMessage
 from drone_agent.link_faults import FaultyTransport, LinkFaults
 from drone_agent.memory_bus import MemoryBus
 from drone_agent.transport_link import AgentLink, LinkSettings
+from protocols.consensus_message import ConsensusMessage
 
 pytestmark = pytest.mark.timeout(60)
 SETTINGS = LinkSettings("counters", comm_range_m=10.0)

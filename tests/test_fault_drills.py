@@ -8,8 +8,8 @@ import pytest
 from drone_agent.fault_drills import FaultDrills, describe
 from drone_agent.link_faults import LinkFaults
 from drone_agent.memory_bus import MemoryBus
-from gcs.cli import main
-from gcs.commands import CommandError, Request, encode_request, parse_request
+from gcs.cli.main import main
+from gcs.station.commands import CommandError, Request, encode_request, parse_request
 from protocols.keys import SwarmKeys
 from protocols.wire_fault import (
     Clear,

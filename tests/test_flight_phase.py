@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from drone_agent.agent_core import AgentConfig, AgentOutput, Setpoint
-from drone_agent.consensus import ConsensusMessage, ConsensusParams
+from drone_agent.consensus import ConsensusParams
 from drone_agent.flight_phase import (
     AIRBORNE_ALTITUDE_M,
     FlightPhase,
@@ -21,6 +21,7 @@ from drone_agent.flight_phase import (
     VehicleView,
 )
 from drone_agent.thrust_attitude import ThrustLimits
+from protocols.consensus_message import ConsensusMessage
 from protocols.frames import G_M_S2
 from protocols.wire_plan import LAND_HANDOVER_ALTITUDE_M, FlightCommand
 from protocols.wire_status import AgentMode

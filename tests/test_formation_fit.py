@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from gcs.commands import Request, apply_command
-from gcs.planner import Envelope, PlanRefused
+from gcs.station.commands import Request, apply_command
+from gcs.station.planner import Envelope, PlanRefused
 from protocols.descriptors import descriptors
 from protocols.formation_fit import closest_pair, fit_problem, formation_positions
 from protocols.scenario import parse_scenario

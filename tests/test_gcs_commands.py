@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from gcs.commands import (
+from gcs.station.commands import (
     CommandError,
     Reply,
     Request,
@@ -17,7 +17,7 @@ from gcs.commands import (
     encode_request,
     parse_request,
 )
-from gcs.planner import Envelope, PlanRefused
+from gcs.station.planner import Envelope, PlanRefused
 from protocols.trajectory import DescriptorTrajectory, Waypoint
 from protocols.wire_plan import FlightCommand, PlanMessage
 

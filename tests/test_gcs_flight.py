@@ -22,11 +22,11 @@ from agent_harness import SWARM, agent_process, write_scenario
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, sim_process, swarm_command
 
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
-from gcs.commands import Reply, Request, encode_request
-from gcs.events import read_events
-from gcs.ground_station import GcsOptions, GroundStation
-from gcs.operator_cli import format_reply, send
-from gcs.tlog import read_tlog
+from gcs.cli.operator import format_reply, send
+from gcs.report.events import read_events
+from gcs.report.tlog import read_tlog
+from gcs.station.commands import Reply, Request, encode_request
+from gcs.station.ground_station import GcsOptions, GroundStation
 from protocols.descriptors import descriptors
 from protocols.keys import SwarmKeys
 from protocols.scenario import load_scenario

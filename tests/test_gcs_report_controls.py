@@ -11,11 +11,11 @@ import pytest
 from agent_harness import write_scenario
 
 from drone_agent.memory_bus import MemoryBus
-from gcs.events import EventLog
-from gcs.flight_record import LinkFault
-from gcs.gcs_drills import GcsDrills
-from gcs.gcs_report import build_record, drill_link_faults, membership
-from gcs.tlog import TlogWriter, read_tlog
+from gcs.report.events import EventLog
+from gcs.report.flight_record import LinkFault
+from gcs.report.from_logs import build_record, drill_link_faults, membership
+from gcs.report.tlog import TlogWriter, read_tlog
+from gcs.station.drills import GcsDrills
 from protocols.frames import G_M_S2
 from protocols.keys import SwarmKeys
 from protocols.scenario import load_scenario

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gcs.events import EventLog
-from gcs.ground_station import _run_started
+from gcs.report.events import EventLog
+from gcs.station.ground_station import _run_started
 
 
 def test_the_run_start_wall_clock_is_read_back(tmp_path: Path) -> None:

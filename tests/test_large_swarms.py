@@ -15,7 +15,7 @@ import pytest
 from large_swarm import judge
 from sitl_client import ENV, ROOT, swarm_command
 
-from gcs.events import read_events
+from gcs.report.events import read_events
 
 pytestmark = pytest.mark.slow
 

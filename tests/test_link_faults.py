@@ -9,11 +9,12 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from drone_agent.consensus import ConsensusEstimator, ConsensusMessage, ConsensusParams
+from drone_agent.consensus import ConsensusEstimator, ConsensusParams
 from drone_agent.link_faults import FaultyTransport, LinkFaults, delay_ticks
 from drone_agent.memory_bus import MemoryBus
 from drone_agent.transport import AgentTransport
 from drone_agent.transport_link import AgentLink, LinkSettings
+from protocols.consensus_message import ConsensusMessage
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -1,4 +1,4 @@
-"""Run metrics against flights built from a known truth (gcs.metrics)."""
+"""Run metrics against flights built from a known truth (gcs.report.metrics)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from gcs.flight_record import FlightRecord
-from gcs.metrics import (
+from gcs.report.flight_record import FlightRecord
+from gcs.report.metrics import (
     compute_metrics,
     consensus_errors,
     reconvergence,

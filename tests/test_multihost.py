@@ -44,8 +44,8 @@ import numpy as np
 import pytest
 from paper_flight import PAPER, ROOT, SWARM, flight_of, min_airborne_separation
 
-from gcs.metrics import descriptors_of, tracking_from_positions
-from gcs.tlog import read_tlog
+from gcs.report.metrics import descriptors_of, tracking_from_positions
+from gcs.report.tlog import read_tlog
 
 pytestmark = pytest.mark.slow
 WHY_NOT = netns.unavailable()

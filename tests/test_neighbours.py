@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drone_agent.consensus import ConsensusMessage
 from drone_agent.neighbours import latest_by_sender, neighbour_arrays, neighbours_from_inbox
 from drone_agent.separation import SeparationParams, filter_accelerations
+from protocols.consensus_message import ConsensusMessage
 from protocols.wire import decode_consensus, encode_consensus
 
 pytestmark = pytest.mark.timeout(60)

@@ -23,8 +23,8 @@ import pytest
 from agent_harness import GRID, SwarmObserver, observer, truth_of, write_scenario
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
 
-from gcs.events import read_events
-from gcs.tlog import TlogTrack, VehicleTrack, read_tlog
+from gcs.report.events import read_events
+from gcs.report.tlog import TlogTrack, VehicleTrack, read_tlog
 from protocols.descriptors import descriptors
 from protocols.wire_status import AgentMode
 

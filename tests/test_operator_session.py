@@ -34,8 +34,8 @@ from test_operator_flight import (
     assert_no_crash,
 )
 
-from gcs.events import read_events
-from gcs.tlog import TlogTrack, read_tlog
+from gcs.report.events import read_events
+from gcs.report.tlog import TlogTrack, read_tlog
 from protocols.descriptors import descriptors
 
 pytestmark = pytest.mark.slow

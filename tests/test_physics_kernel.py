@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from gcs.reference_flight import HARD_LANDING_M_S, ReferenceFlight
+from gcs.reference.flight import HARD_LANDING_M_S, ReferenceFlight
 from protocols.frames import FloatArray
 from protocols.scenario import parse_scenario
 from sitl_sim.attitude_control import AttitudeGains

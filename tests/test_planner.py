@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from gcs.planner import (
+from gcs.station.planner import (
     Envelope,
     PlanRefused,
     formation_target,

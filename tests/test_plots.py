@@ -1,4 +1,4 @@
-"""Pictures of a flight (gcs.plots): PNG files of the expected size, made headless."""
+"""Pictures of a flight (gcs.report.plots): PNG files of the expected size, made headless."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gcs.flight_record import FlightRecord, LinkFault
-from gcs.metrics import true_descriptors
-from gcs.plots import DPI, plot_controls, plot_descriptors, plot_paths, write_plots
+from gcs.report.flight_record import FlightRecord, LinkFault
+from gcs.report.metrics import true_descriptors
+from gcs.report.plots import DPI, plot_controls, plot_descriptors, plot_paths, write_plots
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

@@ -13,7 +13,7 @@ from agent_harness import write_scenario
 from sitl_client import ENV, ROOT, swarm_command
 from test_drill_flight import _default_ports_lock
 
-from gcs.tlog import read_tlog
+from gcs.report.tlog import read_tlog
 from protocols.mavlink_conventions import (
     DEFAULT_GCS_PORT,
     MAX_VEHICLES,

@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from gcs.metrics import true_descriptors
-from gcs.reference_flight import ReferenceFlight
+from gcs.reference.flight import ReferenceFlight
+from gcs.report.metrics import true_descriptors
 from protocols.scenario import parse_scenario
 
 HOVER = {"centre_ned_m": [1.5, 1.5, -3.0], "spread_m": [2.0, 1.2, 0.0]}

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from paper_flight import min_airborne_separation
 
-from gcs.tlog import read_tlog
+from gcs.report.tlog import read_tlog
 from protocols.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -18,8 +18,8 @@ import pytest
 from sitl_client import ENV, ROOT, swarm_command
 from test_drill_flight import _default_ports_lock
 
-from gcs.events import read_events
-from gcs.tlog import read_tlog
+from gcs.report.events import read_events
+from gcs.report.tlog import read_tlog
 
 pytestmark = pytest.mark.slow
 

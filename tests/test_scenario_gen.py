@@ -18,7 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gcs.scenario_summary import closest_in_formation, envelope_problem
+from gcs.report.scenario_summary import closest_in_formation, envelope_problem
 from protocols.faults import Crash, Dropout, PacketLoss
 from protocols.scenario import load_scenario, parse_scenario
 from protocols.scenario_gen import (

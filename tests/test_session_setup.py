@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from sitl_client import free_port_block, free_udp_port
 
-from gcs.cli import _parser, main
-from gcs.commands import Request, parse_request, plan_command
-from gcs.planner import Envelope, PlanRefused
-from gcs.session import SESSION_FILE, session_request, session_scenario
-from gcs.supervisor import SHUT_DOWN, Child, RunPlan, supervise
-from gcs.up_cli import build_plan
+from gcs.cli.main import _parser, main
+from gcs.cli.session import SESSION_FILE, session_request, session_scenario
+from gcs.cli.supervisor import SHUT_DOWN, Child, RunPlan, supervise
+from gcs.cli.up import build_plan
+from gcs.station.commands import Request, parse_request, plan_command
+from gcs.station.planner import Envelope, PlanRefused
 from protocols.scenario import load_scenario
 from protocols.scenario_layout import layout_positions
 from protocols.wire_plan import FlightCommand, PlanMessage
@@ -197,10 +197,10 @@ def test_a_session_gcs_starts_grounded_and_its_shutdown_gives_up_after_the_timeo
     """First plan GROUND; a shutdown while a vehicle is still up waits for it, at most
     ``shutdown_timeout_s``, then ends the run with a report; commands after it are refused."""
     from drone_agent.zenoh_transport import ZenohSettings
-    from gcs.commands import encode_request
-    from gcs.events import read_events
-    from gcs.ground_station import GcsOptions, GroundStation
-    from gcs.telemetry import VehicleState
+    from gcs.report.events import read_events
+    from gcs.station.commands import encode_request
+    from gcs.station.ground_station import GcsOptions, GroundStation
+    from gcs.station.telemetry import VehicleState
 
     request = session_request(_parser().parse_args(["up", "--drones", "4"]))
     assert request is not None

@@ -26,8 +26,8 @@ import numpy as np
 import pytest
 from paper_flight import ENV, min_airborne_separation, paper_flight
 
-from gcs.events import read_events
-from gcs.metrics import descriptors_of, tracking_from_positions
+from gcs.report.events import read_events
+from gcs.report.metrics import descriptors_of, tracking_from_positions
 
 
 @pytest.fixture(scope="module")

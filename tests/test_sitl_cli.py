@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from gcs.cli import main
+from gcs.cli.main import main
 from tests.sitl_client import ENV, HOST, ROOT, MavPeer, free_port_block, sim_process, swarm_command
 
 pytestmark = pytest.mark.timeout(60)

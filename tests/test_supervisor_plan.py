@@ -11,9 +11,9 @@ from pathlib import Path
 from agent_harness import GRID, write_scenario
 from sitl_client import free_port_block, free_udp_port
 
-from gcs.cli import _parser
-from gcs.supervisor import Child, RunPlan, agent_groups, agent_ranges
-from gcs.up_cli import build_plan
+from gcs.cli.main import _parser
+from gcs.cli.supervisor import Child, RunPlan, agent_groups, agent_ranges
+from gcs.cli.up import build_plan
 
 
 def test_agent_groups_and_ranges() -> None:

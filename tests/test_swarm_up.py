@@ -18,8 +18,8 @@ import pytest
 from agent_harness import write_scenario
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
 
-from gcs.events import read_events
-from gcs.tlog import read_tlog
+from gcs.report.events import read_events
+from gcs.report.tlog import read_tlog
 from protocols.descriptors import descriptors
 
 pytestmark = pytest.mark.slow

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gcs.swarm_watch import SwarmWatch, text_kind
-from gcs.telemetry import VehicleState
+from gcs.station.swarm_watch import SwarmWatch, text_kind
+from gcs.station.telemetry import VehicleState
 from protocols.wire_status import AgentMode, AgentStatus, Health, StatusCounters
 
 
@@ -107,8 +107,8 @@ def test_link_quality_of_a_clean_link_is_full_though_messages_straddle_statuses(
 
 
 def test_crashed_and_departed_drones_keep_their_row_with_the_reason_and_time() -> None:
-    from gcs.commands import Reply
-    from gcs.operator_cli import format_reply
+    from gcs.cli.operator import format_reply
+    from gcs.station.commands import Reply
 
     watch = SwarmWatch()
     for i in range(3):

@@ -1,5 +1,5 @@
-"""Run logs: the MAVLink telemetry log (gcs.tlog), read back by us and by pymavlink's
-mavlogdump, and the JSON-lines events log (gcs.events)."""
+"""Run logs: the MAVLink telemetry log (gcs.report.tlog), read back by us and by pymavlink's
+mavlogdump, and the JSON-lines events log (gcs.report.events)."""
 
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gcs.events import EventLog, read_events
-from gcs.metrics import tracking_from_positions
-from gcs.tlog import TlogWriter, read_tlog
+from gcs.report.events import EventLog, read_events
+from gcs.report.metrics import tracking_from_positions
+from gcs.report.tlog import TlogWriter, read_tlog
 
 DT = 0.02
 N_DRONES, N_SAMPLES = 3, 100
@@ -221,3 +221,25 @@ def test_read_events_skips_a_truncated_last_line_only(tmp_path):
 def test_event_log_refuses_what_json_cannot_hold(tmp_path):
     with EventLog(tmp_path / "e.jsonl") as log, pytest.raises(TypeError):
         log.record(1.0, "command", callback=object())
+
+
+def test_agent_status_carries_the_integrated_neighbour_ids_and_reads_older_logs(tmp_path):
+    """Layout 1 carries the ids (the lowest 46 of a larger set, the count whole); a layout-0
+    record (what logs held before) reads back with its values and its ids unknown."""
+    from protocols.mavlink_conventions import AGENT_NEIGHBOUR_SLOTS
+
+    estimate = np.arange(9) * 1.5
+    many = list(range(100, 150))  # more than the slots
+    with TlogWriter(tmp_path / "s.tlog") as log:
+        for t, ids in ((0.2, [7, 3, 5]), (0.4, []), (0.6, many)):
+            values = np.array([*estimate, len(ids), 3, 1], dtype=float)
+            log.write_agent_status(t, 2, values, ids)
+        log.write_agent_status(0.8, 2, np.array([*estimate, 4, 3, 1], dtype=float))  # layout 0
+    v = read_tlog(tmp_path / "s.tlog").vehicles[2]
+    np.testing.assert_allclose(v.status_t_s, [0.2, 0.4, 0.6, 0.8])
+    assert v.status_layout.tolist() == [1, 1, 1, 0]
+    assert v.neighbour_ids(0) == (3, 5, 7) and v.neighbour_ids(1) == ()
+    assert v.neighbour_ids(2) == tuple(many[:AGENT_NEIGHBOUR_SLOTS])
+    assert v.neighbour_ids(3) is None  # unknown, not "no neighbours"
+    assert v.status[:, 9].tolist() == [3, 0, 50, 4]  # the count stays whole
+    np.testing.assert_allclose(v.status[:, :9], np.tile(estimate, (4, 1)))

@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 import zenoh
 
-from drone_agent.consensus import ConsensusMessage
 from drone_agent.memory_bus import MemoryBus
 from drone_agent.transport import Bus, Congestion
 from drone_agent.transport_link import AgentLink, LinkSettings, PlanServer
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
+from protocols.consensus_message import ConsensusMessage
 from protocols.trajectory import DescriptorTrajectory
 from protocols.wire import ConsensusPacket, encode_consensus
 from protocols.wire_plan import FlightCommand, PlanMessage, encode_plan
@@ -377,7 +377,7 @@ def test_client_sessions_through_a_router() -> None:
 PEER = """
 import sys, time
 import numpy as np
-from drone_agent.consensus import ConsensusMessage
+from protocols.consensus_message import ConsensusMessage
 from drone_agent.transport_link import AgentLink, LinkSettings
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
 

@@ -1,7 +1,9 @@
 """Rerun views: ``swarm simulate`` writes flight.rrd and Rerun's own reader finds in it the
-entities, time range and values of flight.tlog and events.jsonl; the live view of a tlog being
-written sends the same samples; ``swarm replay`` serves the web viewer (HTTP 200); without Rerun
-the view commands say how to install it, and the rest of the tool never imports it."""
+entities, time range and values of flight.tlog and events.jsonl, and the radio links the tlog's
+agent statuses name (a cut pair not drawn during its cut); the live view of a tlog being
+written sends the same samples and links; ``swarm replay`` serves the web viewer (HTTP 200);
+without Rerun the view commands say how to install it, and the rest of the tool never imports
+it."""
 
 from __future__ import annotations
 
@@ -12,6 +14,7 @@ import subprocess
 import sys
 import time
 import urllib.request
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -21,29 +24,41 @@ import pytest
 from agent_harness import write_scenario
 from sitl_client import ENV, ROOT, swarm_command
 
-from gcs import recording as recording_module
-from gcs.cli import main
-from gcs.events import read_events
-from gcs.simulate import simulate
-from gcs.tlog import read_tlog
+from gcs.cli.main import main
+from gcs.reference.simulate import simulate
+from gcs.report.events import read_events
+from gcs.report.tlog import read_tlog
+from gcs.view import recording as recording_module
 from protocols.scenario import load_scenario
 
 pytestmark = pytest.mark.timeout(120)
 SQUARE = [(0.0, 0.0, 0.0), (0.0, 3.0, 0.0), (4.0, 0.0, 0.0), (4.0, 3.0, 0.0)]
+#: The radio link between drones 0 and 1 is cut over these simulated seconds.
+CUT_S = (2.0, 4.0)
+LINK_CUT = f"""
+[[faults]]
+t_s = {CUT_S[0]}
+kind = "link_cut"
+drones = [0, 1]
+duration_s = {CUT_S[1] - CUT_S[0]}
+"""
 ENTITIES = {
     "/swarm/drones", "/swarm/trails", "/swarm/estimates", "/swarm/formation/commanded",
     "/swarm/formation/actual", "/events", "/descriptors/centre_n/commanded",
     "/descriptors/yaw/actual", "/separation/min_m", "/consensus/error_m", "/links/neighbours_mean",
+    "/swarm/links", "/links/pairs",
 }  # fmt: skip
 
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A 6-s flight of four drones, flown by ``swarm simulate``'s code in this process."""
+    """A 6-s flight of four drones, flown by ``swarm simulate``'s code in this process, the
+    link between drones 0 and 1 cut over :data:`CUT_S`."""
     tmp = tmp_path_factory.mktemp("view")
     path = write_scenario(
-        tmp / "hover.toml", SQUARE, centre=(2.0, 1.5, -2.0), spread=(2.0, 1.5, 0.0), duration_s=6.0
-    )
+        tmp / "hover.toml", SQUARE, centre=(2.0, 1.5, -2.0), spread=(2.0, 1.5, 0.0), duration_s=6.0,
+        extra=LINK_CUT,
+    )  # fmt: skip
     out = tmp / "report"
     result = simulate(load_scenario(path), out, plots=False)
     assert out / "flight.rrd" in result.files
@@ -109,9 +124,82 @@ def test_recording_matches_the_tlog_and_events(report: Path) -> None:
     assert len(estimates[-1]["Points3D:positions"]) == 4  # every agent's centre estimate
 
 
+def _links_drawn(rows: dict[str, list[dict[str, Any]]]) -> dict[float, set[frozenset[int]]]:
+    """Time -> the pairs of drone indices that ``/swarm/links`` joins at that time, each segment's
+    ends matched to the drones' positions in ``/swarm/drones`` at the same time."""
+    drones = {r["t_s"]: r for r in rows["/swarm/drones"]}
+    out: dict[float, set[frozenset[int]]] = {}
+    for row in rows["/swarm/links"]:
+        at = drones[row["t_s"]]
+        pos = np.array(at["Points3D:positions"], dtype=float)
+        ids = [int(label) - 1 for label in at["Points3D:labels"]]
+        pairs = set()
+        for strip in row["LineStrips3D:strips"] or []:
+            assert len(strip) == 2
+            ends = [int(np.argmin(np.linalg.norm(pos - np.array(p), axis=1))) for p in strip]
+            for p, e in zip(strip, ends, strict=True):
+                np.testing.assert_allclose(p, pos[e], atol=1e-5)  # a segment joins two drones
+            pairs.add(frozenset(ids[e] for e in ends))
+        out[row["t_s"]] = pairs
+    return out
+
+
+def test_recording_draws_the_links_the_tlog_names_and_not_the_cut_one(report: Path) -> None:
+    rows = _rows(report / "flight.rrd")
+    drawn = _links_drawn(rows)
+    track = read_tlog(report / "flight.tlog")
+    statuses = 0
+    for v in track.vehicles.values():  # the tlog's record carries the ids, their count whole
+        assert (v.status_layout == 1).all()
+        for k in range(v.status_t_s.size):
+            assert len(v.neighbour_ids(k) or ()) == v.status[k, 9]
+            statuses += 1
+    assert statuses > 4 * 25  # every agent at 5 Hz over 6 s
+    expected_rows = 0
+    for t, pairs in drawn.items():
+        # from the tlog alone: each agent's latest status at most 1 s old names its neighbours
+        expected = set()
+        for sysid, v in track.vehicles.items():
+            k = int(np.searchsorted(v.status_t_s, t + 5e-4, side="right")) - 1
+            if k >= 0 and t - v.status_t_s[k] <= 1.0 + 5e-4:
+                expected |= {frozenset((sysid - 1, j)) for j in v.neighbour_ids(k) or ()}
+        assert pairs == expected, t
+        expected_rows += bool(expected)
+    assert expected_rows > 40  # links drawn at 10 Hz through the flight
+    cut = {0, 1}
+    during = [t for t in drawn if CUT_S[0] + 0.25 <= t < CUT_S[1]]
+    before = [t for t in drawn if 1.0 <= t < CUT_S[0]]
+    after = [t for t in drawn if CUT_S[1] + 0.5 <= t]
+    assert during and before and after
+    assert all(cut not in drawn[t] for t in during)  # the cut pair is not drawn
+    assert all(cut in drawn[t] for t in before + after)  # but is outside the cut
+    assert all(len(drawn[t]) == 5 for t in during) and all(len(drawn[t]) == 6 for t in after)
+    totals = {r["t_s"]: r["Scalars:scalars"][0] for r in rows["/links/pairs"]}
+    assert all(totals[t] == len(pairs) for t, pairs in drawn.items())
+
+
+def test_links_of_a_large_swarm_are_thinned_to_the_cap() -> None:
+    from gcs.view.rerun_log import MAX_LINKS, thin
+    from gcs.view.scene import link_pairs
+
+    n, k = 250, 20  # each agent integrates its 20 successors (mod n), some only one way
+    ids = np.array([[(i + d) % n for d in range(1, k + 1)] for i in range(n)], dtype=float)
+    ids[::2, 0] = np.nan  # even agents do not integrate their next neighbour
+    pos = np.random.default_rng(0).normal(size=(n, 3))
+    pos[7] = np.nan  # drone 7 not heard yet: none of its links drawn
+    pairs, both = link_pairs(ids, pos)
+    assert pairs.shape == (n * k - 2 * k - n // 2 + 1, 2)  # 7's links and the even ones gone
+    assert (pairs[:, 0] < pairs[:, 1]).all() and not (pairs == 7).any()
+    assert not both.any()  # i integrates i+d, never the other way round (d < n / 2)
+    keep = thin(pairs.shape[0])
+    assert keep.size == MAX_LINKS and np.unique(keep).size == MAX_LINKS
+    assert keep[0] == 0 and keep[-1] > 0.99 * pairs.shape[0] - 1  # spread over all of them
+    assert thin(10).tolist() == list(range(10))
+
+
 def test_live_view_of_a_growing_tlog_sends_the_same_samples(report: Path, tmp_path: Path) -> None:
-    from gcs.live_view import LiveView
-    from gcs.rerun_log import recording
+    from gcs.view.live import LiveView
+    from gcs.view.rerun_log import recording
 
     live = tmp_path / "live"
     live.mkdir()
@@ -128,11 +216,15 @@ def test_live_view_of_a_growing_tlog_sends_the_same_samples(report: Path, tmp_pa
             view.poll()
     rec.flush()
     rec.disconnect()
-    t_live, pos_live = _drone_positions(_rows(tmp_path / "live.rrd")["/swarm/drones"])
-    t_file, pos_file = _drone_positions(_rows(report / "flight.rrd")["/swarm/drones"])
+    rows_live, rows_file = _rows(tmp_path / "live.rrd"), _rows(report / "flight.rrd")
+    t_live, pos_live = _drone_positions(rows_live["/swarm/drones"])
+    t_file, pos_file = _drone_positions(rows_file["/swarm/drones"])
     assert t_live.size == t_file.size - 1  # the last sample waits for the next one
     np.testing.assert_allclose(t_live, t_file[:-1])
     np.testing.assert_allclose(pos_live, pos_file[:-1])
+    links_live, links_file = _links_drawn(rows_live), _links_drawn(rows_file)
+    assert len(links_live) >= len(links_file) - 1
+    assert all(links_live[t] == links_file[t] for t in links_live)  # the same links
 
 
 def _free_tcp_port() -> int:
@@ -141,13 +233,16 @@ def _free_tcp_port() -> int:
         return int(s.getsockname()[1])
 
 
-def test_replay_serves_the_web_viewer(report: Path, tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def replay_url(report: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """``swarm replay`` of the report on free ports, running while the module's tests use it;
+    the web viewer's URL it printed."""
     web, grpc = _free_tcp_port(), _free_tcp_port()
-    out = tmp_path / "replay.out"
+    out = tmp_path_factory.mktemp("replay") / "replay.out"
     with out.open("wb") as f:
         proc = subprocess.Popen(
             swarm_command("replay", str(report), "--web-port", str(web), "--grpc-port", str(grpc),
-                          "--duration-s", "30"),
+                          "--duration-s", "300"),
             stdout=f, stderr=subprocess.STDOUT, env=ENV, cwd=ROOT,
         )  # fmt: skip
     try:
@@ -157,11 +252,49 @@ def test_replay_serves_the_web_viewer(report: Path, tmp_path: Path) -> None:
             time.sleep(0.1)
         url = out.read_text().split("web viewer at ", 1)[1].split()[0]
         assert url.startswith(f"http://127.0.0.1:{web}/?url=rerun+http://127.0.0.1:{grpc}/")
-        with urllib.request.urlopen(url, timeout=10) as page:
-            assert page.status == 200 and b"<html" in page.read().lower()
+        yield url
     finally:
         proc.terminate()
         proc.wait(15)
+
+
+def test_replay_serves_the_web_viewer(replay_url: str) -> None:
+    with urllib.request.urlopen(replay_url, timeout=10) as page:
+        assert page.status == 200 and b"<html" in page.read().lower()
+
+
+def test_headless_chromium_shows_the_recording_in_the_viewer(
+    replay_url: str, tmp_path: Path
+) -> None:
+    """The served web viewer, loaded by headless Chromium (software WebGL), draws the flight:
+    within a minute its screenshot holds the flying drones' colour and the links' colour, which
+    only the recording brings (the viewer's own UI is grey and blue; a page without the
+    recording has neither). Skipped where no Chromium is installed (Debian's package
+    ``chromium``; no browser download)."""
+    from headless_chromium import HeadlessChromium, chromium
+    from PIL import Image
+
+    from gcs.view.rerun_log import LINK_BOTH_RGB, MODE_RGB
+    from gcs.view.scene import Mode
+
+    executable = chromium()
+    if executable is None:
+        pytest.skip("no headless Chromium here (Debian: apt-get install chromium)")
+    green, blue = np.array(MODE_RGB[Mode.FLYING]), np.array(LINK_BOTH_RGB)
+    with HeadlessChromium(executable, replay_url, tmp_path / "profile") as browser:
+        deadline = time.monotonic() + 60
+        while True:
+            pixels = browser.screenshot()
+            drones = int((np.abs(pixels - green).max(axis=2) <= 12).sum())
+            links = int((np.abs(pixels - blue).max(axis=2) <= 20).sum())
+            if (drones >= 20 and links >= 100) or time.monotonic() > deadline:
+                break
+            time.sleep(1.0)
+    Image.fromarray(pixels.astype(np.uint8)).save(tmp_path / "viewer.png")  # to look at
+    assert pixels.shape[1] == 1280
+    assert np.unique(pixels.reshape(-1, 3), axis=0).shape[0] > 500  # a UI, not a blank page
+    assert drones >= 20, f"no drones drawn after 60 s: {tmp_path / 'viewer.png'}"
+    assert links >= 100, f"no links drawn after 60 s: {tmp_path / 'viewer.png'}"
 
 
 def test_view_help(capsys: pytest.CaptureFixture[str]) -> None:
@@ -194,7 +327,8 @@ def test_without_rerun_the_view_commands_say_how_to_install_it(
 
 def test_nothing_else_imports_rerun() -> None:
     code = (
-        "import sys, gcs.cli, gcs.simulate, gcs.ground_station, gcs.gcs_report, gcs.view_cli, "
+        "import sys, gcs.cli.main, gcs.reference.simulate, gcs.station.ground_station, "
+        "gcs.report.from_logs, gcs.cli.view, "
         "sitl_sim.server, drone_agent.agent_cli; "
         "sys.exit(1 if any(m == 'rerun' or m.startswith('rerun.') for m in sys.modules) else 0)"
     )
@@ -236,6 +370,14 @@ def test_swarm_up_view_serves_the_live_viewer(tmp_path: Path) -> None:
             proc.wait(10)
     assert "swarm up: finished" in out.read_text()
     assert (report / "flight.rrd").exists()
+    # the ground station logged each agent's integrated neighbours (sent in its Zenoh status)
+    track = read_tlog(report / "flight.tlog")
+    for v in track.vehicles.values():
+        assert v.status_t_s.size and (v.status_layout == 1).all()
+        counts = [len(v.neighbour_ids(k) or ()) for k in range(v.status_t_s.size)]
+        assert counts == v.status[:, 9].tolist() and max(counts) == 3
+    drawn = _links_drawn(_rows(report / "flight.rrd"))
+    assert max(len(pairs) for pairs in drawn.values()) == 6  # every pair of the four
     assert "swarm view: following" in (report / "logs" / "view.log").read_text()
     with socket.socket() as s:  # the viewer has ended: its port is free again
         s.bind(("127.0.0.1", web))
@@ -244,7 +386,7 @@ def test_swarm_up_view_serves_the_live_viewer(tmp_path: Path) -> None:
 # -- the scene's arithmetic, without Rerun's I/O ---------------------------------------------
 @pytest.mark.parametrize("euler", [(0.0, 0.0, 1.2), (0.3, -0.2, 2.9), (-0.5, 0.4, -1.0)])
 def test_ellipsoid_quaternion_is_the_descriptor_orientation(euler: tuple[float, ...]) -> None:
-    from gcs.rerun_log import quaternions_xyzw
+    from gcs.view.rerun_log import quaternions_xyzw
     from protocols.frames import rot_zyx
 
     x, y, z, w = quaternions_xyzw(np.array([euler]))[0]
@@ -258,7 +400,7 @@ def test_ellipsoid_quaternion_is_the_descriptor_orientation(euler: tuple[float, 
 
 
 def test_min_separation_and_modes() -> None:
-    from gcs.view_scene import Mode, event_lines, min_separation, modes
+    from gcs.view.scene import Mode, event_lines, min_separation, modes
 
     rng = np.random.default_rng(3)
     pos = rng.normal(size=(20, 5, 3)) * 3

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drone_agent.consensus import ConsensusMessage
+from protocols.consensus_message import ConsensusMessage
 from protocols.trajectory import DescriptorTrajectory
 from protocols.wire import (
     CONSENSUS_VERSION,

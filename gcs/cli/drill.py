@@ -1,0 +1,188 @@
+"""``swarm drill``: faults against a running swarm.
+
+Link faults (``link-cut``, ``loss``, ``delay``, ``partition``, ``clear``) are published once on
+``swarm/<sid>/fault`` (:mod:`protocols.wire_fault`, BLOCK congestion) from a short-lived Zenoh
+client session; every agent applies them on its receive side and the ground station records them
+in events.jsonl. ``crash --drone I`` asks the ground station (its command queryable) to stop every
+motor of vehicle I, ``dropout --drone I`` to SIGKILL drone I's agent process and ``gcs-restart``
+to stop itself so that ``swarm up`` starts it again (both need a swarm started by ``swarm up``).
+Exit codes: 0 done, 1 refused by the ground station, 2 usage error or nobody reachable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from drone_agent.agent_cli import RENDEZVOUS_PORT
+from gcs.cli.secured import add_secrets_flags, refusal, secrets_of
+from gcs.station.commands import Request, encode_request
+from protocols.keys import SwarmKeys
+from protocols.swarm_secrets import RoleSecrets
+from protocols.wire_fault import (
+    Clear,
+    Delay,
+    FaultCommand,
+    LinkCut,
+    Loss,
+    Partition,
+    encode_fault,
+)
+
+#: Drills carried out by the ground station (its command queryable) rather than the agents.
+GCS_DRILLS = ("crash", "dropout", "gcs-restart")
+#: Time given to the session to reach its peers before publishing, and to flush after (s).
+CONNECT_WAIT_S = 0.5
+FLUSH_WAIT_S = 0.2
+
+
+class DrillError(Exception):
+    """Usage error or nobody reachable: one line, exit code 2."""
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``swarm drill`` and its drills."""
+    p = sub.add_parser(
+        "drill",
+        help="drills against a running swarm: link cuts, loss, delay, partitions, crashes",
+        description=(
+            "Faults against a running swarm. Link faults (link-cut, loss, delay, partition, "
+            "clear) go to every agent over Zenoh and are applied on their receive side; crash "
+            "asks the ground station to stop every motor of one vehicle; dropout and gcs-restart "
+            "(a swarm started by swarm up) kill one agent's process and restart the ground "
+            "station. The ground station records each drill in events.jsonl."
+        ),
+    )
+    drills = p.add_subparsers(dest="drill", metavar="DRILL", required=True)
+
+    def drill(name: str, help_: str) -> argparse.ArgumentParser:
+        d = drills.add_parser(name, help=help_, description=help_)
+        d.add_argument("--swarm-id", default="swarm", help="swarm name (default %(default)s)")
+        d.add_argument(
+            "--zenoh-connect",
+            default=f"tcp/127.0.0.1:{RENDEZVOUS_PORT}",
+            metavar="ENDPOINT",
+            help="a Zenoh endpoint of the swarm (default %(default)s)",
+        )
+        add_secrets_flags(d, "operator")
+        return d
+
+    cut = drill("link-cut", "cut the radio link between drones I and J")
+    cut.add_argument("i", type=int, metavar="I")
+    cut.add_argument("j", type=int, metavar="J")
+    cut.add_argument("--for-s", type=float, metavar="S", help="restore it after S simulated s")
+    cut.add_argument("--one-way", action="store_true", help="cut only I -> J")
+    loss = drill("loss", "drop each message with probability P")
+    loss.add_argument("probability", type=float, metavar="P", help="0..1")
+    loss.add_argument("--link", metavar="I,J", help="only on the link I-J (both ways)")
+    loss.add_argument("--for-s", type=float, metavar="S", help="end it after S simulated s")
+    delay = drill("delay", "delay every message by MS milliseconds")
+    delay.add_argument("delay_ms", type=float, metavar="MS")
+    delay.add_argument("--link", metavar="I,J", help="only on the link I-J (both ways)")
+    part = drill("partition", "split the swarm into groups that do not hear each other")
+    which = part.add_mutually_exclusive_group(required=True)
+    which.add_argument("--groups", metavar="0,1,2/3,4", help="drone ids per group, / between")
+    which.add_argument("--heal", action="store_true", help="end the partition")
+    drill("clear", "end every link fault")
+    crash = drill("crash", "stop every motor of one vehicle (through the ground station)")
+    crash.add_argument("--drone", type=int, required=True, metavar="I", help="drone index")
+    dropout = drill(
+        "dropout",
+        "SIGKILL one drone's agent process (through the ground station; a swarm started by "
+        "swarm up)",
+    )
+    dropout.add_argument("--drone", type=int, required=True, metavar="I", help="drone index")
+    drill(
+        "gcs-restart",
+        "stop the ground station and have swarm up start it again: it adopts the swarm's "
+        "current plan and continues its logs",
+    )
+
+
+def _ids(text: str, what: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(x) for x in text.split(","))
+    except ValueError:
+        raise DrillError(
+            f"{what} must be drone indices separated by commas, got {text!r}"
+        ) from None
+
+
+def _link(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    ids = _ids(text, "--link")
+    if len(ids) != 2:
+        raise DrillError(f"--link must be two drone indices I,J, got {text!r}")
+    return ids[0], ids[1]
+
+
+def command_of(args: argparse.Namespace) -> FaultCommand:
+    """The fault command of parsed ``args``; DrillError for a bad value."""
+    name = args.drill
+    if name == "link-cut":
+        return LinkCut(args.i, args.j, args.one_way, args.for_s)
+    if name == "loss":
+        return Loss(args.probability, _link(args.link), args.for_s)
+    if name == "delay":
+        return Delay(args.delay_ms, _link(args.link))
+    if name == "partition":
+        if args.heal:
+            return Partition(None)
+        return Partition(tuple(_ids(g, "--groups") for g in args.groups.split("/")))
+    return Clear()
+
+
+def publish(
+    swarm_id: str, endpoint: str, payload: bytes, secrets: RoleSecrets | None = None
+) -> None:
+    """Publish ``payload`` once on the swarm's fault key (BLOCK congestion, reliable)."""
+    from drone_agent.transport import Congestion
+    from drone_agent.zenoh_transport import open_client
+
+    try:
+        key = SwarmKeys(swarm_id, 1.0).fault
+        bus = open_client(endpoint, secrets)
+    except ValueError as exc:
+        raise DrillError(str(exc)) from None
+    except ConnectionError as exc:
+        raise DrillError(f"no swarm: {exc}") from None
+    with bus:
+        publisher = bus.publisher(key, Congestion.BLOCK)
+        time.sleep(CONNECT_WAIT_S)  # let the router learn the subscribers before the put
+        publisher.put(payload)
+        time.sleep(FLUSH_WAIT_S)
+        publisher.close()
+
+
+def run(args: argparse.Namespace) -> int:
+    """Carry out the drill of ``args``; 0 done, 1 refused by the ground station."""
+    try:
+        secrets = secrets_of(args)
+    except ValueError as exc:
+        raise DrillError(str(exc)) from None
+    if args.drill in GCS_DRILLS:
+        from gcs.cli.operator import OperatorError, send
+
+        request = Request(args.drill, {"drone": args.drone} if "drone" in args else {})
+        try:
+            reply = send(
+                args.swarm_id, args.zenoh_connect, encode_request(request), secrets=secrets
+            )
+        except OperatorError as exc:
+            raise DrillError(str(exc)) from None
+        print(f"drill {args.drill}: {'accepted' if reply.accepted else 'refused'}: {reply.reason}")
+        return 0 if reply.accepted else 1
+    try:
+        command = command_of(args)
+        payload = encode_fault(command, args.swarm_id)
+    except ValueError as exc:
+        raise DrillError(str(exc)) from None
+    denied = refusal(secrets, "put", "fault", "send drills")
+    if denied is not None:
+        raise DrillError(denied)
+    publish(args.swarm_id, args.zenoh_connect, payload, secrets)
+    from drone_agent.fault_drills import describe
+
+    print(f"drill {args.drill}: sent {describe(command)}")
+    return 0

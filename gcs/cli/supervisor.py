@@ -1,0 +1,341 @@
+"""``swarm up``: the simulator, the agents and the ground station as supervised child processes.
+
+Start order: the ground station (the Zenoh rendezvous; it publishes the plan and records the
+flight), the simulator (lockstep waits for every agent), then the agents, one process per drone or
+``--agents-per-process`` drones per process. The run ends when the simulator reaches the
+scenario's duration, on Ctrl-C / SIGTERM, when the ground station ends the run (``swarm
+shutdown``: it lands the swarm, writes the report and exits 0), or when the simulator or the
+ground station dies; an agent process that ends is a drone leaving the swarm, which flies on.
+Then every child is stopped (SIGTERM, then SIGKILL) so that no process of the run is left and its
+ports are free. The ground station writes the report when it is stopped.
+
+In an operator session (``RunPlan.session``) the first Ctrl-C / SIGTERM is a shutdown: the ground
+station gets SIGINT, lands the swarm if it flies, writes the report and exits; the others are
+stopped after it. A second Ctrl-C, or no end within ``shutdown_wait_s``, stops everything at once.
+The children run in their own process group, so a Ctrl-C typed in the terminal reaches only the
+supervisor, which decides what each child gets.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+PR_SET_PDEATHSIG = 1
+STOP_TIMEOUT_S = 15.0
+
+
+class SupervisorError(Exception):
+    """The run could not start or a child failed: one line for the user."""
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child before exec
+    """Linux: the child gets SIGTERM if the supervisor dies, so no orphan outlives a crash. It
+    gets a process group of its own: the terminal's Ctrl-C goes to the supervisor alone."""
+    with contextlib.suppress(OSError):
+        os.setpgid(0, 0)
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+@dataclass
+class Child:
+    """A supervised process: its role, command line and log file."""
+
+    role: str
+    argv: list[str]
+    log: Path
+    proc: subprocess.Popen[bytes] | None = None
+    expected_exit: bool = False
+
+    def start(self) -> None:
+        with self.log.open("ab") as out:
+            self.proc = subprocess.Popen(
+                self.argv, stdout=out, stderr=subprocess.STDOUT, preexec_fn=_die_with_parent
+            )
+
+    @property
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> int | None:
+        """SIGTERM, wait, then SIGKILL; the exit code (None if never started)."""
+        if self.proc is None:
+            return None
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        return self.proc.returncode
+
+
+@dataclass
+class RunPlan:
+    """Everything ``swarm up`` starts, in order."""
+
+    gcs: Child | None
+    sim: Child | None
+    agents: list[Child] = field(default_factory=list)
+    #: drones of each agent process (same order as ``agents``)
+    agent_drones: list[range] = field(default_factory=list)
+    #: where the agents' process ids go, for the ground station's dropout drill
+    run_file: Path | None = None
+    #: the Zenoh endpoint of the run (operator commands and drills connect to it)
+    zenoh_endpoint: str | None = None
+    #: the swarm's Zenoh router, when this run starts it (started first)
+    router: Child | None = None
+    #: an operator session: a Ctrl-C asks the ground station to land and end the run
+    session: bool = False
+    #: session: how long (wall s) to wait for the ground station to end the run after a Ctrl-C
+    shutdown_wait_s: float = 180.0
+
+    @property
+    def children(self) -> list[Child]:
+        """Every child, in start order: router, ground station, simulator, agents (a partial
+        start on one host of several has only some of them)."""
+        return [c for c in (self.router, self.gcs, self.sim) if c is not None] + self.agents
+
+    def write_run_file(self) -> None:
+        """``{"zenoh": endpoint, "agents": {"<drone>": pid}}``: the run's Zenoh endpoint and the
+        agent processes started so far."""
+        if self.run_file is None:
+            return
+        pids = {
+            str(d): child.proc.pid
+            for child, drones in zip(self.agents, self.agent_drones, strict=True)
+            if child.proc is not None
+            for d in drones
+        }
+        tmp = self.run_file.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"zenoh": self.zenoh_endpoint, "agents": pids}) + "\n")
+        tmp.replace(self.run_file)  # atomic: the ground station never reads half a file
+
+
+def free_tcp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def rendezvous_port() -> int:
+    """The agents' default rendezvous port (where ``swarm status`` etc. look by default) if it is
+    free, else any free TCP port."""
+    from drone_agent.agent_cli import RENDEZVOUS_PORT
+    from drone_agent.zenoh_transport import tcp_listen_free
+
+    return RENDEZVOUS_PORT if tcp_listen_free(RENDEZVOUS_PORT) else free_tcp_port()
+
+
+def check_udp_ports(ports: list[int], what: str, host: str = "127.0.0.1") -> None:
+    """SupervisorError naming the port if any of ``ports`` (UDP on ``host``) is taken."""
+    for port in ports:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            try:
+                s.bind((host, port))
+            except OSError:
+                raise SupervisorError(
+                    f"UDP port {port} ({what}) is in use: is another swarm running? "
+                    "Choose other ports with --base-port / --gcs-port"
+                ) from None
+
+
+def agent_ranges(n: int, per_process: int) -> list[range]:
+    """The drones of each agent process: ``per_process`` consecutive drones per process."""
+    return [range(lo, min(lo + per_process, n)) for lo in range(0, n, per_process)]
+
+
+def agent_groups(n: int, per_process: int) -> list[str]:
+    """``--drone-id`` values of :func:`agent_ranges`."""
+    return [
+        f"{r.start}-{r.stop - 1}" if per_process > 1 else str(r.start)
+        for r in agent_ranges(n, per_process)
+    ]
+
+
+def swarm_argv(*args: str) -> list[str]:
+    return [sys.executable, "-m", "gcs.cli", *args]
+
+
+#: Why a run ended when the ground station ended it (``swarm shutdown``, or Ctrl-C in a session).
+SHUT_DOWN = "shut down"
+
+
+def supervise(
+    plan: RunPlan,
+    progress: Callable[[str], None] | None = None,
+    should_stop: Callable[[], int] = lambda: 0,
+    poll_s: float = 0.5,
+) -> str:
+    """Start every child, watch them, stop them all. Returns why the run ended: "finished",
+    :data:`SHUT_DOWN` (the ground station ended the run), "interrupted" or what failed.
+    ``should_stop``: how many times the user asked to stop (Ctrl-C).
+
+    The run ends with the simulator when this host runs it, else with the ground station, else
+    (agents only) when every agent process has ended (their vehicles went silent: the simulator
+    on another host ended), or on Ctrl-C; a router alone runs until Ctrl-C."""
+    reason = "stopped"
+    shutdown_deadline: float | None = None
+    try:
+        for child in plan.children:
+            child.start()
+            if child is plan.router:
+                _wait_listening(plan.zenoh_endpoint, child)
+            time.sleep(0.3 if child.role == "gcs" else 0.05)
+        plan.write_run_file()
+        while True:
+            asked = should_stop()
+            if asked and not (plan.session and asked < 2):
+                reason = "interrupted"
+                break
+            if asked and shutdown_deadline is None:  # a session lands first; the gcs ends it
+                shutdown_deadline = time.monotonic() + plan.shutdown_wait_s
+                _signal(plan.gcs, signal.SIGINT)
+                if progress is not None:
+                    progress("shutting down: the swarm lands (Ctrl-C again: stop at once)")
+            elif shutdown_deadline is not None and time.monotonic() > shutdown_deadline:
+                reason = "interrupted (the shutdown took too long)"
+                break
+            if plan.router is not None and not plan.router.running:
+                code = plan.router.proc.returncode if plan.router.proc else None
+                reason = f"the Zenoh router exited with code {code} (log: {plan.router.log})"
+                break
+            if plan.sim is not None and not plan.sim.running:
+                code = plan.sim.proc.returncode if plan.sim.proc else None
+                reason = "finished" if code == 0 else f"the simulator exited with code {code}"
+                break
+            if plan.gcs is None:
+                if plan.agents and not any(a.running for a in plan.agents):
+                    reason = _agents_ended(plan.agents)
+                    break
+                _watch_agents(plan, progress)
+                if progress is not None and plan.sim is not None:
+                    progress(_last_line(plan.sim.log))
+                time.sleep(poll_s)
+                continue
+            gcs_proc = plan.gcs.proc
+            if plan.sim is None and gcs_proc is not None and gcs_proc.poll() == 0:
+                reason = "finished"
+                break
+            if not plan.gcs.running and _restart_asked(plan.gcs):
+                if "--resume" not in plan.gcs.argv:
+                    plan.gcs.argv.append("--resume")
+                plan.gcs.start()
+                if progress is not None:
+                    progress("the ground station restarts (gcs-restart drill)")
+            if not plan.gcs.running:
+                code = plan.gcs.proc.returncode if plan.gcs.proc else None
+                if code == 0:  # it ended the run: swarm shutdown, or a session's Ctrl-C
+                    reason = SHUT_DOWN
+                else:
+                    reason = f"the ground station exited with code {code} (log: {plan.gcs.log})"
+                break
+            _watch_agents(plan, progress)
+            if progress is not None:
+                progress(_last_line((plan.sim or plan.gcs).log))
+            time.sleep(poll_s)
+    finally:
+        # the ground station first, so the report ends with the flight, not with the shutdown;
+        # the router last, so everyone leaves it cleanly
+        for last in [plan.gcs, *plan.agents, plan.sim, plan.router]:
+            if last is not None:
+                last.stop()
+    return reason
+
+
+def _signal(child: Child | None, sig: int) -> None:
+    if child is not None and child.proc is not None and child.proc.poll() is None:
+        child.proc.send_signal(sig)
+
+
+def _agents_ended(agents: list[Child]) -> str:
+    """Why a run of agents only ended: "finished" when they all left cleanly (their vehicles
+    stopped), else the first failure."""
+    for a in agents:
+        code = a.proc.returncode if a.proc is not None else None
+        if code not in (0, None):
+            return f"{a.role} exited with code {code} (log: {a.log})"
+    return "finished"
+
+
+def _watch_agents(plan: RunPlan, progress: Callable[[str], None] | None) -> None:
+    for agent in plan.agents:
+        if not agent.running and not agent.expected_exit:
+            # a drone drop-out, not a failure of the run: the swarm flies on
+            agent.expected_exit = True
+            code = agent.proc.returncode if agent.proc else None
+            if progress is not None:
+                progress(f"{agent.role} exited with code {code}; the swarm flies on")
+
+
+def _wait_listening(endpoint: str | None, child: Child, timeout_s: float = 15.0) -> None:
+    """Wait until the router ``child`` accepts TCP connections at ``endpoint``; SupervisorError
+    if it ends or does not listen in time."""
+    if endpoint is None:
+        return
+    host, _, port = endpoint.partition("/")[2].rpartition(":")
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if not child.running:
+            raise SupervisorError(
+                f"the Zenoh router did not start: {_last_line(child.log)} (log: {child.log})"
+            )
+        with contextlib.suppress(OSError), socket.create_connection((host, int(port)), 0.5):
+            return
+        time.sleep(0.1)
+    raise SupervisorError(f"the Zenoh router does not listen on {endpoint} (log: {child.log})")
+
+
+def _restart_asked(child: Child) -> bool:
+    """The child ended with the gcs-restart drill's exit code."""
+    from gcs.cli.gcs import RESTART_EXIT_CODE
+
+    return child.proc is not None and child.proc.returncode == RESTART_EXIT_CODE
+
+
+def _last_line(path: Path) -> str:
+    try:
+        data = path.read_bytes()[-400:]
+    except OSError:
+        return ""
+    lines = [ln for ln in data.replace(b"\r", b"\n").split(b"\n") if ln.strip()]
+    return lines[-1].decode(errors="replace").strip() if lines else ""
+
+
+@contextlib.contextmanager
+def interrupt_flag() -> Iterator[Callable[[], int]]:
+    """SIGINT/SIGTERM are counted (the returned callable says how many arrived; 0 is false)
+    instead of raising."""
+    hit: list[int] = []
+
+    def handler(sig: int, _frame: object) -> None:
+        hit.append(sig)
+
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield lambda: len(hit)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def flags(values: Sequence[tuple[str, object | None]]) -> list[str]:
+    """``--flag value`` pairs for the values that are set."""
+    out: list[str] = []
+    for name, value in values:
+        if value is None or value is False:
+            continue
+        out += [name] if value is True else [name, str(value)]
+    return out

@@ -1,0 +1,391 @@
+"""``swarm up`` and ``swarm demo``: fly a scenario with real processes end to end, or run an
+operator session (``swarm up --drones N``, :mod:`gcs.cli.session`)."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+from gcs.cli.session import (
+    SESSION_FILE,
+    SessionRequest,
+    session_request,
+    session_scenario,
+    write_text,
+)
+from gcs.cli.supervisor import (
+    SHUT_DOWN,
+    Child,
+    RunPlan,
+    SupervisorError,
+    agent_groups,
+    agent_ranges,
+    check_udp_ports,
+    flags,
+    interrupt_flag,
+    rendezvous_port,
+    supervise,
+    swarm_argv,
+)
+from gcs.cli.up_hosts import add_multihost_flags, host_layout, multihost_plan
+from gcs.report.summary import summary_lines
+from gcs.station.drills import RUN_FILE
+from gcs.view.recording import INSTALL_HINT, rerun_available
+from protocols.mavlink_conventions import DEFAULT_GCS_PORT, port_clash, vehicle_ports
+from protocols.scenario import ScenarioError, load_scenario
+from protocols.scenario_layout import LAYOUTS
+
+#: The paper's flight, shipped with the project (so `swarm demo` works from any folder).
+PAPER = Path(__file__).resolve().parents[1] / "scenarios" / "paper.toml"
+#: Telemetry rate of every vehicle to the ground station, and so of the report's record (Hz).
+TELEMETRY_HZ = 25
+#: A session's Ctrl-C waits this much longer than the ground station's shutdown timeout (s) for
+#: the report before stopping everything.
+REPORT_WAIT_S = 60.0
+
+UP_DESCRIPTION = """\
+Two ways to run a swarm with real processes (the ground station, the SITL simulator and the
+drone agents as supervised child processes; the report in --report):
+
+  swarm up SCENARIO         fly a scenario file to its end (its duration_s, or --duration-s);
+                            Ctrl-C stops everything at once.
+  swarm up --drones N       an operator session: N vehicles and their agents power up on the
+                            ground and wait. Fly them with swarm takeoff --altitude-m H,
+                            formation, move, rotate, scale, hold and land (in another terminal);
+                            swarm shutdown, or Ctrl-C here, lands the swarm if it flies, waits
+                            until it is down, writes the report and stops everything.
+                            --layout, --spacing-m, --range-m and --seed place the drones as
+                            swarm scenario new does; the session's scenario is written to
+                            DIR/logs/session.toml.
+"""
+
+
+def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``swarm up`` and ``swarm demo``."""
+    up = sub.add_parser(
+        "up",
+        help="fly a scenario file, or power up N drones for an operator session (--drones N)",
+        description=UP_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    up.add_argument(
+        "scenario", type=Path, nargs="?", default=None, help="scenario file (TOML); or --drones"
+    )
+    session = up.add_argument_group(
+        "operator session (instead of a scenario file)",
+        "N drones on the ground, waiting for swarm takeoff; no fixed duration",
+    )
+    # --drones N itself is with the multi-host flags: one flag, LO-HI with a scenario file
+    session.add_argument(
+        "--layout", choices=LAYOUTS, default=None, help="where they stand (default grid)"
+    )
+    session.add_argument(
+        "--spacing-m",
+        type=float,
+        metavar="M",
+        help="between neighbours on the ground (default 2.5)",
+    )
+    session.add_argument("--range-m", type=float, metavar="M", help="radio range (default 6)")
+    session.add_argument("--seed", type=int, help="random layout and the run's draws (default 0)")
+    session.add_argument(
+        "--shutdown-timeout-s",
+        type=float,
+        metavar="S",
+        help="how long a shutdown waits for the swarm to land before stopping anyway "
+        "(default 120 wall s)",
+    )
+    _common(up)
+    demo = sub.add_parser(
+        "demo",
+        help="fly the paper's scenario end to end (swarm up scenarios/paper.toml --report report)",
+        description="swarm up scenarios/paper.toml with the report in ./report, then a summary.",
+    )
+    _common(demo)
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--report",
+        type=Path,
+        default=Path("report"),
+        metavar="DIR",
+        help="report folder (default ./report)",
+    )
+    p.add_argument(
+        "--clock",
+        choices=("lockstep", "realtime"),
+        default="lockstep",
+        help="lockstep (default): results do not depend on machine load",
+    )
+    p.add_argument("--speedup", type=float, default=1.0, help="realtime clock speed-up")
+    p.add_argument(
+        "--agents-per-process",
+        type=int,
+        default=1,
+        metavar="K",
+        help="drones hosted per agent process (default 1: one process per drone)",
+    )
+    p.add_argument("--signing-key", type=Path, metavar="FILE", help="MAVLink 2 signing key")
+    p.add_argument(
+        "--zenoh-connect",
+        metavar="ENDPOINT",
+        help="use this Zenoh endpoint (e.g. a router) instead of the ground station's",
+    )
+    add_multihost_flags(p)
+    p.add_argument("--swarm-id", default="swarm", help="swarm name on Zenoh")
+    p.add_argument(
+        "--base-port",
+        type=int,
+        default=None,
+        help="vehicle i on UDP BASE+i (default: vehicles 0-9 on 14540-14549 as PX4 SITL, "
+        "10-249 on 14560-14799, never the GCS port)",
+    )
+    p.add_argument("--gcs-port", type=int, default=DEFAULT_GCS_PORT, help="telemetry to the GCS")
+    p.add_argument("--duration-s", type=float, metavar="S", help="fly only the first S seconds")
+    p.add_argument(
+        "--view",
+        action="store_true",
+        help="also watch the flight live in Rerun: runs `swarm view` on the report folder and "
+        "prints the web viewer's URL (needs pip install 'quadswarm[view]')",
+    )
+    p.add_argument("--view-web-port", type=int, default=9090, help="--view: web viewer port")
+    p.add_argument("--view-grpc-port", type=int, default=9876, help="--view: viewer data port")
+
+
+def build_plan(
+    args: argparse.Namespace, scenario_path: Path, session: SessionRequest | None = None
+) -> tuple[RunPlan, int]:
+    """The children of the run and the number of drones. With ``session``, the session's
+    scenario is generated and written to ``scenario_path`` (in the report's logs folder)."""
+    if session is None:
+        try:
+            scenario = load_scenario(scenario_path)
+        except ScenarioError as exc:
+            raise SupervisorError(str(exc)) from None
+        text = None
+    else:
+        generated = session_scenario(session, scenario_path)
+        scenario, text = generated.scenario, generated.text
+    n = scenario.n_drones
+    if args.agents_per_process < 1:
+        raise SupervisorError("--agents-per-process must be at least 1")
+    duration = scenario.duration_s if args.duration_s is None else args.duration_s
+    if session is None and not 0 < duration <= scenario.duration_s:
+        raise SupervisorError(f"--duration-s must be in (0, {scenario.duration_s:g}]")
+    # a session's --drones N is its size, not the multi-host range of this host's agents
+    layout = host_layout(
+        args if session is None else argparse.Namespace(**{**vars(args), "drones": None}), n
+    )
+    ports = vehicle_ports(n, args.base_port)
+    clash = port_clash(ports, args.gcs_port)
+    if clash is not None:
+        raise SupervisorError(clash)
+    if "sim" in layout.parts:
+        check_udp_ports(ports[layout.sim_first : layout.sim_last + 1], "vehicle ports", layout.bind)
+    if "gcs" in layout.parts:
+        check_udp_ports([args.gcs_port], "ground station", layout.bind)
+    if layout.router is not None or layout.secrets is not None:
+        return multihost_plan(args, scenario_path, layout, n, duration), n
+    report: Path = args.report
+    logs = report / "logs"
+    try:
+        logs.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SupervisorError(f"cannot write the report folder {report}: {exc}") from None
+    if text is not None:
+        write_text(scenario_path, text)
+    endpoint = args.zenoh_connect
+    if args.zenoh_connect:
+        # the ground station joins that endpoint and listens on a port of its own: left to its
+        # default it would take the rendezvous port, which another swarm on the machine may hold
+        gcs_zenoh = ["--zenoh-listen", "tcp/127.0.0.1:0", "--zenoh-connect", args.zenoh_connect]
+        agent_zenoh = ["--zenoh-listen", "tcp/127.0.0.1:0", "--zenoh-connect", args.zenoh_connect]
+    else:
+        endpoint = f"tcp/127.0.0.1:{rendezvous_port()}"
+        gcs_zenoh = ["--zenoh-listen", endpoint]
+        agent_zenoh = ["--zenoh-listen", "tcp/127.0.0.1:0", "--zenoh-connect", endpoint]
+    key = flags([("--signing-key", args.signing_key)])
+    common = ["--scenario", str(scenario_path)]
+    gcs = Child(
+        "gcs",
+        swarm_argv(
+            "gcs",
+            *common,
+            "--report",
+            str(report),
+            "--swarm-id",
+            args.swarm_id,
+            "--gcs-port",
+            str(args.gcs_port),
+            "--telemetry-hz",
+            str(TELEMETRY_HZ),
+            "--run-file",
+            str(logs / RUN_FILE),
+            *_session_flags(session),
+            *key,
+            "--quiet",
+            *gcs_zenoh,
+        ),
+        logs / "gcs.log",
+    )
+    sim_flags = flags(
+        [
+            ("--clock", args.clock),
+            ("--speedup", args.speedup),
+            ("--wait-agents", n),
+            ("--join-timeout", 120),
+            ("--base-port", args.base_port),  # None (the default layout) is left out
+            ("--gcs", f"udp:127.0.0.1:{args.gcs_port}"),
+            ("--gcs-rate-hz", TELEMETRY_HZ),
+            ("--duration-s", None if session else duration),  # a session: no end
+        ]
+    )
+    sim = Child("simulator", swarm_argv("sim", *common, *sim_flags, *key), logs / "sim.log")
+    groups = agent_groups(n, args.agents_per_process)
+    agents = [
+        Child(
+            f"agent {ids}",
+            swarm_argv(
+                "agent",
+                "--drone-id",
+                ids,
+                *common,
+                *flags([("--base-port", args.base_port)]),
+                "--swarm-id",
+                args.swarm_id,
+                "--quiet",
+                *(["--lockstep"] if args.clock == "lockstep" else []),
+                *(["--wait-for-plan"] if session else []),  # a session: GROUND until takeoff
+                *agent_zenoh,
+                *key,
+            ),
+            logs / f"agent-{ids}.log",
+        )
+        for ids in groups
+    ]
+    drones = agent_ranges(n, args.agents_per_process)
+    plan = RunPlan(gcs, sim, agents, drones, logs / RUN_FILE, endpoint)
+    if session is not None:
+        plan.session = True
+        plan.shutdown_wait_s = session.shutdown_timeout_s + REPORT_WAIT_S
+    return plan, n
+
+
+def _session_flags(session: SessionRequest | None) -> list[str]:
+    """The ground station's flags of a session."""
+    if session is None:
+        return []
+    return ["--session", "--shutdown-timeout-s", str(session.shutdown_timeout_s)]
+
+
+#: How long ``--view`` waits for the viewer to print its URL (s).
+VIEW_START_S = 30.0
+
+
+@contextlib.contextmanager
+def live_view(args: argparse.Namespace, scenario: Path) -> Iterator[str | None]:
+    """With ``--view``: ``swarm view`` on the report folder as a child process (its output in
+    logs/view.log) for the length of the block; yields the viewer's URL (None without --view)."""
+    if not getattr(args, "view", False):
+        yield None
+        return
+    if not rerun_available():
+        raise SupervisorError(f"--view: {INSTALL_HINT}")
+    log = args.report / "logs" / "view.log"
+    argv = swarm_argv(
+        "view", str(args.report), "--scenario", str(scenario),
+        "--web-port", str(args.view_web_port), "--grpc-port", str(args.view_grpc_port),
+    )  # fmt: skip
+    with log.open("wb") as out:
+        proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT)
+    try:
+        yield _viewer_url(proc, log)
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+
+
+def _viewer_url(proc: subprocess.Popen[bytes], log: Path) -> str:
+    """The URL ``swarm view`` prints once it serves the viewer."""
+    end = time.monotonic() + VIEW_START_S
+    while time.monotonic() < end:
+        for line in log.read_text(errors="replace").splitlines():
+            if "web viewer at " in line:
+                return line.split("web viewer at ", 1)[1].strip()
+        if proc.poll() is not None:
+            break
+        time.sleep(0.1)
+    tail = log.read_text(errors="replace").strip().splitlines()[-1:] or ["(no output)"]
+    raise SupervisorError(f"--view: the viewer did not start: {tail[0]}")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``swarm up`` / ``swarm demo``; exit 0 when the scenario was flown to its end."""
+    session = session_request(args)
+    if session is not None:
+        scenario = args.report / "logs" / SESSION_FILE
+    else:
+        scenario = getattr(args, "scenario", None) or PAPER
+    plan, n = build_plan(args, scenario, session)
+    tty = sys.stderr.isatty()
+    shown = [0.0]
+    said = [""]
+
+    def progress(line: str) -> None:
+        if not line:
+            return
+        if not line.startswith("sim "):  # news (once each), not the simulator's status line
+            if line != said[0]:
+                said[0] = line
+                print(f"\r{line:<150}" if tty else line, file=sys.stderr, flush=True)
+        elif tty:
+            print(f"\r{line[:150]:<150}", end="", file=sys.stderr, flush=True)
+        elif time.monotonic() - shown[0] >= 10.0:
+            print(line, file=sys.stderr, flush=True)
+            shown[0] = time.monotonic()
+
+    parts = [c.role.split()[0] for c in plan.children]
+    print(
+        f"swarm up: {n} drones, {len(plan.agents)} agent processes, {args.clock} clock; "
+        f"here: {', '.join(dict.fromkeys(parts))}; logs in {args.report / 'logs'}",
+        file=sys.stderr,
+    )
+    secrets = f" --secrets {args.secrets}" if args.secrets is not None else ""
+    print(
+        f"swarm up: operator commands and drills: swarm status --swarm-id {args.swarm_id} "
+        f"--zenoh-connect {plan.zenoh_endpoint}{secrets}",
+        file=sys.stderr,
+    )
+    if session is not None:
+        print(
+            f"swarm up: an operator session: {n} drones ({session.layout}, "
+            f"{session.spacing_m:g} m apart, radio {session.range_m:g} m) wait on the ground. "
+            "Fly them with swarm takeoff --altitude-m 3, then swarm formation / move / rotate / "
+            "scale / hold / land; swarm shutdown (or Ctrl-C here) lands them, writes the report "
+            "and stops everything",
+            file=sys.stderr,
+        )
+    with interrupt_flag() as stop, live_view(args, scenario) as url:
+        if url is not None:
+            print(f"swarm up: live view (Rerun) at {url}", file=sys.stderr, flush=True)
+        reason = supervise(plan, progress, stop)
+    if tty:
+        print(file=sys.stderr)
+    print(f"swarm up: {reason}", file=sys.stderr)
+    metrics_path = args.report / "metrics.json"
+    if metrics_path.exists():
+        metrics = json.loads(metrics_path.read_text())
+        files = sorted(p for p in args.report.iterdir() if p.is_file())
+        for line in summary_lines(metrics, files):
+            print(line)
+    return 0 if reason in ("finished", SHUT_DOWN) else 1

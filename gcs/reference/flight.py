@@ -1,0 +1,342 @@
+"""The whole swarm in one process (``swarm simulate``): vehicles, agents and radio, no network.
+
+Every drone runs the same agent core as the distributed agents (all of them as the rows of one
+:class:`~drone_agent.agent_core.BatchAgentCore`, one call per control tick),
+the vehicles run the same dynamics and inner loop as the SITL simulator, and consensus messages
+pass through an in-memory radio with the scenario's faults. It is the reference the distributed
+system is measured against, and a fast tuning tool. Deterministic for a given seed; no I/O.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from drone_agent.agent_core import AgentCore, AgentOutput, BatchAgentCore
+from drone_agent.config import agent_config
+from drone_agent.fault_timeline import TimedAction, timeline
+from drone_agent.flight_phase import FlightPhase, Readiness, Request, VehicleView
+from drone_agent.link_faults import LinkFaults
+from gcs.reference.network import InProcessNetwork
+from gcs.report.flight_record import FlightRecord, scenario_link_cuts
+from protocols.scenario import Scenario
+from protocols.wire_plan import FlightCommand
+from sitl_sim.attitude_control import euler_from_quat_batch
+from sitl_sim.config import attitude_gains, vehicle_params
+from sitl_sim.dynamics import (
+    POS,
+    QUAT,
+    RATES,
+    VEL,
+    initial_state,
+    wrench_from_rotor_speeds,
+)
+from sitl_sim.failsafe import FailsafeConfig, failsafe_command
+from sitl_sim.physics_kernel import PhysicsKernel
+
+AIRBORNE_ALTITUDE_M = 0.1
+HARD_LANDING_M_S = 2.0
+#: An agent leaves the swarm this long after its vehicle crashes: the next control tick, as the
+#: distributed agent does on its vehicle's EMERGENCY STATUSTEXT (drone_agent/hosted_agent.py).
+CRASH_NOTICE_S = 0.0
+
+
+@dataclass(frozen=True)
+class FlightEvent:
+    """Something that happened at simulated time ``t_s``: ``kind`` and details."""
+
+    t_s: float
+    kind: str
+    fields: dict[str, Any] = field(default_factory=dict)
+
+
+class _Recorder:
+    """Collects the per-tick samples of a flight into arrays."""
+
+    def __init__(self, n_ticks: int, n: int, links_every: int = 0) -> None:
+        self.t = np.zeros(n_ticks)
+        self.pos = np.zeros((n_ticks, n, 3))
+        self.vel = np.zeros((n_ticks, n, 3))
+        self.quat = np.zeros((n_ticks, 4, n))  # turned into Euler angles after the flight
+        self.rotor_speed = np.zeros((n_ticks, 4, n))  # into thrust and moments after the flight
+        self.rates = np.zeros((n_ticks, n, 3))
+        self.desired = np.zeros((n_ticks, 9))
+        self.estimate = np.full((n_ticks, n, 9), np.nan)
+        self.member = np.zeros((n_ticks, n), dtype=bool)
+        self.airborne = np.zeros((n_ticks, n), dtype=bool)
+        self.armed = np.zeros((n_ticks, n), dtype=bool)
+        self.neighbours = np.zeros((n_ticks, n), dtype=int)
+        #: every ``links_every`` ticks (0: never), the neighbours each live agent integrated
+        self.links_every = links_every
+        self.neighbour_ids: dict[int, dict[int, tuple[int, ...]]] = {}
+
+
+class ReferenceFlight:
+    """One flight of a scenario. :meth:`run` flies it and returns the record and the events."""
+
+    def __init__(self, scenario: Scenario, rng: np.random.Generator | None = None) -> None:
+        self.scenario = scenario
+        self.n = scenario.n_drones
+        self.params = vehicle_params(scenario)
+        self.att_gains = attitude_gains(scenario)
+        self.config = agent_config(scenario)
+        self.plan = scenario.trajectory()
+        self.dt = scenario.rates.dt_control_s
+        self.substeps = scenario.rates.physics_steps_per_control
+        self.rng = rng if rng is not None else np.random.default_rng(scenario.seed)
+        yaw0 = np.radians([d.yaw_deg for d in scenario.drones])
+        self.state = initial_state(scenario.positions_ned_m(), yaw0)
+        self.core = BatchAgentCore(range(self.n), self.config)
+        self.agents: dict[int, AgentCore] = {
+            i: AgentCore(i, self.config, self.core) for i in range(self.n)
+        }
+        self.readiness = [Readiness(self.config) for _ in range(self.n)]
+        self.phases = [FlightPhase(self.config.limits) for _ in range(self.n)]
+        #: the separation layer changes the drone's command (events on each change)
+        self.separating = [False] * self.n
+        delay = max(1, scenario.consensus.delay_ticks)
+        self.network = InProcessNetwork(self.n, scenario.comms.range_m, self.rng, delay)
+        self.failsafe = FailsafeConfig()
+        self.armed = np.zeros(self.n, dtype=bool)
+        self.crashed = np.zeros(self.n, dtype=bool)
+        self.member = np.ones(self.n, dtype=bool)
+        self.attitude_sp = np.zeros((3, self.n))
+        self.attitude_sp[2] = yaw0
+        self.thrust_sp = np.zeros(self.n)
+        self.last_setpoint_s = np.full(self.n, -np.inf)
+        self.in_failsafe = np.zeros(self.n, dtype=bool)
+        self.rotor_speed = np.zeros((4, self.n))
+        self.leave_at: dict[int, float] = {}
+        self.lost_at: dict[int, float] = {}
+        self.events: list[FlightEvent] = []
+        self._actions: list[TimedAction] = timeline(scenario)
+        self.t_s = 0.0
+        self._kernel = PhysicsKernel(self.params, self.n, self.dt / self.substeps, self.att_gains)
+        self._oldest_setpoint_s: float | None = None
+        self._any_failsafe = False  # whether in_failsafe has any True
+        self._live_cache: tuple[list[int], list[int], frozenset[int]] | None = None
+
+    # -- FaultTarget ---------------------------------------------------------------------------
+    @property
+    def conditions(self) -> LinkFaults:
+        return self.network.conditions
+
+    def kill_agent(self, drone: int) -> None:
+        """The agent's process dies: it stops at once; its vehicle will failsafe."""
+        self.agents.pop(drone, None)
+        self._lose(drone)
+
+    def crash_vehicle(self, drone: int) -> None:
+        """Motors off: the vehicle falls. Its agent hears the crash and leaves at the next tick."""
+        self.crashed[drone] = True
+        self.armed[drone] = False
+        self.leave_at[drone] = self.t_s + CRASH_NOTICE_S
+        self._lose(drone)
+
+    def _lose(self, drone: int) -> None:
+        if self.member[drone]:
+            self.member[drone] = False
+            self.lost_at[drone] = self.t_s
+
+    # -- the loop ------------------------------------------------------------------------------
+    def run(
+        self, progress: Callable[[float], None] | None = None, links_every: int = 0
+    ) -> FlightRecord:
+        """Fly the whole scenario; ``progress`` is called with the simulated time every tick.
+        With ``links_every`` > 0, the record keeps the ids of the neighbours each agent
+        integrated every that many ticks (``FlightRecord.neighbour_ids``)."""
+        n_ticks = round(self.scenario.duration_s / self.dt) + 1
+        rec = _Recorder(n_ticks, self.n, links_every)
+        self._event("run_start", drones=self.n, duration_s=self.scenario.duration_s)
+        for k in range(n_ticks):
+            self.t_s = k * self.dt
+            self._apply_faults()
+            self._control_tick(k, rec)
+            if progress is not None:
+                progress(self.t_s)
+            if k < n_ticks - 1:
+                armed = self.last_setpoint_s[self.armed]
+                self._oldest_setpoint_s = float(armed.min()) if armed.shape[0] else None
+                for sub in range(self.substeps):
+                    self._physics_step(self.t_s + sub * self.dt / self.substeps)
+        self._event("run_end", lost=sorted(self.lost_at))
+        # per-tick conversions done once over the whole record (same arithmetic per sample)
+        n_ticks_n = rec.quat.shape[0] * self.n
+        euler = euler_from_quat_batch(rec.quat.transpose(1, 0, 2).reshape(4, n_ticks_n))
+        rotor_speed = rec.rotor_speed.transpose(1, 0, 2).reshape(4, n_ticks_n)
+        thrust, moments = wrench_from_rotor_speeds(rotor_speed, self.params)
+        return FlightRecord(
+            t_s=rec.t,
+            position_ned_m=rec.pos,
+            velocity_ned_m_s=rec.vel,
+            euler_rad=np.ascontiguousarray(euler.reshape(3, -1, self.n).transpose(1, 2, 0)),
+            thrust_n=thrust.reshape(-1, self.n),
+            moments_nm=np.ascontiguousarray(moments.reshape(3, -1, self.n).transpose(1, 2, 0)),
+            desired=rec.desired,
+            estimate=rec.estimate,
+            member=rec.member,
+            airborne=rec.airborne,
+            neighbours=rec.neighbours,
+            link_faults=scenario_link_cuts(self.scenario),
+            lost_at_s=dict(self.lost_at),
+            armed=rec.armed,
+            body_rates_rad_s=rec.rates,
+            neighbour_ids=rec.neighbour_ids,
+        )
+
+    def _event(self, kind: str, **fields: Any) -> None:
+        self.events.append(FlightEvent(round(self.t_s, 6), kind, fields))
+
+    def _apply_faults(self) -> None:
+        while self._actions and self._actions[0].t_s <= self.t_s + 1e-9:
+            action = self._actions.pop(0)
+            action.apply(self)
+            self._event(
+                "fault" if action.starts else "fault_end",
+                fault=action.fault_kind,
+                description=action.description,
+            )
+        for drone, t_leave in list(self.leave_at.items()):
+            if self.t_s >= t_leave:
+                del self.leave_at[drone]
+                if self.agents.pop(drone, None) is not None:
+                    self._event("agent_left", drone=drone, reason="vehicle crashed")
+
+    def _control_tick(self, k: int, rec: _Recorder) -> None:
+        pos, vel = self.state[POS].T, self.state[VEL].T
+        live, rows, members = self._live()
+        inboxes = self.network.receive(k)
+        outs = self.core.tick(
+            rows,
+            k,
+            self.t_s,
+            pos[live],
+            vel[live],
+            [self.plan] * len(live),
+            [inboxes[i] for i in live],
+            [members] * len(live),
+        )
+        if outs:
+            rec.estimate[k, live] = [out.estimate for out in outs]
+            rec.neighbours[k, live] = [len(out.active_neighbours) for out in outs]
+            if rec.links_every and k % rec.links_every == 0:
+                rec.neighbour_ids[k] = {
+                    i: out.active_neighbours for i, out in zip(live, outs, strict=True)
+                }
+        yaw = euler_from_quat_batch(self.state[QUAT])[2]
+        messages = []
+        flying: list[int] = []
+        commands: list[tuple[float, float, float, float]] = []
+        for i, out in zip(live, outs, strict=True):
+            if out.separating != self.separating[i]:
+                self.separating[i] = out.separating
+                self._event("separation" if out.separating else "separation_end", drone=i)
+            phase, readiness = self.phases[i], self.readiness[i]
+            ready = readiness.update(out, inboxes[i], members, phase.committed)
+            messages.append(replace(out.message, ready_hops=readiness.level))
+            if self.crashed[i]:
+                continue
+            sp = self._decide(i, out, phase.committed or ready, -float(pos[i, 2]), yaw[i])
+            if sp is not None:
+                flying.append(i)
+                commands.append(sp)
+        if flying:
+            values = np.array(commands).T
+            self.attitude_sp[:, flying] = values[:3]
+            self.thrust_sp[flying] = values[3]
+            self.last_setpoint_s[flying] = self.t_s
+        self.network.send(k, messages, self.network.in_range(pos))
+        rec.t[k] = self.t_s
+        rec.pos[k], rec.vel[k] = pos, vel
+        rec.quat[k] = self.state[QUAT]
+        rec.rates[k] = self.state[RATES].T
+        rec.rotor_speed[k] = self.rotor_speed
+        rec.desired[k] = outs[0].desired if outs else self.plan.evaluate(self.t_s)[0]
+        rec.member[k] = self.member
+        rec.airborne[k] = -pos[:, 2] > AIRBORNE_ALTITUDE_M
+        rec.armed[k] = self.armed
+
+    def _decide(
+        self, i: int, out: AgentOutput, ready: bool, altitude_m: float, yaw_rad: float
+    ) -> tuple[float, float, float, float] | None:
+        """What the agent's flight phase decides for its vehicle (drone_agent/flight_phase.py,
+        the same decision as every ``swarm agent``): arms it when asked, and returns the
+        setpoint (roll, pitch, yaw, thrust) of an armed vehicle, None for a disarmed one. The
+        scenario's plan always says FLY. The vehicle here has no flight modes: arming takes the
+        offboard setpoints at once, and a hold (no valid setpoint in the air) flies the order's
+        level hover setpoint."""
+        arming = not self.armed[i] and not self.in_failsafe[i]
+        vehicle = VehicleView(
+            armed=bool(self.armed[i]),
+            in_offboard=bool(self.armed[i]),
+            in_land=bool(self.in_failsafe[i]),
+            in_hold=False,
+            altitude_m=altitude_m,
+        )
+        assert out.desired is not None
+        order = self.phases[i].decide(
+            FlightCommand.FLY, True, ready, out.setpoint, -float(out.desired[2]), vehicle, yaw_rad
+        )
+        if order.request == Request.ARM_OFFBOARD and arming:
+            self.armed[i] = True
+            self._event("armed", drone=i)
+        if not self.armed[i]:
+            return None
+        sp = order.setpoint
+        return (sp.roll_rad, sp.pitch_rad, sp.yaw_rad, sp.thrust_normalised)
+
+    def _live(self) -> tuple[list[int], list[int], frozenset[int]]:
+        """The live agents (sorted), their rows in the batched core, and the membership view;
+        one view object while the agents do not change."""
+        members = frozenset(self.agents)
+        if self._live_cache is None or self._live_cache[2] != members:
+            live = sorted(members)
+            self._live_cache = (live, [self.agents[i].row for i in live], members)
+        return self._live_cache
+
+    def _physics_step(self, t_s: float) -> None:
+        attitude, thrust = self.attitude_sp, self.thrust_sp
+        timeout = self.failsafe.offboard_timeout_s
+        # no vehicle can be stale while the oldest armed one's last setpoint is recent enough
+        # (t - last is monotonic in last; the armed set only shrinks between control ticks)
+        oldest = self._oldest_setpoint_s
+        stale = None
+        if oldest is not None and t_s - oldest > timeout:
+            stale = self.armed & (t_s - self.last_setpoint_s > timeout)
+        if stale is not None and stale.any():
+            attitude, thrust = attitude.copy(), thrust.copy()
+            for i in np.flatnonzero(stale & ~self.in_failsafe):
+                self.in_failsafe[i] = True
+                self._any_failsafe = True
+                self._event(
+                    "failsafe",
+                    drone=int(i),
+                    reason="no setpoint for "
+                    f"{self.failsafe.offboard_timeout_s:g} s: level, descend, disarm",
+                )
+            since = t_s - self.last_setpoint_s[stale] - self.failsafe.offboard_timeout_s
+            yaw = euler_from_quat_batch(self.state[QUAT][:, stale])[2]
+            att, thr = failsafe_command(
+                self.state[5, stale],
+                yaw,
+                since,
+                self.params.hover_thrust_n / self.params.max_thrust_n,
+                self.failsafe,
+            )
+            attitude[:, stale], thrust[stale] = att, thr
+        # inner_loop + step_with_contact, fused (same arithmetic: sitl_sim.physics_kernel)
+        self.state, self.rotor_speed, impact = self._kernel.substep(
+            self.state, attitude, thrust, self.armed
+        )
+        if impact is not None:
+            for i in np.flatnonzero(impact > HARD_LANDING_M_S):
+                self._event("hard_landing", drone=int(i), impact_m_s=round(float(impact[i]), 2))
+        if not self._any_failsafe:
+            return
+        landed = self.in_failsafe & self.armed & (self.state[2] >= -1e-6)
+        for i in np.flatnonzero(landed):
+            self.armed[i] = False
+            self._event("disarmed", drone=int(i), reason="failsafe landing complete")

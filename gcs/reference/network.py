@@ -1,0 +1,118 @@
+"""An in-memory radio between the agents of one process: range, one-tick delay, link cuts (also
+one-way), packet loss and extra delay, as the consensus estimator would meet them on a real network.
+
+Pure apart from the injected random generator: no sockets, no clock; time is the round number.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from drone_agent.link_faults import LinkFaults
+from protocols.consensus_message import ConsensusMessage
+from protocols.frames import FloatArray
+
+
+class InProcessNetwork:
+    """Delivers each round's messages to the drones in range, ``base_delay_ticks`` (≥ 1) later."""
+
+    def __init__(
+        self, n_drones: int, range_m: float, rng: np.random.Generator, base_delay_ticks: int = 1
+    ) -> None:
+        if base_delay_ticks < 1:
+            raise ValueError("a message can arrive at the earliest one tick after it was sent")
+        self.n = n_drones
+        self.range_m = range_m
+        self.rng = rng
+        self.base_delay_ticks = base_delay_ticks
+        self.conditions = LinkFaults()
+        # arrival round -> batches of (receivers, index into messages, messages), in send order
+        self._in_flight: dict[int, list[tuple[list[int], list[int], list[ConsensusMessage]]]] = (
+            defaultdict(list)
+        )
+        self.sent = 0
+        self.delivered = 0
+        self.lost = 0
+
+    def in_range(self, positions_ned_m: FloatArray) -> FloatArray:
+        """Boolean matrix (N, N): pairs within radio range (no self-links)."""
+        d = np.linalg.norm(positions_ned_m[:, None, :] - positions_ned_m[None, :, :], axis=-1)
+        ok: FloatArray = d < self.range_m
+        np.fill_diagonal(ok, False)
+        return ok
+
+    def send(self, round_: int, messages: Sequence[ConsensusMessage], in_range: FloatArray) -> None:
+        """Put this round's messages on the air; they reach receivers in range after the delay.
+
+        Per (message, receiver in range) in message order, receivers ascending: a cut or the
+        partition stops it; else it is lost with its link's probability (one draw of ``rng`` per
+        link with a loss, in that order); else it arrives after the base plus its link's delay."""
+        if not messages:
+            return
+        senders = np.array([m.sender for m in messages], dtype=np.intp)
+        reach = np.array(in_range, dtype=bool)[senders]
+        reach[np.arange(senders.shape[0]), senders] = False
+        which, receivers = np.nonzero(reach)
+        self.sent += int(receivers.shape[0])
+        blocked, loss, delay = self._link_matrices()
+        i = senders[which]
+        keep = np.ones(receivers.shape[0], dtype=bool)
+        if blocked is not None:
+            keep &= ~blocked[i, receivers]
+        if loss is not None:
+            p = loss[i, receivers]
+            draw = keep & (p > 0.0)
+            keep[draw] = self.rng.random(int(draw.sum())) >= p[draw]
+        self.lost += int(receivers.shape[0] - keep.sum())
+        which, receivers, i = which[keep], receivers[keep], i[keep]
+        ticks = np.full(receivers.shape[0], self.base_delay_ticks, dtype=np.int64)
+        if delay is not None:
+            ticks += delay[i, receivers]
+        msgs = list(messages)
+        for d in np.unique(ticks).tolist():
+            on = ticks == d
+            self._in_flight[round_ + d].append((receivers[on].tolist(), which[on].tolist(), msgs))
+
+    def _link_matrices(
+        self,
+    ) -> tuple[
+        npt.NDArray[np.bool_] | None, npt.NDArray[np.float64] | None, npt.NDArray[np.int64] | None
+    ]:
+        """The faults as (N, N) matrices [sender, receiver]: blocked, loss probability, added
+        delay (ticks); None where no link has that fault."""
+        c, n = self.conditions, self.n
+        blocked = None
+        if c.cut or c.partition is not None:
+            blocked = np.zeros((n, n), dtype=bool)
+            for a, b in c.cut:
+                if 0 <= a < n and 0 <= b < n:
+                    blocked[a, b] = True
+            if c.partition is not None:
+                group = np.array([c.partition.get(k, -1) for k in range(n)])
+                blocked |= group[:, None] != group[None, :]
+        loss = None
+        if c.loss > 0.0 or any(v > 0.0 for v in c.link_loss.values()):
+            loss = np.full((n, n), float(c.loss))
+            for (a, b), v in c.link_loss.items():
+                if 0 <= a < n and 0 <= b < n:
+                    loss[a, b] = v
+        delay = None
+        if c.extra_delay_ticks or any(c.link_delay_ticks.values()):
+            delay = np.full((n, n), int(c.extra_delay_ticks), dtype=np.int64)
+            for (a, b), v in c.link_delay_ticks.items():
+                if 0 <= a < n and 0 <= b < n:
+                    delay[a, b] = v
+        return blocked, loss, delay
+
+    def receive(self, round_: int) -> list[list[ConsensusMessage]]:
+        """The inboxes (one list per drone) of messages that arrive at round ``round_``."""
+        inboxes: list[list[ConsensusMessage]] = [[] for _ in range(self.n)]
+        for receivers, which, msgs in self._in_flight.pop(round_, []):
+            for j, k in zip(receivers, which, strict=True):
+                inboxes[j].append(msgs[k])
+            self.delivered += len(receivers)
+        return inboxes

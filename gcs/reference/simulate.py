@@ -1,0 +1,207 @@
+"""``swarm simulate``: fly a scenario in one process and write its report folder.
+
+Writes ``flight.tlog`` (MAVLink 2 telemetry of every vehicle), ``events.jsonl``, ``metrics.json``,
+``trajectory.json`` (the plan's knots and coefficients), the paper-style PNG plots and, where
+Rerun is installed, ``flight.rrd`` (its recording, made from the files above:
+gcs/view/recording.py).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gcs.reference.flight import FlightEvent, ReferenceFlight
+from gcs.report.events import EventLog
+from gcs.report.flight_record import FlightRecord
+from gcs.report.metrics import compute_metrics
+from gcs.report.plots import write_plots
+from gcs.report.tlog import TlogWriter
+from gcs.view.recording import write_recording
+from protocols.scenario import Scenario
+from protocols.trajectory import DescriptorTrajectory
+
+#: MAVLink MAV_STATE values used in heartbeats.
+MAV_STATE_STANDBY, MAV_STATE_ACTIVE, MAV_STATE_EMERGENCY = 3, 4, 6
+#: MAV_SEVERITY values used in status texts.
+SEVERITY_CRITICAL, SEVERITY_WARNING, SEVERITY_INFO = 2, 4, 6
+#: Rate (Hz) of the agents' statuses in the tlog (the ground station logs what they publish).
+STATUS_HZ = 5.0
+_EVENT_SEVERITY = {
+    "fault": SEVERITY_WARNING,
+    "failsafe": SEVERITY_CRITICAL,
+    "hard_landing": SEVERITY_CRITICAL,
+    "agent_left": SEVERITY_WARNING,
+    "armed": SEVERITY_INFO,
+    "disarmed": SEVERITY_INFO,
+}
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """What a run produced: the record, its events, the metrics and the files written."""
+
+    record: FlightRecord
+    events: list[FlightEvent]
+    metrics: dict[str, Any]
+    files: list[Path]
+
+
+def simulate(
+    scenario: Scenario,
+    report_dir: Path,
+    progress: Callable[[float], None] | None = None,
+    tlog_hz: float = 25.0,
+    plots: bool = True,
+    recording: bool = True,
+) -> SimulationResult:
+    """Fly ``scenario`` in process and write the report into ``report_dir`` (created); with
+    ``recording``, also ``flight.rrd`` where Rerun is installed (:mod:`gcs.view.recording`)."""
+    report_dir.mkdir(parents=True, exist_ok=True)
+    flight = ReferenceFlight(scenario)
+    wall0 = time.perf_counter()
+    record = flight.run(progress, links_every=status_stride(scenario.rates.dt_control_s))
+    wall = time.perf_counter() - wall0
+    files = [
+        _write_tlog(
+            record, flight.events, report_dir / "flight.tlog", tlog_hz, _silent_from(flight)
+        ),
+        _write_events(flight.events, report_dir / "events.jsonl"),
+        _write_trajectory(flight.plan, report_dir / "trajectory.json"),
+    ]
+    faults = [
+        (e.t_s, str(e.fields.get("description", e.kind)))
+        for e in flight.events
+        if e.kind == "fault"
+    ]
+    metrics = compute_metrics(
+        record,
+        settle_s=scenario.settle_s,
+        faults=faults,
+        max_thrust_n=flight.params.max_thrust_n,
+        extra={
+            "scenario": scenario.name,
+            "source": scenario.source,
+            "seed": scenario.seed,
+            "mode": "in-process reference (swarm simulate)",
+            "wall_time_s": round(wall, 3),
+            "real_time_factor": round(scenario.duration_s / wall, 3) if wall > 0 else None,
+            "settle_s": scenario.settle_s,
+            "messages": {
+                "sent": flight.network.sent,
+                "delivered": flight.network.delivered,
+                "lost": flight.network.lost,
+            },
+            "rejected_setpoints": sum(a.rejected_setpoints for a in flight.agents.values()),
+        },
+    )
+    metrics_path = report_dir / "metrics.json"
+    metrics_path.write_text(json.dumps(metrics, indent=2) + "\n")
+    files.append(metrics_path)
+    if plots:
+        files += write_plots(record, report_dir)
+    if recording and (rrd := write_recording(report_dir, scenario.n_drones)) is not None:
+        files.append(rrd)
+    return SimulationResult(record, flight.events, metrics, files)
+
+
+def status_stride(dt_s: float) -> int:
+    """Every how many samples ``dt_s`` apart an agent's status is logged (:data:`STATUS_HZ`)."""
+    return max(1, round(1.0 / (STATUS_HZ * dt_s)))
+
+
+def _silent_from(flight: ReferenceFlight) -> dict[int, float]:
+    """A crashed vehicle stops answering once it has hit the ground."""
+    out: dict[int, float] = {}
+    for e in flight.events:
+        drone = e.fields.get("drone")
+        if e.kind == "hard_landing" and isinstance(drone, int) and flight.crashed[drone]:
+            out.setdefault(drone, e.t_s)
+    return out
+
+
+def _write_tlog(
+    record: FlightRecord,
+    events: list[FlightEvent],
+    path: Path,
+    hz: float,
+    silent_from: dict[int, float],
+) -> Path:
+    """Telemetry of every vehicle at ``hz`` (system id = index + 1), heartbeats at 1 Hz, each
+    live agent's status (estimate, neighbour count and ids; as the ground station logs it, mode
+    unknown: NaN) at :data:`STATUS_HZ`, and a STATUSTEXT for each event about a drone. Vehicles in
+    ``silent_from`` stop after that time."""
+    t = record.t_s
+    stride = max(1, round(1.0 / (hz * (t[1] - t[0])))) if t.size > 1 else 1
+    status_every = status_stride(t[1] - t[0]) if t.size > 1 else 1
+    hb_stride = max(1, round(1.0 / (t[1] - t[0]))) if t.size > 1 else 1
+    rates = record.body_rates_rad_s
+    armed = record.armed
+    pending = sorted(events, key=lambda e: e.t_s)
+    with TlogWriter(path) as log:
+        for k in range(0, t.size):
+            while pending and pending[0].t_s <= t[k]:
+                ev = pending.pop(0)
+                drone = ev.fields.get("drone")
+                if isinstance(drone, int) and ev.kind in _EVENT_SEVERITY:
+                    text = f"{ev.kind}: {ev.fields.get('reason', ev.fields.get('description', ''))}"
+                    log.write_statustext(ev.t_s, drone + 1, _EVENT_SEVERITY[ev.kind], text[:150])
+            if k % stride and k % hb_stride and k % status_every:
+                continue
+            for i in range(record.n_drones):
+                if t[k] > silent_from.get(i, np.inf):
+                    continue
+                if k % hb_stride == 0:
+                    is_armed = bool(armed[k, i]) if armed is not None else True
+                    state = (
+                        MAV_STATE_EMERGENCY
+                        if not record.member[k, i]
+                        else MAV_STATE_ACTIVE
+                        if is_armed
+                        else MAV_STATE_STANDBY
+                    )
+                    log.write_heartbeat(float(t[k]), i + 1, is_armed, state)
+                if k % stride == 0:
+                    body = rates[k, i] if rates is not None else np.zeros(3)
+                    log.write_vehicle_sample(
+                        float(t[k]),
+                        i + 1,
+                        record.position_ned_m[k, i],
+                        record.velocity_ned_m_s[k, i],
+                        record.euler_rad[k, i],
+                        body,
+                    )
+                if k % status_every == 0 and np.all(np.isfinite(record.estimate[k, i])):
+                    on = float(armed[k, i]) if armed is not None else 1.0
+                    values = [*record.estimate[k, i], record.neighbours[k, i], np.nan, on]
+                    ids = record.neighbour_ids.get(k, {}).get(i)  # None: not kept
+                    log.write_agent_status(float(t[k]), i + 1, np.array(values, dtype=float), ids)
+    return path
+
+
+def _write_events(events: list[FlightEvent], path: Path) -> Path:
+    with EventLog(path) as log:
+        for e in events:
+            log.record(e.t_s, e.kind, **e.fields)
+    return path
+
+
+def _write_trajectory(plan: DescriptorTrajectory, path: Path) -> Path:
+    path.write_text(
+        json.dumps(
+            {
+                "seq": plan.seq,
+                "descriptor_order": "mu_x mu_y mu_z roll pitch yaw s1 s2 s3 (NED m, rad, m^2)",
+                "t_knots_s": plan.t_knots_s.tolist(),
+                "coeffs_ascending_powers": plan.coeffs.tolist(),
+            }
+        )
+        + "\n"
+    )
+    return path

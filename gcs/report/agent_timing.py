@@ -1,0 +1,120 @@
+"""Did the agents keep up? The report's answer, from the ground station's own logs. Pure.
+
+In realtime the simulator measures, once per status interval, each agent's share of control ticks
+answered in time and its worst lag (sitl_sim/tick_answers.py), sends both to the ground station as
+NAMED_VALUE_FLOAT (logged in flight.tlog), and an "Agent late" STATUSTEXT for an agent below 90 %
+(an ``overload`` event in events.jsonl). :func:`timing_metrics` turns them into the report's
+``agent_timing`` block and explains each failsafe: a vehicle fails safe when its setpoints stop;
+if its agent was reported late just before, the machine could not keep up, else the agent stopped.
+Lockstep runs have no timing figures (time waits for the agents).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from gcs.report.tlog import TlogTrack
+from sitl_sim.messages import AGENT_IN_TIME, AGENT_LAG_MS
+from sitl_sim.tick_answers import OVERLOAD_LAG_MS, OVERLOAD_SHARE
+
+#: A failsafe is blamed on an overload reported at most this long (s) before or after it.
+BLAME_WINDOW_S = 3.0
+
+
+def timing_metrics(track: TlogTrack, events: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """The ``agent_timing`` block: per-drone worst share in time and lag, whether the swarm was
+    overloaded, and the failsafes with their cause."""
+    per_drone: dict[str, dict[str, float | None]] = {}
+    shares: dict[float, list[float]] = {}
+    for sysid, v in sorted(track.vehicles.items()):
+        in_time, lag = v.named.get(AGENT_IN_TIME), v.named.get(AGENT_LAG_MS)
+        if in_time is None or in_time.size == 0:
+            continue
+        per_drone[str(sysid - 1)] = {
+            "in_time_min": round(float(in_time[:, 1].min()), 4),
+            "in_time_mean": round(float(in_time[:, 1].mean()), 4),
+            "worst_lag_ms": None if lag is None or not lag.size else float(lag[:, 1].max()),
+        }
+        for t, share in in_time:
+            shares.setdefault(round(float(t), 3), []).append(float(share))
+    swarm = [float(np.mean(s)) for s in shares.values()]
+    lags = [d["worst_lag_ms"] for d in per_drone.values() if d["worst_lag_ms"] is not None]
+    overloaded_intervals = sum(1 for s in swarm if s < OVERLOAD_SHARE)
+    return {
+        "measured": bool(per_drone),
+        "in_time_min": min(swarm) if swarm else None,
+        "overloaded_intervals": overloaded_intervals,
+        "worst_lag_ms": max(lags, default=None),
+        "overloaded": overloaded_intervals > 0 or max(lags, default=0.0) >= OVERLOAD_LAG_MS,
+        "per_drone": per_drone,
+        "failsafes": explain_failsafes(events),
+    }
+
+
+def explain_failsafes(events: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Each drone's first failsafe event with its cause: ``overload`` when its agent was reported
+    late within BLAME_WINDOW_S of it (the report comes at the end of the simulator's status
+    interval, so it may follow the failsafe), else ``no setpoints`` (its agent stopped or left)."""
+    late: dict[int, list[tuple[float, str]]] = {}
+    failsafes: dict[int, Mapping[str, Any]] = {}
+    for e in events:
+        drone, kind = e.get("drone"), e.get("kind")
+        if not isinstance(drone, int):
+            continue
+        if kind == "overload":
+            late.setdefault(drone, []).append((float(e.get("t_s", 0.0)), str(e.get("text", ""))))
+        elif kind == "failsafe":
+            failsafes.setdefault(drone, e)
+    out: list[dict[str, Any]] = []
+    for drone, e in sorted(failsafes.items(), key=lambda item: float(item[1].get("t_s", 0.0))):
+        t = float(e.get("t_s", 0.0))
+        # the report of the interval the failsafe fell in comes after it: prefer that one
+        near = sorted(
+            (t_late < t, abs(t_late - t), text)
+            for t_late, text in late.get(drone, [])
+            if abs(t_late - t) <= BLAME_WINDOW_S
+        )
+        blamed = [text for _before, _gap, text in near]
+        out.append(
+            {
+                "drone": drone,
+                "t_s": t,
+                "text": e.get("text"),
+                "cause": "overload" if blamed else "no setpoints",
+                "detail": blamed[0] if blamed else "its agent stopped or left the swarm",
+            }
+        )
+    return out
+
+
+def summary_lines(timing: Mapping[str, Any] | None) -> list[str]:
+    """Lines for the printed summary (none when nothing was measured and nothing failed safe)."""
+    if not timing:
+        return []
+    lines: list[str] = []
+    if timing.get("measured"):
+        worst = min((d["in_time_min"] for d in timing["per_drone"].values()), default=float("nan"))
+        lags = [
+            d["worst_lag_ms"] for d in timing["per_drone"].values() if d["worst_lag_ms"] is not None
+        ]
+        lines.append(
+            f"  agents in time (realtime)    worst agent {worst:.1%} of ticks, "
+            f"worst lag {max(lags, default=0.0):.0f} ms"
+        )
+        if timing.get("overloaded"):
+            lines.append(
+                f"  OVERLOAD: the agents fell behind realtime ({timing['overloaded_intervals']} "
+                f"one-second intervals below {OVERLOAD_SHARE:.0%} of the ticks in time, worst lag "
+                f"{timing.get('worst_lag_ms') or 0.0:.0f} ms): this machine cannot fly this swarm "
+                "in realtime; use --clock lockstep (results do not depend on load)"
+            )
+    for f in timing.get("failsafes", []):
+        lines.append(
+            f"  drone {f['drone']} failed safe at {f['t_s']:.1f} s: "
+            + ("its agent fell behind (" + f["detail"] + ")" if f["cause"] == "overload"
+               else f["detail"])
+        )  # fmt: skip
+    return lines

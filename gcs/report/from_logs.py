@@ -1,0 +1,225 @@
+"""The ground station's report: a :class:`~gcs.report.flight_record.FlightRecord` rebuilt from the
+ground station's own logs (``flight.tlog``: vehicle telemetry and the agents' statuses;
+``events.jsonl``: joins, drop-outs, crashes, drills) and the final plan, then ``metrics.json``,
+``trajectory.json``, the paper-style PNG plots and ``flight.rrd`` (with Rerun installed), the same
+files as ``swarm simulate`` writes.
+
+Sampling: a uniform grid of simulated time at ``rate_hz`` (the telemetry rate), sample-and-hold.
+Estimates are NaN where no status of that agent is younger than ``max_age_s``.
+
+Controls: the simulator streams each vehicle's rotor forces (N) to the GCS in
+ACTUATOR_OUTPUT_STATUS (protocols/mavlink_conventions.py); collective thrust (N) and body moments
+(N m) follow from them with the mixer's geometry (:func:`sitl_sim.mixer.wrench_from_rotor_forces`)
+and the scenario's vehicle parameters. A vehicle that sent none has zero thrust and moments.
+
+Link cuts (shaded in the plots): the scenario's own
+(:func:`gcs.report.flight_record.scenario_link_cuts`; the agents apply them) and the ``link_cut``
+drills the ground station logged in ``events.jsonl`` (:mod:`gcs.station.drills`), each ending at
+its duration, a ``link_restore`` of the pair, a ``clear`` or the end of the run.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Mapping
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from gcs.reference.simulate import _write_trajectory
+from gcs.report.events import read_events
+from gcs.report.flight_record import FlightRecord, LinkFault, scenario_link_cuts
+from gcs.report.metrics import compute_metrics
+from gcs.report.plots import write_plots
+from gcs.report.tlog import TlogTrack, VehicleTrack, read_tlog
+from gcs.view.recording import write_recording
+from protocols.frames import FloatArray
+from protocols.scenario import Scenario
+from protocols.trajectory import DescriptorTrajectory
+from sitl_sim.config import vehicle_params
+from sitl_sim.mixer import wrench_from_rotor_forces
+from sitl_sim.vehicle_params import VehicleParams
+
+AIRBORNE_M = 0.1  # above this altitude (m) a vehicle counts as airborne
+MAX_AGE_S = 1.0
+
+
+def _hold(
+    t_grid: FloatArray, t_src: FloatArray, values: FloatArray, max_age_s: float
+) -> FloatArray:
+    """Sample-and-hold of ``values`` (K, ...) taken at ``t_src`` (K,) onto ``t_grid``; NaN where
+    there is no sample at most ``max_age_s`` old."""
+    out = np.full((t_grid.shape[0], *values.shape[1:]), np.nan)
+    if t_src.size == 0:
+        return out
+    order = np.argsort(t_src, kind="stable")
+    t_src, values = t_src[order], values[order]
+    k = np.searchsorted(t_src, t_grid + 5e-4, side="right") - 1
+    ok = k >= 0
+    kk = np.where(ok, k, 0)
+    ok &= t_grid - t_src[kk] <= max_age_s + 5e-4
+    out[ok] = values[kk[ok]]
+    return out
+
+
+def controls(
+    t_grid: FloatArray, track: VehicleTrack, params: VehicleParams
+) -> tuple[FloatArray, FloatArray]:
+    """Collective thrust (T,) N and body moments (T, 3) N m of one vehicle on ``t_grid`` (T,) s,
+    sample-and-hold of its rotor forces; zero before its first ACTUATOR_OUTPUT_STATUS."""
+    forces = np.nan_to_num(_hold(t_grid, track.actuator_t_s, track.rotor_forces_n, np.inf))
+    thrust, moments = wrench_from_rotor_forces(forces.T, params)
+    return thrust, moments.T
+
+
+def drill_link_faults(events: Iterable[Mapping[str, Any]], end_s: float) -> list[LinkFault]:
+    """The link cuts of the accepted ``drill`` events (times in s; their ``link``, ``one_way`` and
+    ``duration_s`` fields, gcs.station.drills), in order: each lasts its duration, or until a
+    ``link_restore`` of the pair, a ``clear`` or ``end_s``."""
+    cuts: list[LinkFault] = []
+    for event in events:
+        if event.get("kind") != "drill" or not event.get("accepted"):
+            continue
+        t, drill, link = float(event["t_s"]), event.get("drill"), event.get("link")
+        if drill == "link_cut" and link:
+            duration = event.get("duration_s")
+            t1 = min(end_s, t + float(duration)) if duration else end_s
+            cuts.append(LinkFault(t, t1, int(link[0]), int(link[1]), bool(event.get("one_way"))))
+        elif drill == "clear" or (drill == "link_restore" and link):
+            ends = {int(link[0]), int(link[1])} if drill == "link_restore" and link else None
+            for k, c in enumerate(cuts):
+                if c.t0_s <= t < c.t1_s and (ends is None or {c.i, c.j} == ends):
+                    cuts[k] = replace(c, t1_s=t)
+    return cuts
+
+
+def build_record(
+    tlog_path: Path,
+    events_path: Path,
+    plan: DescriptorTrajectory,
+    n_drones: int,
+    rate_hz: float,
+    end_s: float,
+    scenario: Scenario | None = None,
+    track: TlogTrack | None = None,
+) -> FlightRecord | None:
+    """The flight as the ground station logged it, or None if no vehicle was heard.
+
+    Everything comes from the files, so a ground station restarted mid-flight reports the whole
+    flight: positions, attitudes, rotor forces and agent statuses from ``tlog_path``; who was in
+    the swarm (``agent_joined``, ``dropout_detected``, ``crash``) and the link-cut drills from
+    ``events_path``; the commanded descriptors from ``plan``, the final plan (a plan keeps the
+    segments already flown). ``scenario`` gives the vehicle parameters that turn rotor forces
+    into thrust and moments (default: :class:`VehicleParams`) and its own link cuts. ``track``:
+    the tlog already read (else it is read from ``tlog_path``).
+    """
+    if track is None:
+        track = read_tlog(tlog_path)
+    heard = [v for s, v in track.vehicles.items() if 1 <= s <= n_drones and v.t_s.size]
+    if not heard:
+        return None
+    t0 = min(float(v.t_s[0]) for v in heard)
+    t1 = min(end_s, max(float(v.t_s[-1]) for v in heard))
+    t = np.arange(t0, t1 + 1e-9, 1.0 / rate_hz)
+    if t.size < 2:
+        return None
+    n = n_drones
+    pos = np.full((t.size, n, 3), np.nan)
+    vel, euler = np.zeros((t.size, n, 3)), np.zeros((t.size, n, 3))
+    thrust, moments = np.zeros((t.size, n)), np.zeros((t.size, n, 3))
+    params = VehicleParams() if scenario is None else vehicle_params(scenario)
+    est = np.full((t.size, n, 9), np.nan)
+    nbrs = np.zeros((t.size, n), dtype=int)
+    for sysid, v in track.vehicles.items():
+        i = sysid - 1
+        if not 0 <= i < n:
+            continue
+        pos[:, i] = _hold(t, v.t_s, v.position_ned_m, np.inf)
+        vel[:, i] = np.nan_to_num(_hold(t, v.t_s, v.velocity_ned_m_s, np.inf))
+        euler[:, i] = np.nan_to_num(_hold(t, v.attitude_t_s, v.euler_rad, np.inf))
+        thrust[:, i], moments[:, i] = controls(t, v, params)
+        status = _hold(t, v.status_t_s, v.status, MAX_AGE_S)
+        est[:, i] = status[:, :9]
+        nbrs[:, i] = np.nan_to_num(status[:, 9]).astype(int)
+    events = read_events(events_path) if events_path.exists() else []
+    alive, lost_at_s = membership(events, t, n)
+    known = ~np.isnan(pos[..., 0])
+    pos = np.where(known[..., None], pos, 0.0)
+    return FlightRecord(
+        t_s=t,
+        position_ned_m=pos,
+        velocity_ned_m_s=vel,
+        euler_rad=euler,
+        thrust_n=thrust,
+        moments_nm=moments,
+        desired=plan.evaluate_many(t)[0],
+        estimate=est,
+        member=known & alive,
+        airborne=known & (-pos[..., 2] > AIRBORNE_M),
+        neighbours=nbrs,
+        link_faults=_link_faults(scenario, events, float(t[-1])),
+        lost_at_s=lost_at_s,
+    )
+
+
+def membership(
+    events: Iterable[Mapping[str, Any]], t_grid: FloatArray, n_drones: int
+) -> tuple[npt.NDArray[np.bool_], dict[int, float]]:
+    """Who is in the swarm on ``t_grid`` (T,) s: (T, N) True from an ``agent_joined`` event until
+    the drone is lost; and when each lost drone was lost (its first ``dropout_detected`` or
+    ``crash``, s). A lost drone does not come back."""
+    alive = np.zeros((t_grid.size, n_drones), dtype=bool)
+    lost_at_s: dict[int, float] = {}
+    for event in events:
+        i, kind = event.get("drone"), event.get("kind")
+        if not isinstance(i, int) or not 0 <= i < n_drones:
+            continue
+        t = float(event["t_s"])
+        if kind == "agent_joined" and i not in lost_at_s:
+            alive[t_grid >= t - 5e-4, i] = True
+        elif kind in ("dropout_detected", "crash"):
+            lost_at_s.setdefault(i, t)
+    for i, t_lost in lost_at_s.items():
+        alive[t_grid >= t_lost, i] = False
+    return alive, lost_at_s
+
+
+def _link_faults(
+    scenario: Scenario | None, events: Iterable[Mapping[str, Any]], end_s: float
+) -> list[LinkFault]:
+    """The scenario's link cuts and the drills among ``events``."""
+    faults = [] if scenario is None else scenario_link_cuts(scenario)
+    return faults + drill_link_faults(events, end_s)
+
+
+def write_report(
+    report_dir: Path,
+    record: FlightRecord | None,
+    plan: DescriptorTrajectory,
+    settle_s: float,
+    extra: dict[str, Any],
+    plots: bool = True,
+    max_thrust_n: float | None = None,
+) -> list[Path]:
+    """Write ``trajectory.json``, ``metrics.json`` (when there is a record), the plots and, where
+    Rerun is installed, ``flight.rrd`` (from the report's files); ``max_thrust_n`` (N) gives the
+    metrics' max_thrust_ratio."""
+    files = [_write_trajectory(plan, report_dir / "trajectory.json")]
+    metrics_path = report_dir / "metrics.json"
+    if record is None:
+        metrics: dict[str, Any] = {"n_samples": 0, "note": "no telemetry received", **extra}
+    else:
+        faults = [(t, f"drone {i} lost") for i, t in sorted(record.lost_at_s.items())]
+        metrics = compute_metrics(
+            record, settle_s=settle_s, faults=faults, max_thrust_n=max_thrust_n, extra=extra
+        )
+    metrics_path.write_text(json.dumps(metrics, indent=2) + "\n")
+    files.append(metrics_path)
+    if plots and record is not None:
+        files += write_plots(record, report_dir)
+    if record is not None and (rrd := write_recording(report_dir, record.n_drones)) is not None:
+        files.append(rrd)
+    return files

@@ -1,0 +1,367 @@
+"""Run metrics from a FlightRecord, as a JSON-able dict (written as ``metrics.json``). Pure.
+
+Definitions (descriptor order and names from protocols.descriptor_vector; errors a − a_ref with the
+three angle rows wrapped to [−π, π); "RMS" is sqrt(mean(e²)), "max" is max |e|):
+
+- **True descriptors** ``a_true(t)``: the descriptors (ALGORITHM.md §2) of the drones that are
+  members of the swarm at ``t`` (and have a finite position), with the principal axes assigned to
+  the desired orientation at ``t``; NaN with fewer than 2 members. Orientation rows are *masked*
+  (left out) where the heading is undefined: |s1 − s2|/(s1 + s2) < 0.05 on the true variances.
+- **tracking**: per descriptor, RMS and max of |a_true − a_d| over samples with t ≥ ``settle_s``
+  (faults included); angles also in degrees. ``centroid_m``: the Euclidean norm of the centre
+  error; ``shape_m2``: at each sample the RMS over the three variance errors; RMS and max over time.
+- **tracking_steady**: the same, leaving out ``[t_loss, t_loss + 10 s)`` after each drone lost:
+  the steady-state figures (ALGORITHM.md §7 "away from the drop-out"); the transient itself is
+  judged by **reconvergence** below and is included in **tracking**. **consensus_steady** likewise.
+- **consensus**: for each member agent i and sample t ≥ ``settle_s``, |estimate_i − a_true| per
+  descriptor (angles wrapped, heading mask as above); RMS and max over agents and samples; per
+  agent the RMS and max of the centroid estimate error and the RMS of the variance estimate errors.
+  Member samples with no (NaN) estimate are left out and counted as ``n_missing_estimates``.
+- **reconvergence**, per fault (t_f, description): the fault's window runs to the next later fault
+  (or the end). The swarm is *converged* at a sample when the centroid tracking error < 0.05 m,
+  every variance tracking error < 0.1 m², and every member agent's centroid estimate error
+  < 0.05 m and variance estimate errors < 0.1 m² (a missing estimate counts as not converged).
+  The re-convergence time is from t_f to the start of the run of converged samples that lasts to
+  the window's end, provided that run lasts ≥ min(1 s, the window's length); None otherwise.
+  Also the peak centroid and shape (as in tracking) errors in the window.
+- **separation**: the minimum distance between two airborne drones (lost drones included while
+  airborne) with its time and pair. **collisions**: episodes in which an airborne pair is closer
+  than ``collision_distance_m``, counted once per pair per contact (entering contact).
+- **drones_lost** (index, system id, time), **max_tilt_deg** (angle of the body z axis from the
+  vertical, airborne samples), **max_thrust_ratio** (thrust / ``max_thrust_n``, all samples; None
+  without ``max_thrust_n``), ``n_samples``, ``duration_s``.
+- ``extra`` (run info: real-time factor, wall time, ...) is merged in at the top level.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from gcs.report.events import jsonable
+from gcs.report.flight_record import FlightRecord
+from protocols.descriptor_vector import CENTRE, NAMES, ORIENTATION, SHAPE
+from protocols.descriptors import covariance, desired_axes, frame_from_moments, heading_defined
+from protocols.frames import FloatArray, wrap_pi
+
+BoolArray = npt.NDArray[np.bool_]
+CENTROID_TOL_M = 0.05
+VARIANCE_TOL_M2 = 0.1
+HOLD_S = 1.0
+#: After a drone is lost, this long is left out of the steady-state figures (s).
+LOSS_WINDOW_S = 10.0
+_ANGLE_ROWS = range(ORIENTATION.start, ORIENTATION.stop)
+
+
+def descriptors_of(
+    positions_ned_m: FloatArray, member: BoolArray, desired: FloatArray
+) -> FloatArray:
+    """True descriptors (T, 9) of the members' positions (T, N, 3), axes assigned to ``desired``.
+
+    ``member`` (T, N); ``desired`` (T, 9). NaN rows where fewer than 2 members have a position.
+    """
+    out = np.full((positions_ned_m.shape[0], 9), np.nan)
+    for k in range(positions_ned_m.shape[0]):
+        x = positions_ned_m[k][member[k] & np.all(np.isfinite(positions_ned_m[k]), axis=1)]
+        if x.shape[0] < 2:
+            continue
+        mu, sigma = covariance(x)
+        axes = desired_axes(desired[k]) if np.all(np.isfinite(desired[k])) else np.eye(3)
+        out[k] = frame_from_moments(mu, sigma, axes).vector()
+    return out
+
+
+def true_descriptors(record: FlightRecord) -> FloatArray:
+    """True descriptors (T, 9) of the record's member drones; NaN where fewer than 2 members."""
+    return descriptors_of(record.position_ned_m, record.member, record.desired)
+
+
+def heading_mask(a_true: FloatArray) -> BoolArray:
+    """(T,) True where the heading of ``a_true`` (T, 9) is defined (and the row finite)."""
+    return np.array(
+        [bool(np.all(np.isfinite(a[SHAPE]))) and heading_defined(a[SHAPE]) for a in a_true]
+    )
+
+
+def descriptor_errors(a: FloatArray, ref: FloatArray, heading_ok: BoolArray) -> FloatArray:
+    """``a - ref`` (T, 9) or (T, N, 9); angles wrapped, orientation NaN where not ``heading_ok``."""
+    e = np.asarray(a - ref, dtype=float)
+    ok = heading_ok.reshape((-1,) + (1,) * (e.ndim - 1))
+    e[..., ORIENTATION] = np.where(ok, wrap_pi(e[..., ORIENTATION]), np.nan)
+    return e
+
+
+def _stat(err: FloatArray, t_s: FloatArray | None = None, deg: bool = False) -> dict[str, Any]:
+    """RMS and max of |err| over its finite entries (K,) or (K, N); time of the max if ``t_s``."""
+    x = np.abs(np.asarray(err, dtype=float))
+    ok = np.isfinite(x)
+    n = int(ok.sum())
+    out: dict[str, Any] = {"rms": None, "max": None, "n": n}
+    if n:
+        flat = np.where(ok, x, -np.inf)
+        out["rms"] = float(np.sqrt(np.mean(x[ok] ** 2)))
+        out["max"] = float(flat.max())
+        if t_s is not None:
+            out["t_max_s"] = float(t_s[np.unravel_index(np.argmax(flat), x.shape)[0]])
+        if deg:
+            out["rms_deg"], out["max_deg"] = np.degrees(out["rms"]), np.degrees(out["max"])
+    return out
+
+
+def _centroid_shape(e: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Centroid error norm and RMS-over-variances shape error of errors (..., 9)."""
+    return np.linalg.norm(e[..., CENTRE], axis=-1), np.sqrt(np.mean(e[..., SHAPE] ** 2, axis=-1))
+
+
+def outside(t_s: FloatArray, windows: Sequence[tuple[float, float]]) -> BoolArray:
+    """True for samples outside every ``[t0, t1)`` window."""
+    keep = np.ones(t_s.shape, dtype=bool)
+    for t0, t1 in windows:
+        keep &= (t_s < t0) | (t_s >= t1)
+    return keep
+
+
+def loss_windows(
+    record: FlightRecord, window_s: float = LOSS_WINDOW_S
+) -> list[tuple[float, float]]:
+    """``[t_loss, t_loss + window_s)`` for each drone lost: the transient left out of the
+    steady-state figures (and judged by the re-convergence metric instead)."""
+    return [(t, t + window_s) for t in sorted(record.lost_at_s.values())]
+
+
+def tracking_errors(
+    t_s: FloatArray,
+    a_true: FloatArray,
+    desired: FloatArray,
+    settle_s: float,
+    exclude: Sequence[tuple[float, float]] = (),
+) -> dict[str, Any]:
+    """Tracking metrics (see module doc) of true descriptors (T, 9) against ``desired`` (T, 9),
+    over samples after ``settle_s`` and outside the ``exclude`` windows."""
+    after = (t_s >= settle_s) & np.all(np.isfinite(a_true), axis=1) & outside(t_s, exclude)
+    e = descriptor_errors(a_true, desired, heading_mask(a_true))[after]
+    t = t_s[after]
+    centroid, shape = _centroid_shape(e)
+    return {
+        "settle_s": float(settle_s),
+        "excluded_windows_s": [list(w) for w in exclude],
+        "n_samples": int(after.sum()),
+        "descriptors": {
+            name: _stat(e[:, k], t, deg=k in _ANGLE_ROWS) for k, name in enumerate(NAMES)
+        },
+        "centroid_m": _stat(centroid, t),
+        "shape_m2": _stat(shape, t),
+    }
+
+
+def tracking_from_positions(
+    t_s: FloatArray,
+    positions_ned_m: FloatArray,
+    member: BoolArray,
+    desired: FloatArray,
+    settle_s: float,
+    exclude: Sequence[tuple[float, float]] = (),
+) -> dict[str, Any]:
+    """Tracking metrics from positions (T, N, 3) (e.g. resampled from a tlog), ``member`` (T, N)."""
+    a_true = descriptors_of(positions_ned_m, member, desired)
+    return tracking_errors(t_s, a_true, desired, settle_s, exclude)
+
+
+def consensus_errors(
+    t_s: FloatArray,
+    a_true: FloatArray,
+    estimate: FloatArray,
+    member: BoolArray,
+    settle_s: float,
+    exclude: Sequence[tuple[float, float]] = (),
+) -> dict[str, Any]:
+    """Consensus metrics (see module doc): ``estimate`` (T, N, 9) against ``a_true`` (T, 9),
+    after ``settle_s`` and outside the ``exclude`` windows."""
+    when = (t_s >= settle_s) & outside(t_s, exclude) & np.all(np.isfinite(a_true), axis=1)
+    use = member & when[:, None]
+    have = np.all(np.isfinite(estimate[..., CENTRE]), axis=-1) & np.all(
+        np.isfinite(estimate[..., SHAPE]), axis=-1
+    )
+    e = descriptor_errors(estimate, a_true[:, None, :], heading_mask(a_true))
+    e[~(use & have)] = np.nan
+    centroid, shape = _centroid_shape(e)
+    per_agent = [
+        {
+            "index": i,
+            "sysid": i + 1,
+            "centroid_rms_m": _stat(centroid[:, i])["rms"],
+            "centroid_max_m": _stat(centroid[:, i])["max"],
+            "shape_rms_m2": _stat(shape[:, i])["rms"],
+        }
+        for i in range(estimate.shape[1])
+    ]
+    return {
+        "settle_s": float(settle_s),
+        "n_missing_estimates": int((use & ~have).sum()),
+        "descriptors": {
+            name: _stat(e[..., k], t_s, deg=k in _ANGLE_ROWS) for k, name in enumerate(NAMES)
+        },
+        "centroid_m": _stat(centroid, t_s),
+        "shape_m2": _stat(shape, t_s),
+        "per_agent": per_agent,
+    }
+
+
+def converged_mask(
+    a_true: FloatArray,
+    desired: FloatArray,
+    estimate: FloatArray,
+    member: BoolArray,
+    centroid_tol_m: float = CENTROID_TOL_M,
+    variance_tol_m2: float = VARIANCE_TOL_M2,
+) -> BoolArray:
+    """(T,) the re-convergence condition of the module doc at each sample."""
+    with np.errstate(invalid="ignore"):
+        e = a_true - desired
+        ok = (np.linalg.norm(e[:, CENTRE], axis=1) < centroid_tol_m) & np.all(
+            np.abs(e[:, SHAPE]) < variance_tol_m2, axis=1
+        )
+        est = estimate - a_true[:, None, :]
+        agent_ok = (np.linalg.norm(est[..., CENTRE], axis=-1) < centroid_tol_m) & np.all(
+            np.abs(est[..., SHAPE]) < variance_tol_m2, axis=-1
+        )
+    return np.asarray(ok & np.all(agent_ok | ~member, axis=1), dtype=bool)
+
+
+def reconvergence(
+    t_s: FloatArray,
+    a_true: FloatArray,
+    desired: FloatArray,
+    estimate: FloatArray,
+    member: BoolArray,
+    faults: Sequence[tuple[float, str]],
+    hold_s: float = HOLD_S,
+) -> list[dict[str, Any]]:
+    """Re-convergence after each fault (see module doc), in time order."""
+    conv = converged_mask(a_true, desired, estimate, member)
+    centroid, shape = _centroid_shape(a_true - desired)
+    dt = float(np.median(np.diff(t_s))) if t_s.size > 1 else 0.0
+    ordered = sorted(faults, key=lambda f: f[0])
+    out: list[dict[str, Any]] = []
+    for t_f, description in ordered:
+        later = [f[0] for f in ordered if f[0] > t_f]
+        t_end = later[0] if later else np.inf
+        idx = np.flatnonzero((t_s >= t_f) & (t_s < t_end))
+        item: dict[str, Any] = {"t_s": float(t_f), "description": description}
+        item["window_end_s"] = float(min(t_end, t_s[-1] + dt)) if t_s.size else None
+        item["time_to_reconverge_s"] = None
+        item["peak_centroid_error_m"] = _stat(centroid[idx])["max"]
+        item["peak_shape_error_m2"] = _stat(shape[idx])["max"]
+        if idx.size:
+            bad = np.flatnonzero(~conv[idx])
+            start = int(bad[-1]) + 1 if bad.size else 0
+            run_s = (idx.size - start) * dt
+            if start < idx.size and run_s >= min(hold_s, idx.size * dt) - 1e-9:
+                item["time_to_reconverge_s"] = float(t_s[idx[start]] - t_f)
+        out.append(item)
+    return out
+
+
+def separation(
+    t_s: FloatArray,
+    positions_ned_m: FloatArray,
+    airborne: BoolArray,
+    collision_distance_m: float = 0.3,
+    max_listed: int = 100,
+    chunk_samples: int | None = None,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Minimum separation of airborne pairs and collision episodes (see module doc).
+
+    ``positions_ned_m`` (T, N, 3), ``airborne`` (T, N). Returns ``(separation, collisions)``;
+    pairs are drone indices (i < j); at most ``max_listed`` episodes are listed (all are counted).
+    Time is processed in chunks of ``chunk_samples`` (default: about 1e6 pair coordinates).
+    """
+    n = positions_ned_m.shape[1]
+    best: dict[str, Any] = {"min_m": None, "t_s": None, "pair": None}
+    episodes: list[dict[str, Any]] = []
+    if n < 2 or t_s.size == 0:
+        return best, {"distance_m": collision_distance_m, "count": 0, "episodes": episodes}
+    upper = np.triu(np.ones((n, n), dtype=bool), k=1)
+    prev = np.zeros((n, n), dtype=bool)
+    count = 0
+    chunk = chunk_samples or max(1, 1_000_000 // max(1, n * n * 3))
+    for k0 in range(0, t_s.shape[0], chunk):
+        x = positions_ned_m[k0 : k0 + chunk]
+        d = np.linalg.norm(x[:, :, None, :] - x[:, None, :, :], axis=-1)
+        air = airborne[k0 : k0 + chunk]
+        valid = air[:, :, None] & air[:, None, :] & upper & np.isfinite(d)
+        d = np.where(valid, d, np.inf)
+        k, i, j = np.unravel_index(np.argmin(d), d.shape)
+        if np.isfinite(d[k, i, j]) and (best["min_m"] is None or d[k, i, j] < best["min_m"]):
+            best = {"min_m": float(d[k, i, j]), "t_s": float(t_s[k0 + k]), "pair": [int(i), int(j)]}
+        close = d < collision_distance_m
+        rising = close & ~np.concatenate([prev[None], close[:-1]])
+        prev = close[-1]
+        count += int(rising.sum())
+        for k, i, j in np.argwhere(rising)[: max(0, max_listed - len(episodes))]:
+            episodes.append({"t_s": float(t_s[k0 + k]), "pair": [int(i), int(j)]})
+    collisions = {"distance_m": collision_distance_m, "count": count, "episodes": episodes}
+    return best, collisions
+
+
+def _max_over(values: FloatArray, mask: BoolArray, t_s: FloatArray) -> dict[str, Any] | None:
+    """Max of ``values`` (T, N) over ``mask`` with its time and drone, None if nothing."""
+    v = np.where(mask & np.isfinite(values), values, -np.inf)
+    if not np.isfinite(v.max(initial=-np.inf)):
+        return None
+    k, i = np.unravel_index(np.argmax(v), v.shape)
+    return {"value": float(v[k, i]), "t_s": float(t_s[k]), "drone": int(i), "sysid": int(i) + 1}
+
+
+def compute_metrics(
+    record: FlightRecord,
+    settle_s: float,
+    faults: Sequence[tuple[float, str]] = (),
+    collision_distance_m: float = 0.3,
+    max_thrust_n: float | None = None,
+    extra: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """All metrics of the module doc for one run; ``extra`` keys must not clash with them."""
+    t = record.t_s
+    a_true = true_descriptors(record)
+    sep, collisions = separation(t, record.position_ned_m, record.airborne, collision_distance_m)
+    roll, pitch = record.euler_rad[..., 0], record.euler_rad[..., 1]
+    tilt = np.degrees(np.arccos(np.clip(np.cos(roll) * np.cos(pitch), -1.0, 1.0)))
+    thrust = (
+        None
+        if max_thrust_n is None
+        else _max_over(record.thrust_n / max_thrust_n, np.ones_like(record.airborne), t)
+    )
+    out: dict[str, Any] = {
+        "n_samples": int(t.shape[0]),
+        "n_drones": record.n_drones,
+        "duration_s": float(t[-1] - t[0]) if t.size else 0.0,
+        "tracking": tracking_errors(t, a_true, record.desired, settle_s),
+        "tracking_steady": tracking_errors(
+            t, a_true, record.desired, settle_s, loss_windows(record)
+        ),
+        "consensus": consensus_errors(t, a_true, record.estimate, record.member, settle_s),
+        "consensus_steady": consensus_errors(
+            t, a_true, record.estimate, record.member, settle_s, loss_windows(record)
+        ),
+        "reconvergence": reconvergence(
+            t, a_true, record.desired, record.estimate, record.member, faults
+        ),
+        "separation": sep,
+        "collisions": collisions,
+        "drones_lost": [
+            {"index": i, "sysid": i + 1, "t_s": float(ts)}
+            for i, ts in sorted(record.lost_at_s.items(), key=lambda kv: kv[1])
+        ],
+        "max_tilt_deg": _max_over(tilt, record.airborne, t),
+        "max_thrust_ratio": thrust,
+    }
+    clash = set(out) & set(extra or {})
+    if clash:
+        raise ValueError(f"extra keys clash with metrics: {sorted(clash)}")
+    out.update(extra or {})
+    result: dict[str, Any] = jsonable(out)
+    return result

@@ -1,0 +1,130 @@
+"""What ``swarm scenario check`` says about a scenario: a summary, and whether its plan stays
+inside the operator envelope (the ground station's geofence, tilt and spread limits). Pure.
+
+The envelope (gcs/station/planner.py, its defaults) is what the ground station holds operator
+commands to; a scenario's own plan is not a command, but a plan outside it would be refused the
+moment an operator tried to continue it, so ``check`` and ``new`` hold scenarios to it too.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from gcs.station.planner import Envelope, PlanRefused, check_target, envelope_of
+from protocols.faults import Crash, Dropout, Fault, LinkCut, LinkDelay, PacketLoss, Partition
+from protocols.formation_fit import closest_pair, formation_positions
+from protocols.scenario import Scenario, WaypointConfig
+from protocols.scenario_layout import radio_graph
+
+#: Plan samples per simulated second for the envelope check.
+ENVELOPE_SAMPLES_PER_S = 2.0
+#: Waypoints listed in full up to this many; beyond, the first and last few.
+MAX_WAYPOINT_ROWS = 12
+
+
+def envelope_problem(scenario: Scenario, envelope: Envelope | None = None) -> str | None:
+    """Why the scenario's plan leaves ``envelope`` (default: the ground station's), or None.
+
+    The plan is sampled at every waypoint and twice a second to ``duration_s``."""
+    env = envelope or envelope_of(scenario.safety)
+    plan = scenario.trajectory()
+    n = max(2, math.ceil(scenario.duration_s * ENVELOPE_SAMPLES_PER_S) + 1)
+    t = np.union1d(np.linspace(0.0, scenario.duration_s, n), [w.t_s for w in scenario.waypoints])
+    values = plan.evaluate_many(t)[0]
+    for t_s, a in zip(t, values, strict=True):
+        try:
+            check_target(a, env)
+        except PlanRefused as exc:
+            return f"at t = {t_s:g} s: {exc}"
+    return None
+
+
+def closest_in_formation(scenario: Scenario) -> tuple[float, float]:
+    """The smallest predicted distance (m) between two drones over the plan's waypoints, and the
+    waypoint time (s) where it occurs (protocols/formation_fit.py: the field maps the start)."""
+    start = scenario.positions_ned_m()
+    best, when = math.inf, 0.0
+    for w in scenario.waypoints:
+        d, _ = closest_pair(formation_positions(start, w.waypoint().value))
+        if d < best:
+            best, when = d, w.t_s
+    return best, when
+
+
+def describe_fault(fault: Fault) -> str:
+    """One line per fault, e.g. ``t = 30 s: crash of drone 1 (system id 2)``."""
+    until = getattr(fault, "duration_s", None)
+    span = f" for {until:g} s" if until is not None else ""
+    head = f"t = {fault.t_s:g} s: "
+    if isinstance(fault, Dropout | Crash):
+        what = "agent drop-out" if isinstance(fault, Dropout) else "vehicle crash"
+        return head + f"{what}, drone {fault.drone} (system id {fault.drone + 1})"
+    if isinstance(fault, LinkCut):
+        way = " one way" if fault.one_way else ""
+        return head + f"link cut {fault.drones[0]}-{fault.drones[1]}{way}{span}"
+    pair: tuple[int, int] | None = getattr(fault, "drones", None)
+    where = "every link" if pair is None else f"link {pair[0]}-{pair[1]}"
+    if isinstance(fault, PacketLoss):
+        return head + f"{fault.probability:.0%} loss on {where}{span}"
+    if isinstance(fault, LinkDelay):
+        return head + f"{fault.delay_ms:g} ms delay on {where}{span}"
+    assert isinstance(fault, Partition)
+    return head + f"partition into {len(fault.groups)} groups (+ the rest){span}"
+
+
+def _envelope_line(scenario: Scenario) -> str:
+    problem = envelope_problem(scenario)
+    if problem is not None:
+        return f"the plan leaves the ground station's envelope {problem}"
+    env = envelope_of(scenario.safety)
+    return (
+        f"the plan stays inside the ground station's geofence (north "
+        f"{env.fence_north_m[0]:g}..{env.fence_north_m[1]:g} m, east "
+        f"{env.fence_east_m[0]:g}..{env.fence_east_m[1]:g} m, altitude "
+        f"{env.fence_altitude_m[0]:g}..{env.fence_altitude_m[1]:g} m) and spreads "
+        f"<= {env.max_spread_m:g} m"
+    )
+
+
+def summary_lines(scenario: Scenario) -> list[str]:
+    """The human-readable summary ``swarm scenario check`` prints."""
+    sc = scenario
+    x = sc.positions_ned_m()
+    graph = radio_graph(x, sc.comms.range_m)
+    spacing, (i, j) = closest_pair(x)
+    linked = "connected" if graph.connected else f"NOT connected: {graph.components} parts"
+    cons = sc.consensus
+    gain = f"degree-normalised rho {cons.rho:g}" if cons.degree_normalised else f"rho {cons.rho:g}"
+    tightest, when = closest_in_formation(sc)
+    lines = [
+        f"{sc.source}: valid (version {sc.version}), name '{sc.name}'",
+        f"drones     {sc.n_drones}; closest two on the ground {spacing:.2f} m apart "
+        f"(drones {i} and {j})",
+        f"duration   {sc.duration_s:g} s (metrics from {sc.settle_s:g} s), seed {sc.seed}",
+        f"radio      range {sc.comms.range_m:g} m: {linked} at the start; neighbours per drone "
+        f"min {graph.degree_min} / mean {graph.degree_mean:.1f} / max {graph.degree_max}",
+        f"consensus  {gain}, c {cons.c:g}, warm-up {cons.warmup_s:g} s on the ground",
+        f"safety     min separation {sc.safety.min_separation_m:g} m; the plan's formations "
+        f"keep the drones at least {tightest:.2f} m apart (at t = {when:g} s)",
+        f"envelope   {_envelope_line(sc)}",
+        f"faults     {len(sc.faults) or 'none'}",
+        *(f"  {describe_fault(f)}" for f in sorted(sc.faults, key=lambda f: f.t_s)),
+        f"waypoints  {len(sc.waypoints)}, t = {sc.waypoints[0].t_s:g}..{sc.waypoints[-1].t_s:g} s",
+        "  t_s       centre N, E (m)   alt (m)  yaw (deg)  spreads L, W, H (m)",
+    ]
+    rows: list[WaypointConfig | None] = list(sc.waypoints)
+    if len(rows) > MAX_WAYPOINT_ROWS:
+        keep = MAX_WAYPOINT_ROWS // 2
+        rows = [*rows[:keep], None, *rows[-keep:]]
+    for w in rows:
+        if w is None:
+            lines.append(f"  ... {len(sc.waypoints) - 2 * (MAX_WAYPOINT_ROWS // 2)} more")
+            continue
+        n, e, z = w.centre_ned_m
+        spreads = ", ".join(f"{math.sqrt(max(v, 0.0)):.2f}" for v in w.variance_m2)
+        lines.append(
+            f"  {w.t_s:<8g}  {n:7.2f}, {e:7.2f}  {0.0 - z:7.2f}  {w.yaw_deg:9.1f}  {spreads}"
+        )
+    return lines

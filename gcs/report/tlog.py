@@ -1,0 +1,483 @@
+"""MAVLink 2 telemetry log (``.tlog``), the format MAVProxy and QGroundControl write.
+
+A tlog is a sequence of records, each an 8-byte big-endian uint64 timestamp in microseconds
+followed by one MAVLink packet. pymavlink's ``mavlogdump.py`` and MAVExplorer read it.
+
+Timestamps: a record's timestamp is the *simulated* time in µs plus a fixed ``epoch_offset_s``
+(default 0: the log starts on 1970-01-01, which mavlogdump reads fine, and two lockstep runs give
+byte-identical logs). As MAVProxy does, the two low bits of the timestamp carry the link number
+(here always 0), so a record time is rounded down to a multiple of 4 µs. Messages that carry
+``time_boot_ms`` (LOCAL_POSITION_NED, ATTITUDE) hold the simulated time in ms; the reader takes
+vehicle time from that field, not from the record timestamp, and from ``time_usec`` (µs) for
+ACTUATOR_OUTPUT_STATUS (the rotor forces, N, of rotors 1..4: protocols/mavlink_conventions.py).
+The ground station also logs each agent's status as DEBUG_FLOAT_ARRAY "AGENT" from the agent's
+component (191), ``time_usec`` = simulated time (same file), so the log alone holds the flight;
+layout 1 (``array_id``) carries the ids of the neighbours the agent integrated, layout 0 (older
+logs) does not and reads back with those ids unknown (protocols/mavlink_conventions.py).
+
+pymavlink is used only as a codec, one per (system id, component): the autopilot (1) for vehicle
+telemetry, the onboard computer (191) for agent statuses; each carries its own sequence numbers.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ["MAVLINK20"] = "1"  # before any pymavlink import (DEPENDENCIES.md)
+
+import struct
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any, BinaryIO
+
+import numpy as np
+import numpy.typing as npt
+from pymavlink.dialects.v20 import common
+
+from protocols.frames import FloatArray
+from protocols.mavlink_conventions import (
+    ACTUATOR_ROTORS,
+    AGENT_COMPID,
+    AGENT_NEIGHBOUR_SLOTS,
+    AGENT_STATUS_LAYOUT,
+    AGENT_STATUS_NAME,
+    AGENT_STATUS_VALUES,
+)
+
+_TS = struct.Struct(">Q")
+_AUTOPILOT_COMPONENT = 1
+#: A vehicle whose last sample is older than this is reported NaN by ``TlogTrack.resample``.
+MAX_SAMPLE_AGE_S = 0.5
+
+
+class TlogWriter:
+    """Writes vehicle telemetry to a ``.tlog`` file; use as a context manager.
+
+    ``epoch_offset_s`` is added to the simulated time to make each record's timestamp;
+    ``append`` continues an existing log (a restarted ground station) instead of starting afresh.
+    """
+
+    def __init__(self, path: str | Path, epoch_offset_s: float = 0.0, append: bool = False) -> None:
+        self.path = Path(path)
+        self.append = append
+        self.epoch_offset_us = round(epoch_offset_s * 1e6)
+        self._codecs: dict[tuple[int, int], Any] = {}
+        self._file: BinaryIO | None = None
+        self.n_records = 0
+
+    def __enter__(self) -> TlogWriter:
+        self.open()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def open(self) -> None:
+        """Create (truncate) the file, or append to it with ``append``; done by ``__enter__``."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = self.path.open("ab" if self.append else "wb")
+
+    def close(self) -> None:
+        """Flush and close the file (idempotent)."""
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def codec(self, sysid: int, compid: int = _AUTOPILOT_COMPONENT) -> Any:
+        """The pymavlink MAVLink 2 codec speaking as ``sysid``, ``compid`` (default 1)."""
+        if not 1 <= sysid <= 255:
+            raise ValueError(f"system id {sysid} outside 1..255")
+        key = (sysid, compid)
+        if key not in self._codecs:
+            self._codecs[key] = common.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        return self._codecs[key]
+
+    def write_packet(self, t_s: float, packet: bytes) -> None:
+        """Append one already-encoded MAVLink packet stamped with simulated time ``t_s`` (s)."""
+        if self._file is None:
+            raise RuntimeError("TlogWriter is not open (use it as a context manager)")
+        usec = (round(t_s * 1e6) + self.epoch_offset_us) & ~0x3  # low bits: link 0
+        if usec < 0:
+            raise ValueError(f"record time {t_s} s before the epoch")
+        self._file.write(_TS.pack(usec) + packet)
+        self.n_records += 1
+
+    def write_message(self, t_s: float, sysid: int, msg: Any) -> None:
+        """Encode a pymavlink message object as ``sysid`` and append it."""
+        self.write_packet(t_s, msg.pack(self.codec(sysid)))
+
+    def write_vehicle_sample(
+        self,
+        t_s: float,
+        sysid: int,
+        position_ned_m: FloatArray,
+        velocity_ned_m_s: FloatArray,
+        euler_rad: FloatArray,
+        body_rates_rad_s: FloatArray,
+    ) -> None:
+        """LOCAL_POSITION_NED and ATTITUDE of one vehicle at simulated time ``t_s`` (s).
+
+        ``position_ned_m`` (3,), ``velocity_ned_m_s`` (3,), ``euler_rad`` (3,) roll, pitch, yaw,
+        ``body_rates_rad_s`` (3,) p, q, r. ``time_boot_ms`` is the simulated time in ms.
+        """
+        ms = _time_boot_ms(t_s)
+        x, y, z = (float(v) for v in position_ned_m)
+        vx, vy, vz = (float(v) for v in velocity_ned_m_s)
+        roll, pitch, yaw = (float(v) for v in euler_rad)
+        p, q, r = (float(v) for v in body_rates_rad_s)
+        mav = self.codec(sysid)
+        self.write_packet(t_s, mav.local_position_ned_encode(ms, x, y, z, vx, vy, vz).pack(mav))
+        self.write_packet(t_s, mav.attitude_encode(ms, roll, pitch, yaw, p, q, r).pack(mav))
+
+    def write_agent_status(
+        self,
+        t_s: float,
+        sysid: int,
+        values: FloatArray,
+        neighbour_ids: Sequence[int] | None = None,
+    ) -> None:
+        """An agent's status (``values``: protocols/mavlink_conventions.py AGENT_STATUS_VALUES,
+        NaN allowed) as DEBUG_FLOAT_ARRAY "AGENT" from (``sysid``, 191) at simulated ``t_s``.
+
+        ``neighbour_ids``: the indices of the neighbours whose messages the agent integrated
+        (layout 1; the lowest AGENT_NEIGHBOUR_SLOTS of them); None writes layout 0 (unknown)."""
+        data = [float(v) for v in values][:AGENT_STATUS_VALUES]
+        data += [float("nan")] * (AGENT_STATUS_VALUES - len(data))
+        layout = 0
+        if neighbour_ids is not None:
+            layout = AGENT_STATUS_LAYOUT
+            data += [float(j) for j in sorted(neighbour_ids)[:AGENT_NEIGHBOUR_SLOTS]]
+        data += [float("nan")] * (58 - len(data))
+        mav = self.codec(sysid, AGENT_COMPID)
+        usec = max(0, round(t_s * 1e6))
+        msg = mav.debug_float_array_encode(usec, AGENT_STATUS_NAME.encode(), layout, data)
+        self.write_packet(t_s, msg.pack(mav))
+
+    def write_heartbeat(
+        self, t_s: float, sysid: int, armed: bool, system_status: int, custom_mode: int = 0
+    ) -> None:
+        """HEARTBEAT of a quadrotor (generic autopilot); ``system_status`` is a MAV_STATE."""
+        base_mode = common.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if armed:
+            base_mode |= common.MAV_MODE_FLAG_SAFETY_ARMED
+        mav = self.codec(sysid)
+        msg = mav.heartbeat_encode(
+            common.MAV_TYPE_QUADROTOR,
+            common.MAV_AUTOPILOT_GENERIC,
+            base_mode,
+            custom_mode,
+            system_status,
+            3,
+        )
+        self.write_packet(t_s, msg.pack(mav))
+
+    def write_statustext(self, t_s: float, sysid: int, severity: int, text: str) -> None:
+        """STATUSTEXT (``severity`` a MAV_SEVERITY); text longer than 50 bytes is chunked."""
+        data = text.encode("utf-8")
+        mav = self.codec(sysid)
+        if len(data) <= 50:
+            self.write_packet(t_s, mav.statustext_encode(severity, data).pack(mav))
+            return
+        # MAVLink 2 long text: a non-zero id, chunks of 50; a short (NUL-padded) chunk ends it.
+        text_id = (self.n_records % 65535) + 1
+        chunks = [data[k : k + 50] for k in range(0, len(data), 50)]
+        if len(chunks[-1]) == 50:
+            chunks.append(b"")
+        for seq, chunk in enumerate(chunks):
+            msg = mav.statustext_encode(severity, chunk, text_id, seq)
+            self.write_packet(t_s, msg.pack(mav))
+
+
+def _time_boot_ms(t_s: float) -> int:
+    ms = round(t_s * 1000.0)
+    if not 0 <= ms < 2**32:
+        raise ValueError(f"simulated time {t_s} s outside the uint32 time_boot_ms range")
+    return ms
+
+
+@dataclass
+class VehicleTrack:
+    """Telemetry of one system id read back from a tlog.
+
+    - ``t_s`` (K,): LOCAL_POSITION_NED time_boot_ms / 1000, s; ``position_ned_m`` (K, 3),
+      ``velocity_ned_m_s`` (K, 3).
+    - ``attitude_t_s`` (L,): ATTITUDE time_boot_ms / 1000, s; ``euler_rad`` (L, 3) roll, pitch, yaw;
+      ``body_rates_rad_s`` (L, 3).
+    - ``actuator_t_s`` (M,): ACTUATOR_OUTPUT_STATUS time_usec / 1e6, s; ``rotor_forces_n`` (M, 4)
+      the forces of rotors 1..4, N (empty when the log has none).
+    - ``status_t_s`` (S,): the agent's status times (DEBUG_FLOAT_ARRAY "AGENT"), s;
+      ``status`` (S, AGENT_STATUS_VALUES): estimate (9), neighbours, mode, armed (empty if none);
+      ``status_layout`` (S,) each status's layout (1: neighbour ids carried; 0: unknown);
+      ``status_neighbours`` (S, AGENT_NEIGHBOUR_SLOTS) the ids of the neighbours integrated
+      (ascending, NaN-padded; all NaN in layout 0): :meth:`neighbour_ids`.
+    - ``heartbeat_t_s`` (H,): record times of the autopilot's HEARTBEATs, s; ``armed`` (H,) its
+      armed flag; ``custom_mode`` (H,) its PX4 custom mode (protocols/mavlink_conventions.py).
+    - ``named`` : NAMED_VALUE_FLOAT name -> (K, 2) rows of (time_boot_ms / 1000 s, value), e.g.
+      the simulator's ``agt_intime`` and ``agt_lag_ms`` (sitl_sim/messages.py).
+    Samples are sorted by time.
+    """
+
+    t_s: FloatArray
+    position_ned_m: FloatArray
+    velocity_ned_m_s: FloatArray
+    attitude_t_s: FloatArray
+    euler_rad: FloatArray
+    body_rates_rad_s: FloatArray
+    actuator_t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
+    rotor_forces_n: FloatArray = field(default_factory=lambda: np.zeros((0, ACTUATOR_ROTORS)))
+    status_t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
+    status: FloatArray = field(default_factory=lambda: np.zeros((0, AGENT_STATUS_VALUES)))
+    status_layout: npt.NDArray[np.int64] = field(
+        default_factory=lambda: np.zeros(0, dtype=np.int64)
+    )
+    status_neighbours: FloatArray = field(
+        default_factory=lambda: np.zeros((0, AGENT_NEIGHBOUR_SLOTS))
+    )
+    heartbeat_t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
+    armed: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    custom_mode: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    named: dict[str, FloatArray] = field(default_factory=dict)
+
+    def neighbour_ids(self, k: int) -> tuple[int, ...] | None:
+        """The neighbours status ``k`` says its agent integrated; None where the layout carries
+        none (layout 0: unknown)."""
+        if self.status_layout[k] != AGENT_STATUS_LAYOUT:
+            return None
+        ids = self.status_neighbours[k]
+        return tuple(int(j) for j in ids[np.isfinite(ids)])
+
+
+@dataclass(frozen=True)
+class StatusText:
+    """A STATUSTEXT (long texts reassembled); ``t_s`` is the record time minus the epoch offset."""
+
+    t_s: float
+    sysid: int
+    severity: int
+    text: str
+
+
+@dataclass
+class TlogTrack:
+    """What ``read_tlog`` found: per-system-id tracks, status texts, undecodable record count."""
+
+    vehicles: dict[int, VehicleTrack]
+    statustexts: list[StatusText] = field(default_factory=list)
+    bad_records: int = 0
+
+    def resample(
+        self, t_grid_s: FloatArray, n_drones: int | None = None, max_age_s: float = MAX_SAMPLE_AGE_S
+    ) -> FloatArray:
+        """Positions (T, N, 3), NED m, of vehicles i = sysid - 1 on the time grid (T,), s.
+
+        Sample-and-hold: each grid time takes the vehicle's latest sample at or before it (0.5 ms
+        tolerance for the ms resolution of time_boot_ms). NaN before a vehicle's first sample,
+        where that sample is older than ``max_age_s`` (the vehicle stopped sending), and for
+        system ids without data. N defaults to the largest system id seen.
+        """
+        t_grid = np.asarray(t_grid_s, dtype=float)
+        n = n_drones if n_drones is not None else max(self.vehicles, default=0)
+        out = np.full((t_grid.shape[0], n, 3), np.nan)
+        for sysid, track in self.vehicles.items():
+            if not 1 <= sysid <= n or track.t_s.size == 0:
+                continue
+            k = np.searchsorted(track.t_s, t_grid + 5e-4, side="right") - 1
+            ok = k >= 0
+            kk = np.where(ok, k, 0)
+            ok &= t_grid - track.t_s[kk] <= max_age_s + 5e-4
+            out[ok, sysid - 1] = track.position_ned_m[kk[ok]]
+        return out
+
+
+def read_tlog(path: str | Path, epoch_offset_s: float = 0.0) -> TlogTrack:
+    """Parse a tlog with the pymavlink codec (MAVLink 1 and 2 packets, signed or not).
+
+    Undecodable records (bad CRC, unknown framing) are skipped and counted; a truncated last
+    record is ignored. ``epoch_offset_s`` is subtracted from record times (status texts only).
+    """
+    reader = TlogReader(epoch_offset_s)
+    reader.feed(Path(path).read_bytes())
+    return reader.track()
+
+
+def vehicle_samples(path: str | Path) -> dict[tuple[str, int, int], tuple[float, ...]]:
+    """Every vehicle's LOCAL_POSITION_NED and ATTITUDE samples of a tlog, field by field:
+    ``(message type, system id, time_boot_ms)`` -> the message's other fields, as logged (the
+    first sample of a key if it was logged twice). Two lockstep runs of one scenario and seed
+    give equal dictionaries (the records' wall stamps are left out)."""
+    reader = TlogReader()
+    reader.feed(Path(path).read_bytes())
+    out: dict[tuple[str, int, int], tuple[float, ...]] = {}
+    for name, table in (("LOCAL_POSITION_NED", reader._pos), ("ATTITUDE", reader._att)):
+        for sysid, rows in table.items():
+            for row in rows:
+                out.setdefault((name, sysid, int(row[0])), tuple(row[1:]))
+    return out
+
+
+class TlogReader:
+    """Reads a tlog piece by piece (a log still being written): :meth:`feed` the bytes that
+    follow the last ones it consumed, :meth:`track` what has been read so far."""
+
+    def __init__(self, epoch_offset_s: float = 0.0) -> None:
+        self.epoch_offset_s = epoch_offset_s
+        self._codec = common.MAVLink(None)
+        self._pos: dict[int, list[tuple[float, ...]]] = {}
+        self._att: dict[int, list[tuple[float, ...]]] = {}
+        self._act: dict[int, list[tuple[float, ...]]] = {}
+        self._agent: dict[int, list[tuple[float, ...]]] = {}
+        self._beats: dict[int, list[tuple[float, ...]]] = {}
+        self._named: dict[int, dict[str, list[tuple[float, float]]]] = {}
+        self._texts: list[StatusText] = []
+        self._chunks: dict[tuple[int, int], list[bytes]] = {}
+        self._bad = 0
+
+    def feed(self, data: bytes) -> int:
+        """Parse the records of ``data``; the number of bytes consumed (a truncated last record
+        is left for the next call, which starts with it)."""
+        resyncing = False
+        ofs, size = 0, len(data)
+        while ofs + 8 + 8 <= size:
+            length = _packet_length(data, ofs + 8)
+            end = ofs + 8 + (length or 0)
+            if length is not None and end > size:
+                break  # truncated last record
+            try:
+                if length is None:
+                    raise common.MAVError("no MAVLink marker")
+                msg = self._codec.decode(bytearray(data[ofs + 8 : end]))
+            except common.MAVError:
+                self._bad += 0 if resyncing else 1
+                resyncing = True
+                ofs += 1  # resynchronise byte by byte, as mavlogdump does
+                continue
+            resyncing = False
+            t_rec = _TS.unpack_from(data, ofs)[0] * 1e-6 - self.epoch_offset_s
+            ofs = end
+            self._message(msg, t_rec)
+        return ofs
+
+    def _message(self, msg: Any, t_rec: float) -> None:
+        sysid = msg.get_srcSystem()
+        mtype = msg.get_type()
+        if mtype == "LOCAL_POSITION_NED":
+            row = (msg.time_boot_ms, msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
+            self._pos.setdefault(sysid, []).append(row)
+        elif mtype == "ATTITUDE":
+            rates = (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+            self._att.setdefault(sysid, []).append(
+                (msg.time_boot_ms, msg.roll, msg.pitch, msg.yaw, *rates)
+            )
+        elif mtype == "ACTUATOR_OUTPUT_STATUS":
+            forces = msg.actuator[:ACTUATOR_ROTORS]
+            self._act.setdefault(sysid, []).append((msg.time_usec / 1000.0, *forces))
+        elif mtype == "DEBUG_FLOAT_ARRAY" and msg.get_srcComponent() == AGENT_COMPID:
+            if _name(msg.name) == AGENT_STATUS_NAME:
+                layout = int(msg.array_id)
+                values = list(msg.data[:AGENT_STATUS_VALUES])
+                ids = list(msg.data[AGENT_STATUS_VALUES:58])
+                if layout != AGENT_STATUS_LAYOUT:  # 0 (older logs): no ids there
+                    ids = [float("nan")] * AGENT_NEIGHBOUR_SLOTS
+                row = (msg.time_usec / 1000.0, *values, float(layout), *ids)
+                self._agent.setdefault(sysid, []).append(row)
+        elif mtype == "HEARTBEAT" and msg.get_srcComponent() == _AUTOPILOT_COMPONENT:
+            armed = float(bool(msg.base_mode & common.MAV_MODE_FLAG_SAFETY_ARMED))
+            beat = (t_rec * 1000.0, armed, float(msg.custom_mode))
+            self._beats.setdefault(sysid, []).append(beat)
+        elif mtype == "NAMED_VALUE_FLOAT":
+            rows = self._named.setdefault(sysid, {}).setdefault(_name(msg.name), [])
+            rows.append((msg.time_boot_ms / 1000.0, float(msg.value)))
+        elif mtype == "STATUSTEXT":
+            text = _statustext(msg, sysid, self._chunks)
+            if text is not None:
+                self._texts.append(StatusText(t_rec, sysid, int(msg.severity), text))
+
+    def track(self) -> TlogTrack:
+        """Everything read so far."""
+        pos, att, act, agent, beats = self._pos, self._att, self._act, self._agent, self._beats
+        vehicles = {
+            s: _track(
+                pos.get(s, []), att.get(s, []), act.get(s, []), agent.get(s, []), beats.get(s, [])
+            )
+            for s in sorted(set(pos) | set(att) | set(act) | set(agent))
+        }
+        for s, values in self._named.items():
+            if s in vehicles:
+                vehicles[s].named = {
+                    name: _by_time([tuple(r) for r in rows], 2) for name, rows in values.items()
+                }
+        return TlogTrack(vehicles, list(self._texts), self._bad)
+
+
+def _packet_length(data: bytes, ofs: int) -> int | None:
+    """Length of the MAVLink packet starting at ``ofs``, None if no valid marker there."""
+    marker = data[ofs]
+    if marker == common.PROTOCOL_MARKER_V2:
+        signed = data[ofs + 2] & common.MAVLINK_IFLAG_SIGNED
+        return 10 + data[ofs + 1] + 2 + (common.MAVLINK_SIGNATURE_BLOCK_LEN if signed else 0)
+    if marker == common.PROTOCOL_MARKER_V1:
+        return 6 + data[ofs + 1] + 2
+    return None
+
+
+def _statustext(msg: Any, sysid: int, chunks: dict[tuple[int, int], list[bytes]]) -> str | None:
+    raw = getattr(msg, "_text_raw", None)
+    raw = raw.split(b"\x00", 1)[0] if isinstance(raw, bytes) else str(msg.text).encode("utf-8")
+    text_id = int(getattr(msg, "id", 0))
+    if text_id == 0:
+        return raw.decode("utf-8", errors="replace")
+    parts = chunks.setdefault((sysid, text_id), [])
+    parts.append(raw)
+    if len(raw) == 50:
+        return None
+    del chunks[(sysid, text_id)]
+    return b"".join(parts).decode("utf-8", errors="replace")
+
+
+def _name(raw: Any) -> str:
+    """A fixed-length MAVLink char[] field as text (pymavlink gives str or bytes)."""
+    text = raw.decode("ascii", "replace") if isinstance(raw, bytes) else str(raw)
+    return text.split("\x00", 1)[0]
+
+
+def _track(
+    pos: list[tuple[float, ...]],
+    att: list[tuple[float, ...]],
+    act: list[tuple[float, ...]],
+    agent: list[tuple[float, ...]],
+    beats: list[tuple[float, ...]],
+) -> VehicleTrack:
+    """Rows ``(time ms, values...)`` of each message, sorted by time, as a track."""
+    p, a, f = _by_time(pos, 7), _by_time(att, 7), _by_time(act, 1 + ACTUATOR_ROTORS)
+    st = _by_time(agent, 2 + AGENT_STATUS_VALUES + AGENT_NEIGHBOUR_SLOTS)
+    end = 1 + AGENT_STATUS_VALUES
+    hb = _by_time(beats, 3)
+    return VehicleTrack(
+        t_s=p[:, 0] / 1000.0,
+        position_ned_m=p[:, 1:4],
+        velocity_ned_m_s=p[:, 4:7],
+        attitude_t_s=a[:, 0] / 1000.0,
+        euler_rad=a[:, 1:4],
+        body_rates_rad_s=a[:, 4:7],
+        actuator_t_s=f[:, 0] / 1000.0,
+        rotor_forces_n=f[:, 1:],
+        status_t_s=st[:, 0] / 1000.0,
+        status=st[:, 1:end],
+        status_layout=st[:, end].astype(np.int64),
+        status_neighbours=st[:, end + 1 :],
+        heartbeat_t_s=hb[:, 0] / 1000.0,
+        armed=hb[:, 1] > 0.5,
+        custom_mode=hb[:, 2].astype(np.int64),
+    )
+
+
+def _by_time(rows: list[tuple[float, ...]], width: int) -> FloatArray:
+    table = np.asarray(rows, dtype=float).reshape(-1, width)
+    return table[np.argsort(table[:, 0], kind="stable")]

@@ -1,0 +1,188 @@
+"""What the ground station knows of each drone, and the ``swarm status`` table. Pure: fed with
+decoded agent statuses, liveliness changes, vehicle texts and the vehicles' telemetry state, it
+keeps the newest status, who is alive, link quality and failsafe counts, and says which events to
+log; the ground station does the I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from gcs.station.telemetry import VehicleState
+from protocols.descriptors import descriptors
+from protocols.wire_status import AgentStatus, Health
+
+_SEVERITY_EMERGENCY = 0
+_CRASH_WORDS = ("crash", "destroyed", "all motors off")
+#: Smoothing of the link quality: weight of the newest status (about ten statuses).
+_LINK_SMOOTHING = 0.1
+
+
+def text_kind(severity: int, text: str) -> str:
+    """The event kind of a vehicle's STATUSTEXT: ``crash`` (MAV_SEVERITY_EMERGENCY, motors off,
+    destroyed), ``failsafe``, ``overload`` (its agent answers too few ticks in time, realtime:
+    sitl_sim/tick_answers.py) or ``vehicle_text``."""
+    lower = text.lower()
+    if severity == _SEVERITY_EMERGENCY or any(w in lower for w in _CRASH_WORDS):
+        return "crash"
+    if lower.startswith("agent late"):
+        return "overload"
+    return "failsafe" if "failsafe" in lower else "vehicle_text"
+
+
+@dataclass
+class SwarmWatch:
+    """Per-drone bookkeeping of the ground station (see the module doc)."""
+
+    latest: dict[int, AgentStatus] = field(default_factory=dict)
+    alive: set[int] = field(default_factory=set)
+    #: drone -> share of the expected consensus messages received (smoothed, 0..1)
+    link_quality: dict[int, float] = field(default_factory=dict)
+    #: drone -> failsafes its vehicle reported
+    failsafes: dict[int, int] = field(default_factory=dict)
+    #: the radio's communication range (m); None: expect only the neighbours the agent lists
+    range_m: float | None = None
+    #: drone -> (simulated time s, why): drones lost to a crash or whose agent went away; they
+    #: keep their row in the table with this
+    lost: dict[int, tuple[float, str]] = field(default_factory=dict)
+    _smoothed_share: dict[int, float] = field(default_factory=dict, repr=False)
+
+    def on_status(
+        self, status: AgentStatus, vehicles: Mapping[int, VehicleState] | None = None
+    ) -> str | None:
+        """Take an agent's status; updates its link quality: messages received since its last
+        status over those the drones in its radio range should have sent, one per drone per round
+        (:meth:`senders`). Returns the event to log when its separation layer starts or stops
+        changing its command (``separation``, ``separation_end``), else None."""
+        before = self.latest.get(status.drone)
+        self.latest[status.drone] = status
+        was = before is not None and Health.SEPARATING in before.health
+        now = Health.SEPARATING in status.health
+        event = None if was == now else "separation" if now else "separation_end"
+        self._update_link(status, before, vehicles)
+        return event
+
+    def _update_link(
+        self,
+        status: AgentStatus,
+        before: AgentStatus | None,
+        vehicles: Mapping[int, VehicleState] | None,
+    ) -> None:
+        if before is None or status.round <= before.round:
+            return
+        senders = self.senders(status, vehicles)
+        if not senders:
+            return
+        expected = (status.round - before.round) * senders
+        # clipped only for showing: a message counted just after one status instead of just
+        # before makes one share low and the next high, and clipping those would bias it low
+        share = max(0.0, (status.counters.rx - before.counters.rx) / expected)
+        old = self._smoothed_share.get(status.drone, share)
+        new = self._smoothed_share[status.drone] = old + _LINK_SMOOTHING * (share - old)
+        self.link_quality[status.drone] = min(1.0, new)
+
+    def senders(
+        self, status: AgentStatus, vehicles: Mapping[int, VehicleState] | None = None
+    ) -> int:
+        """How many drones should be heard by ``status.drone``: the other alive drones whose
+        vehicles are within :attr:`range_m` of its vehicle. Without the range or the positions,
+        the neighbours the agent integrated this round (which also fall when messages are lost,
+        so the share then hides loss)."""
+        me = None if vehicles is None else vehicles.get(status.drone)
+        if self.range_m is None or vehicles is None or me is None or me.position_ned_m is None:
+            return len(status.neighbours)
+        here = me.position_ned_m
+        return sum(
+            1
+            for j, v in vehicles.items()
+            if j != status.drone
+            and v.position_ned_m is not None
+            and (j in self.alive or not self.alive)
+            and math.dist(here, v.position_ned_m) < self.range_m
+        )
+
+    def on_liveliness(self, drone: int, alive: bool, t_s: float = math.nan) -> str | None:
+        """A liveliness change at simulated time ``t_s``; the event to log (``agent_joined``,
+        ``dropout_detected``) or None if nothing changed. A drone whose agent goes is marked
+        lost (unless it already is, e.g. by its crash); one that comes back is not."""
+        if alive and drone not in self.alive:
+            self.alive.add(drone)
+            self.lost.pop(drone, None)
+            return "agent_joined"
+        if not alive and drone in self.alive:
+            self.alive.discard(drone)
+            self.lost.setdefault(drone, (t_s, "its agent left the swarm"))
+            return "dropout_detected"
+        return None
+
+    def on_vehicle_text(self, drone: int, severity: int, text: str, t_s: float = math.nan) -> str:
+        """A vehicle's STATUSTEXT at ``t_s``; its event kind (:func:`text_kind`), failsafes
+        counted, a crash marks the drone lost."""
+        kind = text_kind(severity, text)
+        if kind == "failsafe":
+            self.failsafes[drone] = self.failsafes.get(drone, 0) + 1
+        if kind == "crash":
+            self.lost[drone] = (t_s, f"vehicle crashed: {text}")
+        return kind
+
+    def positions(self, vehicles: Mapping[int, VehicleState]) -> np.ndarray | None:
+        """Positions (N, 3) NED m of the alive drones' vehicles (every vehicle before any agent
+        joined); None with fewer than two."""
+        positions = [
+            v.position_ned_m
+            for i, v in sorted(vehicles.items())
+            if v.position_ned_m is not None and (i in self.alive or not self.alive)
+        ]
+        return np.array(positions, dtype=float) if len(positions) >= 2 else None
+
+    def truth(self, vehicles: Mapping[int, VehicleState]) -> np.ndarray | None:
+        """True descriptors (9,) of :meth:`positions`; None with fewer than two positions."""
+        positions = self.positions(vehicles)
+        return None if positions is None else descriptors(positions)
+
+    def table(self, vehicles: Mapping[int, VehicleState]) -> list[dict[str, Any]]:
+        """One row per drone heard: mode, armed, position (NED m), centre estimate error (m),
+        neighbours, link quality (0..1), failsafes reported by its vehicle, message counters. A
+        lost drone keeps its row: mode ``LOST`` and ``lost`` = {t_s, reason}."""
+        truth = self.truth(vehicles)
+        rows = []
+        for i in sorted(set(vehicles) | set(self.latest)):
+            v, s = vehicles.get(i), self.latest.get(i)
+            err = None
+            lost = self.lost.get(i) if i not in self.alive else None
+            if s is not None and truth is not None and lost is None:
+                err = float(np.linalg.norm(s.estimate[:3] - truth[:3]))
+            mode = "LOST" if lost is not None else s.mode.name if s is not None else None
+            rows.append(
+                {
+                    "drone": i,
+                    "alive": i in self.alive,
+                    "mode": mode,
+                    "lost": None if lost is None else {"t_s": lost[0], "reason": lost[1]},
+                    "armed": v.armed if v is not None else (s.armed if s else None),
+                    "position_ned_m": list(v.position_ned_m) if v and v.position_ned_m else None,
+                    "estimate_error_m": err if err is None or math.isfinite(err) else None,
+                    "neighbours": list(s.neighbours) if s is not None else [],
+                    "link_quality": self.link_quality.get(i),
+                    "failsafes": self.failsafes.get(i, 0),
+                    "rx": s.counters.rx if s else 0,
+                    "tx": s.counters.tx if s else 0,
+                    "rx_dropped": (
+                        s.counters.rx_dropped_malformed + s.counters.rx_dropped_wrong_swarm
+                        if s
+                        else 0
+                    ),
+                }
+            )
+        return rows
+
+    def worst_error_m(self, vehicles: Mapping[int, VehicleState]) -> float | None:
+        """The largest centre estimate error (m) among alive agents; None if unknown."""
+        errors = [r["estimate_error_m"] for r in self.table(vehicles) if r["alive"]]
+        finite = [e for e in errors if e is not None]
+        return max(finite) if finite else None

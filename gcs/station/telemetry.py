@@ -1,0 +1,166 @@
+"""The ground station's MAVLink side: receives the simulator's GCS telemetry stream over UDP,
+records every packet into ``flight.tlog`` stamped with simulated time, and keeps the newest state
+of each vehicle (system id = drone index + 1).
+
+The simulator sends to the ground station's address; the ground station sends back only drills
+(:meth:`TelemetryReceiver.send_command`, e.g. MAV_CMD_INJECT_FAILURE), to the address the vehicles'
+telemetry comes from. The record time of a packet is its own ``time_boot_ms`` (s) when it has one,
+else its vehicle's last known time, else the newest simulated time heard from any vehicle.
+"""
+
+from __future__ import annotations
+
+import socket
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pymavlink.dialects.v20 import common
+
+from gcs.report.tlog import TlogWriter
+from protocols.mavlink_signing import setup_signing
+from protocols.wire_status import AgentStatus
+
+_MAX_DATAGRAM = 65535
+_ARMED_FLAG = 128  # MAV_MODE_FLAG_SAFETY_ARMED
+
+
+@dataclass
+class VehicleState:
+    """The newest telemetry of one vehicle: time (s), NED position (m) and velocity (m/s),
+    roll/pitch/yaw (rad), armed flag and MAV_STATE from its heartbeat."""
+
+    t_s: float = 0.0
+    position_ned_m: tuple[float, float, float] | None = None
+    velocity_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    euler_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    armed: bool = False
+    system_status: int = 0
+    packets: int = 0
+
+
+@dataclass(frozen=True)
+class VehicleText:
+    """A STATUSTEXT from vehicle ``drone`` (index) at simulated time ``t_s`` (s)."""
+
+    t_s: float
+    drone: int
+    severity: int
+    text: str
+
+
+@dataclass
+class TelemetryReceiver:
+    """Binds UDP ``host:port``; :meth:`poll` drains what arrived into the tlog at ``tlog_path``
+    (appended to with ``append``, else started afresh). With ``signing_key`` its commands are
+    signed (MAVLink 2 signing, link id 2). Use as a context manager (closes the socket and the
+    tlog)."""
+
+    host: str
+    port: int
+    tlog_path: Path
+    vehicles: dict[int, VehicleState] = field(default_factory=dict)
+    sim_time_s: float = 0.0
+    malformed: int = 0
+    sim_address: tuple[str, int] | None = None
+    append: bool = False
+    signing_key: bytes | None = None
+
+    def __post_init__(self) -> None:
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self._sock.bind((self.host, self.port))
+            self._sock.setblocking(False)
+            self._codec = common.MAVLink(None)
+            self._out = common.MAVLink(None, srcSystem=255, srcComponent=190)  # a GCS
+            if self.signing_key is not None:  # the simulator rejects unsigned commands then
+                setup_signing(self._out, self.signing_key, link_id=2)
+            self._codec.robust_parsing = True
+            self._tlog = TlogWriter(self.tlog_path, append=self.append)
+            self._tlog.open()
+        except BaseException:
+            self._sock.close()
+            raise
+
+    def __enter__(self) -> TelemetryReceiver:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the socket and the tlog (idempotent)."""
+        self._sock.close()
+        self._tlog.close()
+
+    def fileno(self) -> int:
+        """The socket, for ``select``."""
+        return self._sock.fileno()
+
+    def poll(self) -> list[VehicleText]:
+        """Drain every waiting datagram; returns the status texts that came."""
+        texts: list[VehicleText] = []
+        while True:
+            try:
+                data, address = self._sock.recvfrom(_MAX_DATAGRAM)
+            except (BlockingIOError, InterruptedError):
+                return texts
+            except OSError:
+                return texts
+            try:
+                messages = self._codec.parse_buffer(data) or []
+            except common.MAVError:
+                self.malformed += 1
+                continue
+            for msg in messages:
+                if msg.get_type() != "BAD_DATA" and 1 <= msg.get_srcSystem() <= 254:
+                    self.sim_address = (str(address[0]), int(address[1]))
+                text = self._handle(msg)
+                if text is not None:
+                    texts.append(text)
+
+    def log_agent_status(self, status: AgentStatus) -> None:
+        """Record an agent's status in the tlog (protocols/mavlink_conventions.py "AGENT")."""
+        values = [*status.estimate, len(status.neighbours), int(status.mode), int(status.armed)]
+        self._tlog.write_agent_status(
+            status.t_s, status.drone + 1, np.array(values, dtype=float), status.neighbours
+        )
+
+    def send_command(self, drone: int, command: int, *params: float) -> None:
+        """COMMAND_LONG ``command`` with up to 7 ``params`` to vehicle ``drone`` (index; system id
+        drone + 1) through the simulator's GCS endpoint; OSError if nothing has been heard yet."""
+        if self.sim_address is None:
+            raise OSError("no telemetry heard yet: the simulator's address is unknown")
+        padded = [float(p) for p in params] + [0.0] * (7 - len(params))
+        msg = self._out.command_long_encode(drone + 1, 1, command, 0, *padded)
+        self._sock.sendto(msg.pack(self._out), self.sim_address)
+
+    def _handle(self, msg: Any) -> VehicleText | None:
+        if msg.get_type() == "BAD_DATA":
+            self.malformed += 1
+            return None
+        sysid = msg.get_srcSystem()
+        if not 1 <= sysid <= 254:
+            return None
+        state = self.vehicles.setdefault(sysid - 1, VehicleState(t_s=self.sim_time_s))
+        boot_ms = getattr(msg, "time_boot_ms", None)
+        if isinstance(boot_ms, int):
+            state.t_s = boot_ms / 1000.0
+            self.sim_time_s = max(self.sim_time_s, state.t_s)
+        state.packets += 1
+        self._tlog.write_packet(state.t_s, bytes(msg.get_msgbuf()))
+        kind = msg.get_type()
+        if kind == "LOCAL_POSITION_NED":
+            state.position_ned_m = (msg.x, msg.y, msg.z)
+            state.velocity_ned_m_s = (msg.vx, msg.vy, msg.vz)
+        elif kind == "ATTITUDE":
+            state.euler_rad = (msg.roll, msg.pitch, msg.yaw)
+        elif kind == "HEARTBEAT":
+            state.armed = bool(msg.base_mode & _ARMED_FLAG)
+            state.system_status = int(msg.system_status)
+        elif kind == "STATUSTEXT":
+            raw = getattr(msg, "_text_raw", b"")
+            text = raw.split(b"\x00", 1)[0].decode("utf-8", "replace") if raw else str(msg.text)
+            return VehicleText(state.t_s, sysid - 1, int(msg.severity), text)
+        return None
