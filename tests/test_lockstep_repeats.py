@@ -16,7 +16,7 @@ import pytest
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
 
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
-from gcs.tlog import vehicle_samples
+from gcs.report.tlog import vehicle_samples
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 DURATION_S = 20.0  # the paper's link cuts start at 17 s
