@@ -20,7 +20,7 @@ from drone_agent.host import AgentHost, DroneIdError, parse_drone_ids
 from drone_agent.hosted_agent import HostedAgent, RunOptions
 from drone_agent.link_faults import FaultyTransport, LinkFaults, PairRandom
 from drone_agent.round_gate import RoundBook
-from drone_agent.transport import AgentTransport, Bus, Congestion, Position
+from drone_agent.transport import AgentTransport, Bus, Position
 from drone_agent.transport_link import AgentLink, LinkSettings
 from drone_agent.vehicle_link import VehicleLink
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, tcp_listen_free
@@ -266,7 +266,6 @@ def run(args: argparse.Namespace) -> int:
     settings = LinkSettings(
         swarm_id=args.swarm_id,
         comm_range_m=comm_range,
-        consensus_congestion=Congestion.RELIABLE if lockstep else Congestion.DROP,
         hold_early=lockstep,
     )
     faults = LinkFaults()

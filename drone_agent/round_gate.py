@@ -54,9 +54,9 @@ class RoundBook(ClosesOnExit):
         self._newest: dict[int, int] = {}  # hosted drone -> newest round finished
         self.rejected = 0
         self._declared: list[Closeable] = []
-        # RELIABLE as lockstep's consensus messages (Zenoh's DROP loses messages under load; a
-        # marker lost anyway, before its receiver subscribed, is made up for by :meth:`repeat`)
-        self._publisher = bus.publisher(keys.round_done(min(hosted)), Congestion.RELIABLE)
+        # DROP as the consensus messages: never blocking the agent's thread (BLOCK stalled whole
+        # lockstep swarms on a loaded machine); a lost marker is made up for by :meth:`repeat`
+        self._publisher = bus.publisher(keys.round_done(min(hosted)), Congestion.DROP)
         self._declared.append(self._publisher)
         # pulled (no Python on Zenoh's threads), drained by :meth:`poll`
         self._inbox = bus.subscribe(keys.round_done_all(), MARKER_CAPACITY)

@@ -36,13 +36,10 @@ Position = Sequence[float] | FloatArray
 
 class Congestion(StrEnum):
     """What a publisher does when the network cannot keep up: DROP for periodic, loss-tolerant
-    messages (consensus, status), BLOCK for messages that must arrive (plans, commands),
-    RELIABLE for latency-bound messages that must arrive (BLOCK, sent at once: lockstep consensus
-    and its round-done markers)."""
+    messages (consensus, status), BLOCK for messages that must arrive (plans, commands)."""
 
     DROP = "drop"
     BLOCK = "block"
-    RELIABLE = "reliable"
 
 
 class ClosesOnExit:

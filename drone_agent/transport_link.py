@@ -71,10 +71,6 @@ class LinkSettings:
     plan_query_timeout_s: float = 2.0
     plan_retry_calls: int = 50
     serve_plan: bool = True
-    #: consensus publisher congestion: DROP (realtime: the estimator tolerates loss) or RELIABLE
-    #: (lockstep: BLOCK, every message of a round must arrive; Zenoh's DROP loses messages
-    #: silently under load, and the round-done marker vouches for them)
-    consensus_congestion: Congestion = Congestion.DROP
     #: lockstep: a message of a round this agent has not sent yet waits until it has, so that
     #: the range is measured between the two drones' positions of that round
     hold_early: bool = False
@@ -204,9 +200,7 @@ class AgentLink(ClosesOnExit):
             inbox = self._inboxes.pop(c)
             self._pending += inbox.drain()
             inbox.close()
-        publisher = self._bus.publisher(
-            keys.consensus(cell, self._drone), settings.consensus_congestion
-        )
+        publisher = self._bus.publisher(keys.consensus(cell, self._drone), Congestion.DROP)
         old, self._publisher, self._cell = self._publisher, publisher, cell
         if old is not None:
             old.close()

@@ -6,8 +6,7 @@ gossip over those links and connect directly. Multi-host: ``client`` mode connec
 (a ``zenohd`` or a Python session in router mode), or peers connected to each other.
 
 Consensus and status publishers use congestion control DROP (periodic; the estimator tolerates
-loss; lockstep consensus and round markers RELIABLE: BLOCK, every message must arrive) and are
-express (not batched: measured on loopback, batching added about 1 ms at 50
+loss) and are express (not batched: measured on loopback, batching added about 1 ms at 50
 agents); plans and commands use BLOCK. Consensus subscriptions are pulled ring channels
 (bounded, oldest dropped): no Python runs on Zenoh's threads for them; the agent drains and
 decodes them on its own thread. Liveliness, plan and queryable callbacks only store what they
@@ -37,7 +36,6 @@ from protocols.swarm_secrets import RoleSecrets
 _CONGESTION = {
     Congestion.DROP: zenoh.CongestionControl.DROP,
     Congestion.BLOCK: zenoh.CongestionControl.BLOCK,
-    Congestion.RELIABLE: zenoh.CongestionControl.BLOCK,
 }
 MODES = ("peer", "client", "router")
 
@@ -217,10 +215,10 @@ class ZenohBus(ClosesOnExit):
         return cls(zenoh.open(settings.config()))
 
     def publisher(self, key: str, congestion: Congestion) -> Publisher:
-        """A declared publisher on ``key`` with the given congestion control; DROP and RELIABLE
-        publishers (latency-bound) are also *express*: sent at once, not batched."""
+        """A declared publisher on ``key`` with the given congestion control; DROP publishers
+        (periodic, latency-bound) are also *express*: sent at once, not batched."""
         cc = _CONGESTION[congestion]
-        express = congestion is not Congestion.BLOCK
+        express = congestion is Congestion.DROP
         return _Publisher(
             self.session.declare_publisher(key, congestion_control=cc, express=express)
         )
