@@ -4,7 +4,8 @@ In lockstep the simulator steps once every agent has answered the tick, so every
 *sent* its round ``k - 1`` consensus message before any agent sees tick ``k``; the message may
 still be on its way. Each agent process therefore publishes a round-done marker after its agents
 finish a round (protocols/wire_round.py; it follows their consensus messages on the same Zenoh
-session, so whoever has the marker has those messages), and an agent starts tick ``k`` once it
+session, so whoever has the marker has those messages, unless Zenoh's DROP congestion control
+lost one on a machine too loaded to send it), and an agent starts tick ``k`` once it
 holds the round ``k - 1`` marker of every drone of its roster (:class:`RoundGate`). Liveliness
 says who will never send it: a drone whose token is gone is dropped from the roster at once (after
 ``dead_grace_s``, for a marker still in flight), never waited for; a drone never seen alive is
@@ -23,7 +24,6 @@ decision, pure apart from the book it reads and the wall time passed in.
 
 from __future__ import annotations
 
-import threading
 from collections import deque
 from collections.abc import Iterable, Sequence
 
@@ -48,7 +48,6 @@ class RoundBook(ClosesOnExit):
         self.seen: set[int] = set()
         #: drones whose token went away, with the wall time we noticed (set by poll's caller)
         self.gone: set[int] = set()
-        self._lock = threading.Lock()
         self._changes: deque[tuple[int, bool]] = deque()
         self._to_send: dict[int, list[int]] = {}
         self._newest: dict[int, int] = {}  # hosted drone -> newest round finished
