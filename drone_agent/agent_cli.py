@@ -31,6 +31,8 @@ from protocols.scenario import Scenario, ScenarioError, load_scenario
 RENDEZVOUS_PORT = 7447
 #: Zenoh lease (ms) of a lockstep agent's session: how long a frozen agent looks alive.
 LOCKSTEP_LEASE_MS = 5000
+#: How long (µs) a lockstep agent's DROP publishers wait for room in a full send queue.
+LOCKSTEP_DROP_WAIT_US = 100_000
 
 
 class AgentCliError(Exception):
@@ -170,7 +172,8 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
 
         client = args.zenoh_mode == "client"
         lease_ms = ROUTER_LEASE_MS if client else ZenohSettings.lease_ms
-        if getattr(args, "lockstep", False):
+        lockstep = getattr(args, "lockstep", False)
+        if lockstep:
             # a process starved of CPU for a second must not look dead (its token would go and
             # come back, changing its neighbours' rosters at a wall-clock moment); a killed one's
             # token still goes at once, when its sockets close
@@ -181,6 +184,7 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
             connect=tuple(connect or ()),
             connect_timeout_ms=ROUTER_WAIT_MS if client else 0,
             lease_ms=lease_ms,
+            drop_wait_us=LOCKSTEP_DROP_WAIT_US if lockstep else None,
         )
     except ValueError as exc:
         raise AgentCliError(str(exc)) from None
