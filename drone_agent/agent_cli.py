@@ -308,7 +308,23 @@ def run(args: argparse.Namespace) -> int:
     host = AgentHost(drones, links, bus, transport, config, plan, options, rounds=rounds,
                      roster=roster)  # fmt: skip
     drills = _Drills(scenario, faults, host) if scenario else None
-    live = FaultDrills(bus, args.swarm_id, faults, config.consensus.dt_s, host_round(host))
+
+    def restart(drone: int, gap_s: float) -> None:  # the restart drill (swarm drill restart)
+        done = host.restart(drone, gap_s)
+        if done is not None:
+            print(f"agents: {done}", file=sys.stderr, flush=True)
+
+    def back(drone: int, time_boot_ms: int) -> None:
+        print(
+            f"agents: drone {drone}: a new agent starts at t={time_boot_ms / 1000:.2f}s "
+            "(restart drill)",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    live = FaultDrills(
+        bus, args.swarm_id, faults, config.consensus.dt_s, host_round(host), restart=restart
+    )
 
     def stop(_sig: int, _frame: FrameType | None) -> None:
         host.stop()
@@ -333,7 +349,12 @@ def run(args: argparse.Namespace) -> int:
         )
 
     try:
-        host.run(on_second=None if args.quiet else report, on_loop=each_loop, on_leave=left)
+        host.run(
+            on_second=None if args.quiet else report,
+            on_loop=each_loop,
+            on_leave=left,
+            on_return=back,
+        )
     finally:
         live.close()
         host.close()

@@ -81,6 +81,24 @@ class AgentOutput:
     separating: bool = False
 
 
+#: The rejoin climb (:meth:`BatchAgentCore.tick` ``climb_to``): vertical PD gains (1/s^2, 1/s),
+#: horizontal velocity damping (1/s) and the acceleration limits (m/s^2, vertical and horizontal).
+CLIMB_KP, CLIMB_KD, CLIMB_DAMP = 1.0, 1.8, 1.0
+CLIMB_MAX_ACCEL = (2.0, 1.0)
+
+
+def climb_acceleration(x: FloatArray, v: FloatArray, target_z_m: float) -> FloatArray:
+    """The rejoin climb's acceleration (3,) NED: to altitude ``target_z_m`` (NED z) with a PD,
+    holding the horizontal position's velocity at zero; limited (:data:`CLIMB_MAX_ACCEL`)."""
+    vertical, horizontal = CLIMB_MAX_ACCEL
+    a_z = CLIMB_KP * (target_z_m - x[2]) - CLIMB_KD * v[2]
+    a_h = -CLIMB_DAMP * v[:2]
+    norm = float(np.linalg.norm(a_h))
+    if norm > horizontal:
+        a_h = a_h * (horizontal / norm)
+    return np.array([a_h[0], a_h[1], float(np.clip(a_z, -vertical, vertical))])
+
+
 class BatchAgentCore:
     """Estimators + controllers of the drones ``agent_ids``, one row each. Call :meth:`tick`
     once per control round with the rows due in that round."""
@@ -109,6 +127,11 @@ class BatchAgentCore:
         """The row of drone ``agent_id``."""
         return self._row[agent_id]
 
+    def restart_row(self, row: int) -> None:
+        """Row ``row``'s agent starts a new life (restarted in its process): its estimator
+        starts afresh with a new incarnation (BatchConsensus.restart)."""
+        self.consensus.restart(row)
+
     def tick(
         self,
         rows: Sequence[int],
@@ -119,10 +142,14 @@ class BatchAgentCore:
         plans: Sequence[DescriptorTrajectory],
         inboxes: Sequence[Iterable[ConsensusMessage]],
         members: Sequence[frozenset[int] | None],
+        climb_to: Sequence[float | None] | None = None,
     ) -> list[AgentOutput]:
         """Estimate and control rows ``rows`` (distinct) for round ``round_`` at simulated time
         ``t_s``: positions and velocities (len(rows), 3) NED of their own vehicles, and per row
-        its plan, its inbox and its membership view. One output per row, in order."""
+        its plan, its inbox and its membership view. ``climb_to``: per row None (fly the
+        formation) or the NED z a returning drone climbs to or holds (:func:`climb_acceleration`
+        instead of the cooperative field, through the same separation layer and limits). One
+        output per row, in order."""
         if len(rows) == 0:
             return []
         x = np.asarray(positions_ned_m, dtype=float).reshape(-1, 3)
@@ -149,6 +176,7 @@ class BatchAgentCore:
                 (a_d, ad_dot, ad_ddot),
                 (r_d, axes, s),
                 (round_, inboxes),
+                climb_to,
             )
         centre, rate = list(moments.centre_ned_m), list(moments.centre_rate_ned_m_s)
         sigma, sigma_rate = list(moments.sigma_m2), list(moments.sigma_rate_m2_s)
@@ -202,6 +230,7 @@ class BatchAgentCore:
         reference: StateTriple,
         frame: tuple[FloatArray, FloatArray, FloatArray],
         heard: tuple[int, Sequence[Iterable[ConsensusMessage]]],
+        climb_to: Sequence[float | None] | None = None,
     ) -> tuple[list[Setpoint | None], list[bool]]:
         """The checked setpoints of the rows ready to fly (None for the others, and for any
         command not finite or out of range, which is counted against its row), and whether the
@@ -227,6 +256,12 @@ class BatchAgentCore:
                 self.config.gains,
                 (frame[0][idx], frame[1][idx], frame[2][idx]),
             )
+        if climb_to is not None and any(z is not None for z in climb_to):
+            accel = np.array(accel, dtype=float)
+            for k, i in enumerate(idx.tolist()):
+                target = climb_to[i]
+                if target is not None:
+                    accel[k] = climb_acceleration(x[i], v[i], target)
         changed = [False] * len(ready)
         if self.separation is not None:
             round_, inboxes = heard
@@ -284,8 +319,10 @@ class AgentCore:
         plan: DescriptorTrajectory,
         inbox: Iterable[ConsensusMessage],
         members: frozenset[int] | None = None,
+        climb_to: float | None = None,
     ) -> AgentOutput:
-        """Estimate and control for round ``round_`` at simulated time ``t_s``."""
+        """Estimate and control for round ``round_`` at simulated time ``t_s`` (``climb_to``:
+        :meth:`BatchAgentCore.tick`)."""
         return self.batch.tick(
             (self.row,),
             round_,
@@ -295,4 +332,5 @@ class AgentCore:
             (plan,),
             (inbox,),
             (members,),
+            (climb_to,),
         )[0]

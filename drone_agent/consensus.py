@@ -52,6 +52,18 @@ delay at 50 Hz); dividing by the lag keeps it converging up to the heard-set tim
 may then integrate different amounts on an edge, which rule 1 makes harmless: ``eta_ij`` is the
 average of both ends' sums, antisymmetric whatever each end added.
 
+Not in ALGORITHM.md: *incarnations* (issue 14, rejoin). A restarted agent (same drone id) must
+never have its new running sums mixed with the old ones, on either end of an edge, even when it
+comes back before its neighbours' liveliness view has dropped it. Every message carries the
+sender's ``incarnation`` (the round of its agent's first step: a restarted agent starts at a later
+round, so a later life has a larger number) and, per edge sum ``Q_sender,j``, the incarnation of
+j that sum was made with (``edge_incarnations``). A receiver keeps the newest incarnation heard
+per peer: a message of an older one is dropped (counted as stale), and one of a newer one drops
+every state towards that peer first (sums, edge, heard rounds, waiting values) and starts a new
+edge; a ``Q_ji`` is taken only when it was made with the receiver's own current incarnation.
+A sender of an older build says neither (incarnation 0, no edge incarnations): it is heard as
+before.
+
 Pure and I/O-free: no clock, no transport; time enters only as the round number.
 """
 
@@ -167,8 +179,19 @@ class ConsensusEstimator:
 
     @property
     def dropped_messages(self) -> int:
-        """Messages ignored: our own, or older than the history."""
+        """Messages ignored: our own, older than the history, or of an earlier incarnation of
+        their sender."""
         return self._batch.dropped_messages[0]
+
+    @property
+    def stale_messages(self) -> int:
+        """Messages ignored because a later incarnation of their sender was heard."""
+        return self._batch.stale_messages[0]
+
+    @property
+    def incarnation(self) -> int | None:
+        """This agent's incarnation (the round of its first step); None before it."""
+        return self._batch.incarnation(0)
 
     @property
     def edges(self) -> tuple[int, ...]:

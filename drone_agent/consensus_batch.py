@@ -21,7 +21,7 @@ import numpy.typing as npt
 
 from drone_agent.consensus import ConsensusOutput, ConsensusParams
 from drone_agent.moments import N_CHANNELS
-from protocols.consensus_message import ConsensusMessage, EdgeSums
+from protocols.consensus_message import ConsensusMessage, EdgeIncarnations, EdgeSums
 from protocols.frames import FloatArray
 from protocols.mavlink_conventions import MAX_VEHICLES
 
@@ -72,19 +72,41 @@ def _before_true(flags: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
     return out
 
 
+def _tags(message: ConsensusMessage, n_edges: int) -> npt.NDArray[np.int64]:
+    """The partner incarnations (n_edges,) of an :class:`EdgeSums` message, -1 where not said."""
+    tags = message.edge_incarnations
+    if tags is None:
+        return np.full(n_edges, -1, dtype=np.int64)
+    if isinstance(tags, EdgeIncarnations) and tags.tags.shape[0] == n_edges:
+        return tags.tags
+    assert isinstance(message.edge_sums, EdgeSums)
+    return np.array([tags.get(j, -1) for j in message.edge_sums.ids.tolist()], dtype=np.int64)
+
+
 def _sums_for(
     receivers: npt.NDArray[np.intp], which: npt.NDArray[np.intp], messages: list[ConsensusMessage]
-) -> tuple[npt.NDArray[np.bool_], FloatArray]:
+) -> tuple[npt.NDArray[np.bool_], FloatArray, npt.NDArray[np.int64]]:
     """``messages[which[k]].edge_sums.get(receivers[k])`` for every k: whether it is there
-    (n,) and the ones that are (n_found, 18). :class:`EdgeSums` are looked up all at once (one
-    sorted key per (message, neighbour)), other mappings one by one."""
+    (n,), the ones that are (n_found, 18) and the receiver incarnation each was made with
+    (n_found,; -1 where the message does not say). :class:`EdgeSums` are looked up all at once
+    (one sorted key per (message, neighbour)), other mappings one by one."""
     tables = [m.edge_sums for m in messages]
     arrays = [t for t in tables if isinstance(t, EdgeSums)]
     if len(arrays) < len(tables):  # some plain mappings (decoded from the wire): one by one
-        sums = [tables[k].get(i) for k, i in zip(which.tolist(), receivers.tolist(), strict=True)]
+        pairs = list(zip(which.tolist(), receivers.tolist(), strict=True))
+        sums = [tables[k].get(i) for k, i in pairs]
         has = np.array([x is not None for x in sums], dtype=bool)
         found = [x for x in sums if x is not None]
-        return has, np.array(found, dtype=float).reshape(-1, N_CHANNELS)
+        tagged = [
+            -1 if (e := messages[k].edge_incarnations) is None else e.get(i, -1)
+            for (k, i), x in zip(pairs, sums, strict=True)
+            if x is not None
+        ]
+        return (
+            has,
+            np.array(found, dtype=float).reshape(-1, N_CHANNELS),
+            np.array(tagged, dtype=np.int64),
+        )
     sizes = [t.ids.shape[0] for t in arrays]
     ids = np.concatenate([t.ids for t in arrays])
     span = int(max(ids.max(initial=0), receivers.max(initial=0))) + 1
@@ -93,7 +115,12 @@ def _sums_for(
     at = np.searchsorted(keys, wanted)
     has = at < keys.shape[0]
     has[has] = keys[at[has]] == wanted[has]
-    return has, np.concatenate([t.sums for t in arrays])[at[has]]
+    found = at[has]
+    if all(m.edge_incarnations is None for m in messages):
+        tags = np.full(found.shape[0], -1, dtype=np.int64)
+    else:
+        tags = np.concatenate([_tags(m, n) for m, n in zip(messages, sizes, strict=True)])[found]
+    return has, np.concatenate([t.sums for t in arrays])[found], tags
 
 
 class BatchConsensus:
@@ -104,7 +131,9 @@ class BatchConsensus:
     over (row, neighbour id): running sums ``Q_ij`` (``_q_own``, ``_q_recv``, (K, M, 18)), whether
     an edge exists and the last round it integrated, the newest round heard from each peer and the
     ``Q_ji`` it sent, and a ring of the last ``history_ticks`` rounds of the row's own gamma,
-    degree and heard-set (slot ``round % history_ticks``, tagged with its round). M grows with the
+    degree and heard-set (slot ``round % history_ticks``, tagged with its round), the row's own
+    incarnation (the round of its first step) and the newest incarnation heard of each peer (the
+    incarnation rules of drone_agent/consensus.py). M grows with the
     largest neighbour id seen (ids are drone indices, below 1000 for a scenario; the memory is
     about 3 K M 18 doubles). Only what must look at each message (validity, the newest message
     per peer, duplicates, rounds from the future kept for later) is Python; every pairing rule of
@@ -129,6 +158,10 @@ class BatchConsensus:
         self._latest = np.zeros((k, 0), dtype=np.int64)
         self._q_for_me = np.zeros((k, 0, N_CHANNELS))
         self._has_q_for_me = np.zeros((k, 0), dtype=bool)
+        self._inc = np.zeros((k, 0), dtype=np.int64)  # newest incarnation heard per peer, -1 none
+        self._own_inc = np.full(k, -1, dtype=np.int64)  # -1: not started
+        #: rows that only listen (set_observing): they say they hear nobody
+        self.observing = np.zeros(k, dtype=bool)
         self._hist_round = np.full((k, h), _NO_ROUND, dtype=np.int64)
         self._hist_gamma = np.zeros((k, h, N_CHANNELS))
         self._hist_largest = np.zeros((k, h))  # max |gamma| of the round
@@ -138,6 +171,7 @@ class BatchConsensus:
         self._later: list[dict[tuple[int, int], ConsensusMessage]] = [{} for _ in range(k)]
         self._last_round: list[int | None] = [None] * k
         self.dropped_messages = [0] * k
+        self.stale_messages = [0] * k
         self._masks: dict[int, tuple[frozenset[int], npt.NDArray[np.bool_]]] = {}
         self._grow(max(self.agent_ids, default=0) + 1)
 
@@ -152,6 +186,36 @@ class BatchConsensus:
             return np.zeros(N_CHANNELS)
         out: FloatArray = 0.5 * (self._q_own[row, neighbour] - self._q_recv[row, neighbour])
         return out
+
+    def incarnation(self, row: int) -> int | None:
+        """Row ``row``'s incarnation: the round of its first step (None before it)."""
+        value = int(self._own_inc[row])
+        return None if value < 0 else value
+
+    def restart(self, row: int) -> None:
+        """Row ``row``'s agent starts a new life (an agent restarted in its process): every state
+        of the row is dropped, and its next step starts a new incarnation (that round), so its
+        neighbours drop their edges to the old one (the incarnation rules of consensus.py)."""
+        self._forget(np.full(self._m, row, dtype=np.intp), np.arange(self._m), history=True)
+        self._inc[row] = -1
+        self._own_inc[row] = -1
+        self._hist_round[row] = _NO_ROUND
+        self._hist_gamma[row] = 0.0
+        self._hist_largest[row] = 0.0
+        self._hist_degree[row] = 0
+        self._hist_heard[row] = False
+        self._later[row] = {}
+        self._last_round[row] = None
+        self.observing[row] = False
+
+    def set_observing(self, row: int, observing: bool) -> None:
+        """Row ``row`` only listens (True) or takes part again (False). A listening row's
+        messages say it hears nobody and carry no running sums, so by rule 3 no neighbour
+        integrates an edge with it (its channels do not count in anyone's average), while it
+        integrates its edges one-sidedly: its estimate follows its neighbours' estimate of the
+        swarm without it. Used by a returning agent until its vehicle is back near the formation
+        (drone_agent/hosted_agent.py); :meth:`restart` it when it takes part again."""
+        self.observing[row] = observing
 
     # -- the step ------------------------------------------------------------------------------
     def step(
@@ -175,6 +239,8 @@ class BatchConsensus:
             if last is not None and round_ <= last:
                 raise ValueError(f"round {round_} is not after round {last}")
             self._last_round[row] = round_
+            if self._own_inc[row] < 0:  # its first step: a new incarnation
+                self._own_inc[row] = round_
         mail = self._gather(rows_arr, inboxes)
         if mail is not None and int(mail.senders.max()) >= self._m:
             self._grow(int(mail.senders.max()) + 1)
@@ -210,6 +276,7 @@ class BatchConsensus:
         self._q_for_me = wider(self._q_for_me, 1)
         self._edge, self._peer = wider(self._edge, 1, False), wider(self._peer, 1, False)
         self._has_q_for_me = wider(self._has_q_for_me, 1, False)
+        self._inc = wider(self._inc, 1, -1)
         self._edge_round, self._latest = wider(self._edge_round, 1, -1), wider(self._latest, 1, -1)
         self._hist_heard = wider(self._hist_heard, 2, False)
         self._m = m
@@ -279,6 +346,11 @@ class BatchConsensus:
             if sel.shape[0] == 0:
                 return None
             pos, j, q, which = pos[sel], j[sel], q[sel], which[sel]
+        fresh = self._incarnations(rows, pos, j, which, messages)
+        if fresh is not None:
+            if fresh.shape[0] == 0:
+                return None
+            pos, j, q, which = pos[fresh], j[fresh], q[fresh], which[fresh]
         order, same_pair, same_value = self._sorted(pos, j, q, rows.shape[0])
         if order is not None:
             pos, j, q, which = pos[order], j[order], q[order], which[order]
@@ -310,6 +382,52 @@ class BatchConsensus:
                 self._later[int(row[k])][(int(j[k]), int(q[k]))] = messages[which[k]]
             pos, j, q, which = pos[is_due], j[is_due], q[is_due], which[is_due]
         return _Due(pos, j, q, which, messages)
+
+    def _incarnations(
+        self,
+        rows: npt.NDArray[np.intp],
+        pos: npt.NDArray[np.intp],
+        j: npt.NDArray[np.intp],
+        which: npt.NDArray[np.intp],
+        messages: list[ConsensusMessage],
+    ) -> npt.NDArray[np.intp] | None:
+        """The incarnation rules (consensus.py): a newer incarnation of a peer drops every state
+        towards it first; values of an older one are stale (counted). Returns the positions of
+        the values kept, None if all are."""
+        incs = np.array([m.incarnation for m in messages], dtype=np.int64)[which]
+        row = rows[pos]
+        known = self._inc[row, j]
+        if (incs == known).all():  # the usual case
+            return None
+        newer = incs > known
+        if newer.any():
+            self._forget(row[newer], j[newer], history=True)
+            np.maximum.at(self._inc, (row[newer], j[newer]), incs[newer])
+            known = self._inc[row, j]
+        stale = incs < known
+        if not stale.any():
+            return None
+        counts = np.bincount(pos[stale], minlength=rows.shape[0])
+        for p in np.flatnonzero(counts).tolist():
+            self.stale_messages[int(rows[p])] += int(counts[p])
+            self.dropped_messages[int(rows[p])] += int(counts[p])
+        return np.flatnonzero(~stale)
+
+    def _forget(
+        self, rows: npt.NDArray[np.intp], ids: npt.NDArray[np.intp], history: bool = False
+    ) -> None:
+        """Drop every state of row ``rows[k]`` towards peer ``ids[k]``: running sums, edge,
+        heard rounds (and, with ``history``, that the row heard it in its past rounds)."""
+        self._q_own[rows, ids] = 0.0
+        self._q_recv[rows, ids] = 0.0
+        self._q_for_me[rows, ids] = 0.0
+        self._edge[rows, ids] = False
+        self._edge_round[rows, ids] = -1
+        self._peer[rows, ids] = False
+        self._latest[rows, ids] = -1
+        self._has_q_for_me[rows, ids] = False
+        if history:
+            self._hist_heard[rows, :, ids] = False
 
     def _sorted(
         self,
@@ -347,7 +465,11 @@ class BatchConsensus:
         """Peer ``ids[k]``'s newest message to row ``rows[k]`` is ``messages[which[k]]`` of
         round ``rounds[k]``: the round it was last heard in, and the ``Q_ji`` it carries."""
         self._latest[rows, ids] = rounds
-        has, values = _sums_for(self._ids[rows], which, messages)
+        has, values, tags = _sums_for(self._ids[rows], which, messages)
+        mine = (tags < 0) | (tags == self._own_inc[rows[has]])  # made with this incarnation
+        if not mine.all():
+            has[np.flatnonzero(has)[~mine]] = False
+            values = values[mine]
         self._has_q_for_me[rows, ids] = has
         self._q_for_me[rows[has], ids[has]] = values
 
@@ -387,14 +509,7 @@ class BatchConsensus:
         if not dead.any():
             return
         pos, ids = np.nonzero(dead)
-        r = rows[pos]
-        self._q_own[r, ids] = 0.0
-        self._q_recv[r, ids] = 0.0
-        self._edge[r, ids] = False
-        self._edge_round[r, ids] = -1
-        self._peer[r, ids] = False
-        self._latest[r, ids] = -1
-        self._has_q_for_me[r, ids] = False
+        self._forget(rows[pos], ids)
 
     def _integrate(
         self, rows: npt.NDArray[np.intp], round_: int, due: _Due | None
@@ -497,9 +612,16 @@ class BatchConsensus:
         else:
             positions = list(np.array(motion[0], dtype=float).reshape(-1, 3))
             velocities = list(np.array(motion[1], dtype=float).reshape(-1, 3))
-        pos, ids = np.nonzero(self._edge[rows])
+        listening = self.observing[rows]
+        edges = self._edge[rows]
+        if listening.any():  # a listening row says it hears nobody, sends no sums
+            heard = heard & ~listening[:, None]
+            edges = edges & ~listening[:, None]
+        pos, ids = np.nonzero(edges)
         sums = self._q_own[rows[pos], ids]
+        tags = self._inc[rows[pos], ids]
         sums.flags.writeable = False  # shared by the messages' EdgeSums
+        tags.flags.writeable = False
         ids.flags.writeable = False
         bounds = np.searchsorted(pos, np.arange(rows.shape[0] + 1)).tolist()
         heard_pos, heard_ids_all = np.nonzero(heard)
@@ -508,6 +630,8 @@ class BatchConsensus:
         gamma_rows = list(gamma)
         heard_sets = [frozenset(heard_list[lo:hi]) for lo, hi in pairwise(heard_bounds)]
         edge_sums = [EdgeSums(ids[lo:hi], sums[lo:hi]) for lo, hi in pairwise(bounds)]
+        edge_tags = [EdgeIncarnations(ids[lo:hi], tags[lo:hi]) for lo, hi in pairwise(bounds)]
+        own_inc = self._own_inc[rows].tolist()
         return [
             ConsensusOutput(
                 gamma_rows[p],
@@ -520,6 +644,8 @@ class BatchConsensus:
                     degree=len(heard_sets[p]),
                     position_ned_m=positions[p],
                     velocity_ned_m_s=velocities[p],
+                    incarnation=own_inc[p],
+                    edge_incarnations=edge_tags[p],
                 ),
                 active[p],
                 dis,

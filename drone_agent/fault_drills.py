@@ -28,6 +28,7 @@ from protocols.wire_fault import (
     LinkRestore,
     Loss,
     Partition,
+    Restart,
     decode_fault,
 )
 
@@ -54,6 +55,8 @@ def describe(command: FaultCommand) -> str:
     if isinstance(command, Delay):
         where = f" on {command.link[0]}<->{command.link[1]}" if command.link else ""
         return f"delay {command.delay_ms:g} ms{where}"
+    if isinstance(command, Restart):
+        return f"restart drone {command.drone} after {command.gap_s:g} s"
     if isinstance(command, Partition):
         if command.groups is None:
             return "partition healed"
@@ -64,7 +67,8 @@ def describe(command: FaultCommand) -> str:
 class FaultDrills:
     """Applies the fault commands of swarm ``swarm_id`` to ``faults``; ``period_s`` is the control
     period (s) and ``round_clock()`` the current control round, so simulated time is their
-    product. ``log(line)`` (default: stderr) reports each command applied or rejected."""
+    product. ``log(line)`` (default: stderr) reports each command applied or rejected;
+    ``restart(drone, gap_s)`` carries out a restart drill (the process's agent host)."""
 
     def __init__(
         self,
@@ -74,8 +78,10 @@ class FaultDrills:
         period_s: float,
         round_clock: Callable[[], int],
         log: Callable[[str], None] | None = None,
+        restart: Callable[[int, float], None] | None = None,
     ) -> None:
         self._faults, self._period_s, self._clock = faults, period_s, round_clock
+        self._restart = restart
         self._log = log or _stderr
         self._swarm_id = swarm_id
         self._queue: deque[bytes] = deque()
@@ -137,6 +143,8 @@ class FaultDrills:
         elif isinstance(command, Clear):
             faults.clear()
             self._undo.clear()
+        elif isinstance(command, Restart) and self._restart is not None:
+            self._restart(command.drone, command.gap_s)
 
     def _later(self, t_s: float, command: FaultCommand) -> None:
         heapq.heappush(self._undo, (t_s, next(self._order), command))

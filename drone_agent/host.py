@@ -11,6 +11,14 @@ joins the swarm (declares its transport and token) once its vehicle has answered
 position names its spatial cell. In lockstep the process's
 :class:`~drone_agent.round_gate.RoundBook` publishes, after each pass, the round-done markers of
 the rounds its agents finished in it (drone_agent/round_gate.py).
+
+Restart (``swarm drill restart``, :meth:`AgentHost.restart`): a drone's agent is killed as a
+drop-out kills it (its token goes, it sends nothing more: its vehicle's failsafe takes over) and,
+once its vehicle's simulated time has moved on by the gap, a new agent of that drone joins: a new
+transport and token, a new flight phase, and its estimator row started afresh
+(:meth:`~drone_agent.consensus_batch.BatchConsensus.restart`: a new incarnation, so that its
+neighbours start fresh edges with it). The same as starting ``swarm agent`` again for that drone,
+without touching the other agents of the process.
 """
 
 from __future__ import annotations
@@ -74,6 +82,10 @@ class _Slot:
     agent: HostedAgent | None = None
     greeted_at: float = -1e9
     left_reported: bool = False
+    #: the newest vehicle time heard (ms)
+    newest_ms: int = -1
+    #: a restart drill: the vehicle time (ms) at which a new agent starts
+    revive_at_ms: int | None = None
 
 
 class AgentHost:
@@ -130,6 +142,24 @@ class AgentHost:
                     slot.agent.leave(reason)
                 return
 
+    def restart(self, drone: int, gap_s: float) -> str | None:
+        """The restart drill: kill drone ``drone``'s agent now and start a new one once its
+        vehicle's time has moved on by ``gap_s`` s. Returns what was done (for the log), None if
+        this process does not run that drone's agent (yet, or any more: a restart already under
+        way, or an agent that left on its own)."""
+        for slot in self._slots:
+            if slot.drone != drone:
+                continue
+            if slot.agent is None or slot.agent.left or slot.revive_at_ms is not None:
+                return None
+            slot.agent.leave(f"killed by a restart drill; a new agent starts in {gap_s:g} s")
+            slot.left_reported = True  # said by the caller
+            slot.revive_at_ms = slot.newest_ms + round(gap_s * 1000)
+            t_s = slot.newest_ms / 1000.0
+            back_s = t_s + gap_s
+            return f"drone {drone}'s agent killed at t={t_s:.2f}s; a new one at t={back_s:.2f}s"
+        return None
+
     @property
     def agents(self) -> list[HostedAgent]:
         """The agents that have joined so far."""
@@ -144,17 +174,24 @@ class AgentHost:
         on_second: Callable[[AgentHost], None] | None = None,
         on_loop: Callable[[], None] | None = None,
         on_leave: Callable[[HostedAgent], None] | None = None,
+        on_return: Callable[[int, int], None] | None = None,
     ) -> None:
         """Serve every hosted agent until stopped or all have left the swarm; ``on_second`` runs
         about once a second (wall clock), ``on_loop`` (cheap) in every pass over the agents,
         after the vehicles' samples are read and before any agent's tick (so that it sees the
         ticks now due, :meth:`pending_rounds`), ``on_leave`` once for each agent that leaves the
-        swarm on its own."""
+        swarm on its own, ``on_return(drone, time_boot_ms)`` when a restarted drone's new agent
+        starts."""
         last_report = last_tick = self._clock()
         while not self._stop.is_set():
             for key, _ in self._selector.select(timeout=0.002):
                 slot: _Slot = key.data
                 for sample in slot.link.poll():
+                    slot.newest_ms = max(slot.newest_ms, sample.time_boot_ms)
+                    if slot.revive_at_ms is not None and slot.newest_ms >= slot.revive_at_ms:
+                        self._revive(slot)
+                        if on_return is not None:
+                            on_return(slot.drone, slot.newest_ms)
                     if slot.agent is None:
                         slot.agent = self._join(slot, sample.position_ned_m)
                     slot.agent.on_sample(sample)
@@ -183,7 +220,9 @@ class AgentHost:
                     slot.left_reported = True
                     if on_leave is not None:
                         on_leave(slot.agent)
-            if self._slots and all(s.agent is not None and s.agent.left for s in self._slots):
+            if self._slots and all(
+                s.agent is not None and s.agent.left and s.revive_at_ms is None for s in self._slots
+            ):
                 break
             now = self._clock()
             if on_second is not None and now - last_report >= 1.0:
@@ -224,6 +263,7 @@ class AgentHost:
             [t.plan for t in ticks],
             [t.inbox for t in ticks],
             [t.members for t in ticks],
+            [t.climb_to for t in ticks],
         )
         for (agent, tick), out in zip(group, outs, strict=True):
             agent.finish(tick, out)
@@ -234,6 +274,14 @@ class AgentHost:
         if now - slot.greeted_at >= 1.0:
             slot.link.send_heartbeat()
             slot.greeted_at = now
+
+    def _revive(self, slot: _Slot) -> None:
+        """A restarted drone: its next sample starts a new agent (:meth:`_join`) on a fresh
+        estimator row."""
+        self._core.restart_row(self._core.row_of(slot.drone))
+        slot.agent = None
+        slot.left_reported = False
+        slot.revive_at_ms = None
 
     def _join(self, slot: _Slot, position: Position) -> HostedAgent:
         transport = self._factory(self._bus, slot.drone, position)

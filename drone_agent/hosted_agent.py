@@ -20,12 +20,24 @@ liveliness token) when its vehicle falls silent (``vehicle_timeout_s``, longer t
 simulator's lockstep timeout, during which a stalled barrier legitimately sends nothing) or says
 it is lost (an EMERGENCY text, emergency or termination state, or disarmed under it while it flies
 the formation); the core checks every setpoint for NaN and limits before it is sent.
+
+Rejoin (issue 14): an agent that starts while its neighbours already fly (a restarted agent, a
+late joiner) and whose vehicle is well below them (its failsafe landed it, or is landing it) must
+not be counted in the formation from down there: a drone 3 m under a flat formation tilts every
+neighbour's estimated plane, which the formation then follows (measured: the plane tilted by
+0.3-0.5 rad and took 40 s to level out, the returning drone crawling up with it). So it first
+only listens (its estimator row observes: :meth:`BatchConsensus.set_observing`, nobody
+integrates with it, while its position still reaches their separation layer) and climbs
+straight up to their altitude (``climb_to``: :func:`~drone_agent.agent_core.climb_acceleration`,
+arming it on the ground if need be); there it starts a new incarnation as a member and holds its
+altitude until its estimate has settled, then flies the formation.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from enum import Enum
 
 import numpy as np
 
@@ -46,6 +58,22 @@ from protocols.wire_status import AgentMode, AgentStatus, Health
 LOST_STATES = frozenset({6, 8})
 #: Agent modes in which the vehicle flies the agent's setpoints: disarmed under it = lost.
 _FLYING_MODES = frozenset({AgentMode.FLYING, AgentMode.HOLDING})
+#: Neighbours above this altitude (m) fly: an agent that first hears them so is a late joiner.
+NEIGHBOURS_AIRBORNE_M = 1.0
+#: A late joiner whose vehicle is this far (m) below its flying neighbours climbs first.
+CLIMB_BELOW_M = 0.5
+#: The climb is over within this (m) of their altitude, moving slower than CLIMB_SLOW_M_S.
+CLIMB_DONE_M, CLIMB_SLOW_M_S = 0.15, 0.2
+#: Neighbour positions older than this many rounds are not used.
+NEIGHBOUR_AGE_TICKS = 25
+
+
+class Rejoin(Enum):
+    """A late joiner's way into the formation (module doc)."""
+
+    NONE = "none"  # a member, flying the formation (or on the ground with the swarm)
+    CLIMB = "climb"  # listening only, climbing to the neighbours' altitude
+    SETTLE = "settle"  # a member again, holding its altitude until its estimate settles
 
 
 @dataclass(frozen=True)
@@ -76,6 +104,7 @@ class DueTick:
     command: FlightCommand
     inbox: list[ConsensusMessage]
     members: frozenset[int]
+    climb_to: float | None = None
 
     @property
     def t_s(self) -> float:
@@ -120,6 +149,11 @@ class HostedAgent:
         self.phase = FlightPhase(core.config.limits)
         self.left = False
         self.leave_reason = ""
+        self.rejoin = Rejoin.NONE
+        #: None until a neighbour's altitude is known; then whether they flew when first heard
+        self.late_joiner: bool | None = None
+        self._climb_z: float | None = None
+        self._neighbour_alt: dict[int, tuple[int, float]] = {}
 
     @property
     def drone(self) -> int:
@@ -139,6 +173,8 @@ class HostedAgent:
         for packet in self.transport.receive():
             msg = packet.message
             self._inbox.append(msg)
+            if msg.position_ned_m is not None:
+                self._neighbour_alt[msg.sender] = (msg.round, -float(msg.position_ned_m[2]))
             if msg.round > self._last_round_of.get(msg.sender, -1):
                 self._last_round_of[msg.sender] = msg.round
 
@@ -166,6 +202,7 @@ class HostedAgent:
                 due.plan,
                 due.inbox,
                 due.members,
+                due.climb_to,
             )
             self.finish(due, out)
 
@@ -223,7 +260,57 @@ class HostedAgent:
             self._after_tick(tick)
             return None
         inbox, self._inbox = self._inbox, []
-        return DueTick(self.core, tick, sample, plan, command, inbox, members)
+        climb = self._rejoin_step(tick, sample, command, members)
+        return DueTick(self.core, tick, sample, plan, command, inbox, members, climb)
+
+    def _flying_neighbours_alt(self, tick: int, members: frozenset[int]) -> float | None:
+        """The mean altitude (m) of the members heard lately above NEIGHBOURS_AIRBORNE_M."""
+        recent = tick - 1 - NEIGHBOUR_AGE_TICKS
+        alts = [
+            a
+            for j, (r, a) in self._neighbour_alt.items()
+            if j in members and r >= recent and a > NEIGHBOURS_AIRBORNE_M
+        ]
+        return sum(alts) / len(alts) if alts else None
+
+    def _rejoin_step(
+        self, tick: int, sample: VehicleSample, command: FlightCommand, members: frozenset[int]
+    ) -> float | None:
+        """Advance the late joiner's climb (module doc); the NED z to climb to or hold, None
+        to fly the formation."""
+        if self.late_joiner is None and self._neighbour_alt:
+            self.late_joiner = self._flying_neighbours_alt(tick, members) is not None
+        target = self._flying_neighbours_alt(tick, members)
+        altitude = -float(sample.position_ned_m[2])
+        consensus, row = self.core.batch.consensus, self.core.row
+        if command != FlightCommand.FLY:
+            if self.rejoin == Rejoin.CLIMB:
+                consensus.restart(row)  # a member again, on the ground with the others
+            self.rejoin, self._climb_z = Rejoin.NONE, None
+            return None
+        if self.rejoin == Rejoin.NONE:
+            if (
+                not self.late_joiner
+                or self.phase.committed
+                or self.readiness.ready
+                or target is None
+                or altitude > target - CLIMB_BELOW_M
+            ):
+                return None
+            self.rejoin = Rejoin.CLIMB
+            consensus.set_observing(row, True)
+        if self.rejoin == Rejoin.CLIMB:
+            if target is not None:
+                self._climb_z = -target
+            assert self._climb_z is not None
+            near = abs(altitude + self._climb_z) < CLIMB_DONE_M
+            if near and abs(float(sample.velocity_ned_m_s[2])) < CLIMB_SLOW_M_S:
+                self.rejoin = Rejoin.SETTLE  # a member from now: a new incarnation
+                consensus.restart(row)
+                self.readiness = Readiness(self.core.config)
+        elif self.rejoin == Rejoin.SETTLE and self.readiness.settling.agrees:
+            self.rejoin, self._climb_z = Rejoin.NONE, None
+        return self._climb_z
 
     def finish(self, due: DueTick, out: AgentOutput) -> None:
         """Everything after the core: update the readiness to fly (flight_phase.Readiness),
@@ -328,7 +415,7 @@ class HostedAgent:
         """Its estimate and the whole swarm's have settled (:class:`Readiness`); latched once the
         agent has decided to fly (the neighbours' take-off must not send it back to the ground
         half-armed)."""
-        return self.phase.committed or self.readiness.ready
+        return self.phase.committed or self.readiness.ready or self.rejoin != Rejoin.NONE
 
     def _publish_status(self) -> None:
         out = self.last_output

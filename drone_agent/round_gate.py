@@ -157,9 +157,10 @@ class RoundGate:
             # subscriptions, is here), so that none misses a message or marker of round 0
             self.book.poll()
             alive = self.book.alive
-            if any(j not in alive for j in self.roster) and now - self._tick_since < (
-                self.first_grace_s
-            ):
+            # a late joiner (a restarted agent: rounds before this one are done) waits for nobody
+            running = any(r < tick for j, r in self.book.done.items() if j != self.me)
+            waiting = any(j not in alive and j not in self.book.gone for j in self.roster)
+            if not running and waiting and now - self._tick_since < self.first_grace_s:
                 return False
             self._first_tick = tick
             self.roster = {j for j in self.roster if j in alive} | {self.me}

@@ -27,6 +27,10 @@ class ConsensusMessage:
     ``position_ned_m`` (3,) and ``velocity_ned_m_s`` (3,): where the sender was and how fast it
     moved in this round (NED), for the receivers' separation layer (drone_agent/separation.py);
     None when not known (set by the wire decoder; the estimator does not use them).
+    ``incarnation``: which life of the sender's agent sent it (the round of its first step; 0 from
+    a sender that does not say); ``edge_incarnations``: per neighbour j of ``edge_sums``, the
+    incarnation of j that ``Q_sender,j`` was made with (None: not said, every sum is taken).
+    The rules: drone_agent/consensus.py, "incarnations".
     """
 
     sender: int
@@ -38,6 +42,34 @@ class ConsensusMessage:
     ready_hops: int = 0
     position_ned_m: FloatArray | None = None
     velocity_ned_m_s: FloatArray | None = None
+    incarnation: int = 0
+    edge_incarnations: Mapping[int, int] | None = None
+
+
+class EdgeIncarnations(Mapping[int, int]):
+    """The partners' incarnations ``tags`` (E,) of an :class:`EdgeSums` over the same ``ids``:
+    what :class:`BatchConsensus` puts in its messages' ``edge_incarnations``."""
+
+    __slots__ = ("ids", "tags")
+
+    def __init__(self, ids: npt.NDArray[np.intp], tags: npt.NDArray[np.int64]) -> None:
+        self.ids = ids
+        self.tags = tags
+
+    def __getitem__(self, neighbour: int) -> int:
+        hits = np.flatnonzero(self.ids == neighbour)
+        if hits.shape[0] == 0:
+            raise KeyError(neighbour)
+        return int(self.tags[hits[0]])
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self.ids.tolist())
+
+    def __len__(self) -> int:
+        return int(self.ids.shape[0])
+
+    def __repr__(self) -> str:
+        return f"EdgeIncarnations({dict(self)!r})"
 
 
 class EdgeSums(Mapping[int, FloatArray]):

@@ -10,11 +10,14 @@ All integers and floats are little-endian, with no padding. Every payload starts
     4       L     swarm id (ASCII, protocols.keys rules)
 
 Versions are per kind: status, plan and fault payloads are at WIRE_VERSION (1); consensus
-payloads are sent at CONSENSUS_VERSION (2), which added the sender's velocity and settled level,
-and version 1 is still decoded (its message's ``velocity_ned_m_s`` is None: the sender's velocity
-is unknown; its ``ready_hops`` 0: a version-1 neighbour holds the swarm on the ground).
+payloads are sent at CONSENSUS_VERSION (3). Version 2 added the sender's velocity and settled
+level, version 3 the incarnations (drone_agent/consensus.py: a restarted agent's sums are never
+mixed with its old life's). Versions 1 and 2 are still decoded: a version-1 message's
+``velocity_ned_m_s`` is None (the sender's velocity is unknown) and its ``ready_hops`` 0 (a
+version-1 neighbour holds the swarm on the ground); a version-1 or 2 message has incarnation 0
+and no edge incarnations (its sums are taken as before).
 Bumping only the consensus kind keeps every other payload, and their golden bytes, unchanged; a
-build that speaks only version 1 counts a version-2 consensus payload as ``wrong_version``.
+build that speaks only older versions counts a newer consensus payload as ``wrong_version``.
 
 The consensus body (Kind.CONSENSUS) follows the header::
 
@@ -22,12 +25,15 @@ The consensus body (Kind.CONSENSUS) follows the header::
     u16 sender         drone index
     u16 degree         the sender's degree for the degree-normalised gain
     u16 ready_hops     the sender's settled level (drone_agent.flight_phase.SwarmSettled;
-                       version 2 only, 0 from version 1)
+                       from version 2, 0 from version 1)
+    u32 incarnation    the sender agent's life: the round of its first step (from version 3)
     3 x f32 position   the sender's position, NED, m (receivers apply the radio range)
-    3 x f32 velocity   the sender's velocity, NED, m/s (version 2 only; for the separation layer)
+    3 x f32 velocity   the sender's velocity, NED, m/s (from version 2; for the separation layer)
     u16 n_heard, u16 n_edges
     n_heard x u16      heard-set, strictly increasing
     n_edges x u16      edge neighbours j, strictly increasing
+    n_edges x u32      per edge neighbour j, the incarnation of j its running sum was made with
+                       (0xFFFFFFFF: not said) (from version 3)
     18 x f64           gamma: the sender's estimate of the 18 channel averages
     n_edges x 18 x f64 running sums Q_sender,j of the sender's increments, one per edge neighbour
                        in the order of the ids above
@@ -63,9 +69,11 @@ from protocols.keys import MAX_DRONE_ID, validate_swarm_id
 
 MAGIC = 0x51
 WIRE_VERSION = 1
-#: Schema version of consensus payloads sent (version 1, without the velocity, still decodes).
-CONSENSUS_VERSION = 2
-CONSENSUS_VERSIONS = (1, 2)
+#: Schema version of consensus payloads sent (versions 1 and 2 still decode).
+CONSENSUS_VERSION = 3
+CONSENSUS_VERSIONS = (1, 2, 3)
+#: An edge incarnation on the wire that says nothing (the message did not give one).
+NO_INCARNATION = 0xFFFF_FFFF
 N_GAMMA = 18
 #: Default largest consensus payload accepted (bytes): about 110 edge sums.
 MAX_CONSENSUS_BYTES = 16 * 1024
@@ -74,7 +82,8 @@ MAX_U32 = 0xFFFF_FFFF
 _HEAD = struct.Struct("<BBBB")
 _FIXED_V1 = struct.Struct("<IHH3fHH")
 _FIXED_V2 = struct.Struct("<IHHH3f3fHH")
-_FIXED = {1: _FIXED_V1, 2: _FIXED_V2}
+_FIXED_V3 = struct.Struct("<IHHHI3f3fHH")
+_FIXED = {1: _FIXED_V1, 2: _FIXED_V2, 3: _FIXED_V3}
 _FLOATS = N_GAMMA * 8  # bytes of one (18,) float64 block
 
 
@@ -236,31 +245,47 @@ def encode_consensus(
     round_ = _uint(message.round, MAX_U32, "round")
     degree = _uint(message.degree, MAX_DRONE_ID, "degree")
     ready = _uint(message.ready_hops, MAX_DRONE_ID, "ready_hops")
+    incarnation = _uint(message.incarnation, MAX_U32 - 1, "incarnation")
     heard = uint_ids(message.heard, "heard id")
     neighbours = uint_ids(message.edge_sums, "edge neighbour")
     floats = [message.gamma, *(message.edge_sums[j] for j in neighbours)]
     ids = heard + neighbours
+    edge_incs = _edge_incarnations(message, neighbours)
     velocity = message.velocity_ned_m_s
     payload = b"".join(
         (
             encode_header(Kind.CONSENSUS, swarm_id, CONSENSUS_VERSION),
-            _FIXED_V2.pack(
+            _FIXED_V3.pack(
                 round_,
                 sender,
                 degree,
                 ready,
+                incarnation,
                 *_vec3_f32(position_ned_m, "position_ned_m"),
                 *_vec3_f32((0.0, 0.0, 0.0) if velocity is None else velocity, "velocity_ned_m_s"),
                 len(heard),
                 len(neighbours),
             ),
             struct.pack(f"<{len(ids)}H", *ids),
+            struct.pack(f"<{len(edge_incs)}I", *edge_incs),
             finite_block(floats, (len(floats), N_GAMMA), "gamma and edge sums"),
         )
     )
     if len(payload) > max_bytes:
         raise ValueError(f"consensus payload of {len(payload)} bytes exceeds {max_bytes}")
     return payload
+
+
+def _edge_incarnations(message: ConsensusMessage, neighbours: list[int]) -> list[int]:
+    """Per edge neighbour, the incarnation its sum was made with (NO_INCARNATION: not said)."""
+    tags = message.edge_incarnations
+    if tags is None:
+        return [NO_INCARNATION] * len(neighbours)
+    out = []
+    for j in neighbours:
+        tag = tags.get(j, -1)
+        out.append(NO_INCARNATION if tag < 0 else _uint(tag, MAX_U32 - 1, "edge incarnation"))
+    return out
 
 
 def _vec3_f32(values: Sequence[float] | FloatArray, what: str) -> tuple[float, float, float]:
@@ -270,8 +295,9 @@ def _vec3_f32(values: Sequence[float] | FloatArray, what: str) -> tuple[float, f
 
 def _fixed(data: bytes, swarm_id: str, max_bytes: int) -> tuple[int, int, tuple[Any, ...]]:
     """The offset after the fixed fields, the version and the fields' values (round, sender,
-    degree, ready_hops (0 from version 1), position (3), velocity (3, version 2 only), n_heard,
-    n_edges), after checking the header and that the position and velocity are finite."""
+    degree, ready_hops (0 from version 1), incarnation (0 before version 3), position (3),
+    velocity (3, from version 2), n_heard, n_edges), after checking the header and that the
+    position and velocity are finite."""
     off, version = open_versioned(data, Kind.CONSENSUS, swarm_id, max_bytes, CONSENSUS_VERSIONS)
     layout = _FIXED[version]
     if len(data) < off + layout.size:
@@ -279,7 +305,9 @@ def _fixed(data: bytes, swarm_id: str, max_bytes: int) -> tuple[int, int, tuple[
     values = layout.unpack_from(data, off)
     if version == 1:
         values = (*values[:3], 0, *values[3:])
-    if not math.isfinite(sum(values[4:-2])):  # float32s: the sum cannot overflow
+    if version < 3:
+        values = (*values[:4], 0, *values[4:])
+    if not math.isfinite(sum(values[5:-2])):  # float32s: the sum cannot overflow
         raise WireError(Reason.NOT_FINITE, "consensus position or velocity is NaN or infinite")
     return off + layout.size, version, values
 
@@ -291,7 +319,7 @@ def consensus_origin(
     without decoding the rest: lets a receiver apply the radio range before paying for a full
     :func:`decode_consensus`. WireError if the header, position or velocity is bad."""
     _, _, values = _fixed(data, swarm_id, max_bytes)
-    return values[1], values[4:7]
+    return values[1], values[5:8]
 
 
 def consensus_head(
@@ -313,22 +341,24 @@ def decode_consensus(
     the packet's, its ``velocity_ned_m_s`` None from a version-1 sender.
     """
     off, version, fields = _fixed(data, swarm_id, max_bytes)
-    round_, sender, degree, ready = fields[:4]
+    round_, sender, degree, ready, incarnation = fields[:5]
     n_heard, n_edges = fields[-2:]
     n_ids = n_heard + n_edges
-    expect_length(data, off + 2 * n_ids + _FLOATS * (1 + n_edges), "consensus")
+    n_tags = n_edges if version >= 3 else 0
+    expect_length(data, off + 2 * n_ids + 4 * n_tags + _FLOATS * (1 + n_edges), "consensus")
     ids = struct.unpack_from(f"<{n_ids}H", data, off)
     heard, neighbours = ids[:n_heard], ids[n_heard:]
-    floats = np.frombuffer(data, "<f8", N_GAMMA * (1 + n_edges), off + 2 * n_ids).reshape(
-        -1, N_GAMMA
-    )
+    tags = struct.unpack_from(f"<{n_tags}I", data, off + 2 * n_ids)
+    floats = np.frombuffer(
+        data, "<f8", N_GAMMA * (1 + n_edges), off + 2 * n_ids + 4 * n_tags
+    ).reshape(-1, N_GAMMA)
     if not np.isfinite(floats).all():
         raise WireError(Reason.NOT_FINITE, "consensus gamma or an edge sum is NaN or infinite")
     check_ids(heard, "heard")
     check_ids(neighbours, "edge neighbour")
     floats = floats.astype(np.float64)  # a native, aligned, writable copy ...
     floats.setflags(write=False)  # ... made read-only
-    motion = np.array(fields[4:-2])  # position (3), then velocity (3) from version 2
+    motion = np.array(fields[5:-2])  # position (3), then velocity (3) from version 2
     motion.setflags(write=False)
     position = motion[:3]
     message = ConsensusMessage(
@@ -341,5 +371,9 @@ def decode_consensus(
         ready_hops=ready,
         position_ned_m=position,
         velocity_ned_m_s=None if version == 1 else motion[3:],
+        incarnation=incarnation,
+        edge_incarnations=None
+        if version < 3
+        else {j: t for j, t in zip(neighbours, tags, strict=True) if t != NO_INCARNATION},
     )
     return ConsensusPacket(message, position)

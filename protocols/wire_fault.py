@@ -10,6 +10,8 @@ Body after the common header (``protocols.wire``), little-endian: ``u8 op`` (Fau
     DELAY         f32 delay_ms (>= 0), u8 has_link (0/1), u16 i, u16 j
     PARTITION     u16 n_groups (0: heal), then per group u16 n, n x u16 ids (strictly
                   increasing; no drone in two groups)
+    RESTART       u16 drone, f32 gap_s (> 0): the process hosting drone's agent kills it and
+                  starts a new one (a new incarnation) gap_s simulated seconds later
 
 ``i``/``j`` are drone indices; with ``has_link`` 0 the command applies to every link and i, j
 are 0. A one-way cut stops i -> j only (what j receives from i).
@@ -51,6 +53,7 @@ class FaultOp(IntEnum):
     LOSS = 3
     DELAY = 4
     PARTITION = 5
+    RESTART = 6
 
 
 @dataclass(frozen=True)
@@ -102,7 +105,15 @@ class Partition:
     groups: tuple[tuple[int, ...], ...] | None
 
 
-FaultCommand = Clear | LinkCut | LinkRestore | Loss | Delay | Partition
+@dataclass(frozen=True)
+class Restart:
+    """Kill drone ``drone``'s agent now and start a new one ``gap_s`` simulated s later."""
+
+    drone: int
+    gap_s: float
+
+
+FaultCommand = Clear | LinkCut | LinkRestore | Loss | Delay | Partition | Restart
 
 _OPS: dict[type, FaultOp] = {
     Clear: FaultOp.CLEAR,
@@ -111,6 +122,7 @@ _OPS: dict[type, FaultOp] = {
     Loss: FaultOp.LOSS,
     Delay: FaultOp.DELAY,
     Partition: FaultOp.PARTITION,
+    Restart: FaultOp.RESTART,
 }
 
 
@@ -124,6 +136,7 @@ _CUT = struct.Struct("<HHBf")
 _LOSS = struct.Struct("<fBHHf")
 _DELAY = struct.Struct("<fBHH")
 _U16 = struct.Struct("<H")
+_RESTART = struct.Struct("<Hf")
 
 
 def _duration(value: float | None) -> float:
@@ -165,6 +178,11 @@ def encode_fault(command: FaultCommand, swarm_id: str) -> bytes:
         if not 0.0 <= command.delay_ms <= MAX_DELAY_MS:
             raise ValueError(f"delay must be 0..{MAX_DELAY_MS:g} ms, got {command.delay_ms!r}")
         return head + bytes([FaultOp.DELAY]) + _DELAY.pack(command.delay_ms, *_link(command.link))
+    if isinstance(command, Restart):
+        if not 0 <= command.drone <= MAX_DRONE_ID:
+            raise ValueError(f"drone must be 0..{MAX_DRONE_ID}, got {command.drone!r}")
+        body = _RESTART.pack(command.drone, _duration(command.gap_s))
+        return head + bytes([FaultOp.RESTART]) + body
     groups = command.groups
     parts = [head, bytes([FaultOp.PARTITION]), _U16.pack(0 if groups is None else len(groups))]
     seen: set[int] = set()
@@ -214,6 +232,13 @@ def decode_fault(data: bytes, swarm_id: str, *, max_bytes: int = MAX_FAULT_BYTES
         return Delay(ms, _check_link(has_link, i, j))
     if op == FaultOp.PARTITION:
         return _decode_partition(data, off)
+    if op == FaultOp.RESTART:
+        expect_length(data, off + _RESTART.size, "fault restart")
+        drone, gap = _RESTART.unpack_from(data, off)
+        gap_s = _check_duration(gap)
+        if gap_s is None:
+            raise WireError(Reason.BAD_VALUE, "fault restart gap 0 s")
+        return Restart(drone, gap_s)
     raise WireError(Reason.BAD_VALUE, f"fault op {op}")
 
 

@@ -244,7 +244,9 @@ def test_agent_statuses_and_membership_come_from_the_logs(tmp_path: Path) -> Non
             events.record(0.0, "agent_joined", drone=i)
         events.record(1.5, "crash", drone=1, severity=0, text="crashed")
         events.record(2.5, "dropout_detected", drone=2)
-        events.record(3.0, "agent_joined", drone=2)  # a lost drone does not come back
+        events.record(3.0, "agent_joined", drone=1)  # a crashed drone does not come back
+        events.record(3.5, "agent_joined", drone=2)  # one whose agent left does (restarted)
+        events.record(4.0, "dropout_detected", drone=2)
     track = read_tlog(tmp_path / "flight.tlog")
     assert track.vehicles[2].status.shape == (50, 12)
     np.testing.assert_allclose(track.vehicles[2].status[0, :9], estimate * 2)
@@ -256,10 +258,12 @@ def test_agent_statuses_and_membership_come_from_the_logs(tmp_path: Path) -> Non
     np.testing.assert_allclose(record.estimate[10, 1], estimate * 2)
     assert (record.neighbours[:, 0] == 2).all()
     assert np.isnan(record.estimate[t >= 3.05, 2]).all()  # silent for more than MAX_AGE_S
-    assert record.lost_at_s == {1: 1.5, 2: 2.5}
+    assert record.lost_at_s == {1: 1.5, 2: 4.0}  # lost by the end: since the last absence
+    assert record.returns == [(2, 2.5, 3.5)]
     assert record.member[:, 0].all()
     assert (record.member[:, 1] == (t < 1.5 - 1e-9)).all()
-    assert (record.member[:, 2] == (t < 2.5 - 1e-9)).all()
+    gap = (t >= 2.5 - 1e-9) & (t < 3.5 - 5e-4)
+    assert (record.member[:, 2] == ((t < 4.0 - 1e-9) & ~gap)).all()
 
 
 def test_membership_ignores_events_without_a_valid_drone() -> None:

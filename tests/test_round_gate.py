@@ -163,3 +163,14 @@ def test_each_link_draws_its_own_seeded_losses_whatever_the_order() -> None:
     assert [b(1, 2).random() for _ in range(5)] == first
     assert a(2, 1).random() != PairRandom(7)(1, 2).random()
     assert np.isclose(PairRandom(8)(1, 2).random(), first[0]) is np.False_
+
+
+def test_a_restarted_agent_waits_for_nobody_at_its_first_tick(swarm: Swarm) -> None:
+    """Markers of earlier rounds flow: the swarm runs, its drones that are gone are not awaited."""
+    swarm.join(0)
+    swarm.join(1)
+    swarm.finish(0, 40)
+    swarm.finish(1, 40)
+    late = RoundGate(2, range(3), swarm.books[2], first_grace_s=60.0)
+    swarm.join(2)
+    assert late.ready(41, 0.0)

@@ -49,12 +49,30 @@ MESSAGE = ConsensusMessage(
     degree=3,
     ready_hops=9,
     velocity_ned_m_s=np.array([0.5, -3.0, 0.125]),
+    incarnation=950,
+    edge_incarnations={5: 40, 1: 0},
 )
 POSITION = (1.5, -2.25, -10.0)
 VELOCITY = (0.5, -3.0, 0.125)
-#: Version 2: the version byte, the settled level (u16) after the degree, and the velocity
-#: (3 x f32) after the position.
+#: Version 3: the sender's incarnation (u32) after the settled level, and one u32 incarnation
+#: per edge neighbour after the ids.
 CONSENSUS_HEX = (
+    "5103010464656d6fe8030000020003000900b60300000000c03f000010c0000020c10000003f0000"
+    "40c00000003e03000200010005000700010005000000000028000000000000000000f0bf00000000"
+    "0000ecbf000000000000e8bf000000000000e4bf000000000000e0bf000000000000d8bf00000000"
+    "0000d0bf000000000000c0bf0000000000000000000000000000c03f000000000000d03f00000000"
+    "0000d83f000000000000e03f000000000000e43f000000000000e83f000000000000ec3f00000000"
+    "0000f03f000000000000f23f0000000000000080000000000000f0bf00000000000000c000000000"
+    "000008c000000000000010c000000000000014c000000000000018c00000000000001cc000000000"
+    "000020c000000000000022c000000000000024c000000000000026c000000000000028c000000000"
+    "00002ac00000000000002cc00000000000002ec000000000000030c000000000000031c000000000"
+    "0000f03f000000000000e03f000000000000d03f000000000000c03f000000000000b03f00000000"
+    "0000a03f000000000000903f000000000000803f000000000000703f000000000000603f00000000"
+    "0000503f000000000000403f000000000000303f000000000000203f000000000000103f00000000"
+    "0000003f000000000000f03e000000000000e03e"
+)
+#: Version 2 (the same message from a sender of an older build: no incarnations).
+CONSENSUS_V2_HEX = (
     "5102010464656d6fe80300000200030009000000c03f000010c0000020c10000003f000040c00000003e"
     "0300020001000500070001000500000000000000f0bf000000000000ecbf000000000000e8bf0000"
     "00000000e4bf000000000000e0bf000000000000d8bf000000000000d0bf000000000000c0bf0000"
@@ -124,10 +142,13 @@ PLAN_HEX = (  # header, seq 7, FLY, 2 knots, knots 0 and 10 s, then 54 coefficie
 
 
 def same_message(a: ConsensusMessage, b: ConsensusMessage) -> bool:
-    """Field by field, floats bit for bit (so -0.0 differs from 0.0)."""
+    """Field by field, floats bit for bit (so -0.0 differs from 0.0); no edge incarnations
+    (None) is the same as none said for any edge ({})."""
+    tags_a = dict(a.edge_incarnations or {})
+    tags_b = dict(b.edge_incarnations or {})
     return (
-        (a.sender, a.round, a.heard, a.degree, a.ready_hops)
-        == (b.sender, b.round, b.heard, b.degree, b.ready_hops)
+        (a.sender, a.round, a.heard, a.degree, a.ready_hops, a.incarnation, tags_a)
+        == (b.sender, b.round, b.heard, b.degree, b.ready_hops, b.incarnation, tags_b)
         and np.asarray(a.gamma, dtype=np.float64).tobytes() == b.gamma.tobytes()
         and sorted(a.edge_sums) == sorted(b.edge_sums)
         and all(
@@ -152,11 +173,35 @@ def test_consensus_golden_bytes() -> None:
     assert not packet.velocity_ned_m_s.flags.writeable
 
 
+def test_version_2_consensus_still_decodes_without_incarnations() -> None:
+    """A sender of an older build (schema 2) is heard: incarnation 0, its sums taken as they are
+    (no edge incarnations)."""
+    data = bytes.fromhex(CONSENSUS_V2_HEX)
+    packet = decode_consensus(data, SID)
+    older = replace(MESSAGE, incarnation=0, edge_incarnations=None)
+    assert same_message(older, packet.message)
+    assert packet.velocity_ned_m_s is not None and packet.velocity_ned_m_s.tolist() == [*VELOCITY]
+    assert consensus_origin(data, SID) == (2, POSITION)
+
+
+def test_edge_incarnations_not_given_go_as_not_said() -> None:
+    """No edge incarnations (or a negative one: not known) are sent as 0xFFFFFFFF and decode
+    as absent."""
+    for tags in (None, {5: -1, 1: -1}):
+        data = encode_consensus(replace(MESSAGE, edge_incarnations=tags), POSITION, SID)
+        assert decode_consensus(data, SID).message.edge_incarnations == {}
+    data = encode_consensus(replace(MESSAGE, edge_incarnations={5: 7}), POSITION, SID)
+    assert decode_consensus(data, SID).message.edge_incarnations == {5: 7}
+    with pytest.raises(ValueError, match="incarnation"):
+        encode_consensus(replace(MESSAGE, incarnation=2**32), POSITION, SID)
+
+
 def test_version_1_consensus_still_decodes_without_a_velocity() -> None:
     """A sender of an older build (schema 1, no velocity) is heard; its velocity is unknown."""
     data = bytes.fromhex(CONSENSUS_V1_HEX)
     packet = decode_consensus(data, SID)
-    assert same_message(replace(MESSAGE, ready_hops=0), packet.message)  # v1: no settled level
+    older = replace(MESSAGE, ready_hops=0, incarnation=0, edge_incarnations=None)
+    assert same_message(older, packet.message)  # v1: no settled level, no incarnations
     assert packet.position_ned_m.tolist() == list(POSITION)
     assert packet.message.position_ned_m is not None
     assert packet.velocity_ned_m_s is None and packet.message.velocity_ned_m_s is None
@@ -171,22 +216,32 @@ def test_consensus_without_a_velocity_is_sent_at_rest() -> None:
 
 def test_consensus_layout_by_hand() -> None:
     """The layout of the module docstring, assembled with struct, is what the encoder writes."""
-    body = (
-        struct.pack("<3H", 1, 5, 7)
-        + struct.pack("<2H", 1, 5)
-        + struct.pack("<18d", *GAMMA)
+    ids = struct.pack("<3H", 1, 5, 7) + struct.pack("<2H", 1, 5)
+    floats = (
+        struct.pack("<18d", *GAMMA)
         + struct.pack("<18d", *-np.arange(18.0))
         + struct.pack("<18d", *2.0 ** -np.arange(18))
     )
+    body = ids + floats
     expected = (
         bytes([0x51, CONSENSUS_VERSION, Kind.CONSENSUS, 4])
+        + b"demo"
+        + struct.pack("<IHHHI3f3fHH", 1000, 2, 3, 9, 950, *POSITION, *VELOCITY, 3, 2)
+        + ids
+        + struct.pack("<2I", 0, 40)  # edge neighbours 1 and 5: their incarnations
+        + floats
+    )
+    assert CONSENSUS_VERSION == 3
+    assert encode_consensus(MESSAGE, POSITION, SID) == expected
+    assert len(expected) == 500  # 488 at version 2, + 4 (incarnation) + 2 x 4 (edges)
+    assert expected.hex() == CONSENSUS_HEX
+    version_2 = (
+        bytes([0x51, 2, Kind.CONSENSUS, 4])
         + b"demo"
         + struct.pack("<IHHH3f3fHH", 1000, 2, 3, 9, *POSITION, *VELOCITY, 3, 2)
         + body
     )
-    assert CONSENSUS_VERSION == 2
-    assert encode_consensus(MESSAGE, POSITION, SID) == expected
-    assert len(expected) == 488
+    assert version_2.hex() == CONSENSUS_V2_HEX
     version_1 = (
         bytes([0x51, 1, Kind.CONSENSUS, 4])
         + b"demo"
@@ -217,7 +272,7 @@ def test_eight_neighbour_message_is_compact_and_decodes_read_only() -> None:
         degree=8,
     )
     data = encode_consensus(msg, (0.0, 0.0, 0.0), SID)
-    assert len(data) == 8 + 38 + 2 * 16 + 8 * 18 * 9  # 1374 bytes
+    assert len(data) == 8 + 42 + 2 * 16 + 4 * 8 + 8 * 18 * 9  # 1410 bytes
     packet = decode_consensus(data, SID)
     assert not packet.message.gamma.flags.writeable
     assert not packet.message.edge_sums[3].flags.writeable
@@ -375,25 +430,30 @@ def raw_consensus(
     n_edges: int | None = None,
     tail: bytes = b"",
 ) -> bytes:
-    """A consensus payload packed by hand, without any validation (version 1: no velocity)."""
+    """A consensus payload packed by hand, without any validation (version 1: no velocity;
+    before version 3: no incarnations)."""
     floats = [0.25] * 18 * (1 + len(edge_ids)) if floats is None else floats
     velocity = () if version == 1 else velocity
     ready = () if version == 1 else (0,)
+    incarnation = (5,) if version >= 3 else ()
+    tags = struct.pack(f"<{len(edge_ids)}I", *range(len(edge_ids))) if version >= 3 else b""
     return (
         bytes([magic, version, kind, len(sid) if sid_len is None else sid_len])
         + sid
         + struct.pack(
-            f"<IHH{len(ready)}H3f{len(velocity)}fHH",
+            f"<IHH{len(ready)}H{len(incarnation)}I3f{len(velocity)}fHH",
             7,
             sender,
             len(heard),
             *ready,
+            *incarnation,
             *position,
             *velocity,
             len(heard) if n_heard is None else n_heard,
             len(edge_ids) if n_edges is None else n_edges,
         )
         + struct.pack(f"<{len(heard) + len(edge_ids)}H", *heard, *edge_ids)
+        + tags
         + struct.pack(f"<{len(floats)}d", *floats)
         + tail
     )
@@ -429,6 +489,8 @@ MALFORMED_CONSENSUS = [
     ("inf - inf", raw_consensus(velocity=(math.inf, -math.inf, 0.0)), Reason.NOT_FINITE),
     ("version 1 one byte short", raw_consensus(version=1)[:-1], Reason.TRUNCATED),
     ("version 1 NaN", raw_consensus(version=1, position=(math.nan, 0, 0)), Reason.NOT_FINITE),
+    ("version 2 one byte short", raw_consensus(version=2)[:-1], Reason.TRUNCATED),
+    ("version 2 with tags", raw_consensus(version=2, tail=bytes(8)), Reason.TRAILING),
     ("duplicate heard id", raw_consensus(heard=(3, 3)), Reason.BAD_VALUE),
     ("unsorted edge ids", raw_consensus(edge_ids=(3, 1)), Reason.BAD_VALUE),
     ("oversized", raw_consensus(tail=bytes(MAX_CONSENSUS_BYTES)), Reason.OVERSIZED),
@@ -444,10 +506,13 @@ def test_malformed_consensus_is_rejected_with_its_reason(data: bytes, reason: Re
     assert str(info.value).startswith(reason.value)
 
 
-@pytest.mark.parametrize("version", [1, 2])
+@pytest.mark.parametrize("version", [1, 2, 3])
 def test_hand_packed_reference_payload_decodes(version: int) -> None:
     packet = decode_consensus(raw_consensus(version=version, velocity=(1.0, 2.0, 3.0)), SID)
     assert packet.message.heard == frozenset({1, 3}) and sorted(packet.message.edge_sums) == [1, 3]
+    assert packet.message.incarnation == (5 if version >= 3 else 0)
+    tags = packet.message.edge_incarnations
+    assert tags == ({1: 0, 3: 1} if version >= 3 else None)
     velocity = packet.velocity_ned_m_s
     assert velocity is None if version == 1 else velocity.tolist() == [1.0, 2.0, 3.0]
 

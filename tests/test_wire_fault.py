@@ -17,6 +17,7 @@ from protocols.wire_fault import (
     LinkRestore,
     Loss,
     Partition,
+    Restart,
     decode_fault,
     encode_fault,
     fault_op,
@@ -54,6 +55,11 @@ GOLDEN: list[tuple[FaultCommand, str, bytes]] = [
         HEAD + bytes([FaultOp.PARTITION]) + struct.pack("<HH3HH2H", 2, 3, 0, 1, 2, 2, 3, 4),
     ),
     (Partition(None), "5101040464656d6f050000", HEAD + bytes([FaultOp.PARTITION, 0, 0])),
+    (
+        Restart(3, 2.5),
+        "5101040464656d6f06030000002040",
+        HEAD + bytes([FaultOp.RESTART]) + struct.pack("<Hf", 3, 2.5),
+    ),
 ]
 
 
@@ -68,7 +74,8 @@ def test_golden_bytes_and_layout(command: FaultCommand, golden: str, by_hand: by
 def test_each_command_has_its_op() -> None:
     ops = [fault_op(command) for command, _, _ in GOLDEN]
     assert [op.name.lower() for op in ops] == [
-        "clear", "link_cut", "link_restore", "loss", "delay", "partition", "partition"
+        "clear", "link_cut", "link_restore", "loss", "delay", "partition", "partition",
+        "restart",
     ]  # fmt: skip
     assert [encode_fault(c, SID)[len(HEAD)] for c, _, _ in GOLDEN] == [int(op) for op in ops]
 
@@ -94,6 +101,9 @@ def test_defaults_round_trip() -> None:
         Partition(()),
         Partition(((0, 1), (1, 2))),
         Partition(((0,), ())),
+        Restart(3, 0.0),
+        Restart(3, math.nan),
+        Restart(-1, 1.0),
     ],
 )
 def test_encoder_refuses_what_cannot_be_sent(command: FaultCommand) -> None:

@@ -3,15 +3,28 @@
 Link faults (``link-cut``, ``loss``, ``delay``, ``partition``, ``clear``) are published once on
 ``swarm/<sid>/fault`` (:mod:`protocols.wire_fault`, BLOCK congestion) from a short-lived Zenoh
 client session; every agent applies them on its receive side and the ground station records them
-in events.jsonl. ``crash --drone I`` asks the ground station (its command queryable) to stop every
+in events.jsonl. ``restart --drone I --gap-s S`` goes the same way: the agent process hosting
+drone I kills that agent at once and starts a new one (a new incarnation) S simulated seconds
+later, in one-process-per-drone and hosted runs alike (:meth:`drone_agent.host.AgentHost.restart`).
+``crash --drone I`` asks the ground station (its command queryable) to stop every
 motor of vehicle I, ``dropout --drone I`` to SIGKILL drone I's agent process and ``gcs-restart``
 to stop itself so that ``swarm up`` starts it again (both need a swarm started by ``swarm up``).
 Exit codes: 0 done, 1 refused by the ground station, 2 usage error or nobody reachable.
+
+The reply, for scripts (``--json``: one JSON object on stdout instead of the line): a drill sent
+to the agents prints ``drill NAME: sent WHAT`` (``{"drill": NAME, "sent": true, "what": WHAT}``
+plus the drill's fields, e.g. ``"drone"`` and ``"gap_s"`` for restart); a ground-station drill
+prints ``drill NAME: accepted|refused: REASON`` (``{"drill": NAME, "accepted": bool, "reason":
+REASON}``). Sent means published once, reliably, to every agent process connected; the outcome is
+in the ground station's events.jsonl: a ``drill`` event, and for restart the drone's
+``dropout_detected`` (its agent's token went) and ``agent_joined`` (the new agent) events.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import time
 
 from drone_agent.agent_cli import RENDEZVOUS_PORT
@@ -26,6 +39,7 @@ from protocols.wire_fault import (
     LinkCut,
     Loss,
     Partition,
+    Restart,
     encode_fault,
 )
 
@@ -47,7 +61,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="drills against a running swarm: link cuts, loss, delay, partitions, crashes",
         description=(
             "Faults against a running swarm. Link faults (link-cut, loss, delay, partition, "
-            "clear) go to every agent over Zenoh and are applied on their receive side; crash "
+            "clear) go to every agent over Zenoh and are applied on their receive side; restart "
+            "kills one drone's agent and starts a new one after a gap (the agent process does it); "
+            "crash "
             "asks the ground station to stop every motor of one vehicle; dropout and gcs-restart "
             "(a swarm started by swarm up) kill one agent's process and restart the ground "
             "station. The ground station records each drill in events.jsonl."
@@ -65,6 +81,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
             help="a Zenoh endpoint of the swarm (default %(default)s)",
         )
         add_secrets_flags(d, "operator")
+        d.add_argument(
+            "--json", action="store_true", help="print the reply as one JSON object (for scripts)"
+        )
         return d
 
     cut = drill("link-cut", "cut the radio link between drones I and J")
@@ -92,6 +111,21 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "swarm up)",
     )
     dropout.add_argument("--drone", type=int, required=True, metavar="I", help="drone index")
+    restart = drill(
+        "restart",
+        "kill one drone's agent and start a new one after a gap (simulated s): it rejoins the "
+        "swarm as a new member and takes its vehicle back (from the air, or from the ground "
+        "after its failsafe landed it); one process per drone or hosted alike",
+    )
+    restart.add_argument("--drone", type=int, required=True, metavar="I", help="drone index")
+    restart.add_argument(
+        "--gap-s",
+        type=float,
+        default=3.0,
+        metavar="S",
+        help="simulated seconds without an agent (default %(default)s; the vehicle's failsafe "
+        "holds after 0.5 s and lands after 1.5 s)",
+    )
     drill(
         "gcs-restart",
         "stop the ground station and have swarm up start it again: it adopts the swarm's "
@@ -130,6 +164,10 @@ def command_of(args: argparse.Namespace) -> FaultCommand:
         if args.heal:
             return Partition(None)
         return Partition(tuple(_ids(g, "--groups") for g in args.groups.split("/")))
+    if name == "restart":
+        if not args.gap_s > 0:
+            raise DrillError(f"--gap-s must be a positive number of seconds, got {args.gap_s:g}")
+        return Restart(args.drone, args.gap_s)
     return Clear()
 
 
@@ -171,7 +209,12 @@ def run(args: argparse.Namespace) -> int:
             )
         except OperatorError as exc:
             raise DrillError(str(exc)) from None
-        print(f"drill {args.drill}: {'accepted' if reply.accepted else 'refused'}: {reply.reason}")
+        if getattr(args, "json", False):
+            out = {"drill": args.drill, "accepted": reply.accepted, "reason": reply.reason}
+            print(json.dumps(out))
+        else:
+            verdict = "accepted" if reply.accepted else "refused"
+            print(f"drill {args.drill}: {verdict}: {reply.reason}")
         return 0 if reply.accepted else 1
     try:
         command = command_of(args)
@@ -184,5 +227,9 @@ def run(args: argparse.Namespace) -> int:
     publish(args.swarm_id, args.zenoh_connect, payload, secrets)
     from drone_agent.fault_drills import describe
 
-    print(f"drill {args.drill}: sent {describe(command)}")
+    if getattr(args, "json", False):
+        fields = dataclasses.asdict(command)
+        print(json.dumps({"drill": args.drill, "sent": True, "what": describe(command), **fields}))
+    else:
+        print(f"drill {args.drill}: sent {describe(command)}")
     return 0

@@ -43,6 +43,8 @@ class FlightRecord:
     - ``airborne`` (T, N): the vehicle is off the ground.
     - ``neighbours`` (T, N): number of neighbours each agent integrates with.
     - ``armed`` (T, N): the vehicle is armed; ``body_rates_rad_s`` (T, N, 3): p, q, r.
+    - ``lost_at_s``: drones lost by the end and when; ``returns``: (drone, left s, back s) for
+      each absence a drone came back from (its agent restarted).
     - ``neighbour_ids``: sample index k -> {drone: the neighbours whose messages its agent
       integrated at k}, only at the samples where they were kept (``swarm simulate``: those of
       its status stride; empty when not kept), for live agents.
@@ -63,6 +65,7 @@ class FlightRecord:
     lost_at_s: dict[int, float] = field(default_factory=dict)
     armed: BoolArray | None = None
     body_rates_rad_s: FloatArray | None = None
+    returns: list[tuple[int, float, float]] = field(default_factory=list)
     neighbour_ids: dict[int, dict[int, tuple[int, ...]]] = field(default_factory=dict)
 
     @property

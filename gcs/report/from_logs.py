@@ -146,6 +146,7 @@ def build_record(
         nbrs[:, i] = np.nan_to_num(status[:, 9]).astype(int)
     events = read_events(events_path) if events_path.exists() else []
     alive, lost_at_s = membership(events, t, n)
+    returns = [g for g in absences(events, n) if g["back_s"] is not None]
     known = ~np.isnan(pos[..., 0])
     pos = np.where(known[..., None], pos, 0.0)
     return FlightRecord(
@@ -162,6 +163,7 @@ def build_record(
         neighbours=nbrs,
         link_faults=_link_faults(scenario, events, float(t[-1])),
         lost_at_s=lost_at_s,
+        returns=[(g["drone"], g["left_s"], g["back_s"]) for g in returns],
     )
 
 
@@ -169,22 +171,72 @@ def membership(
     events: Iterable[Mapping[str, Any]], t_grid: FloatArray, n_drones: int
 ) -> tuple[npt.NDArray[np.bool_], dict[int, float]]:
     """Who is in the swarm on ``t_grid`` (T,) s: (T, N) True from an ``agent_joined`` event until
-    the drone is lost; and when each lost drone was lost (its first ``dropout_detected`` or
-    ``crash``, s). A lost drone does not come back."""
+    the drone is lost; and when each drone lost at the end was lost (the ``dropout_detected`` or
+    ``crash`` that began its last absence, s). A drone whose agent left comes back with a later
+    ``agent_joined`` (a restarted agent: :func:`absences`); a crashed one never does."""
     alive = np.zeros((t_grid.size, n_drones), dtype=bool)
     lost_at_s: dict[int, float] = {}
+    for gap in absences(events, n_drones):
+        i, left, back = gap["drone"], gap["left_s"], gap["back_s"]
+        if back is None:
+            lost_at_s[i] = left
+    for i, spans in _present(events, n_drones).items():
+        for t0, t1 in spans:
+            alive[(t_grid >= t0 - 5e-4) & (t_grid < t1), i] = True
+    return alive, lost_at_s
+
+
+def _present(
+    events: Iterable[Mapping[str, Any]], n_drones: int
+) -> dict[int, list[tuple[float, float]]]:
+    """Per drone, the spans [joined, lost) it was a member (the last one open: inf)."""
+    spans: dict[int, list[tuple[float, float]]] = {}
+    since: dict[int, float] = {}
+    crashed: set[int] = set()
     for event in events:
         i, kind = event.get("drone"), event.get("kind")
         if not isinstance(i, int) or not 0 <= i < n_drones:
             continue
         t = float(event["t_s"])
-        if kind == "agent_joined" and i not in lost_at_s:
-            alive[t_grid >= t - 5e-4, i] = True
+        if kind == "agent_joined" and i not in crashed and i not in since:
+            since[i] = t
         elif kind in ("dropout_detected", "crash"):
-            lost_at_s.setdefault(i, t)
-    for i, t_lost in lost_at_s.items():
-        alive[t_grid >= t_lost, i] = False
-    return alive, lost_at_s
+            if kind == "crash":
+                crashed.add(i)
+            if i in since:
+                spans.setdefault(i, []).append((since.pop(i), t))
+            else:  # lost before it was seen to join (a report from the files of a later start)
+                spans.setdefault(i, [])
+    for i, t0 in since.items():
+        spans.setdefault(i, []).append((t0, np.inf))
+    return spans
+
+
+def absences(events: Iterable[Mapping[str, Any]], n_drones: int) -> list[dict[str, Any]]:
+    """Each time a drone left the swarm, in time order: ``{"drone", "left_s", "back_s",
+    "gap_s", "reason"}`` with ``back_s``/``gap_s`` None when it did not come back (a crash never
+    does; an agent that left comes back when a new agent of that drone joins: the restart drill,
+    or ``swarm agent`` started again). ``reason``: the event that began it (``dropout_detected``
+    or ``crash``)."""
+    out: list[dict[str, Any]] = []
+    open_gap: dict[int, dict[str, Any]] = {}
+    crashed: set[int] = set()
+    for event in events:
+        i, kind = event.get("drone"), event.get("kind")
+        if not isinstance(i, int) or not 0 <= i < n_drones:
+            continue
+        t = float(event["t_s"])
+        if kind in ("dropout_detected", "crash"):
+            if kind == "crash":
+                crashed.add(i)
+            if i not in open_gap:
+                gap = {"drone": i, "left_s": t, "back_s": None, "gap_s": None, "reason": kind}
+                open_gap[i] = gap
+                out.append(gap)
+        elif kind == "agent_joined" and i in open_gap and i not in crashed:
+            gap = open_gap.pop(i)
+            gap["back_s"], gap["gap_s"] = t, t - gap["left_s"]
+    return out
 
 
 def _link_faults(
@@ -213,6 +265,8 @@ def write_report(
         metrics: dict[str, Any] = {"n_samples": 0, "note": "no telemetry received", **extra}
     else:
         faults = [(t, f"drone {i} lost") for i, t in sorted(record.lost_at_s.items())]
+        for i, left_s, back_s in record.returns:
+            faults += [(left_s, f"drone {i} left"), (back_s, f"drone {i} back")]
         metrics = compute_metrics(
             record, settle_s=settle_s, faults=faults, max_thrust_n=max_thrust_n, extra=extra
         )

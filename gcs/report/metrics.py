@@ -27,6 +27,8 @@ three angle rows wrapped to [−π, π); "RMS" is sqrt(mean(e²)), "max" is max 
 - **separation**: the minimum distance between two airborne drones (lost drones included while
   airborne) with its time and pair. **collisions**: episodes in which an airborne pair is closer
   than ``collision_distance_m``, counted once per pair per contact (entering contact).
+- **rejoins**: per absence a drone came back from (its agent restarted), ``{"index", "sysid",
+  "left_s", "back_s", "gap_s"}``; the drone is not a member in between.
 - **drones_lost** (index, system id, time), **max_tilt_deg** (angle of the body z axis from the
   vertical, airborne samples), **max_thrust_ratio** (thrust / ``max_thrust_n``, all samples; None
   without ``max_thrust_n``), ``n_samples``, ``duration_s``.
@@ -355,6 +357,10 @@ def compute_metrics(
         "drones_lost": [
             {"index": i, "sysid": i + 1, "t_s": float(ts)}
             for i, ts in sorted(record.lost_at_s.items(), key=lambda kv: kv[1])
+        ],
+        "rejoins": [
+            {"index": i, "sysid": i + 1, "left_s": left, "back_s": back, "gap_s": back - left}
+            for i, left, back in record.returns
         ],
         "max_tilt_deg": _max_over(tilt, record.airborne, t),
         "max_thrust_ratio": thrust,

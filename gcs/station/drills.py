@@ -26,7 +26,7 @@ from gcs.station.commands import Reply
 from gcs.station.telemetry import TelemetryReceiver
 from protocols.keys import SwarmKeys
 from protocols.wire import WireError
-from protocols.wire_fault import LinkCut, LinkRestore, decode_fault, fault_op
+from protocols.wire_fault import LinkCut, LinkRestore, Restart, decode_fault, fault_op
 
 MAV_CMD_INJECT_FAILURE = 420
 FAILURE_UNIT_SYSTEM_MOTOR = 101
@@ -77,6 +77,8 @@ class GcsDrills:
                 link = {"link": [command.i, command.j]}
             if isinstance(command, LinkCut):
                 link |= {"one_way": command.one_way, "duration_s": command.duration_s}
+            if isinstance(command, Restart):  # the drone's dropout and return follow
+                link = {"drone": command.drone, "gap_s": command.gap_s}
             self._events.record(
                 now_s,
                 "drill",
