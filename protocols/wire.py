@@ -318,8 +318,8 @@ def consensus_origin(
     """The sender and its position (NED, m) from a consensus payload's header and fixed fields,
     without decoding the rest: lets a receiver apply the radio range before paying for a full
     :func:`decode_consensus`. WireError if the header, position or velocity is bad."""
-    _, _, values = _fixed(data, swarm_id, max_bytes)
-    return values[1], values[5:8]
+    sender, _, origin = consensus_head(data, swarm_id, max_bytes=max_bytes)
+    return sender, origin
 
 
 def consensus_head(
@@ -329,7 +329,7 @@ def consensus_head(
     (the round too: a receiver applies the radio range between the two drones' positions of the
     same round)."""
     _, _, values = _fixed(data, swarm_id, max_bytes)
-    return values[1], values[0], values[4:7]
+    return values[1], values[0], values[5:8]
 
 
 def decode_consensus(
