@@ -1,7 +1,8 @@
 """Run the registered benchmarks and write one JSON object: ``python -m bench.run --out FILE``.
 
 To add a benchmark, put a callable returning a JSON-able dict into ``BENCHMARKS``. A result with a
-``"rows"`` list of flat dicts is also printed as a table.
+``"rows"`` list of flat dicts is also printed as a table. Those in ``ON_REQUEST`` run only when
+named with ``--only`` (measured once, their JSON kept in bench/).
 """
 
 from __future__ import annotations
@@ -22,7 +23,10 @@ from bench.agent_batch import agent_batch
 from bench.end_to_end import end_to_end
 from bench.physics import physics_step
 from bench.physics_tick import physics_tick
+from bench.settling import settling
+from bench.simulate_rtf import simulate_rtf
 from bench.sitl import sitl_rtf
+from bench.up_lockstep import up_lockstep
 from bench.zenoh_latency import zenoh_latency
 from bench.zenoh_router import zenoh_router
 
@@ -32,11 +36,16 @@ BENCHMARKS: dict[str, Benchmark] = {
     "physics_step": physics_step,
     "physics_tick": physics_tick,
     "agent_batch": agent_batch,
+    "simulate_rtf": simulate_rtf,
+    "settling": settling,
     "zenoh_latency": zenoh_latency,
     "zenoh_router": zenoh_router,
     "sitl": sitl_rtf,
     "end_to_end": end_to_end,
+    "up_lockstep": up_lockstep,
 }
+#: Run only with ``--only NAME``: ``swarm up --clock lockstep`` at N = 9 and 100 (about 10 min).
+ON_REQUEST = {"up_lockstep"}
 
 
 def machine_info() -> dict[str, Any]:
@@ -75,7 +84,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--only", action="append", choices=sorted(BENCHMARKS), default=None)
     args = parser.parse_args(argv)
     results: dict[str, Any] = {}
-    for name in args.only or BENCHMARKS:
+    for name in args.only or [b for b in BENCHMARKS if b not in ON_REQUEST]:
         result = BENCHMARKS[name]()
         results[name] = result
         if result.get("rows"):

@@ -1,10 +1,13 @@
 """How long the consensus estimates take to agree, against swarm size and radio range.
 
-``python -m bench.settling [--sizes 9,25,49,100,250] [--ranges 6,10] [--out FILE]``
+``python -m bench.settling [--sizes 9,25,49,100,250] [--ranges 6,10] [--out FILE]`` (in ``make
+bench`` as ``settling``, which writes ``bench/results_settling.json``; a few minutes).
 
 Drones stand on the ground in a square grid (2.5 m apart, the large-swarm scenarios' layout) and
-run the real :class:`~drone_agent.consensus.ConsensusEstimator` with the one-tick message delay of
-the in-process radio. Measured, in simulated seconds from power-on:
+run the real estimator (all of them as the rows of one
+:class:`~drone_agent.consensus_batch.BatchConsensus`, each row exactly one
+:class:`~drone_agent.consensus.ConsensusEstimator`: tests/test_batch_core.py) with the one-tick
+message delay of the in-process radio. Measured, in simulated seconds from power-on:
 
 - ``settle_s``: every agent's estimate of the swarm centre and covariance is within 2 % of the
   truth (centre error and largest covariance-entry error, each divided by the swarm's size
@@ -26,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -33,8 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from drone_agent.consensus import ConsensusEstimator, ConsensusParams
-from drone_agent.moments import channels_batch, moments_from_averages
+from drone_agent.consensus import ConsensusParams
+from drone_agent.consensus_batch import BatchConsensus
+from drone_agent.moments import channels_batch, moments_from_averages, moments_from_averages_batch
 from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
 
@@ -63,13 +68,11 @@ def _errors(estimates: FloatArray, truth: FloatArray, ref: FloatArray) -> float:
     zero = np.zeros(3)
     true_m = moments_from_averages(truth, ref, zero)
     size = float(np.trace(true_m.sigma_m2))
-    worst = 0.0
-    for gamma in estimates:
-        m = moments_from_averages(gamma, ref, zero)
-        centre = float(np.abs(m.centre_ned_m - true_m.centre_ned_m).max()) / math.sqrt(size)
-        shape = float(np.abs(m.sigma_m2 - true_m.sigma_m2).max()) / size
-        worst = max(worst, centre, shape)
-    return worst
+    k = estimates.shape[0]
+    m = moments_from_averages_batch(estimates, np.tile(ref, (k, 1)), np.zeros((k, 3)))
+    centre = np.abs(m.centre_ned_m - true_m.centre_ned_m).max() / math.sqrt(size)
+    shape = np.abs(m.sigma_m2 - true_m.sigma_m2).max() / size
+    return float(max(centre, shape, 0.0))
 
 
 def settle(
@@ -86,8 +89,9 @@ def settle(
     pair_degree = np.maximum(degree[:, None], degree[None, :])
     weights = adjacency * np.minimum(params.rho, params.rho_cap / np.maximum(pair_degree, 1))
     capped_lam_max = laplacian_spectrum(weights)[1]
-    agents = {i: ConsensusEstimator(i, params) for i in range(n)}
-    neighbours = {i: np.flatnonzero(adjacency[i]) for i in range(n)}
+    core = BatchConsensus(range(n), params)
+    agents = set(range(n))
+    neighbours = {i: np.flatnonzero(adjacency[i]).tolist() for i in range(n)}
     outbox: dict[int, ConsensusMessage] = {}
     calm = dict.fromkeys(range(n), 0)
     dt = params.dt_s
@@ -100,20 +104,17 @@ def settle(
     for k in range(ticks):
         if drop_at is not None and k == drop_at:
             dropped = int(np.argmin(np.linalg.norm(pos - pos.mean(axis=0), axis=1)))
-            agents.pop(dropped)
+            agents.discard(dropped)
             members = frozenset(agents)
-        estimates = []
-        new_outbox: dict[int, ConsensusMessage] = {}
-        for i, est in agents.items():
-            inbox = [outbox[j] for j in neighbours[i] if j in outbox and j in members]
-            out = est.step(k, zeta[i], inbox, members)
-            new_outbox[i] = out.message
-            estimates.append(out.estimate)
-            calm[i] = calm[i] + 1 if out.disagreement < TOLERANCE and k > 0 else 0
-        outbox = new_outbox
         live = sorted(agents)
+        inboxes = [[outbox[j] for j in neighbours[i] if j in outbox and j in members] for i in live]
+        gamma, outs = core.step(live, k, zeta[live], inboxes, [members] * len(live))
+        outbox = {i: out.message for i, out in zip(live, outs, strict=True)}
+        for i, out in zip(live, outs, strict=True):
+            calm[i] = calm[i] + 1 if out.disagreement < TOLERANCE and k > 0 else 0
+        estimates = gamma
         truth = zeta[live].mean(axis=0)
-        err = _errors(np.array(estimates), truth, ref)
+        err = _errors(estimates, truth, ref)
         t = k * dt
         if drop_at is None:
             settled_now = err <= TOLERANCE
@@ -152,6 +153,28 @@ def settle(
     }
 
 
+SIZES = (9, 25, 49, 100, 250)
+RANGES = (6.0, 10.0)
+OUT_JSON = Path(__file__).resolve().parent / "results_settling.json"
+
+
+def settling(sizes: tuple[int, ...] = SIZES, ranges: tuple[float, ...] = RANGES) -> dict[str, Any]:
+    """The registered benchmark (``make bench``): the scenario library's consensus (default
+    parameters: rho 2, c 1, the step cap and channel scale) on every size and range; also
+    written to ``bench/results_settling.json``."""
+    params = ConsensusParams()
+    rows = []
+    for r in ranges:
+        for n in sizes:
+            row = settle(n, r, params)
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    result = {"command": "python -m bench.settling --out bench/results_settling.json",
+              "rows": rows}  # fmt: skip
+    OUT_JSON.write_text(json.dumps(result, indent=1) + "\n")
+    return result
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default="9,25,49,100,250")
@@ -177,7 +200,8 @@ def main(argv: list[str] | None = None) -> None:
             rows.append(row)
             print(json.dumps(row), flush=True)
     if args.out is not None:
-        args.out.write_text(json.dumps({"rows": rows}, indent=1) + "\n")
+        command = "python -m bench.settling " + " ".join(argv if argv is not None else sys.argv[1:])
+        args.out.write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
 
 
 if __name__ == "__main__":

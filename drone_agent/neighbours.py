@@ -1,23 +1,27 @@
 """Where an agent's radio neighbours are, from the consensus messages it heard. Pure.
 
 Every consensus message carries its sender's position and velocity (NED; wire schema 2, see
-protocols/wire.py). An agent keeps the newest message of each sender (:func:`latest_by_sender`)
-and, each tick, turns those heard recently into the neighbour arrays the separation layer takes
-(drone_agent/separation.py): :func:`neighbours_from_inbox` for one agent,
-:func:`neighbour_arrays` for K agents at once.
+protocols/wire.py). One rule, one implementation (:class:`NeighbourTable`, arrays over K agents
+and every sender id, as the separation layer of drone_agent/separation_layer.py uses it;
+:func:`neighbours_from_inbox` is its one-agent, one-inbox case):
 
-Staleness: a message ``age`` rounds old (``round_now - message.round``) is used only while
-``age <= max_age_rounds`` (the consensus heard-set timeout, 5 ticks, by default): a neighbour not
-heard for longer is as good as gone to the estimator too. Its position is extrapolated to now at
-its sent velocity, ``p + v age dt``: with the normal one-tick delay a drone at 3 m/s is 6 cm
-further on, after five lost ticks 30 cm, errors the separation margin should not have to absorb.
-Velocities are held (no acceleration is sent). A sender of wire schema 1 sends no velocity: it is
-taken at rest, not extrapolated, and flagged (``velocity_known`` False).
+- *Filing*: per (agent, sender) the newest message with a position is kept (the first copy of
+  its highest round; a message without a position says nothing of where its sender is and is
+  not filed). A message from a later round than the agent's (a neighbour ahead of it) waits and
+  is filed when the agent reaches that round, so it never hides the sender's older message.
+- *Staleness*: a message ``age`` rounds old (``round_now - message.round``) is used only while
+  ``age <= max_age_rounds`` (the consensus heard-set timeout, 5 ticks, by default): a neighbour
+  not heard for longer is as good as gone to the estimator too. Never oneself.
+- *Extrapolation*: its position is extrapolated to now at its sent velocity, ``p + v (age dt)``:
+  with the normal one-tick delay a drone at 3 m/s is 6 cm further on, after five lost ticks
+  30 cm, errors the separation margin should not have to absorb. Velocities are held (no
+  acceleration is sent). A sender of wire schema 1 sends no velocity: it is taken at rest, not
+  extrapolated, and flagged (``velocity_known`` False).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,9 +29,13 @@ import numpy.typing as npt
 
 from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
+from protocols.mavlink_conventions import MAX_VEHICLES
 
 BoolArray = npt.NDArray[np.bool_]
 IntArray = npt.NDArray[np.intp]
+
+#: Round of a slot never filed (no real round is this old).
+_NEVER = -(2**62)
 
 
 @dataclass(frozen=True)
@@ -47,17 +55,176 @@ class Neighbours:
         return len(self.ids)
 
 
-def latest_by_sender(
-    store: Mapping[int, ConsensusMessage], inbox: Iterable[ConsensusMessage]
-) -> dict[int, ConsensusMessage]:
-    """``store`` (sender -> newest message) updated with ``inbox``: a new dict, each sender's
-    message with the largest round kept (the first of equal rounds)."""
-    out = dict(store)
-    for msg in inbox:
-        old = out.get(msg.sender)
-        if old is None or msg.round > old.round:
-            out[msg.sender] = msg
-    return out
+@dataclass(frozen=True)
+class HeardPairs:
+    """The (agent, neighbour) pairs of one query, flat, ordered by (agent, neighbour id):
+    ``owner`` (P,) the agent's position in the query, ``ids`` (P,) the neighbour's id,
+    ``position_ned_m`` (P, 3) extrapolated to the round, ``velocity_ned_m_s`` (P, 3),
+    ``age_rounds`` (P,), ``velocity_known`` (P,); ``counts`` (K,) pairs per agent."""
+
+    owner: IntArray
+    ids: IntArray
+    position_ned_m: FloatArray
+    velocity_ned_m_s: FloatArray
+    age_rounds: IntArray
+    velocity_known: BoolArray
+    counts: IntArray
+
+    def padded(
+        self, agents: IntArray | None = None
+    ) -> tuple[FloatArray, FloatArray, BoolArray, IntArray]:
+        """Those of ``agents`` (positions in the query, ascending; default all) as padded arrays
+        for ``separation.filter_accelerations``: positions (K', M, 3), velocities (K', M, 3),
+        mask (K', M), ids (K', M) (-1 in the padding); M = the largest count (at least 1)."""
+        counts = self.counts if agents is None else self.counts[agents]
+        k = counts.shape[0]
+        m = max(int(counts.max(initial=0)), 1)
+        pos, vel = np.zeros((k, m, 3)), np.zeros((k, m, 3))
+        mask = np.zeros((k, m), dtype=bool)
+        ids = np.full((k, m), -1, dtype=np.intp)
+        if agents is None:
+            pick = np.arange(self.owner.shape[0])
+            row = self.owner
+        else:
+            keep = np.zeros(self.counts.shape[0], dtype=np.intp) - 1
+            keep[agents] = np.arange(k)
+            row = keep[self.owner]
+            pick = np.flatnonzero(row >= 0)
+            row = row[pick]
+        if pick.shape[0]:
+            starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
+            col = np.arange(pick.shape[0]) - starts[row]
+            pos[row, col] = self.position_ned_m[pick]
+            vel[row, col] = self.velocity_ned_m_s[pick]
+            mask[row, col] = True
+            ids[row, col] = self.ids[pick]
+        return pos, vel, mask, ids
+
+
+class NeighbourTable:
+    """What agents heard of their neighbours: per (agent, sender id) the position, velocity and
+    round of the newest message (module docstring), as arrays over the agents' rows and every
+    sender id below ``MAX_VEHICLES``. ``dt_s``: the round period (s)."""
+
+    def __init__(self, dt_s: float, max_age_rounds: int = 5) -> None:
+        self.dt_s = dt_s
+        self.max_age_rounds = max_age_rounds
+        self._rows: dict[int, int] = {}  # agent id -> row of the arrays below
+        self._agent_ids = np.zeros(0, dtype=np.intp)
+        self._pos = np.zeros((0, MAX_VEHICLES, 3))
+        self._vel = np.zeros((0, MAX_VEHICLES, 3))
+        self._known = np.zeros((0, MAX_VEHICLES), dtype=bool)
+        self._round = np.zeros((0, MAX_VEHICLES), dtype=np.int64)
+        self._later: list[list[ConsensusMessage]] = []  # per row: from rounds not yet reached
+
+    def rows_of(self, agents: Sequence[int]) -> list[int]:
+        """The rows of agents ``agents`` (new agents get new rows)."""
+        rows = []
+        for agent in agents:
+            row = self._rows.get(agent)
+            if row is None:
+                row = self._rows[agent] = len(self._rows)
+                grow = (1, MAX_VEHICLES)
+                self._agent_ids = np.append(self._agent_ids, agent)
+                self._pos = np.concatenate([self._pos, np.zeros((*grow, 3))])
+                self._vel = np.concatenate([self._vel, np.zeros((*grow, 3))])
+                self._known = np.concatenate([self._known, np.zeros(grow, dtype=bool)])
+                self._round = np.concatenate([self._round, np.full(grow, _NEVER, np.int64)])
+                self._later.append([])
+            rows.append(row)
+        return rows
+
+    def hear(
+        self, agents: Sequence[int], round_now: int, inboxes: Sequence[Iterable[ConsensusMessage]]
+    ) -> None:
+        """File what agents ``agents`` (distinct) heard up to round ``round_now``:
+        ``inboxes[k]`` the messages agent ``agents[k]`` received since its last call."""
+        rows = self.rows_of(agents)
+        msgs: list[ConsensusMessage] = []
+        owner: list[int] = []
+        for row, inbox in zip(rows, inboxes, strict=True):
+            n = len(msgs)
+            later = self._later[row]
+            if later:
+                msgs += later
+                self._later[row] = []
+            msgs += inbox
+            owner += [row] * (len(msgs) - n)
+        if not msgs:
+            return
+        # each distinct message object once (one message reaches many agents in process)
+        ids = np.fromiter(map(id, msgs), np.int64, len(msgs))
+        order = np.argsort(ids, kind="stable")
+        first = np.empty(len(msgs), dtype=bool)
+        first[0] = True
+        first[1:] = ids[order[1:]] != ids[order[:-1]]
+        which = np.empty(len(msgs), dtype=np.intp)
+        which[order] = np.cumsum(first) - 1
+        distinct = [msgs[k] for k in order[first].tolist()]
+        sender = np.array([m.sender for m in distinct], dtype=np.int64)
+        rounds = np.array([m.round for m in distinct], dtype=np.int64)
+        good = np.array(
+            [m.position_ned_m is not None and 0 <= m.sender < MAX_VEHICLES for m in distinct],
+            dtype=bool,
+        )
+        r = np.array(owner, dtype=np.intp)
+        j, q = sender[which], rounds[which]
+        ok = good[which]
+        ok &= j != self._agent_ids[r]
+        future = q > round_now
+        if future.any():
+            for k in np.flatnonzero(ok & future).tolist():
+                self._later[int(r[k])].append(msgs[k])
+            ok &= ~future
+        if not ok.all():
+            sel = np.flatnonzero(ok)
+            if sel.shape[0] == 0:
+                return
+            r, j, q, which = r[sel], j[sel], q[sel], which[sel]
+        key = r * MAX_VEHICLES + j
+        if not (key[1:] > key[:-1]).all():  # not one message per (row, sender) in order
+            # the first copy of the highest round per (row, sender): by key, round down, arrival
+            by = np.lexsort((np.arange(key.shape[0]), -q, key))
+            key, q, r, j, which = key[by], q[by], r[by], j[by], which[by]
+            head = np.empty(key.shape[0], dtype=bool)
+            head[0] = True
+            head[1:] = key[1:] != key[:-1]
+            r, j, q, which = r[head], j[head], q[head], which[head]
+        newer = q > self._round[r, j]
+        if not newer.all():
+            r, j, q, which = r[newer], j[newer], q[newer], which[newer]
+            if r.shape[0] == 0:
+                return
+        nowhere = np.zeros(3)
+        pos = np.array([nowhere if m.position_ned_m is None else m.position_ned_m
+                        for m in distinct], dtype=float)  # fmt: skip
+        vel = np.array([nowhere if m.velocity_ned_m_s is None else m.velocity_ned_m_s
+                        for m in distinct], dtype=float)  # fmt: skip
+        known = np.array([m.velocity_ned_m_s is not None for m in distinct], dtype=bool)
+        self._round[r, j] = q
+        self._pos[r, j] = pos[which]
+        self._vel[r, j] = vel[which]
+        self._known[r, j] = known[which]
+
+    def query(self, agents: Sequence[int], round_now: int) -> HeardPairs:
+        """The neighbours of agents ``agents`` at round ``round_now`` (module docstring), flat."""
+        rows = np.asarray(self.rows_of(agents), dtype=np.intp)
+        age = round_now - self._round[rows]  # (K, MAX_VEHICLES)
+        heard = (age >= 0) & (age <= self.max_age_rounds)
+        owner, ids = np.nonzero(heard)  # ordered by (agent, id); never oneself (not filed)
+        row = rows[owner]
+        age_p = age[owner, ids]
+        vel = self._vel[row, ids]
+        pos = self._pos[row, ids] + vel * (age_p * self.dt_s)[:, None]
+        return HeardPairs(
+            owner=owner,
+            ids=ids,
+            position_ned_m=pos,
+            velocity_ned_m_s=vel,
+            age_rounds=age_p,
+            velocity_known=self._known[row, ids],
+            counts=np.bincount(owner, minlength=rows.shape[0]),
+        )
 
 
 def neighbours_from_inbox(
@@ -68,37 +235,19 @@ def neighbours_from_inbox(
     max_age_rounds: int = 5,
     extrapolate: bool = True,
 ) -> Neighbours:
-    """The neighbours of agent ``own`` at round ``round_now`` from ``messages`` (any number per
-    sender, the newest used): senders other than ``own`` whose newest message has a position,
-    is not from the future and at most ``max_age_rounds`` old; positions extrapolated by
-    velocity x age x ``dt_s`` (the round period, s) unless ``extrapolate`` is False."""
-    newest = latest_by_sender({}, (m for m in messages if m.round <= round_now))
-    ids: list[int] = []
-    pos: list[FloatArray] = []
-    vel: list[FloatArray] = []
-    ages: list[int] = []
-    known: list[bool] = []
-    for j in sorted(newest):
-        msg = newest[j]
-        age = round_now - msg.round
-        if j == own or msg.position_ned_m is None or age > max_age_rounds:
-            continue
-        v = msg.velocity_ned_m_s
-        velocity = np.zeros(3) if v is None else np.asarray(v, dtype=float).reshape(3)
-        position = np.asarray(msg.position_ned_m, dtype=float).reshape(3)
-        if extrapolate:
-            position = position + velocity * (age * dt_s)
-        ids.append(j)
-        pos.append(position)
-        vel.append(velocity)
-        ages.append(age)
-        known.append(v is not None)
+    """The neighbours of agent ``own`` at round ``round_now`` from ``messages`` alone (any number
+    per sender; the rule of :class:`NeighbourTable`, of which this is a fresh one-agent table);
+    positions extrapolated by velocity x age x ``dt_s`` (the round period, s) unless
+    ``extrapolate`` is False."""
+    table = NeighbourTable(dt_s if extrapolate else 0.0, max_age_rounds)
+    table.hear([own], round_now, [list(messages)])
+    pairs = table.query([own], round_now)
     return Neighbours(
-        ids=tuple(ids),
-        position_ned_m=np.reshape(pos, (-1, 3)).astype(float),
-        velocity_ned_m_s=np.reshape(vel, (-1, 3)).astype(float),
-        age_rounds=np.array(ages, dtype=np.intp),
-        velocity_known=np.array(known, dtype=bool),
+        ids=tuple(pairs.ids.tolist()),
+        position_ned_m=pairs.position_ned_m,
+        velocity_ned_m_s=pairs.velocity_ned_m_s,
+        age_rounds=pairs.age_rounds.astype(np.intp),
+        velocity_known=pairs.velocity_known,
     )
 
 
@@ -108,13 +257,16 @@ def neighbour_arrays(
     """K agents' neighbours as padded arrays for ``separation.filter_accelerations``: positions
     (K, M, 3), velocities (K, M, 3), mask (K, M), ids (K, M) (-1 in the padding);
     M = the largest count (at least 1)."""
-    k = len(per_agent)
-    m = max([len(nb) for nb in per_agent] + [1])
-    pos, vel = np.zeros((k, m, 3)), np.zeros((k, m, 3))
-    mask = np.zeros((k, m), dtype=bool)
-    ids = np.full((k, m), -1, dtype=np.intp)
-    for i, nb in enumerate(per_agent):
-        n = len(nb)
-        pos[i, :n], vel[i, :n] = nb.position_ned_m, nb.velocity_ned_m_s
-        mask[i, :n], ids[i, :n] = True, nb.ids
-    return pos, vel, mask, ids
+    counts = np.array([len(nb) for nb in per_agent], dtype=np.intp)
+    pairs = HeardPairs(
+        owner=np.repeat(np.arange(len(per_agent)), counts),
+        ids=np.array([j for nb in per_agent for j in nb.ids], dtype=np.intp),
+        position_ned_m=np.concatenate([np.zeros((0, 3))] + [nb.position_ned_m for nb in per_agent]),
+        velocity_ned_m_s=np.concatenate(
+            [np.zeros((0, 3))] + [nb.velocity_ned_m_s for nb in per_agent]
+        ),
+        age_rounds=np.zeros(int(counts.sum()), dtype=np.intp),
+        velocity_known=np.ones(int(counts.sum()), dtype=bool),
+        counts=counts,
+    )
+    return pairs.padded()

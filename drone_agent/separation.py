@@ -72,6 +72,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 import numpy.typing as npt
@@ -266,8 +267,84 @@ def _pair_rows(
     return n, np.minimum(share * c_pair, p.brake_m_s2), rho
 
 
+def _barrier_bound(
+    s: FloatArray, speed: FloatArray, a_brake: float, p: SeparationParams
+) -> FloatArray:
+    """An upper bound of :func:`_barrier` ``(s, ṡ, a_brake)`` over every rate ``|ṡ| <= speed``,
+    for ``s > 0`` (+inf elsewhere): ``α`` is increasing, so ``-α(h) <= -α(sqrt(2 A s) - speed)``,
+    and ``-A ṡ <= A speed``."""
+    h = np.sqrt(2.0 * a_brake * np.maximum(s, 0.0)) - speed
+    alpha = p.gamma_1_s * h * (1.0 + (h / p.h_scale_m_s) ** 2)
+    bound = a_brake * speed / np.sqrt(2.0 * a_brake * np.maximum(s, _S_EPS_M)) - alpha
+    return np.where(s > 0.0, bound, np.inf)
+
+
+#: Room (relative, of 1 + the magnitudes compared) the pre-check leaves for rounding.
+_PRECHECK_SLACK = 1e-9
+
+
+def nobody_near(
+    own_pos_ned_m: FloatArray,
+    own_vel_ned_m_s: FloatArray,
+    accel_ned_m_s2: FloatArray,
+    nb_owner: IntArray,
+    nb_pos_ned_m: FloatArray,
+    nb_vel_ned_m_s: FloatArray,
+    params: SeparationParams,
+    common_accel_ned_m_s2: FloatArray | None = None,
+) -> tuple[BoolArray, FloatArray]:
+    """The cheap exact pre-check of :func:`filter_accelerations` (default ``nb_share`` and
+    ``floor_on``): per agent (K,), True where the filter provably returns the command unchanged
+    and not ``active``, and the distance to the nearest neighbour (K,) (inf if none).
+
+    Neighbours flat: ``nb_owner`` (P,) the agent of each, ``nb_pos_ned_m``, ``nb_vel_ned_m_s``
+    (P, 3). Each barrier is bounded over the direction it acts in, which needs no pairing and no
+    QP: a pair holds for every command if ``share c(ρ, |w|) + |u_i - a| < 0`` (``c`` bounded by
+    :func:`_barrier_bound` with the relative speed ``|w|``, the tangential term dropped, ``a`` the
+    common acceleration), a wall if ``c(s, |v_i|) + |u_i| < 0``, with room for rounding. False
+    means only "not sure": the filter decides. Far from everyone (a formation 2 m apart at rest
+    needs 11 m/s² of command towards a neighbour to be unsure) it is True."""
+    own_pos = np.asarray(own_pos_ned_m, dtype=float).reshape(-1, 3)
+    own_vel = np.asarray(own_vel_ned_m_s, dtype=float).reshape(-1, 3)
+    u0 = np.asarray(accel_ned_m_s2, dtype=float).reshape(-1, 3)
+    k = own_pos.shape[0]
+    rel = u0 if common_accel_ned_m_s2 is None else u0 - common_accel_ned_m_s2
+    u_rel = np.sqrt(np.einsum("ki,ki->k", rel, rel))
+    u_abs = np.sqrt(np.einsum("ki,ki->k", u0, u0))
+    sure = np.ones(k, dtype=bool)
+    closest = np.full(k, np.inf)
+    owner = np.asarray(nb_owner, dtype=np.intp)
+    if owner.shape[0]:
+        d = own_pos[owner] - nb_pos_ned_m
+        rho = np.sqrt(np.einsum("pi,pi->p", d, d))
+        w = own_vel[owner] - nb_vel_ned_m_s
+        speed = np.sqrt(np.einsum("pi,pi->p", w, w))
+        c = params.share * _barrier_bound(
+            rho - params.distance_m, speed, params.brake_m_s2 / params.share, params
+        )
+        u = u_rel[owner]
+        ok = c + u < -_PRECHECK_SLACK * (1.0 + np.abs(c) + u)  # NaN: not sure
+        sure[owner[~ok]] = False
+        np.minimum.at(closest, owner, rho)
+    m, b, is_floor = _walls(params)
+    if b.shape[0]:
+        s = own_pos @ m.T - b
+        speed_own = np.sqrt(np.einsum("ki,ki->k", own_vel, own_vel))
+        c_wall = _barrier_bound(s - params.wall_margin_m, speed_own[:, None], params.brake_m_s2,
+                                params)  # fmt: skip
+        u_wall = u_abs[:, None]
+        ok_wall = c_wall + u_wall < -_PRECHECK_SLACK * (1.0 + np.abs(c_wall) + u_wall)
+        # the floor binds only agents at or above it: one surely below is not bound
+        below = s[:, is_floor] < -_PRECHECK_SLACK * (1.0 + np.abs(b[is_floor]))
+        ok_wall[:, is_floor] |= below
+        sure &= ok_wall.all(axis=1)
+    return sure, closest
+
+
+@lru_cache(maxsize=32)
 def _walls(p: SeparationParams) -> tuple[FloatArray, FloatArray, BoolArray]:
-    """Inward normals m (W, 3), offsets b (W,) (inside: m·x >= b), and which is the floor."""
+    """Inward normals m (W, 3), offsets b (W,) (inside: m·x >= b), and which is the floor
+    (read-only arrays, made once per parameter set)."""
     normals: list[FloatArray] = []
     offsets: list[float] = []
     if p.floor_m is not None:
@@ -283,7 +360,10 @@ def _walls(p: SeparationParams) -> tuple[FloatArray, FloatArray, BoolArray]:
         offsets.append(-p.ceiling_m)
     is_floor = np.zeros(len(offsets), dtype=bool)
     is_floor[: int(p.floor_m is not None)] = True
-    return np.reshape(normals, (-1, 3)), np.array(offsets), is_floor
+    out = (np.reshape(normals, (-1, 3)).astype(float), np.array(offsets, dtype=float), is_floor)
+    for a in out:  # shared by every call with these parameters (cached)
+        a.flags.writeable = False
+    return out
 
 
 def _wall_rows(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drone_agent.neighbours import latest_by_sender, neighbour_arrays, neighbours_from_inbox
+from drone_agent.neighbours import NeighbourTable, neighbour_arrays, neighbours_from_inbox
 from drone_agent.separation import SeparationParams, filter_accelerations
 from protocols.consensus_message import ConsensusMessage
 from protocols.wire import decode_consensus, encode_consensus
@@ -60,11 +60,31 @@ def test_a_version_1_sender_is_taken_at_rest() -> None:
     assert nb.velocity_ned_m_s.tolist() == [[0.0, 0.0, 0.0]]
 
 
-def test_store_keeps_the_newest_message_of_each_sender() -> None:
-    store = latest_by_sender({}, [msg(1, 5), msg(2, 3)])
-    store2 = latest_by_sender(store, [msg(1, 4), msg(2, 6)])
-    assert {j: m.round for j, m in store2.items()} == {1: 5, 2: 6}
-    assert {j: m.round for j, m in store.items()} == {1: 5, 2: 3}  # not changed in place
+def test_the_table_keeps_the_newest_message_of_each_sender_across_ticks() -> None:
+    table = NeighbourTable(DT)
+    table.hear([0], 6, [[msg(1, 5, (1.0, 0.0, -5.0)), msg(2, 3, (2.0, 0.0, -5.0))]])
+    table.hear([0], 7, [[msg(1, 4, (9.0, 0.0, -5.0)), msg(2, 6, (3.0, 0.0, -5.0))]])
+    pairs = table.query([0], 7)
+    assert pairs.ids.tolist() == [1, 2] and pairs.age_rounds.tolist() == [2, 1]
+    assert pairs.position_ned_m[:, 0].tolist() == [1.0, 3.0]  # round 4 of 1 came too late
+    assert table.query([0], 11).ids.tolist() == [2]  # 1 is 6 rounds old: gone, 2 is 5
+
+
+def test_a_message_from_a_later_round_waits_for_it() -> None:
+    table = NeighbourTable(DT)
+    table.hear([0], 10, [[msg(1, 9, (1.0, 0.0, -5.0)), msg(1, 11, (2.0, 0.0, -5.0))]])
+    assert table.query([0], 10).position_ned_m[:, 0].tolist() == [1.0]  # round 9's
+    table.hear([0], 11, [[]])
+    assert table.query([0], 11).position_ned_m[:, 0].tolist() == [2.0]  # round 11's, now
+
+
+def test_equal_rounds_keep_the_first_copy_and_agents_keep_their_own_views() -> None:
+    table = NeighbourTable(DT)
+    a, b = msg(2, 4, (1.0, 0.0, -5.0)), msg(2, 4, (7.0, 0.0, -5.0))
+    table.hear([0, 1], 5, [[a, b], [b, a]])
+    pairs = table.query([0, 1], 5)
+    assert pairs.owner.tolist() == [0, 1] and pairs.position_ned_m[:, 0].tolist() == [1.0, 7.0]
+    assert table.query([3], 5).counts.tolist() == [0]  # an agent that heard nothing
 
 
 def test_from_the_wire_to_the_filter() -> None:

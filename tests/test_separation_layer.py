@@ -64,3 +64,69 @@ def test_closing_neighbours_are_pushed_apart_by_both_agents() -> None:
     p1, r1 = filtered[1].setpoint.pitch_rad, raw[1].setpoint.pitch_rad  # type: ignore[attr-defined]
     assert p0 > r0 + 0.05 and p1 < r1 - 0.05, (p0, r0, p1, r1)
     assert abs(p0 + p1) < 1e-6  # symmetric pair, symmetric answers
+
+
+def _random_swarm(rng: np.random.Generator, k: int, spread_m: float) -> tuple[np.ndarray, ...]:
+    x = rng.uniform(-spread_m, spread_m, (k, 3))
+    x[:, 2] = rng.uniform(-4.0, -0.3, k)  # some near the floor, some below its margin
+    v = rng.normal(0.0, 0.7, (k, 3))
+    u = rng.normal(0.0, 2.0, (k, 3))
+    return x, v, u
+
+
+def test_the_pre_check_clears_only_agents_the_filter_leaves_alone() -> None:
+    """Exact: wherever ``nobody_near`` is sure, the filter returns the command unchanged (bit for
+    bit) and not active; and it is sure of most agents of a spread-out swarm."""
+    from drone_agent.separation import filter_accelerations, nobody_near
+
+    params = SeparationConfig().params(agent_config(SCENARIO).limits)
+    rng = np.random.default_rng(3)
+    cleared = unsure = 0
+    for trial in range(300):
+        k = 12
+        x, v, u = _random_swarm(rng, k, spread_m=(2.0, 10.0, 30.0)[trial % 3])
+        common = rng.normal(0.0, 1.0, 3)
+        owner, nb = np.nonzero(~np.eye(k, dtype=bool))
+        nb_pos = x[nb] + rng.normal(0.0, 0.05, (nb.shape[0], 3))  # each agent's own view
+        nb_vel = v[nb]
+        sure, closest = nobody_near(x, v, u, owner, nb_pos, nb_vel, params, common)
+        pos, vel = nb_pos.reshape(k, k - 1, 3), nb_vel.reshape(k, k - 1, 3)
+        full = filter_accelerations(x, v, u, pos, vel, np.ones((k, k - 1), dtype=bool), params,
+                                    common_accel_ned_m_s2=common)  # fmt: skip
+        assert not full.active[sure].any()
+        assert (full.accel_ned_m_s2[sure] == u[sure]).all()
+        np.testing.assert_allclose(closest, full.closest_m, rtol=1e-12)
+        cleared += int(sure.sum())
+        unsure += int((~sure & ~full.active).sum())
+    assert cleared > 1200 and unsure > 100, (cleared, unsure)  # not vacuous; conservative
+
+
+def test_the_layer_gives_the_filter_of_every_agent() -> None:
+    """The layer (pre-check, then the filter on the agents it is not sure of) against the
+    filter on every agent, from the same heard neighbours, close and far."""
+    from drone_agent.separation import filter_accelerations
+    from drone_agent.separation_layer import SeparationLayer
+    from protocols.consensus_message import ConsensusMessage
+
+    config = agent_config(SCENARIO)
+    rng = np.random.default_rng(5)
+    for trial in range(40):
+        k = 10
+        layer = SeparationLayer(SeparationConfig(), config.limits, 0.02, 5)
+        x, v, u = _random_swarm(rng, k, spread_m=(1.5, 8.0)[trial % 2])
+        msgs = [
+            ConsensusMessage(
+                j, 9, np.zeros(18), {}, frozenset(), 0, position_ned_m=x[j], velocity_ned_m_s=v[j]
+            )
+            for j in range(k)
+        ]
+        heard = [[m for m in msgs if m.sender != i and rng.random() < 0.8] for i in range(k)]
+        common = np.tile(rng.normal(0.0, 1.0, 3), (k, 1))
+        got = layer.filter(range(k), 10, x, v, u, heard, common_accel_ned_m_s2=common)
+        pairs = layer.table.query(range(k), 10)
+        pos, vel, mask, _ = pairs.padded()
+        want = filter_accelerations(x, v, u, pos, vel, mask, layer.params,
+                                    common_accel_ned_m_s2=common)  # fmt: skip
+        np.testing.assert_array_equal(got.active, want.active)
+        np.testing.assert_allclose(got.accel_ned_m_s2, want.accel_ned_m_s2, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(got.n_constraints, want.n_constraints)

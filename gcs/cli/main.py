@@ -14,6 +14,7 @@ os.environ.setdefault("MAVLINK20", "1")  # before anything imports pymavlink
 
 from drone_agent.agent_cli import add_parser as add_agent_parser
 from gcs.cli.drill import add_parser as add_drill_parser
+from gcs.cli.drills import add_parser as add_drills_parser
 from gcs.cli.gcs import add_parser as add_gcs_parser
 from gcs.cli.keys import add_parser as add_keys_parser
 from gcs.cli.operator import OPERATOR_COMMANDS
@@ -86,6 +87,7 @@ def _parser() -> argparse.ArgumentParser:
     add_operator_parsers(sub)
     add_up_parsers(sub)
     add_drill_parser(sub)
+    add_drills_parser(sub)
     add_scenario_parser(sub)
     add_view_parsers(sub)
     add_router_parser(sub)
@@ -115,6 +117,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _up(args)
         if args.command == "drill":
             return _drill(args)
+        if args.command == "drills":
+            return _drills(args)
         if args.command == "scenario":
             return _scenario(args)
         if args.command in VIEW_COMMANDS:
@@ -237,6 +241,15 @@ def _drill(args: argparse.Namespace) -> int:
     try:
         return run(args)
     except DrillError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _drills(args: argparse.Namespace) -> int:
+    from gcs.cli.drills import DrillsError, run
+
+    try:
+        return run(args)
+    except DrillsError as exc:
         raise CliError(str(exc)) from None
 
 

@@ -10,7 +10,7 @@ system is measured against, and a fast tuning tool. Deterministic for a given se
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -22,6 +22,7 @@ from drone_agent.flight_phase import FlightPhase, Readiness, Request, VehicleVie
 from drone_agent.link_faults import LinkFaults
 from gcs.reference.network import InProcessNetwork
 from gcs.report.flight_record import FlightRecord, scenario_link_cuts
+from protocols.consensus_message import ConsensusMessage
 from protocols.scenario import Scenario
 from protocols.wire_plan import FlightCommand
 from sitl_sim.attitude_control import euler_from_quat_batch
@@ -236,7 +237,9 @@ class ReferenceFlight:
                 self._event("separation" if out.separating else "separation_end", drone=i)
             phase, readiness = self.phases[i], self.readiness[i]
             ready = readiness.update(out, inboxes[i], members, phase.committed)
-            messages.append(replace(out.message, ready_hops=readiness.level))
+            messages.append(
+                ConsensusMessage(**{**vars(out.message), "ready_hops": readiness.level})
+            )
             if self.crashed[i]:
                 continue
             sp = self._decide(i, out, phase.committed or ready, -float(pos[i, 2]), yaw[i])
