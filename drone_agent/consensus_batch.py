@@ -156,6 +156,9 @@ class BatchConsensus:
         self._edge_round = np.zeros((k, 0), dtype=np.int64)
         self._peer = np.zeros((k, 0), dtype=bool)
         self._latest = np.zeros((k, 0), dtype=np.int64)
+        #: the step (round) at which a message of the peer last arrived: "heard" is by arrival,
+        #: so a link that delivers every round, however late (up to the history), is heard
+        self._arrived = np.zeros((k, 0), dtype=np.int64)
         self._q_for_me = np.zeros((k, 0, N_CHANNELS))
         self._has_q_for_me = np.zeros((k, 0), dtype=bool)
         self._inc = np.zeros((k, 0), dtype=np.int64)  # newest incarnation heard per peer, -1 none
@@ -249,7 +252,7 @@ class BatchConsensus:
         if member_mask is not None:
             self._discard_dead(rows_arr, member_mask)
         timeout = self.params.heard_timeout_ticks
-        heard = self._peer[rows_arr] & (self._latest[rows_arr] >= round_ - timeout)
+        heard = self._peer[rows_arr] & (self._arrived[rows_arr] >= round_ - timeout)
         degree = heard.sum(axis=1)
         active, disagreement = self._integrate(rows_arr, round_, due)
         gamma = self.params.f * 0.5 * self._eta_total(rows_arr) + np.asarray(zeta, dtype=float)
@@ -278,6 +281,7 @@ class BatchConsensus:
         self._has_q_for_me = wider(self._has_q_for_me, 1, False)
         self._inc = wider(self._inc, 1, -1)
         self._edge_round, self._latest = wider(self._edge_round, 1, -1), wider(self._latest, 1, -1)
+        self._arrived = wider(self._arrived, 1, -1)
         self._hist_heard = wider(self._hist_heard, 2, False)
         self._m = m
 
@@ -356,6 +360,7 @@ class BatchConsensus:
             pos, j, q, which = pos[order], j[order], q[order], which[order]
         row = rows[pos]
         self._peer[row, j] = True
+        self._arrived[row, j] = round_
         # newest per (row, peer): the first copy of the highest round
         ends = np.flatnonzero(_before_true(~same_pair))
         duplicates = bool(same_value.any())
@@ -425,6 +430,7 @@ class BatchConsensus:
         self._edge_round[rows, ids] = -1
         self._peer[rows, ids] = False
         self._latest[rows, ids] = -1
+        self._arrived[rows, ids] = -1
         self._has_q_for_me[rows, ids] = False
         if history:
             self._hist_heard[rows, :, ids] = False

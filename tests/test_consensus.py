@@ -212,13 +212,15 @@ def test_step_bound() -> None:
     assert ConsensusParams(rho=8.0, degree_normalised=True).within_step_bound(40.0)
 
 
-@pytest.mark.parametrize("extra", [1, 2, 3])
+@pytest.mark.parametrize("extra", [1, 2, 3, 5, 8])
 def test_converges_under_longer_delays(extra: int) -> None:
-    """20-60 ms of extra delay at 50 Hz on a full graph of 9: the delay-scaled gain keeps the
-    estimator converging (a fixed gain oscillates from 2 extra ticks on)."""
+    """20-160 ms of extra delay at 50 Hz on a full graph of 9: the delay-scaled gain keeps the
+    estimator converging (a fixed gain oscillates from 2 extra ticks on); from 5 extra ticks every
+    message is older than the heard-set timeout when it arrives, and the link is still heard
+    (by arrival), so the estimates still meet."""
     n = 9
     zeta, signal = _static(n, 3)
     h = Harness(~np.eye(n, dtype=bool))
     h.net.conditions.extra_delay_ticks = extra
-    est = h.run(signal, 600)
+    est = h.run(signal, 600 if extra <= 3 else 2000)  # the lag-scaled gain is slower
     assert _max_error(est, zeta.mean(axis=0)) < 1e-9
