@@ -18,7 +18,8 @@ from drone_agent.config import agent_config
 from drone_agent.fault_drills import FaultDrills
 from drone_agent.host import AgentHost, DroneIdError, parse_drone_ids
 from drone_agent.hosted_agent import HostedAgent, RunOptions
-from drone_agent.link_faults import FaultyTransport, LinkFaults
+from drone_agent.link_faults import FaultyTransport, LinkFaults, PairRandom
+from drone_agent.round_gate import RoundBook
 from drone_agent.transport import AgentTransport, Bus, Position
 from drone_agent.transport_link import AgentLink, LinkSettings
 from drone_agent.vehicle_link import VehicleLink
@@ -28,6 +29,10 @@ from protocols.mavlink_signing import SigningKeyError, load_signing_key
 from protocols.scenario import Scenario, ScenarioError, load_scenario
 
 RENDEZVOUS_PORT = 7447
+#: Zenoh lease (ms) of a lockstep agent's session: how long a frozen agent looks alive.
+LOCKSTEP_LEASE_MS = 5000
+#: How long (µs) a lockstep agent's DROP publishers wait for room in a full send queue.
+LOCKSTEP_DROP_WAIT_US = 100_000
 
 
 class AgentCliError(Exception):
@@ -132,6 +137,14 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--no-arm", action="store_true", help="never arm: run the estimator on the ground only"
     )
     p.add_argument("--seed", type=int, default=0, help="random seed of the link-fault drills")
+    p.add_argument(
+        "--lockstep",
+        action="store_true",
+        help="the simulator runs --clock lockstep (swarm up passes it): before each tick wait "
+        "for every live drone's message of the previous round, however long it takes (a dead "
+        "drone, whose liveliness token is gone, is dropped at once), so that two runs of a "
+        "scenario repeat exactly; without it an agent waits at most a few ms (realtime)",
+    )
     p.add_argument("--quiet", action="store_true", help="no status line")
 
 
@@ -158,12 +171,20 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
         from drone_agent.zenoh_config import ROUTER_LEASE_MS, ROUTER_WAIT_MS
 
         client = args.zenoh_mode == "client"
+        lease_ms = ROUTER_LEASE_MS if client else ZenohSettings.lease_ms
+        lockstep = getattr(args, "lockstep", False)
+        if lockstep:
+            # a process starved of CPU for a second must not look dead (its token would go and
+            # come back, changing its neighbours' rosters at a wall-clock moment); a killed one's
+            # token still goes at once, when its sockets close
+            lease_ms = max(lease_ms, LOCKSTEP_LEASE_MS)
         return ZenohSettings(
             mode=args.zenoh_mode,
             listen=tuple(listen or ()) if not client else (),
             connect=tuple(connect or ()),
             connect_timeout_ms=ROUTER_WAIT_MS if client else 0,
-            lease_ms=ROUTER_LEASE_MS if client else ZenohSettings.lease_ms,
+            lease_ms=lease_ms,
+            drop_wait_us=LOCKSTEP_DROP_WAIT_US if lockstep else None,
         )
     except ValueError as exc:
         raise AgentCliError(str(exc)) from None
@@ -245,7 +266,12 @@ def run(args: argparse.Namespace) -> int:
         raise AgentCliError("--comm-range-m must be positive")
     config = agent_config(scenario) if scenario else _default_config()
     plan = scenario.trajectory() if scenario and not args.wait_for_plan else None
-    settings = LinkSettings(swarm_id=args.swarm_id, comm_range_m=comm_range)
+    lockstep = bool(getattr(args, "lockstep", False))
+    settings = LinkSettings(
+        swarm_id=args.swarm_id,
+        comm_range_m=comm_range,
+        hold_early=lockstep,
+    )
     faults = LinkFaults()
     period_ms = round(config.consensus.dt_s * 1000)
     links = []
@@ -269,15 +295,18 @@ def run(args: argparse.Namespace) -> int:
             reason = open_error(zsettings.connect[0], zsettings.secrets)
         raise AgentCliError(f"cannot open the Zenoh session: {reason}") from None
 
+    pair_random = PairRandom(args.seed)
+
     def transport(bus_: Bus, drone: int, position: Position) -> AgentTransport:
         # called once the host runs; ``host`` is bound by then
         inner = AgentLink(bus_, drone, position, settings)
-        return FaultyTransport(
-            inner, faults, fault_rng(args.seed, drone), lambda: _current_round(host)
-        )
+        return FaultyTransport(inner, faults, pair_random, lambda: host.round_of(drone))
 
-    options = RunOptions(control_period_ms=period_ms, arm=not args.no_arm)
-    host = AgentHost(drones, links, bus, transport, config, plan, options)
+    options = RunOptions(control_period_ms=period_ms, arm=not args.no_arm, lockstep=lockstep)
+    rounds = RoundBook(bus, settings.keys(), drones) if lockstep else None
+    roster = range(scenario.n_drones) if scenario is not None else ()
+    host = AgentHost(drones, links, bus, transport, config, plan, options, rounds=rounds,
+                     roster=roster)  # fmt: skip
     drills = _Drills(scenario, faults, host) if scenario else None
 
     def restart(drone: int, gap_s: float) -> None:  # the restart drill (swarm drill restart)
@@ -352,22 +381,33 @@ def _current_round(host: AgentHost) -> int:
 
 
 class _Drills:
-    """Applies the scenario's timeline as simulated time passes: link faults (cuts, loss, delay,
-    partitions) on the receive side, and the drop-out of a hosted drone's agent. Crashes are the
-    simulator's."""
+    """Applies the scenario's timeline as simulated time passes, on the ticks the in-process
+    flight applies it (gcs/reference_flight.py), so that both runners and every run agree: a
+    link fault at ``t`` acts on the messages of the rounds from ``t`` on (applied before any
+    hosted agent takes in the messages of round ``ceil(t / dt)``), and a drop-out at ``t`` ends
+    the drone's agent before it computes its tick of ``t``. Crashes are the simulator's."""
 
     def __init__(self, scenario: Scenario, faults: LinkFaults, host: AgentHost) -> None:
         from drone_agent.fault_timeline import timeline
 
-        self._actions = [a for a in timeline(scenario) if a.fault_kind != "crash"]
+        actions = [a for a in timeline(scenario) if a.fault_kind != "crash"]
+        self._links = [a for a in actions if a.fault_kind != "dropout"]
+        self._dropouts = [a for a in actions if a.fault_kind == "dropout"]
         self._target = _HostFaults(faults, host)
         self._host = host
         self._period_s = scenario.rates.dt_control_s
 
     def apply(self) -> None:
-        t_s = _current_round(self._host) * self._period_s
-        while self._actions and self._actions[0].t_s <= t_s:
-            self._actions.pop(0).apply(self._target)
+        pending = self._host.pending_rounds()
+        if not pending:
+            return
+        # every hosted agent has taken in the messages of the rounds before its pending tick
+        t_s = (min(pending.values()) - 1) * self._period_s + 1e-9
+        while self._links and self._links[0].t_s <= t_s:
+            self._links.pop(0).apply(self._target)
+        due_s = max(pending.values()) * self._period_s + 1e-9
+        while self._dropouts and self._dropouts[0].t_s <= due_s:
+            self._dropouts.pop(0).apply(self._target)
 
 
 class _HostFaults:

@@ -8,7 +8,9 @@ tick number and vehicle time: one simulator drives them, so their samples of a t
 together) run in one batched call, between each agent's own :meth:`HostedAgent.prepare` (messages,
 neighbour wait, plan) and :meth:`HostedAgent.finish` (publish, flight phase, setpoint). An agent
 joins the swarm (declares its transport and token) once its vehicle has answered, since its
-position names its spatial cell.
+position names its spatial cell. In lockstep the process's
+:class:`~drone_agent.round_gate.RoundBook` publishes, after each pass, the round-done markers of
+the rounds its agents finished in it (drone_agent/round_gate.py).
 
 Restart (``swarm drill restart``, :meth:`AgentHost.restart`): a drone's agent is killed as a
 drop-out kills it (its token goes, it sends nothing more: its vehicle's failsafe takes over) and,
@@ -31,11 +33,14 @@ import numpy as np
 
 from drone_agent.agent_core import AgentConfig, AgentCore, BatchAgentCore
 from drone_agent.hosted_agent import DueTick, HostedAgent, RunOptions
+from drone_agent.round_gate import RoundBook, RoundGate
 from drone_agent.transport import AgentTransport, Bus, Position
 from drone_agent.vehicle_link import VehicleLink
 from protocols.trajectory import DescriptorTrajectory
 
 TransportFactory = Callable[[Bus, int, Position], AgentTransport]
+#: Lockstep: with no tick computed for this long (wall s), re-send the newest round markers.
+REPEAT_MARKERS_S = 0.2
 
 
 class DroneIdError(ValueError):
@@ -96,8 +101,17 @@ class AgentHost:
         fallback_plan: DescriptorTrajectory | None,
         options: RunOptions,
         wall_clock: Callable[[], float] = time.monotonic,
+        rounds: RoundBook | None = None,
+        roster: Sequence[int] = (),
     ) -> None:
+        """``rounds`` and ``roster`` (the drones expected from the first tick on, e.g. the
+        scenario's) are needed in lockstep (``options.lockstep``)."""
+        if options.lockstep and rounds is None:
+            raise ValueError("lockstep agents need the process's round book")
+        self._rounds = rounds
+        self._roster = tuple(roster)
         self._slots = [_Slot(d, link) for d, link in zip(drones, links, strict=True)]
+        self._slot_of = {slot.drone: slot for slot in self._slots}
         self._core = BatchAgentCore(drones, config)
         self._bus = bus
         self._factory = transport_factory
@@ -163,13 +177,13 @@ class AgentHost:
         on_return: Callable[[int, int], None] | None = None,
     ) -> None:
         """Serve every hosted agent until stopped or all have left the swarm; ``on_second`` runs
-        about once a second (wall clock), ``on_loop`` (cheap) before every pass over the agents,
-        ``on_leave`` once for each agent that leaves the swarm on its own, ``on_return(drone,
-        time_boot_ms)`` when a restarted drone's new agent starts."""
-        last_report = self._clock()
+        about once a second (wall clock), ``on_loop`` (cheap) in every pass over the agents,
+        after the vehicles' samples are read and before any agent's tick (so that it sees the
+        ticks now due, :meth:`pending_rounds`), ``on_leave`` once for each agent that leaves the
+        swarm on its own, ``on_return(drone, time_boot_ms)`` when a restarted drone's new agent
+        starts."""
+        last_report = last_tick = self._clock()
         while not self._stop.is_set():
-            if on_loop is not None:
-                on_loop()
             for key, _ in self._selector.select(timeout=0.002):
                 slot: _Slot = key.data
                 for sample in slot.link.poll():
@@ -181,6 +195,8 @@ class AgentHost:
                     if slot.agent is None:
                         slot.agent = self._join(slot, sample.position_ned_m)
                     slot.agent.on_sample(sample)
+            if on_loop is not None:
+                on_loop()
             due: dict[tuple[int, int], list[tuple[HostedAgent, DueTick]]] = {}
             for slot in self._slots:
                 if slot.agent is None:
@@ -192,6 +208,13 @@ class AgentHost:
                     due.setdefault(when, []).append((slot.agent, tick))
             for group in due.values():
                 self._run_cores(group)
+            if self._rounds is not None:
+                self._rounds.flush()
+                if due:
+                    last_tick = self._clock()
+                elif self._clock() - last_tick > REPEAT_MARKERS_S:
+                    self._rounds.repeat()  # in case a marker was lost
+                    last_tick = self._clock()
             for slot in self._slots:
                 if slot.agent is not None and slot.agent.left and not slot.left_reported:
                     slot.left_reported = True
@@ -205,6 +228,26 @@ class AgentHost:
             if on_second is not None and now - last_report >= 1.0:
                 on_second(self)
                 last_report = now
+
+    def pending_rounds(self) -> dict[int, int]:
+        """For each hosted agent with a tick due (its vehicle's newest sample is of a tick it
+        has not computed), that tick."""
+        out = {}
+        period = self._options.control_period_ms
+        for slot in self._slots:
+            agent = slot.agent
+            if agent is None or agent.left or agent.sample is None:
+                continue
+            tick = round(agent.sample.time_boot_ms / period)
+            if tick > agent.last_tick:
+                out[slot.drone] = tick
+        return out
+
+    def round_of(self, drone: int) -> int:
+        """The newest round whose messages drone ``drone``'s agent takes in (-1 before it
+        joined): the clock of its link faults."""
+        slot = self._slot_of.get(drone)
+        return -1 if slot is None or slot.agent is None else slot.agent.round_now
 
     def _run_cores(self, group: list[tuple[HostedAgent, DueTick]]) -> None:
         """The cores of the agents due at one tick (same tick, same vehicle time), in one
@@ -243,7 +286,11 @@ class AgentHost:
     def _join(self, slot: _Slot, position: Position) -> HostedAgent:
         transport = self._factory(self._bus, slot.drone, position)
         core = AgentCore(slot.drone, self._config, self._core)
-        return HostedAgent(core, slot.link, transport, self._plan, self._options, self._clock)
+        gate = None
+        if self._rounds is not None:
+            gate = RoundGate(slot.drone, self._roster, self._rounds)
+        options, clock = self._options, self._clock
+        return HostedAgent(core, slot.link, transport, self._plan, options, clock, gate)
 
     def close(self) -> None:
         """Leave the swarm with every agent and close the vehicle links."""
@@ -253,3 +300,5 @@ class AgentHost:
             self._selector.unregister(slot.link)
             slot.link.close()
         self._selector.close()
+        if self._rounds is not None:
+            self._rounds.close()

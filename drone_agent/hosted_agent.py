@@ -6,9 +6,12 @@ core, :meth:`finish`; a host runs the cores of its agents due at the same tick i
 call), publishes its message,
 lets :class:`~drone_agent.flight_phase.FlightPhase` decide what to do with the vehicle (fly the
 formation, land, hold, stay on the ground), and answers the vehicle with that SET_ATTITUDE_TARGET
-echoing the tick (also on the ground, for lockstep). For reproducible consensus it waits, up to
-``neighbour_wait_s`` of wall time, until every neighbour heard recently has sent its message of
-the previous round.
+echoing the tick (also on the ground, for lockstep). Before a tick it waits for its neighbours'
+messages of the previous round: in realtime up to ``neighbour_wait_s`` of wall time, for every
+neighbour heard recently; in lockstep (``RunOptions.lockstep``, with a
+:class:`~drone_agent.round_gate.RoundGate`) for every live drone's round-done marker, however long
+it takes, so that its inbox, membership view and command timing depend on simulated time alone
+and two runs of a scenario repeat exactly.
 
 Safety: it arms only once the plan says fly and every agent's estimate has settled (flight_phase's
 Readiness: the swarm leaves the ground together); an airborne vehicle is
@@ -40,6 +43,7 @@ import numpy as np
 
 from drone_agent.agent_core import AgentCore, AgentOutput, Setpoint
 from drone_agent.flight_phase import FlightPhase, Order, Readiness, Request, VehicleView
+from drone_agent.round_gate import RoundGate
 from drone_agent.transport import AgentTransport
 from drone_agent.vehicle_link import VehicleLink, VehicleSample
 from protocols.consensus_message import ConsensusMessage
@@ -83,6 +87,9 @@ class RunOptions:
     heartbeat_period_s: float = 1.0
     status_every_ticks: int = 2
     command_retry_s: float = 0.5
+    #: lockstep: wait for every live drone's previous round (drone_agent/round_gate.py), retry
+    #: commands on simulated time
+    lockstep: bool = False
 
 
 @dataclass(frozen=True)
@@ -116,8 +123,15 @@ class HostedAgent:
         fallback_plan: DescriptorTrajectory | None,
         options: RunOptions,
         wall_clock: Callable[[], float],
+        gate: RoundGate | None = None,
     ) -> None:
+        if options.lockstep and gate is None:
+            raise ValueError("a lockstep agent needs its round gate")
         self.core, self.link, self.transport = core, link, transport
+        self.gate = gate if options.lockstep else None
+        #: the newest round whose messages are due (tick - 1 while computing a tick): the
+        #: link-fault clock of its transport
+        self.round_now = -1
         self.fallback_plan = fallback_plan
         self.options = options
         self.clock = wall_clock
@@ -215,17 +229,30 @@ class HostedAgent:
         if lost is not None:
             self.leave(lost)
             return None
-        self._collect()
+        gate = self.gate
+        if gate is None:
+            if self.sample is not None:
+                self.round_now = max(self.last_tick, self._tick_of(self.sample) - 1)
+            self._collect()
         sample = self.sample
         if sample is None or self._tick_of(sample) <= self.last_tick:
             return None
         tick = self._tick_of(sample)
-        if self._pending_since is None:
-            self._pending_since = now
-        waited = now - self._pending_since
-        if not self._neighbours_ready(tick) and waited < self.options.neighbour_wait_s:
-            return None
-        self._pending_since = None
+        if gate is not None:
+            # lockstep: every live drone's round tick - 1 is in before anything is taken in
+            if not gate.ready(tick, now):
+                return None
+            self.round_now = tick - 1
+            self._collect()
+            members = gate.members()
+        else:
+            if self._pending_since is None:
+                self._pending_since = now
+            waited = now - self._pending_since
+            if not self._neighbours_ready(tick) and waited < self.options.neighbour_wait_s:
+                return None
+            self._pending_since = None
+            members = self.transport.members()
         plan, command = self._plan()
         self.last_tick = tick
         if plan is None:  # no plan yet: stay on the ground (an airborne vehicle lands)
@@ -233,7 +260,6 @@ class HostedAgent:
             self._after_tick(tick)
             return None
         inbox, self._inbox = self._inbox, []
-        members = self.transport.members()
         climb = self._rejoin_step(tick, sample, command, members)
         return DueTick(self.core, tick, sample, plan, command, inbox, members, climb)
 
@@ -301,6 +327,8 @@ class HostedAgent:
         self._after_tick(due.tick)
 
     def _after_tick(self, tick: int) -> None:
+        if self.gate is not None:
+            self.gate.book.finished(self.drone, tick)
         if tick % self.options.status_every_ticks == 0:
             # on the simulated-time grid, so the ground station compares like with like
             self._publish_status()
@@ -353,27 +381,33 @@ class HostedAgent:
         )
 
     def _carry_out(self, order: Order, sample: VehicleSample) -> None:
-        """Send the order's setpoint (echoing the tick) and, at most every ``command_retry_s``
-        of wall time, its request to the autopilot."""
+        """Send, at most every ``command_retry_s`` (of wall time; of simulated time in
+        lockstep), the order's request to the autopilot, then its setpoint echoing the tick. The
+        echo goes last: in lockstep it lets the simulator step, which must not happen before the
+        tick's commands are in (they would act a tick later, or not, as the datagrams race)."""
+        self._request(order.request, sample)
         sp = order.setpoint
         q = quat_from_zyx(sp.yaw_rad, sp.pitch_rad, sp.roll_rad)
         self.link.send_setpoint(sample.time_boot_ms, q, sp.thrust_normalised)
         self.mode = order.mode
-        if order.request == Request.NONE:
+
+    def _request(self, request: Request, sample: VehicleSample) -> None:
+        if request == Request.NONE:
             return
-        now = self.clock()
+        # lockstep: retried on simulated time, so the commands reach the vehicle at the same ticks
+        now = sample.time_boot_ms / 1000.0 if self.gate is not None else self.clock()
         if now - self._last_command < self.options.command_retry_s:
             return
         self._last_command = now
         status = self.link.status
-        if order.request == Request.ARM_OFFBOARD:
+        if request == Request.ARM_OFFBOARD:
             if not self.link.in_offboard:
                 self.link.set_offboard()
             if not status.armed:
                 self.link.arm(True)
-        elif order.request == Request.LAND_MODE:
+        elif request == Request.LAND_MODE:
             self.link.set_land()
-        elif order.request == Request.HOLD_MODE:
+        elif request == Request.HOLD_MODE:
             self.link.set_hold()
 
     @property

@@ -8,9 +8,13 @@ links *into* it: cutting i-j both ways is agent j dropping i's messages and agen
 
 ``LinkFaults`` keeps the fields the scenario fault timeline sets (directed pairs are
 ``(sender, receiver)``, delays in control ticks), so one timeline drives the in-process radio and
-the agents' transports alike. Randomness (a ``numpy.random.Generator``) and time (a clock
-returning the current control round) are injected: one seed and one message order give the same
-drops.
+the agents' transports alike. Randomness and time (a clock returning the newest control round
+whose messages are due: ``k - 1`` while tick ``k`` is computed) are injected. With
+:class:`PairRandom` each directed link draws from its own seeded generator, in the order of the
+rounds of its messages, so which messages a loss drops depends on the seed alone, never on how
+the arrivals of different senders interleave (lockstep runs repeat exactly). A message of round
+``r`` is released at round ``r`` plus its link's delay (taken in at tick ``r + 1 + delay``, as
+the in-process radio delivers it).
 """
 
 from __future__ import annotations
@@ -109,20 +113,42 @@ class LinkFaults:
         return self.link_delay_ticks.get((sender, receiver), self.extra_delay_ticks)
 
 
+class PairRandom:
+    """One generator per directed link (sender, receiver), seeded by ``(seed, sender,
+    receiver)``: a link's draws do not depend on any other link's traffic, nor on which drones
+    share a process."""
+
+    def __init__(self, seed: int) -> None:
+        self.seed = seed
+        self._streams: dict[Pair, np.random.Generator] = {}
+
+    def __call__(self, sender: int, receiver: int) -> np.random.Generator:
+        """The generator of the link sender -> receiver."""
+        rng = self._streams.get((sender, receiver))
+        if rng is None:
+            rng = self._streams[(sender, receiver)] = np.random.default_rng(
+                (self.seed, sender, receiver)
+            )
+        return rng
+
+
 class FaultyTransport(ClosesOnExit):
     """``inner`` as seen through ``faults``: on :meth:`receive`, messages on blocked links are
-    dropped, others lost with their link's probability (drawn from ``rng`` in (sender, round)
-    order) and held back for their link's delay, measured in rounds of ``round_clock()``.
-    Everything else is passed through. Drops are counted in ``counters().faults``."""
+    dropped, others lost with their link's probability (drawn from the link's generator of
+    ``rng`` when it is a :class:`PairRandom`, else from the one generator ``rng`` in (sender,
+    round) order) and held back until round ``r`` plus their link's delay (``r`` the
+    message's round), in rounds of ``round_clock()`` (the newest round whose messages are
+    due). Everything else is passed through. Drops are counted in ``counters().faults``."""
 
     def __init__(
         self,
         inner: AgentTransport,
         faults: LinkFaults,
-        rng: np.random.Generator,
+        rng: np.random.Generator | PairRandom,
         round_clock: Callable[[], int],
     ) -> None:
-        self._inner, self.faults, self._rng, self._clock = inner, faults, rng, round_clock
+        self._inner, self.faults, self._clock = inner, faults, round_clock
+        self._pair_rng = rng if isinstance(rng, PairRandom) else (lambda _i, _j: rng)
         self._held: list[tuple[int, int, ConsensusPacket]] = []
         self._arrivals = 0
         self._dropped = 0
@@ -139,11 +165,13 @@ class FaultyTransport(ClosesOnExit):
         for packet in self._inner.receive():
             sender = packet.message.sender
             loss = faults.loss_for(sender, me)
-            if faults.blocks(sender, me) or (loss > 0.0 and self._rng.random() < loss):
+            if faults.blocks(sender, me) or (
+                loss > 0.0 and self._pair_rng(sender, me).random() < loss
+            ):
                 self._dropped += 1
                 continue
             self._arrivals += 1
-            release = now + faults.delay_for(sender, me)
+            release = packet.message.round + faults.delay_for(sender, me)
             heapq.heappush(self._held, (release, self._arrivals, packet))
         out = []
         while self._held and self._held[0][0] <= now:

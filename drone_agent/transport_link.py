@@ -3,9 +3,11 @@
 
 :class:`AgentLink` publishes the agent's consensus message on the key of its spatial cell,
 subscribes to the 27 cells around it (re-subscribing when it moves to another cell), applies the
-radio range to what arrives, holds the agent's liveliness token and watches everyone's, publishes
-its status, and keeps the newest plan (fetched on joining, then subscribed; it also answers other
-agents' plan queries, so a late joiner gets the plan even when the ground station is gone).
+radio range to what arrives (between the sender's position and its own of the message's round, as
+the in-process radio does; in lockstep a message of a round it has not sent yet waits until it
+has), holds the agent's liveliness token and watches everyone's, publishes its status, and keeps
+the newest plan (fetched on joining, then subscribed; it also answers other agents' plan queries,
+so a late joiner gets the plan even when the ground station is gone).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from protocols.wire import (
     ConsensusPacket,
     Reason,
     WireError,
-    consensus_origin,
+    consensus_head,
     decode_consensus,
     encode_consensus,
 )
@@ -42,6 +44,8 @@ from protocols.wire_plan import MAX_PLAN_BYTES, PlanMessage, decode_plan, encode
 from protocols.wire_status import AgentStatus, encode_status
 
 _COUNTER_OF = {Reason.WRONG_SWARM: "wrong_swarm", Reason.BAD_VERSION: "wrong_version"}
+#: Rounds of own positions kept for the range check of late messages.
+_HISTORY = 64
 
 
 @dataclass(frozen=True)
@@ -67,6 +71,9 @@ class LinkSettings:
     plan_query_timeout_s: float = 2.0
     plan_retry_calls: int = 50
     serve_plan: bool = True
+    #: lockstep: a message of a round this agent has not sent yet waits until it has, so that
+    #: the range is measured between the two drones' positions of that round
+    hold_early: bool = False
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.comm_range_m) and self.comm_range_m > 0):
@@ -128,6 +135,11 @@ class AgentLink(ClosesOnExit):
         self._cell: Cell | None = None
         self._inboxes: dict[Cell, Inbox] = {}
         self._pending: list[tuple[str, bytes]] = []
+        #: own positions by the round they were published at (the last _HISTORY rounds)
+        self._sent_at: dict[int, tuple[float, float, float]] = {}
+        self._last_sent = -1
+        #: messages of rounds not sent by this agent yet: (key, payload, sender, round, origin)
+        self._early: list[tuple[str, bytes, int, int, tuple[float, float, float]]] = []
         self._publisher: Publisher | None = None
         self._closed = False
         self._declared: list[Closeable] = []
@@ -215,14 +227,21 @@ class AgentLink(ClosesOnExit):
             )
         )
         self._counts["tx"] += 1
+        self._last_sent = max(self._last_sent, message.round)
+        self._sent_at[message.round] = self._position
+        if len(self._sent_at) > _HISTORY:
+            del self._sent_at[min(self._sent_at)]
 
     def receive(self) -> list[ConsensusPacket]:
-        """Decoded messages from drones within range since the last call (see AgentTransport)."""
+        """Decoded messages from drones within range since the last call (see AgentTransport);
+        messages of rounds this agent has not sent yet wait for the next calls."""
         self._check_open()
         samples, self._pending = self._pending, []
         for inbox in self._inboxes.values():
             samples += inbox.drain()
-        out = [p for key, payload in samples if (p := self._accept(key, payload)) is not None]
+        early, self._early = self._early, []
+        out = [p for e in early if (p := self._in_range(*e)) is not None]
+        out += [p for key, payload in samples if (p := self._accept(key, payload)) is not None]
         out.sort(key=lambda p: (p.message.sender, p.message.round))
         self._counts["delivered"] += len(out)
         return out
@@ -239,15 +258,36 @@ class AgentLink(ClosesOnExit):
         counts, sid, limit = self._counts, self._keys.swarm_id, self._settings.max_consensus_bytes
         counts["rx"] += 1
         try:
-            origin_sender, origin = consensus_origin(payload, sid, max_bytes=limit)
+            origin_sender, round_, origin = consensus_head(payload, sid, max_bytes=limit)
             if origin_sender != sender:
                 raise WireError(Reason.BAD_VALUE, f"key {key} carries sender {origin_sender}")
-            if math.dist(origin, self._position) >= self._settings.comm_range_m:
-                counts["out_of_range"] += 1
-                return None
-            return decode_consensus(payload, sid, max_bytes=limit)
         except WireError as exc:
             counts[_COUNTER_OF.get(exc.reason, "malformed")] += 1
+            return None
+        return self._in_range(key, payload, sender, round_, origin)
+
+    def _in_range(
+        self, key: str, payload: bytes, sender: int, round_: int, origin: tuple[float, float, float]
+    ) -> ConsensusPacket | None:
+        """Range check between the sender's position and ours of the message's round (ours now
+        for rounds not in the history); with ``hold_early`` a message of a round we have not
+        sent yet waits (at most 4 x _HISTORY of them; beyond, the oldest are dropped)."""
+        if self._settings.hold_early and self._last_sent >= 0 and round_ > self._last_sent:
+            self._early.append((key, payload, sender, round_, origin))
+            if len(self._early) > 4 * _HISTORY:
+                self._counts["malformed"] += 1
+                del self._early[0]
+            return None
+        own = self._sent_at.get(round_, self._position)
+        if math.dist(origin, own) >= self._settings.comm_range_m:
+            self._counts["out_of_range"] += 1
+            return None
+        try:
+            return decode_consensus(
+                payload, self._keys.swarm_id, max_bytes=self._settings.max_consensus_bytes
+            )
+        except WireError as exc:
+            self._counts[_COUNTER_OF.get(exc.reason, "malformed")] += 1
             return None
 
     def members(self) -> frozenset[int]:

@@ -64,6 +64,11 @@ class ZenohSettings:
     secrets: RoleSecrets | None = None
     #: a client waits up to this long (ms) for its router (0: one try, fail at once)
     connect_timeout_ms: int = 0
+    #: how long (µs) a DROP publisher waits for room in a full send queue before it drops the
+    #: message (None: Zenoh's 1 ms); lockstep agents wait longer, since a dropped consensus
+    #: message changes the flight (a burst of declarations when a drone changes cell filled
+    #: the queue on a loaded machine)
+    drop_wait_us: int | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -103,6 +108,9 @@ class ZenohSettings:
             conf.insert_json5(key, json.dumps(value))
         if self.connect_timeout_ms > 0:
             conf.insert_json5("connect/timeout_ms", json.dumps(self.connect_timeout_ms))
+        if self.drop_wait_us is not None:
+            key = "transport/link/tx/queue/congestion_control/drop/wait_before_drop"
+            conf.insert_json5(key, json.dumps(self.drop_wait_us))
         if self.secrets is not None:
             from drone_agent.zenoh_config import secure
 

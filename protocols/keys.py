@@ -157,6 +157,15 @@ class SwarmKeys:
         """Key expression matching every liveliness token of the swarm."""
         return f"{self.prefix}/alive/*"
 
+    def round_done(self, drone: int) -> str:
+        """Key of the lockstep round-done markers of the agent process whose first hosted drone
+        is ``drone`` (protocols/wire_round.py)."""
+        return f"{self.prefix}/round/{validate_drone_id(drone)}"
+
+    def round_done_all(self) -> str:
+        """Key expression matching every agent process's round-done markers."""
+        return f"{self.prefix}/round/*"
+
     def status(self, drone: int) -> str:
         """Status key of ``drone``'s agent."""
         return f"{self.prefix}/status/{validate_drone_id(drone)}"

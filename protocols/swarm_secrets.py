@@ -18,10 +18,11 @@ folder, and nothing here ever prints or logs a secret: errors name
 files, never contents.
 
 What each role may *send* (the router checks every message arriving from a client; denied by
-default) is :data:`RIGHTS`: agents publish consensus, status and liveliness of their swarm and
-read the plan and drills; only the operator queries ``command`` and publishes ``fault``; only the
-ground station publishes and serves the plan and answers commands. What the router forwards *to*
-an authenticated client is not restricted (egress within the swarm's keys).
+default) is :data:`RIGHTS`: agents publish consensus, status, lockstep round markers and
+liveliness of their swarm and read the plan and drills; only the operator queries ``command`` and
+publishes ``fault``; only the ground station publishes and serves the plan and answers commands.
+What the router forwards *to* an authenticated client is not restricted (egress within the
+swarm's keys).
 
 Pure apart from file I/O: no Zenoh import (``drone_agent.zenoh_config`` turns this into a Zenoh
 configuration).
@@ -65,9 +66,9 @@ ALL_MESSAGES = (PUT, "delete", SUB, QUERY, QUERYABLE, REPLY, TOKEN, LIVE_SUB, LI
 #: role -> (message kind, key suffixes under ``swarm/<sid>/``) the role may send to the router.
 RIGHTS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
     "agent": (
-        (PUT, ("consensus/**", "status/*")),
+        (PUT, ("consensus/**", "status/*", "round/*")),
         (TOKEN, ("alive/*",)),
-        (SUB, ("consensus/**", "plan", "fault")),
+        (SUB, ("consensus/**", "plan", "fault", "round/*")),
         (LIVE_SUB, ("alive/*",)),
         (LIVE_QUERY, ("alive/*",)),
         (QUERY, ("plan",)),

@@ -46,8 +46,8 @@ its ``position_ned_m`` and ``velocity_ned_m_s`` fields.
 
 Decoders raise only :class:`WireError`, whose ``reason`` says why (callers count drops by
 reason); encoders raise ValueError for a message that cannot be sent.
-Status, plan and fault messages live in ``protocols.wire_status``, ``protocols.wire_plan``
-and ``protocols.wire_fault``.
+Status, plan, fault and round-done messages live in ``protocols.wire_status``,
+``protocols.wire_plan``, ``protocols.wire_fault`` and ``protocols.wire_round``.
 """
 
 from __future__ import annotations
@@ -94,6 +94,7 @@ class Kind(IntEnum):
     STATUS = 2
     PLAN = 3
     FAULT = 4
+    ROUND_DONE = 5
 
 
 class Reason(StrEnum):
@@ -317,8 +318,18 @@ def consensus_origin(
     """The sender and its position (NED, m) from a consensus payload's header and fixed fields,
     without decoding the rest: lets a receiver apply the radio range before paying for a full
     :func:`decode_consensus`. WireError if the header, position or velocity is bad."""
+    sender, _, origin = consensus_head(data, swarm_id, max_bytes=max_bytes)
+    return sender, origin
+
+
+def consensus_head(
+    data: bytes, swarm_id: str, *, max_bytes: int = MAX_CONSENSUS_BYTES
+) -> tuple[int, int, tuple[float, float, float]]:
+    """The sender, round and position (NED, m) of a consensus payload, as :func:`consensus_origin`
+    (the round too: a receiver applies the radio range between the two drones' positions of the
+    same round)."""
     _, _, values = _fixed(data, swarm_id, max_bytes)
-    return values[1], values[5:8]
+    return values[1], values[0], values[5:8]
 
 
 def decode_consensus(

@@ -120,14 +120,19 @@ def test_delay_holds_messages_for_whole_rounds(swarm: Swarm) -> None:
 
 
 def test_delayed_messages_come_out_sorted(swarm: Swarm) -> None:
+    """A message of round r on a link delayed by d ticks is released at round r + d of the
+    receiver's clock (whenever it arrived), sorted by (sender, round)."""
     swarm.faults.set_delay_ticks(1)
+    swarm.round = 3
     for r in (5, 3, 4):
         swarm.send(2, round_=r)
-    swarm.send(1, round_=9)
+    swarm.send(1, round_=4)
     assert swarm.links[0].receive() == []
-    swarm.round = 1
+    swarm.round = 5
     got = [(p.message.sender, p.message.round) for p in swarm.links[0].receive()]
-    assert got == [(1, 9), (2, 3), (2, 4), (2, 5)]
+    assert got == [(1, 4), (2, 3), (2, 4)]
+    swarm.round = 6
+    assert [(p.message.sender, p.message.round) for p in swarm.links[0].receive()] == [(2, 5)]
 
 
 def test_loss_rate_and_determinism() -> None:

@@ -625,3 +625,11 @@ def test_mutated_payloads_raise_only_wire_errors(
     payload = bytes(data[: max(cut, 1)]) + extra if cut < len(data) else bytes(data) + extra
     with contextlib.suppress(WireError):
         DECODERS[which](payload, SID)
+
+
+def test_consensus_head_reads_sender_round_and_origin_of_every_version() -> None:
+    from protocols.wire import consensus_head
+
+    data = encode_consensus(MESSAGE, POSITION, SID)
+    assert consensus_head(data, SID) == (MESSAGE.sender, MESSAGE.round, POSITION)
+    assert consensus_head(bytes.fromhex(CONSENSUS_V1_HEX), SID) == (2, 1000, POSITION)

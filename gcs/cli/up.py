@@ -260,6 +260,7 @@ def build_plan(
                 "--swarm-id",
                 args.swarm_id,
                 "--quiet",
+                *(["--lockstep"] if args.clock == "lockstep" else []),
                 *(["--wait-for-plan"] if session else []),  # a session: GROUND until takeoff
                 *agent_zenoh,
                 *key,

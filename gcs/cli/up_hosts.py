@@ -286,6 +286,7 @@ def multihost_plan(
                     ("--swarm-id", args.swarm_id),
                     ("--vehicle-host", layout.sim_host),
                     ("--quiet", True),
+                    ("--lockstep", args.clock == "lockstep"),
                 ]
             )
             argv = swarm_argv("agent", "--drone-id", ids, *common, *agent_flags, *client, *secured)

@@ -307,6 +307,21 @@ def read_tlog(path: str | Path, epoch_offset_s: float = 0.0) -> TlogTrack:
     return reader.track()
 
 
+def vehicle_samples(path: str | Path) -> dict[tuple[str, int, int], tuple[float, ...]]:
+    """Every vehicle's LOCAL_POSITION_NED and ATTITUDE samples of a tlog, field by field:
+    ``(message type, system id, time_boot_ms)`` -> the message's other fields, as logged (the
+    first sample of a key if it was logged twice). Two lockstep runs of one scenario and seed
+    give equal dictionaries (the records' wall stamps are left out)."""
+    reader = TlogReader()
+    reader.feed(Path(path).read_bytes())
+    out: dict[tuple[str, int, int], tuple[float, ...]] = {}
+    for name, table in (("LOCAL_POSITION_NED", reader._pos), ("ATTITUDE", reader._att)):
+        for sysid, rows in table.items():
+            for row in rows:
+                out.setdefault((name, sysid, int(row[0])), tuple(row[1:]))
+    return out
+
+
 class TlogReader:
     """Reads a tlog piece by piece (a log still being written): :meth:`feed` the bytes that
     follow the last ones it consumed, :meth:`track` what has been read so far."""
