@@ -42,7 +42,7 @@ from protocols.scenario import ScenarioError, load_scenario
 from protocols.scenario_layout import LAYOUTS
 
 #: The paper's flight, shipped with the project (so `swarm demo` works from any folder).
-PAPER = Path(__file__).resolve().parents[1] / "scenarios" / "paper.toml"
+PAPER = Path(__file__).resolve().parents[2] / "scenarios" / "paper.toml"
 #: Telemetry rate of every vehicle to the ground station, and so of the report's record (Hz).
 TELEMETRY_HZ = 25
 #: A session's Ctrl-C waits this much longer than the ground station's shutdown timeout (s) for
