@@ -451,33 +451,27 @@ def test_loss_lowers_the_messages_received_and_the_link_quality(flight: Flight) 
 
 def test_delay_makes_messages_late_not_lost(flight: Flight) -> None:
     """``swarm drill delay 100``: every message arrives 100 ms late, 6 control ticks after its
-    round, beyond the 5-tick heard-set (ALGORITHM.md §3 rule 3): no agent integrates any
-    neighbour, yet every message still arrives (rx per round unchanged) and the swarm flies on
-    on frozen edge state. ``swarm drill delay 60``: 4 ticks, the links are integrated again.
+    round, beyond the 5-tick heard-set timeout; the link is still heard — by arrival
+    (drone_agent/consensus.py, rule 3) — and each late value pairs with the own value of its
+    round, so every agent keeps integrating its neighbours, every message still arrives (rx per
+    round unchanged) and the estimates stay right. ``swarm drill delay 60``: 4 ticks, the same.
     ``swarm drill clear``: no delay."""
     try:
-        assert "sent delay 100 ms" in flight.drill("delay", "100")
-        assert flight.wait_sim(
-            lambda: all(not s.neighbours for s in flight.latest().values()), 2.0
-        ), {d: s.neighbours for d, s in flight.latest().items()}
-        t0 = flight.now()
-        flight.pass_sim(2.0)
-        late = flight.between(t0, t0 + 2.0)
-        rates = flight.rx_per_round(t0, t0 + 2.0)
-        print(f"delay 100: messages per round {rates}")
-        assert all(not s.neighbours for s in late)
-        assert all(7.5 < r < 8.5 for r in rates.values()), rates
-        assert all(s.mode == AgentMode.FLYING for s in late)
-        assert all(within_bound(np.asarray(s.estimate), TRUTH) for s in late)
-
-        assert "sent delay 60 ms" in flight.drill("delay", "60")
-        assert flight.wait_sim(
-            lambda: all(len(s.neighbours) >= 4 for s in flight.latest().values()), 2.0
-        )
-        t1 = flight.pass_sim(2.0) - 2.0
-        counts = [len(s.neighbours) for s in flight.between(t1, t1 + 2.0)]
-        print(f"delay 60: neighbours per status mean {np.mean(counts):.2f} min {min(counts)}")
-        assert np.mean(counts) > 6.0
+        for delay_ms in ("100", "60"):
+            assert f"sent delay {delay_ms} ms" in flight.drill("delay", delay_ms)
+            t0 = flight.pass_sim(1.0)  # the late messages' first rounds have paired
+            flight.pass_sim(2.0)
+            late = flight.between(t0, t0 + 2.0)
+            rates = flight.rx_per_round(t0, t0 + 2.0)
+            counts = [len(s.neighbours) for s in late]
+            print(
+                f"delay {delay_ms}: messages per round {rates}, neighbours per status mean "
+                f"{np.mean(counts):.2f} min {min(counts)}"
+            )
+            assert all(7.5 < r < 8.5 for r in rates.values()), rates
+            assert np.mean(counts) > 6.0 and min(counts) >= 4, counts
+            assert all(s.mode == AgentMode.FLYING for s in late)
+            assert all(within_bound(np.asarray(s.estimate), TRUTH) for s in late)
     finally:
         assert "sent clear" in flight.drill("clear")
     assert flight.wait_sim(lambda: _everyone_linked(flight), 3.0)

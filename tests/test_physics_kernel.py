@@ -257,7 +257,7 @@ def _reference_physics_step(self: ReferenceFlight, t_s: float) -> None:
 SCENARIO = """
 version = 1
 name = "kernel"
-duration_s = 14.0
+duration_s = 16.0
 settle_s = 3.0
 [comms]
 range_m = 6.0
@@ -280,11 +280,11 @@ spread_m = [1.25, 1.25, 0.0]
 yaw_deg = 40.0
 [[faults]]
 kind = "crash"
-t_s = 5.0
+t_s = 8.0
 drone = 1
 [[faults]]
 kind = "dropout"
-t_s = 7.0
+t_s = 9.0
 drone = 2
 """
 

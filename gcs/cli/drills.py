@@ -443,6 +443,8 @@ def _run_drill(swarm: Swarm, spec: DrillSpec, gone: set[int]) -> DrillResult:
         swarm.wait_until_sim(t0 + step.at_s)
         facts = _do(swarm, step)
         extra["actions"] = [*extra.get("actions", []), facts.pop("action")]
+        if extra.get("move_accepted") is False:  # the move refused, the stretch accepted: refused
+            facts.pop("move_accepted", None)
         extra |= facts
     swarm.wait_until_sim(t0 + spec.length_s)
     procs1 = swarm.processes()
@@ -497,9 +499,9 @@ def _do(swarm: Swarm, step: Step) -> dict[str, Any]:
         args = {"drone": step.args["drone"]} if "drone" in step.args else {}
         reply = swarm.command(step.args["name"], args)
         return {"action": f"{step.args['name']}: {reply.reason}", "accepted": reply.accepted}
-    if step.kind == "move":
-        reply = swarm.command("move", dict(step.args))
-        return {"action": f"move: {reply.reason}", "move_accepted": reply.accepted}
+    if step.kind in ("move", "scale"):
+        reply = swarm.command(step.kind, dict(step.args))
+        return {"action": f"{step.kind}: {reply.reason}", "move_accepted": reply.accepted}
     if step.kind == "garbage":
         return _garbage(swarm, int(step.args["count"]), float(step.args["spread_s"]))
     if step.kind == "flood":

@@ -59,6 +59,10 @@ REJOIN_SLOT_S = 30.0
 FLAP_S = 1.0
 #: The move of the link-fault drills takes this long (s).
 MOVE_S = 4.0
+#: How much the link-fault drills stretch the formation (then shrink it back in the next).
+STRETCH = 1.25
+#: In how long (s): within the operator envelope's shape rate (4.6 s needed), inside the fault.
+STRETCH_S = 6.0
 
 
 @dataclass(frozen=True)
@@ -157,9 +161,11 @@ def catalogue(n_drones: int, loss: float = 0.5) -> tuple[DrillSpec, ...]:
     """The drills for a swarm of ``n_drones`` (at least 4) in the order they run; ``loss``: the
     probability of the big loss drill (0.5; higher to probe the estimator's limit).
 
-    The link-fault drills move the formation 1 m (east, then back west in the next one) while
-    the fault lasts: in a still hover every estimate stays right without a single message, so
-    only a formation that moves shows whether the estimator holds."""
+    The link-fault drills move the formation 1 m and stretch it by 25 % (east and wider, then
+    back west and narrower in the next one) while the fault lasts: in a still hover every
+    estimate stays right without a single message, and so does it in a move alone (the agents
+    take their consensus channels in the plan's frame, which a move carries along), so only a
+    formation that changes shape shows whether the estimator holds."""
     from protocols.wire_fault import Clear, Delay, LinkCut, Loss, Partition, Restart
 
     if n_drones < 4:
@@ -173,12 +179,13 @@ def catalogue(n_drones: int, loss: float = 0.5) -> tuple[DrillSpec, ...]:
     def moving(*steps: Step) -> tuple[Step, ...]:
         east[0] = -east[0]
         move = {"east_m": -east[0], "duration_s": MOVE_S}
-        return (*steps, Step(1.0, "move", move))
+        stretch = {"factor": STRETCH if east[0] < 0 else 1.0 / STRETCH, "duration_s": STRETCH_S}
+        return (*steps, Step(1.0, "move", move), Step(1.0, "scale", stretch))
 
     def link(name: str, summary: str, *steps: Step, observe_s: float = watch) -> DrillSpec:
         return DrillSpec(
             name,
-            f"{summary}; the formation moves 1 m meanwhile",
+            f"{summary}; the formation moves 1 m and stretches 25 % meanwhile",
             moving(*steps),
             fault,
             observe_s,
