@@ -76,10 +76,8 @@ class InProcessNetwork:
             if isinstance(self.rng, PairRandom):
                 pair = self.rng
                 at = np.flatnonzero(draw)
-                keep[at] = [
-                    pair(a, b).random() >= q
-                    for a, b, q in zip(i[at].tolist(), receivers[at].tolist(), p[at].tolist())
-                ]
+                links = zip(i[at].tolist(), receivers[at].tolist(), p[at].tolist(), strict=True)
+                keep[at] = [pair(a, b).random() >= q for a, b, q in links]
             else:
                 keep[draw] = self.rng.random(int(draw.sum())) >= p[draw]
         self.lost += int(receivers.shape[0] - keep.sum())
