@@ -136,7 +136,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument(
         "--no-arm", action="store_true", help="never arm: run the estimator on the ground only"
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed of the link-fault drills")
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="random seed of the link faults' draws (default: the scenario's seed, as swarm "
+        "simulate draws them; 0 without a scenario)",
+    )
     p.add_argument(
         "--lockstep",
         action="store_true",
@@ -295,7 +301,8 @@ def run(args: argparse.Namespace) -> int:
             reason = open_error(zsettings.connect[0], zsettings.secrets)
         raise AgentCliError(f"cannot open the Zenoh session: {reason}") from None
 
-    pair_random = PairRandom(args.seed)
+    seed = args.seed if args.seed is not None else (scenario.seed if scenario else 0)
+    pair_random = PairRandom(seed)
 
     def transport(bus_: Bus, drone: int, position: Position) -> AgentTransport:
         # called once the host runs; ``host`` is bound by then

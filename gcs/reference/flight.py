@@ -19,7 +19,7 @@ from drone_agent.agent_core import AgentCore, AgentOutput, BatchAgentCore
 from drone_agent.config import agent_config
 from drone_agent.fault_timeline import TimedAction, timeline
 from drone_agent.flight_phase import FlightPhase, Readiness, Request, VehicleView
-from drone_agent.link_faults import LinkFaults
+from drone_agent.link_faults import LinkFaults, PairRandom
 from gcs.reference.network import InProcessNetwork
 from gcs.report.flight_record import FlightRecord, scenario_link_cuts
 from protocols.consensus_message import ConsensusMessage
@@ -99,7 +99,10 @@ class ReferenceFlight:
         #: the separation layer changes the drone's command (events on each change)
         self.separating = [False] * self.n
         delay = max(1, scenario.consensus.delay_ticks)
-        self.network = InProcessNetwork(self.n, scenario.comms.range_m, self.rng, delay)
+        # the radio's losses per directed link, seeded by the scenario, as the agents of swarm up
+        # draw them: the in-process and distributed flights lose the same messages
+        radio_rng = PairRandom(scenario.seed) if rng is None else self.rng
+        self.network = InProcessNetwork(self.n, scenario.comms.range_m, radio_rng, delay)
         self.failsafe = FailsafeConfig()
         self.armed = np.zeros(self.n, dtype=bool)
         self.crashed = np.zeros(self.n, dtype=bool)

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from drone_agent.link_faults import LinkFaults
+from drone_agent.link_faults import LinkFaults, PairRandom
 from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
 
@@ -21,7 +21,11 @@ class InProcessNetwork:
     """Delivers each round's messages to the drones in range, ``base_delay_ticks`` (≥ 1) later."""
 
     def __init__(
-        self, n_drones: int, range_m: float, rng: np.random.Generator, base_delay_ticks: int = 1
+        self,
+        n_drones: int,
+        range_m: float,
+        rng: np.random.Generator | PairRandom,
+        base_delay_ticks: int = 1,
     ) -> None:
         if base_delay_ticks < 1:
             raise ValueError("a message can arrive at the earliest one tick after it was sent")
@@ -49,8 +53,11 @@ class InProcessNetwork:
         """Put this round's messages on the air; they reach receivers in range after the delay.
 
         Per (message, receiver in range) in message order, receivers ascending: a cut or the
-        partition stops it; else it is lost with its link's probability (one draw of ``rng`` per
-        link with a loss, in that order); else it arrives after the base plus its link's delay."""
+        partition stops it; else it is lost with its link's probability (one draw per link with a
+        loss: from that link's own generator when ``rng`` is a :class:`PairRandom` — as every
+        agent of ``swarm up`` draws them (drone_agent.link_faults), so both runners lose the same
+        messages —, else from ``rng`` in that order); else it arrives after the base plus its
+        link's delay."""
         if not messages:
             return
         senders = np.array([m.sender for m in messages], dtype=np.intp)
@@ -66,7 +73,13 @@ class InProcessNetwork:
         if loss is not None:
             p = loss[i, receivers]
             draw = keep & (p > 0.0)
-            keep[draw] = self.rng.random(int(draw.sum())) >= p[draw]
+            if isinstance(self.rng, PairRandom):
+                pair = self.rng
+                at = np.flatnonzero(draw)
+                links = zip(i[at].tolist(), receivers[at].tolist(), p[at].tolist(), strict=True)
+                keep[at] = [pair(a, b).random() >= q for a, b, q in links]
+            else:
+                keep[draw] = self.rng.random(int(draw.sum())) >= p[draw]
         self.lost += int(receivers.shape[0] - keep.sum())
         which, receivers, i = which[keep], receivers[keep], i[keep]
         ticks = np.full(receivers.shape[0], self.base_delay_ticks, dtype=np.int64)
