@@ -32,7 +32,7 @@ typecheck: $(STAMP)
 	$(BIN)/mypy
 
 test: lint typecheck
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=15
 
 # regenerate scenarios/ (the library of `swarm scenario new` files; paper.toml has its own script)
 scenarios: $(STAMP)
