@@ -289,7 +289,9 @@ def test_every_operator_command_flies_as_typed(tmp_path: Path, clock: str) -> No
     t_hold = _command_time(events, "hold")
     a1, a2 = _descriptors_at(track, 79.0, 0.0), _descriptors_at(track, 81.5, 0.0)
     assert c0[0] + 5.1 < a1[0] < c0[0] + 8.0, a1[:3]
-    assert np.linalg.norm(a2[:3] - a1[:3]) < 0.03, (a1[:3], a2[:3])
+    # stays: a 10 m move would carry it metres on; what is left is the braking's last settling
+    # (3.8 cm over these 2.5 s in lockstep since the orientation-tracking controller, issue 15)
+    assert np.linalg.norm(a2[:3] - a1[:3]) < 0.05, (a1[:3], a2[:3])
     assert t_hold > 73.5
     # land: everybody down, gently, disarmed
     t_land, t_up = _command_time(events, "land"), _command_time(events, "takeoff", 1)
