@@ -11,8 +11,6 @@ from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
 
-import numpy as np
-
 from drone_agent.agent_core import AgentConfig
 from drone_agent.config import agent_config
 from drone_agent.fault_drills import FaultDrills
@@ -367,14 +365,6 @@ def run(args: argparse.Namespace) -> int:
         host.close()
         bus.close()
     return 0
-
-
-def fault_rng(seed: int, drone: int) -> np.random.Generator:
-    """The random stream of drone ``drone``'s link-fault drills (which of its messages a loss
-    drill drops): one per drone, so losses are independent across drones and agent processes
-    (one seed for every process drew the same drops everywhere: a loss drill then dropped the
-    two directions of a link together) and do not depend on which drones share a process."""
-    return np.random.default_rng((seed, drone))
 
 
 def host_round(host: AgentHost) -> Callable[[], int]:

@@ -8,8 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drone_agent.agent_cli import fault_rng
-from drone_agent.link_faults import FaultyTransport, LinkFaults
+from drone_agent.link_faults import FaultyTransport, LinkFaults, PairRandom
 from drone_agent.memory_bus import MemoryBus
 from drone_agent.transport_link import AgentLink, LinkSettings
 from protocols.consensus_message import ConsensusMessage
@@ -79,7 +78,7 @@ def test_loss_drops_each_direction_of_a_link_independently() -> None:
     clock = [0]
     links = [
         FaultyTransport(
-            AgentLink(session, i, POSITIONS[i], SETTINGS), faults, fault_rng(0, i), lambda: clock[0]
+            AgentLink(session, i, POSITIONS[i], SETTINGS), faults, PairRandom(0), lambda: clock[0]
         )
         for i in (0, 1)
     ]
@@ -99,4 +98,4 @@ def test_loss_drops_each_direction_of_a_link_independently() -> None:
         session.close()
     assert lost.mean(axis=0) == pytest.approx([0.5, 0.5], abs=0.08)
     assert lost.all(axis=1).mean() == pytest.approx(0.25, abs=0.07)
-    assert fault_rng(0, 1).random() == fault_rng(0, 1).random()  # repeatable for a seed
+    assert PairRandom(0)(0, 1).random() == PairRandom(0)(0, 1).random()  # repeatable for a seed
