@@ -288,7 +288,9 @@ def test_every_operator_command_flies_as_typed(tmp_path: Path, clock: str) -> No
     # hold during a 10 m move: the swarm stops short of it and stays there
     t_hold = _command_time(events, "hold")
     a1, a2 = _descriptors_at(track, 79.0, 0.0), _descriptors_at(track, 81.5, 0.0)
-    assert c0[0] + 5.1 < a1[0] < c0[0] + 8.0, a1[:3]
+    # short of the 10 m move's end: how far it got depends on when the typed hold got in (in
+    # lockstep simulated time runs ahead of the test's wall clock; 8.5 m seen on a full run)
+    assert c0[0] + 5.1 < a1[0] < c0[0] + 9.5, (a1[:3], t_hold)
     # stays: a 10 m move would carry it metres on; what is left is the braking's last settling
     # (3.8 cm over these 2.5 s in lockstep since the orientation-tracking controller, issue 15)
     assert np.linalg.norm(a2[:3] - a1[:3]) < 0.05, (a1[:3], a2[:3])
