@@ -35,6 +35,7 @@ from drone_agent.agent_core import AgentConfig, AgentCore, BatchAgentCore
 from drone_agent.hosted_agent import DueTick, HostedAgent, RunOptions
 from drone_agent.round_gate import RoundBook, RoundGate
 from drone_agent.transport import AgentTransport, Bus, Position
+from drone_agent.transport_link import ConsensusHub
 from drone_agent.vehicle_link import VehicleLink
 from protocols.trajectory import DescriptorTrajectory
 
@@ -103,12 +104,16 @@ class AgentHost:
         wall_clock: Callable[[], float] = time.monotonic,
         rounds: RoundBook | None = None,
         roster: Sequence[int] = (),
+        hub: ConsensusHub | None = None,
     ) -> None:
         """``rounds`` and ``roster`` (the drones expected from the first tick on, e.g. the
-        scenario's) are needed in lockstep (``options.lockstep``)."""
+        scenario's) are needed in lockstep (``options.lockstep``). ``hub``: the process's
+        consensus hub, if its agents' transports share one; flushed after each pass's ticks,
+        before the round-done markers (which must follow the messages they close)."""
         if options.lockstep and rounds is None:
             raise ValueError("lockstep agents need the process's round book")
         self._rounds = rounds
+        self._hub = hub
         self._roster = tuple(roster)
         self._slots = [_Slot(d, link) for d, link in zip(drones, links, strict=True)]
         self._slot_of = {slot.drone: slot for slot in self._slots}
@@ -208,6 +213,8 @@ class AgentHost:
                     due.setdefault(when, []).append((slot.agent, tick))
             for group in due.values():
                 self._run_cores(group)
+            if self._hub is not None:
+                self._hub.flush()
             if self._rounds is not None:
                 self._rounds.flush()
                 if due:

@@ -246,6 +246,10 @@ class ZenohBus(ClosesOnExit):
 
         return _Declared(self.session.declare_subscriber(key_expr, callback))
 
+    def is_closed(self) -> bool:
+        """Whether the session is closed."""
+        return bool(self.session.is_closed())
+
     def declare_token(self, key: str) -> Closeable:
         """A liveliness token on ``key``, alive as long as it and the session are."""
         return _Declared(self.session.liveliness().declare_token(key))

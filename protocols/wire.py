@@ -47,7 +47,8 @@ its ``position_ned_m`` and ``velocity_ned_m_s`` fields.
 Decoders raise only :class:`WireError`, whose ``reason`` says why (callers count drops by
 reason); encoders raise ValueError for a message that cannot be sent.
 Status, plan, fault and round-done messages live in ``protocols.wire_status``,
-``protocols.wire_plan``, ``protocols.wire_fault`` and ``protocols.wire_round``.
+``protocols.wire_plan``, ``protocols.wire_fault`` and ``protocols.wire_round``; a process's
+consensus messages of one tick and cell travel together in ``protocols.wire_batch``.
 """
 
 from __future__ import annotations
@@ -95,6 +96,7 @@ class Kind(IntEnum):
     PLAN = 3
     FAULT = 4
     ROUND_DONE = 5
+    CONSENSUS_BATCH = 6  # protocols/wire_batch.py
 
 
 class Reason(StrEnum):
