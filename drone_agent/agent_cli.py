@@ -32,7 +32,8 @@ LOCKSTEP_LEASE_MS = 5000
 #: How long (µs) a lockstep agent's DROP publishers wait for room in a full send queue.
 LOCKSTEP_DROP_WAIT_US = 100_000
 #: A directory: the agent process runs under cProfile and dumps its profile there on exit
-#: (``agent-<first drone>-<pid>.prof``; bench/agent_process_profile.txt).
+#: (``agent-<first drone>-<pid>.prof``, in the main thread's CPU time;
+#: bench/agent_process_profile.txt).
 PROFILE_ENV = "SWARM_AGENT_PROFILE"
 
 
@@ -365,7 +366,8 @@ def run(args: argparse.Namespace) -> int:
     if profile_dir:
         import cProfile
 
-        profiler = cProfile.Profile()
+        # the main thread's CPU time (not wall time: the machine may be loaded)
+        profiler = cProfile.Profile(time.thread_time)
         profiler.enable()
     try:
         host.run(

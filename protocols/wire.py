@@ -64,7 +64,7 @@ from typing import Any
 
 import numpy as np
 
-from protocols.consensus_message import ConsensusMessage
+from protocols.consensus_message import ConsensusMessage, EdgeIncarnations, EdgeSums
 from protocols.frames import FloatArray
 from protocols.keys import MAX_DRONE_ID, validate_swarm_id
 
@@ -249,10 +249,18 @@ def encode_consensus(
     ready = _uint(message.ready_hops, MAX_DRONE_ID, "ready_hops")
     incarnation = _uint(message.incarnation, MAX_U32 - 1, "incarnation")
     heard = uint_ids(message.heard, "heard id")
-    neighbours = uint_ids(message.edge_sums, "edge neighbour")
-    floats = [message.gamma, *(message.edge_sums[j] for j in neighbours)]
-    ids = heard + neighbours
-    edge_incs = _edge_incarnations(message, neighbours)
+    fast = _edge_arrays(message)
+    if fast is not None:  # the batched core's messages: the same bytes, from arrays
+        neighbours, ids_block, incs_block, floats_block = fast
+        ids_block = struct.pack(f"<{len(heard)}H", *heard) + ids_block
+    else:
+        neighbours = uint_ids(message.edge_sums, "edge neighbour")
+        floats = [message.gamma, *(message.edge_sums[j] for j in neighbours)]
+        ids = heard + neighbours
+        edge_incs = _edge_incarnations(message, neighbours)
+        ids_block = struct.pack(f"<{len(ids)}H", *ids)
+        incs_block = struct.pack(f"<{len(edge_incs)}I", *edge_incs)
+        floats_block = finite_block(floats, (len(floats), N_GAMMA), "gamma and edge sums")
     velocity = message.velocity_ned_m_s
     payload = b"".join(
         (
@@ -268,14 +276,51 @@ def encode_consensus(
                 len(heard),
                 len(neighbours),
             ),
-            struct.pack(f"<{len(ids)}H", *ids),
-            struct.pack(f"<{len(edge_incs)}I", *edge_incs),
-            finite_block(floats, (len(floats), N_GAMMA), "gamma and edge sums"),
+            ids_block,
+            incs_block,
+            floats_block,
         )
     )
     if len(payload) > max_bytes:
         raise ValueError(f"consensus payload of {len(payload)} bytes exceeds {max_bytes}")
     return payload
+
+
+def _edge_arrays(message: ConsensusMessage) -> tuple[list[int], bytes, bytes, bytes] | None:
+    """For a message whose edge sums (and incarnations) are arrays over one id array
+    (:class:`~protocols.consensus_message.EdgeSums`): the edge ids and the bytes of the ids,
+    incarnations and floats blocks, as the general path makes them; None for any other message
+    (the general path then encodes it, or says what is wrong with it)."""
+    sums = message.edge_sums
+    if not isinstance(sums, EdgeSums):
+        return None
+    tags = message.edge_incarnations
+    ids = np.asarray(sums.ids)
+    n = ids.shape[0]
+    if tags is not None and not (
+        isinstance(tags, EdgeIncarnations) and np.array_equal(np.asarray(tags.ids), ids)
+    ):
+        return None
+    if ids.ndim != 1 or np.shape(message.gamma) != (N_GAMMA,):
+        return None
+    if np.shape(sums.sums) != (n, N_GAMMA) or (tags is not None and np.shape(tags.tags) != (n,)):
+        return None
+    if n and not (ids[0] >= 0 and ids[-1] <= MAX_DRONE_ID and (np.diff(ids) > 0).all()):
+        return None
+    floats = np.empty((n + 1, N_GAMMA), dtype="<f8")
+    floats[0] = message.gamma
+    if n:
+        floats[1:] = sums.sums
+    if not np.isfinite(floats).all():
+        return None  # the general path says why
+    if tags is None:
+        incs = np.full(n, NO_INCARNATION, dtype="<u4")
+    else:
+        t = np.asarray(tags.tags, dtype=np.int64)
+        if n and t.max() > MAX_U32 - 1:
+            return None
+        incs = np.where(t < 0, NO_INCARNATION, t).astype("<u4")
+    return ids.tolist(), ids.astype("<u2").tobytes(), incs.tobytes(), floats.tobytes()
 
 
 def _edge_incarnations(message: ConsensusMessage, neighbours: list[int]) -> list[int]:

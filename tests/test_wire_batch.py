@@ -161,3 +161,50 @@ def test_a_bad_batch_is_counted_by_each_agent_that_hears_it() -> None:
 def test_batch_lengths_are_little_endian_u32() -> None:
     data = bytes.fromhex(BATCH_HEX)
     assert struct.unpack_from("<H2I", data, 8) == (2, 194, 194)
+
+
+def test_messages_of_the_batched_core_encode_to_the_same_bytes_as_plain_ones() -> None:
+    from protocols.consensus_message import EdgeIncarnations, EdgeSums
+
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 4, 17):
+        ids = np.sort(rng.choice(200, n, replace=False)).astype(np.intp)
+        sums = rng.normal(size=(n, 18))
+        tags = rng.integers(-1, 5000, n).astype(np.int64)
+        for with_tags in (True, False):
+            arrays = ConsensusMessage(
+                sender=250,
+                round=99,
+                gamma=rng.normal(size=18),
+                edge_sums=EdgeSums(ids, sums),
+                heard=frozenset(rng.choice(200, 5, replace=False).tolist()),
+                degree=5,
+                ready_hops=2,
+                velocity_ned_m_s=np.array([0.1, 0.2, -0.3]),
+                incarnation=12,
+                edge_incarnations=EdgeIncarnations(ids, tags) if with_tags else None,
+            )
+            plain = ConsensusMessage(
+                **{
+                    **arrays.__dict__,
+                    "edge_sums": {int(j): sums[k] for k, j in enumerate(ids)},
+                    "edge_incarnations": (
+                        {int(j): int(t) for j, t in zip(ids, tags, strict=True)}
+                        if with_tags
+                        else None
+                    ),
+                }
+            )
+            assert encode_consensus(arrays, (1, 2, 3), SID) == encode_consensus(
+                plain, (1, 2, 3), SID
+            )
+    bad = ConsensusMessage(
+        sender=1,
+        round=1,
+        gamma=np.zeros(18),
+        edge_sums=EdgeSums(np.array([2]), np.full((1, 18), np.nan)),
+        heard=frozenset(),
+        degree=0,
+    )
+    with pytest.raises(ValueError, match="finite"):
+        encode_consensus(bad, (0, 0, 0), SID)
