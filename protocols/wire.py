@@ -385,7 +385,10 @@ def decode_consensus(
     """Decode a consensus payload of swarm ``swarm_id``; WireError for anything malformed.
 
     The arrays of the returned message are float64 copies, read-only; its ``position_ned_m`` is
-    the packet's, its ``velocity_ned_m_s`` None from a version-1 sender.
+    the packet's, its ``velocity_ned_m_s`` None from a version-1 sender. Its edge sums and
+    incarnations are array-backed mappings (:class:`~protocols.consensus_message.EdgeSums`,
+    :class:`~protocols.consensus_message.EdgeIncarnations`, the incarnations said only), as the
+    batched core's own messages: a receiver's estimator reads them as arrays.
     """
     off, version, fields = _fixed(data, swarm_id, max_bytes)
     round_, sender, degree, ready, incarnation = fields[:5]
@@ -393,34 +396,42 @@ def decode_consensus(
     n_ids = n_heard + n_edges
     n_tags = n_edges if version >= 3 else 0
     expect_length(data, off + 2 * n_ids + 4 * n_tags + _FLOATS * (1 + n_edges), "consensus")
-    ids = struct.unpack_from(f"<{n_ids}H", data, off)
-    heard, neighbours = ids[:n_heard], ids[n_heard:]
-    tags = struct.unpack_from(f"<{n_tags}I", data, off + 2 * n_ids)
+    ids = np.frombuffer(data, "<u2", n_ids, off).astype(np.intp)
+    tags = np.frombuffer(data, "<u4", n_tags, off + 2 * n_ids).astype(np.int64)
     floats = np.frombuffer(
         data, "<f8", N_GAMMA * (1 + n_edges), off + 2 * n_ids + 4 * n_tags
     ).reshape(-1, N_GAMMA)
     if not np.isfinite(floats).all():
         raise WireError(Reason.NOT_FINITE, "consensus gamma or an edge sum is NaN or infinite")
-    check_ids(heard, "heard")
-    check_ids(neighbours, "edge neighbour")
+    heard, neighbours = ids[:n_heard], ids[n_heard:]
+    if n_heard > 1 and (heard[1:] <= heard[:-1]).any():
+        raise WireError(Reason.BAD_VALUE, "heard ids must be strictly increasing")
+    if n_edges > 1 and (neighbours[1:] <= neighbours[:-1]).any():
+        raise WireError(Reason.BAD_VALUE, "edge neighbour ids must be strictly increasing")
     floats = floats.astype(np.float64)  # a native, aligned, writable copy ...
     floats.setflags(write=False)  # ... made read-only
+    neighbours.setflags(write=False)
     motion = np.array(fields[5:-2])  # position (3), then velocity (3) from version 2
     motion.setflags(write=False)
     position = motion[:3]
+    edge_tags: EdgeIncarnations | None = None
+    if version >= 3:  # the ones said (a plain mapping of them, as the arrays it is made of)
+        said = tags != NO_INCARNATION
+        if said.all():
+            edge_tags = EdgeIncarnations(neighbours, tags)
+        else:
+            edge_tags = EdgeIncarnations(neighbours[said], tags[said])
     message = ConsensusMessage(
         sender=sender,
         round=round_,
         gamma=floats[0],
-        edge_sums=dict(zip(neighbours, floats[1:], strict=True)),
-        heard=frozenset(heard),
+        edge_sums=EdgeSums(neighbours, floats[1:]),
+        heard=frozenset(heard.tolist()),
         degree=degree,
         ready_hops=ready,
         position_ned_m=position,
         velocity_ned_m_s=None if version == 1 else motion[3:],
         incarnation=incarnation,
-        edge_incarnations=None
-        if version < 3
-        else {j: t for j, t in zip(neighbours, tags, strict=True) if t != NO_INCARNATION},
+        edge_incarnations=edge_tags,
     )
     return ConsensusPacket(message, position)
