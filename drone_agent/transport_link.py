@@ -137,7 +137,7 @@ class _Entry:
         self._packet: ConsensusPacket | None = None
 
     def packet(self, swarm_id: str, max_bytes: int) -> ConsensusPacket:
-        """The decoded message (WireError if it does not decode)."""
+        """The decoded message (WireError if it does not decode, each time asked)."""
         if self._packet is None:
             self._packet = decode_consensus(self.payload, swarm_id, max_bytes=max_bytes)
         return self._packet
@@ -415,15 +415,26 @@ class AgentLink(ClosesOnExit):
         early, self._early = self._early, []
         counts, me = self._counts, self._drone
         out = [p for e in early if (p := self._in_range(e)) is not None]
+        # the loop of _in_range, inlined for the usual case (a round this agent has sent)
+        settings, sent_at, position = self._settings, self._sent_at, self._position
+        hold = settings.hold_early and self._last_sent >= 0
+        last, reach, dist = self._last_sent, settings.comm_range_m, math.dist
+        rx = out_of_range = 0
         for entries in incoming:
             for e in entries:
                 if e.sender == me:
                     continue  # our own message, back from our own cell
-                counts["rx"] += 1
+                rx += 1
                 if e.error is not None:
                     counts[e.error] += 1
-                elif (p := self._in_range(e)) is not None:
+                elif hold and e.round > last:
+                    self._in_range(e)  # held
+                elif dist(e.origin, sent_at.get(e.round, position)) >= reach:
+                    out_of_range += 1
+                elif (p := self._decoded(e)) is not None:
                     out.append(p)
+        counts["rx"] += rx
+        counts["out_of_range"] += out_of_range
         out.sort(key=lambda p: (p.message.sender, p.message.round))
         counts["delivered"] += len(out)
         return out
@@ -443,6 +454,11 @@ class AgentLink(ClosesOnExit):
         if math.dist(e.origin, own) >= self._settings.comm_range_m:
             self._counts["out_of_range"] += 1
             return None
+        return self._decoded(e)
+
+    def _decoded(self, e: _Entry) -> ConsensusPacket | None:
+        """The entry's message, decoded once for all the agents that take it; None (counted)
+        if it does not decode."""
         try:
             return e.packet(self._keys.swarm_id, self._settings.max_consensus_bytes)
         except WireError as exc:
