@@ -24,6 +24,7 @@ decision, pure apart from the book it reads and the wall time passed in.
 
 from __future__ import annotations
 
+import itertools
 from collections import deque
 from collections.abc import Iterable, Sequence
 
@@ -32,6 +33,7 @@ from protocols.keys import SwarmKeys
 from protocols.wire import WireError
 from protocols.wire_round import RoundDone, decode_round_done, encode_round_done
 
+_NOT_YET = itertools.repeat(-1)  # done.get's default: no round finished
 #: Markers kept between two polls (oldest dropped beyond: a newer marker says more).
 MARKER_CAPACITY = 1024
 
@@ -146,6 +148,8 @@ class RoundGate:
         self._tick = -1
         self._tick_since = 0.0
         self._members = frozenset(self.roster)
+        #: the roster but this agent, sorted (None: to be made again after a change)
+        self._others: tuple[int, ...] | None = None
 
     def ready(self, tick: int, now: float) -> bool:
         """Whether every drone of the roster has finished round ``tick - 1`` or is dead (dropped
@@ -165,11 +169,21 @@ class RoundGate:
             self._first_tick = tick
             self.roster = {j for j in self.roster if j in alive} | {self.me}
             self._members = frozenset(self.roster)
+            self._others = None
         if tick > self._first_tick:
             book = self.book
             book.poll()
             need = tick - 1
             done, alive = book.done, book.alive
+            if self._others is None:
+                self._others = tuple(sorted(self.roster - {self.me}))
+            newcomers = done.keys() - self.roster
+            # the usual case, at C speed: every other drone of the roster has sent its round
+            # and nobody joins (the loops below would change nothing)
+            if min(map(done.get, self._others, _NOT_YET), default=need) >= need and not any(
+                done[j] >= need and j in alive for j in newcomers
+            ):
+                return True
             changed = False
             for j in sorted(self.roster):
                 if j == self.me or done.get(j, -1) >= need:
@@ -185,12 +199,13 @@ class RoundGate:
                 self.roster.discard(j)
                 self._since.pop(j, None)
                 changed = True
-            for j, r in done.items():  # newcomers (a restarted agent): from their next round
-                if j not in self.roster and r >= need and j in alive:
+            for j in sorted(newcomers):  # newcomers (a restarted agent): from their next round
+                if done[j] >= need and j in alive:
                     self.roster.add(j)
                     changed = True
             if changed:
                 self._members = frozenset(self.roster)
+                self._others = None
         return True
 
     def members(self) -> frozenset[int]:
