@@ -42,6 +42,9 @@ from protocols.trajectory import DescriptorTrajectory
 TransportFactory = Callable[[Bus, int, Position], AgentTransport]
 #: Lockstep: with no tick computed for this long (wall s), re-send the newest round markers.
 REPEAT_MARKERS_S = 0.2
+#: Lockstep: while no vehicle sample, marker or liveliness change comes in, the agents are looked
+#: at (heartbeats, timeouts, the gates' grace periods) only this often (wall s).
+IDLE_PASS_S = 0.02
 
 
 class DroneIdError(ValueError):
@@ -187,11 +190,13 @@ class AgentHost:
         ticks now due, :meth:`pending_rounds`), ``on_leave`` once for each agent that leaves the
         swarm on its own, ``on_return(drone, time_boot_ms)`` when a restarted drone's new agent
         starts."""
-        last_report = last_tick = self._clock()
+        last_report = last_tick = last_full = self._clock()
         while not self._stop.is_set():
+            fresh = False
             for key, _ in self._selector.select(timeout=0.002):
                 slot: _Slot = key.data
                 for sample in slot.link.poll():
+                    fresh = True
                     slot.newest_ms = max(slot.newest_ms, sample.time_boot_ms)
                     if slot.revive_at_ms is not None and slot.newest_ms >= slot.revive_at_ms:
                         self._revive(slot)
@@ -203,7 +208,14 @@ class AgentHost:
             if on_loop is not None:
                 on_loop()
             due: dict[tuple[int, int], list[tuple[HostedAgent, DueTick]]] = {}
-            for slot in self._slots:
+            now = self._clock()
+            if self._rounds is not None and not fresh and now - last_full < IDLE_PASS_S:
+                # lockstep, waiting: nothing can have become due unless a marker or a
+                # liveliness change came in (the time-based checks run every IDLE_PASS_S)
+                fresh = self._rounds.poll()
+            else:
+                fresh, last_full = True, now
+            for slot in self._slots if fresh else ():
                 if slot.agent is None:
                     self._greet(slot)
                     continue

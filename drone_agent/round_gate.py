@@ -69,8 +69,10 @@ class RoundBook(ClosesOnExit):
         if drone is not None:
             self._changes.append((drone, alive))
 
-    def poll(self) -> None:
-        """Take in the markers and liveliness changes that arrived (on the caller's thread)."""
+    def poll(self) -> bool:
+        """Take in the markers and liveliness changes that arrived (on the caller's thread);
+        whether there were any."""
+        news = bool(self._changes)
         while self._changes:
             drone, alive = self._changes.popleft()
             if alive:
@@ -81,6 +83,7 @@ class RoundBook(ClosesOnExit):
                 self.alive.discard(drone)
                 self.gone.add(drone)
         for _key, payload in self._inbox.drain():
+            news = True
             try:
                 marker = decode_round_done(payload, self._keys.swarm_id)
             except WireError:
@@ -91,6 +94,7 @@ class RoundBook(ClosesOnExit):
                 if marker.round > done.get(drone, -1):
                     done[drone] = marker.round
                 self.seen.add(drone)
+        return news
 
     def finished(self, drone: int, round_: int) -> None:
         """Hosted ``drone`` has finished ``round_`` (its consensus message, if any, is sent)."""
