@@ -203,7 +203,15 @@ def _uint(value: int, limit: int, what: str) -> int:
 def uint_ids(ids: Iterable[int], what: str) -> list[int]:
     """Drone ids sorted for encoding; ValueError unless each is 0..65535 and there are at most
     65535 (a u16 count)."""
-    out = sorted(_uint(j, MAX_DRONE_ID, what) for j in ids)
+    try:  # the usual case: plain ints in range, checked at C speed
+        out = sorted(ids)
+        fine = not out or (
+            out[0] >= 0 and out[-1] <= MAX_DRONE_ID and all(type(j) is int for j in out)
+        )
+    except TypeError:
+        fine = False
+    if not fine:
+        out = sorted(_uint(j, MAX_DRONE_ID, what) for j in ids)
     if len(out) > MAX_DRONE_ID:
         raise ValueError(f"{len(out)} {what}s do not fit a u16 count")
     return out
