@@ -333,7 +333,8 @@ class AgentLink(ClosesOnExit):
         self._declared: list[Closeable] = []
         try:
             self._declare(bus.watch_liveliness(self._keys.alive_all(), self._on_liveliness))
-            self._status = bus.publisher(self._keys.status(drone), Congestion.DROP)
+            # batched by the session (not express): far cheaper, and nobody waits on a status
+            self._status = bus.publisher(self._keys.status(drone), Congestion.DROP, express=False)
             self._declare(self._status)
             self._declare(bus.subscribe_callback(self._keys.plan, self._on_plan))
             if settings.serve_plan:
