@@ -379,7 +379,7 @@ def run(args: argparse.Namespace) -> int:
             on_return=back,
         )
     finally:
-        if profiler is not None:
+        if profiler is not None and profile_dir:
             profiler.disable()
             out = Path(profile_dir) / f"agent-{drones[0]}-{os.getpid()}.prof"
             profiler.dump_stats(out)
