@@ -310,7 +310,9 @@ def run(args: argparse.Namespace) -> int:
 
     # one hub for the process's agents: shared subscriptions, and (several agents) their
     # messages of a pass sent as one sample per cell (protocols/wire_batch.py)
-    hub = ConsensusHub(bus, settings, batch=len(drones) > 1)
+    rounds = RoundBook(bus, settings.keys(), drones) if lockstep else None
+    news = None if rounds is None else (lambda: rounds.version)
+    hub = ConsensusHub(bus, settings, batch=len(drones) > 1, news=news)
 
     def transport(bus_: Bus, drone: int, position: Position) -> AgentTransport:
         # called once the host runs; ``host`` is bound by then
@@ -318,7 +320,6 @@ def run(args: argparse.Namespace) -> int:
         return FaultyTransport(inner, faults, pair_random, lambda: host.round_of(drone))
 
     options = RunOptions(control_period_ms=period_ms, arm=not args.no_arm, lockstep=lockstep)
-    rounds = RoundBook(bus, settings.keys(), drones) if lockstep else None
     roster = range(scenario.n_drones) if scenario is not None else ()
     host = AgentHost(drones, links, bus, transport, config, plan, options, rounds=rounds,
                      roster=roster, hub=hub)  # fmt: skip

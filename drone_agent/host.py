@@ -207,6 +207,8 @@ class AgentHost:
                     slot.agent.on_sample(sample)
             if on_loop is not None:
                 on_loop()
+            if self._hub is not None:
+                self._hub.new_pass()
             due: dict[tuple[int, int], list[tuple[HostedAgent, DueTick]]] = {}
             now = self._clock()
             if self._rounds is not None and not fresh and now - last_full < IDLE_PASS_S:

@@ -54,6 +54,8 @@ class RoundBook(ClosesOnExit):
         self._to_send: dict[int, list[int]] = {}
         self._newest: dict[int, int] = {}  # hosted drone -> newest round finished
         self.rejected = 0
+        #: moves whenever :meth:`poll` took in a marker or a liveliness change
+        self.version = 0
         self._declared: list[Closeable] = []
         # DROP as the consensus messages: never blocking the agent's thread (BLOCK stalled whole
         # lockstep swarms on a loaded machine); a lost marker is made up for by :meth:`repeat`
@@ -94,6 +96,8 @@ class RoundBook(ClosesOnExit):
                 if marker.round > done.get(drone, -1):
                     done[drone] = marker.round
                 self.seen.add(drone)
+        if news:
+            self.version += 1
         return news
 
     def finished(self, drone: int, round_: int) -> None:

@@ -21,9 +21,11 @@ one that publishes each message at once, alone (the single-message schema on the
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +35,7 @@ from drone_agent.transport import (
     Closeable,
     ClosesOnExit,
     Congestion,
+    Inbox,
     LinkCounters,
     Position,
     Publisher,
@@ -153,24 +156,38 @@ class ConsensusHub(ClosesOnExit):
     ``batch``: send the messages staged in a pass (:meth:`send`) as one sample per cell at
     :meth:`flush` (a cell with one message sends it alone); otherwise each is sent at once."""
 
-    def __init__(self, bus: Bus, settings: LinkSettings, *, batch: bool = True) -> None:
+    def __init__(
+        self,
+        bus: Bus,
+        settings: LinkSettings,
+        *,
+        batch: bool = True,
+        news: Callable[[], int] | None = None,
+    ) -> None:
+        """``news``: a counter that moves whenever the process's lockstep round book took in a
+        marker (:attr:`RoundBook.version`); with it and :meth:`new_pass`, :meth:`pump` drains
+        the subscriptions only when something may have come that an agent must see."""
         self._bus, self._settings, self._keys = bus, settings, settings.keys()
         self._batch = batch
-        # filled by the bus's callbacks (they only append), drained by :meth:`pump`
-        self._queue: deque[tuple[str, bytes]] = deque(maxlen=64 * settings.inbox_capacity)
-        self._subs: dict[Cell, Closeable] = {}
+        self._news = news
+        # pulled ring channels (no Python on Zenoh's threads), drained by :meth:`pump`
+        self._subs: dict[Cell, Inbox] = {}
         self._readers: dict[Cell, list[AgentLink]] = {}
         self._cell_of_key: dict[str, tuple[Cell, int | None] | None] = {}
         self._outbox: dict[Cell, list[tuple[int, bytes]]] = {}
         self._publishers: dict[str, Publisher] = {}
+        self._pass: int | None = None  # None: not paced by a host, drain on every pump
+        self._pumped: tuple[int, int] | None = None
         self._closed = False
 
-    def _on_sample(self, key: str, payload: bytes) -> None:
-        self._queue.append((key, payload))
+    def new_pass(self) -> None:
+        """A host's new pass over its agents: the next :meth:`pump` drains."""
+        self._pass = 0 if self._pass is None else self._pass + 1
 
     def follow(self, link: AgentLink, old: Cell | None, new: Cell | None) -> None:
         """``link`` now listens to the 27 cells around ``new`` (None: to none)."""
-        self._route()  # what came in so far goes to the readers of its time
+        with contextlib.suppress(RuntimeError):  # a closed session: nothing more comes
+            self._drain()  # what came in so far goes to the readers of its time
         before = set(neighbourhood(old)) if old is not None else set()
         after = set(neighbourhood(new)) if new is not None else set()
         for c in sorted(after - before):
@@ -178,7 +195,7 @@ class ConsensusHub(ClosesOnExit):
             readers.append(link)
             if c not in self._subs:
                 key = self._keys.consensus_cell(c)
-                self._subs[c] = self._bus.subscribe_callback(key, self._on_sample)
+                self._subs[c] = self._bus.subscribe(key, self._settings.inbox_capacity)
         for c in sorted(before - after):
             readers = self._readers.get(c, [])
             if link in readers:
@@ -205,28 +222,35 @@ class ConsensusHub(ClosesOnExit):
         return got  # type: ignore[return-value]
 
     def pump(self) -> None:
-        """Split the samples that arrived and hand their messages to the agents of their cell."""
-        if not self._queue and self._bus.is_closed():
-            raise RuntimeError("cannot receive: the session is closed")
-        self._route()
+        """Split the samples that arrived and hand their messages to the agents of their cell.
+        Paced by a host (:meth:`new_pass`): once per pass, and again after the round book took
+        in a marker (whose messages came before it: they must be drained before an agent that
+        saw the marker takes in its inbox)."""
+        if self._pass is not None:
+            epoch = (self._pass, self._news() if self._news is not None else 0)
+            if epoch == self._pumped:
+                return
+            self._pumped = epoch
+        self._drain()
 
-    def _route(self) -> None:
-        queue = self._queue
-        if not queue:
-            return
+    def _drain(self) -> None:
         sid, limit = self._keys.swarm_id, self._settings.max_consensus_bytes
-        while queue:
-            key, payload = queue.popleft()
-            where = self._where(key)
-            if where is None:
+        readers_of = self._readers
+        for cell, inbox in list(self._subs.items()):
+            samples = inbox.drain()
+            if not samples:
                 continue
-            cell, sender = where
-            readers = self._readers.get(cell)
+            readers = readers_of.get(cell)
             if not readers:
                 continue
-            entries = self._split(payload, -1 if sender is None else sender, sid, limit)
-            for link in readers:
-                link._incoming.append(entries)
+            for key, payload in samples:
+                where = self._where(key)
+                if where is None or where[0] != cell:
+                    continue
+                sender = where[1]
+                entries = self._split(payload, -1 if sender is None else sender, sid, limit)
+                for link in readers:
+                    link._incoming.append(entries)
 
     def _split(self, payload: bytes, key_sender: int, sid: str, limit: int) -> list[_Entry]:
         """The messages of one sample (a single message or a batch), heads read."""
