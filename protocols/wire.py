@@ -306,14 +306,15 @@ def _edge_arrays(message: ConsensusMessage) -> tuple[list[int], bytes, bytes, by
     ids = np.asarray(sums.ids)
     n = ids.shape[0]
     if tags is not None and not (
-        isinstance(tags, EdgeIncarnations) and np.array_equal(np.asarray(tags.ids), ids)
+        isinstance(tags, EdgeIncarnations)
+        and (tags.ids is sums.ids or np.array_equal(np.asarray(tags.ids), ids))
     ):
         return None
     if ids.ndim != 1 or np.shape(message.gamma) != (N_GAMMA,):
         return None
     if np.shape(sums.sums) != (n, N_GAMMA) or (tags is not None and np.shape(tags.tags) != (n,)):
         return None
-    if n and not (ids[0] >= 0 and ids[-1] <= MAX_DRONE_ID and (np.diff(ids) > 0).all()):
+    if n and not (ids[0] >= 0 and ids[-1] <= MAX_DRONE_ID and (ids[1:] > ids[:-1]).all()):
         return None
     floats = np.empty((n + 1, N_GAMMA), dtype="<f8")
     floats[0] = message.gamma
