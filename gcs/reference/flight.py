@@ -17,12 +17,12 @@ import numpy as np
 
 from drone_agent.agent_core import AgentCore, AgentOutput, BatchAgentCore
 from drone_agent.config import agent_config
+from drone_agent.consensus_batch import frozen_record, frozen_replace
 from drone_agent.fault_timeline import TimedAction, timeline
 from drone_agent.flight_phase import FlightPhase, Readiness, Request, VehicleView
 from drone_agent.link_faults import LinkFaults, PairRandom
 from gcs.reference.network import InProcessNetwork
 from gcs.report.flight_record import FlightRecord, scenario_link_cuts
-from protocols.consensus_message import ConsensusMessage
 from protocols.scenario import Scenario
 from protocols.wire_plan import FlightCommand
 from sitl_sim.attitude_control import euler_from_quat_batch
@@ -230,22 +230,23 @@ class ReferenceFlight:
                 rec.neighbour_ids[k] = {
                     i: out.active_neighbours for i, out in zip(live, outs, strict=True)
                 }
-        yaw = euler_from_quat_batch(self.state[QUAT])[2]
+        yaw = euler_from_quat_batch(self.state[QUAT])[2].tolist()
+        altitude = (-pos[:, 2]).tolist()
         messages = []
         flying: list[int] = []
         commands: list[tuple[float, float, float, float]] = []
+        separating, crashed = self.separating, self.crashed.tolist()
+        phases, readiness_of = self.phases, self.readiness
         for i, out in zip(live, outs, strict=True):
-            if out.separating != self.separating[i]:
-                self.separating[i] = out.separating
+            if out.separating != separating[i]:
+                separating[i] = out.separating
                 self._event("separation" if out.separating else "separation_end", drone=i)
-            phase, readiness = self.phases[i], self.readiness[i]
+            phase, readiness = phases[i], readiness_of[i]
             ready = readiness.update(out, inboxes[i], members, phase.committed)
-            messages.append(
-                ConsensusMessage(**{**vars(out.message), "ready_hops": readiness.level})
-            )
-            if self.crashed[i]:
+            messages.append(frozen_replace(out.message, ready_hops=readiness.level))
+            if crashed[i]:
                 continue
-            sp = self._decide(i, out, phase.committed or ready, -float(pos[i, 2]), yaw[i])
+            sp = self._decide(i, out, phase.committed or ready, altitude[i], yaw[i])
             if sp is not None:
                 flying.append(i)
                 commands.append(sp)
@@ -274,22 +275,18 @@ class ReferenceFlight:
         scenario's plan always says FLY. The vehicle here has no flight modes: arming takes the
         offboard setpoints at once, and a hold (no valid setpoint in the air) flies the order's
         level hover setpoint."""
-        arming = not self.armed[i] and not self.in_failsafe[i]
-        vehicle = VehicleView(
-            armed=bool(self.armed[i]),
-            in_offboard=bool(self.armed[i]),
-            in_land=bool(self.in_failsafe[i]),
-            in_hold=False,
-            altitude_m=altitude_m,
-        )
+        armed, in_failsafe = bool(self.armed[i]), bool(self.in_failsafe[i])
+        arming = not armed and not in_failsafe
+        # VehicleView(armed, in_offboard, in_land, in_hold, altitude_m)
+        vehicle = frozen_record(VehicleView, armed, armed, in_failsafe, False, altitude_m)
         assert out.desired is not None
         order = self.phases[i].decide(
             FlightCommand.FLY, True, ready, out.setpoint, -float(out.desired[2]), vehicle, yaw_rad
         )
         if order.request == Request.ARM_OFFBOARD and arming:
-            self.armed[i] = True
+            self.armed[i] = armed = True
             self._event("armed", drone=i)
-        if not self.armed[i]:
+        if not armed:
             return None
         sp = order.setpoint
         return (sp.roll_rad, sp.pitch_rad, sp.yaw_rad, sp.thrust_normalised)
