@@ -17,7 +17,7 @@ import numpy as np
 
 from drone_agent.agent_core import AgentCore, AgentOutput, BatchAgentCore
 from drone_agent.config import agent_config
-from drone_agent.consensus_batch import frozen_record, frozen_replace
+from drone_agent.consensus_batch import frozen_factory, frozen_replace
 from drone_agent.fault_timeline import TimedAction, timeline
 from drone_agent.flight_phase import FlightPhase, Readiness, Request, VehicleView
 from drone_agent.link_faults import LinkFaults, PairRandom
@@ -43,6 +43,7 @@ HARD_LANDING_M_S = 2.0
 #: An agent leaves the swarm this long after its vehicle crashes: the next control tick, as the
 #: distributed agent does on its vehicle's EMERGENCY STATUSTEXT (drone_agent/hosted_agent.py).
 CRASH_NOTICE_S = 0.0
+_new_vehicle_view = frozen_factory(VehicleView)
 
 
 @dataclass(frozen=True)
@@ -278,7 +279,7 @@ class ReferenceFlight:
         armed, in_failsafe = bool(self.armed[i]), bool(self.in_failsafe[i])
         arming = not armed and not in_failsafe
         # VehicleView(armed, in_offboard, in_land, in_hold, altitude_m)
-        vehicle = frozen_record(VehicleView, armed, armed, in_failsafe, False, altitude_m)
+        vehicle = _new_vehicle_view(armed, armed, in_failsafe, False, altitude_m)
         assert out.desired is not None
         order = self.phases[i].decide(
             FlightCommand.FLY, True, ready, out.setpoint, -float(out.desired[2]), vehicle, yaw_rad
