@@ -700,8 +700,12 @@ class BatchConsensus:
         heard_list = heard_ids_all.tolist()
         gamma_rows = list(gamma)
         heard_sets = [frozenset(heard_list[lo:hi]) for lo, hi in pairwise(heard_bounds)]
-        edge_sums = [EdgeSums(ids[lo:hi], sums[lo:hi]) for lo, hi in pairwise(bounds)]
-        edge_tags = [EdgeIncarnations(ids[lo:hi], tags[lo:hi]) for lo, hi in pairwise(bounds)]
+        spans = list(pairwise(bounds))
+        ids_of = [ids[lo:hi] for lo, hi in spans]
+        edge_sums = [EdgeSums(i, sums[lo:hi]) for i, (lo, hi) in zip(ids_of, spans, strict=True)]
+        edge_tags = [
+            EdgeIncarnations(i, tags[lo:hi]) for i, (lo, hi) in zip(ids_of, spans, strict=True)
+        ]
         own_inc = self._own_inc[rows].tolist()
         agent_ids = self.agent_ids
         return [

@@ -121,7 +121,7 @@ class ReferenceFlight:
         self.t_s = 0.0
         self._kernel = PhysicsKernel(self.params, self.n, self.dt / self.substeps, self.att_gains)
         self._oldest_setpoint_s: float | None = None
-        self._any_failsafe = False  # whether in_failsafe has any True
+        self._any_failsafe = False  # whether a vehicle in failsafe may still be armed
         self._live_cache: tuple[list[int], list[int], frozenset[int]] | None = None
 
     # -- FaultTarget ---------------------------------------------------------------------------
@@ -344,3 +344,5 @@ class ReferenceFlight:
         for i in np.flatnonzero(landed):
             self.armed[i] = False
             self._event("disarmed", drone=int(i), reason="failsafe landing complete")
+        # a vehicle in failsafe is never armed again: once all are disarmed, nothing to check
+        self._any_failsafe = bool((self.in_failsafe & self.armed).any())
