@@ -106,6 +106,10 @@ class InProcessNetwork:
         assert isinstance(self.rng, PairRandom)
         if self._link_row is None:
             self._link_row = np.full((self.n, self.n), -1, dtype=np.intp)
+        links = senders * self.n + receivers
+        if np.unique(links).shape[0] < links.shape[0]:  # a link twice (two messages of a sender)
+            return np.array([self._link_draws(senders[k : k + 1], receivers[k : k + 1])[0]
+                             for k in range(links.shape[0])])  # fmt: skip
         rows = self._link_row[senders, receivers]
         new = np.flatnonzero(rows < 0)
         if new.shape[0]:
@@ -117,9 +121,6 @@ class InProcessNetwork:
             grown[:start] = self._drawn
             self._drawn = grown
             self._next = np.concatenate([self._next, np.full(new.shape[0], DRAW_BLOCK)])
-        if np.unique(rows).shape[0] < rows.shape[0]:  # a link twice (two messages of a sender)
-            return np.array([self._link_draws(senders[k : k + 1], receivers[k : k + 1])[0]
-                             for k in range(rows.shape[0])])  # fmt: skip
         used = self._next[rows] >= DRAW_BLOCK
         if used.any():
             pair = self.rng
