@@ -237,7 +237,7 @@ def profile_worker(scenario: str, duration_s: float) -> dict[str, Any]:
     """CPU µs per control tick of ``swarm simulate``'s flight loop, per part (the parts of
     ``bench.agent_batch._PARTS``, timers of the thread's CPU time around them, nested calls
     counted once), the flight loop's CPU µs per tick without the timers, and the top functions
-    of a cProfile run."""
+    of a cProfile run (without the timers)."""
     import cProfile
     import importlib
     import pstats
@@ -252,6 +252,11 @@ def profile_worker(scenario: str, duration_s: float) -> dict[str, Any]:
     c0 = time.thread_time()
     flight.run()
     plain = time.thread_time() - c0
+    flight = ReferenceFlight(sc)
+    prof = cProfile.Profile()
+    prof.enable()
+    flight.run()
+    prof.disable()
     parts: dict[str, float] = {}
     depth: dict[str, int] = {}
     for label, module, owner_name, name in _PARTS:
@@ -269,11 +274,6 @@ def profile_worker(scenario: str, duration_s: float) -> dict[str, Any]:
     timed = time.thread_time() - c0
     per_tick = {k: 1e6 * v / ticks for k, v in parts.items()}
     per_tick["total (flight loop)"] = 1e6 * timed / ticks
-    flight = ReferenceFlight(sc)
-    prof = cProfile.Profile()
-    prof.enable()
-    flight.run()
-    prof.disable()
     with tempfile.NamedTemporaryFile("w+", suffix=".txt") as out:
         stats = pstats.Stats(prof, stream=out)
         stats.sort_stats("tottime").print_stats(15)
