@@ -23,7 +23,7 @@ from drone_agent.link_faults import LinkFaults, PairRandom
 from gcs.reference.network import InProcessNetwork
 from gcs.report.flight_record import FlightRecord, scenario_link_cuts
 from protocols.consensus_message import ConsensusMessage
-from protocols.frames import FloatArray
+from protocols.frames import FloatArray, quat_from_zyx
 from protocols.scenario import Scenario
 from protocols.wire_plan import FlightCommand
 from sitl_sim.attitude_control import euler_from_quat_batch
@@ -38,6 +38,7 @@ from sitl_sim.dynamics import (
 )
 from sitl_sim.failsafe import FailsafeConfig, failsafe_command
 from sitl_sim.physics_kernel import PhysicsKernel
+from sitl_sim.setpoint import AttitudeSetpoint, validate_attitude_target
 
 AIRBORNE_ALTITUDE_M = 0.1
 HARD_LANDING_M_S = 2.0
@@ -55,6 +56,30 @@ def reported(values: FloatArray) -> FloatArray:
     take-off of the 25-drone grid, which the formation then flew (up to 14 mm apart at N = 25,
     12 cm at N = 100)."""
     return np.asarray(values, dtype=np.float64).astype(np.float32).astype(np.float64)
+
+
+def received(
+    drones: list[int], commands: list[tuple[float, float, float, float]]
+) -> tuple[list[int], FloatArray, FloatArray]:
+    """The setpoints ``commands`` (roll, pitch, yaw rad, normalised thrust) of ``drones`` as their
+    vehicles take them from a swarm agent: the agent's quaternion (drone_agent/hosted_agent.py:
+    ``quat_from_zyx``, the same values over an array as one by one), SET_ATTITUDE_TARGET's
+    float32, the simulator's validation (sitl_sim/setpoint.py: normalised, back to ZYX angles).
+    Returns the drones whose setpoint was valid (the others keep their last one, as the
+    simulator's vehicles do), their attitudes (3, K) and thrusts (K,). A square grid's take-off
+    turned on the last bit of a command: 1e-13 m of one vehicle's position flipped its agent's
+    estimated heading by 90 degrees at N = 100."""
+    values = np.array(commands).T
+    quats = quat_from_zyx(values[2], values[1], values[0]).astype(np.float32).T.tolist()
+    thrusts = values[3].astype(np.float32).tolist()
+    taken, attitude, thrust = [], [], []
+    for i, q, t in zip(drones, quats, thrusts, strict=True):
+        sp = validate_attitude_target(q, t)
+        if isinstance(sp, AttitudeSetpoint):
+            taken.append(i)
+            attitude.append(sp.euler_rad)
+            thrust.append(sp.thrust)
+    return taken, np.array(attitude, dtype=float).reshape(-1, 3).T, np.array(thrust, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -234,10 +259,13 @@ class ReferenceFlight:
         members = now_live if self._finished is None else self._finished
         self._finished = now_live
         inboxes = self.network.receive(k)
+        # the tick's time as the agents read it: the vehicle's time_boot_ms (sitl_sim/world.py),
+        # not k * dt (6.0200000000000005 s at k = 301, where the plan's climb starts)
+        t_s = round(k * 1000 / self.scenario.rates.control_hz) / 1000.0
         outs = self.core.tick(
             rows,
             k,
-            self.t_s,
+            t_s,
             pos[live],
             vel[live],
             [self.plan] * len(live),
@@ -271,10 +299,10 @@ class ReferenceFlight:
                 flying.append(i)
                 commands.append(sp)
         if flying:
-            values = np.array(commands).T
-            self.attitude_sp[:, flying] = values[:3]
-            self.thrust_sp[flying] = values[3]
-            self.last_setpoint_s[flying] = self.t_s
+            flown, attitude, thrust = received(flying, commands)
+            self.attitude_sp[:, flown] = attitude
+            self.thrust_sp[flown] = thrust
+            self.last_setpoint_s[flown] = self.t_s
         self.network.send(k, messages, self.network.in_range(pos))
         rec.t[k] = self.t_s
         rec.pos[k], rec.vel[k] = true_pos, self.state[VEL].T
