@@ -147,6 +147,17 @@ def _measurement(**kw: object) -> Measurement:
     return Measurement(**(base | kw))  # type: ignore[arg-type]
 
 
+def test_a_lost_drones_centroid_jump_is_geometry_not_a_failure() -> None:
+    # a corner drone out of a 3 x 3 grid moves the others' centroid 0.56 m at once; closing it
+    # without overshoot passes, and a plain 0.5 m bar would have failed it
+    losing = Criteria(max_centroid_m=None, max_centroid_rise_m=0.1)
+    jump = _measurement(peak_centroid_m=0.562, start_centroid_m=0.562)
+    assert judge(_spec(losing), jump).passed
+    assert not judge(_spec(Criteria()), jump).passed
+    crash = {d.name: d for d in catalogue(9)}["crash"]
+    assert crash.criteria.max_centroid_rise_m == 0.1 and crash.criteria.max_centroid_m is None
+
+
 def test_judge_passes_a_drill_within_its_criteria() -> None:
     result = judge(_spec(Criteria(max_estimate=0.05)), _measurement())
     assert result.passed and result.failures == ()
@@ -156,6 +167,11 @@ def test_judge_passes_a_drill_within_its_criteria() -> None:
     ("criteria", "kw", "says"),
     [
         (Criteria(), {"peak_centroid_m": 0.6}, "peak centroid error 0.6 m > 0.5 m"),
+        (
+            Criteria(max_centroid_m=None, max_centroid_rise_m=0.1),
+            {"peak_centroid_m": 0.6, "start_centroid_m": 0.45},
+            "centroid error rose above its start by 0.15 m > 0.1 m",
+        ),
         (Criteria(max_estimate=0.05), {"peak_estimate": 0.1}, "peak estimate error"),
         (Criteria(), {"reconverge_s": None}, "did not re-converge"),
         (Criteria(), {"reconverge_s": 25.0}, "re-converged after 25 s > 20 s"),

@@ -378,8 +378,10 @@ def _free_udp_block(n: int) -> int:
 
 @contextmanager
 def _swarm(args: argparse.Namespace, n: int, folder: Path) -> Iterator[Swarm]:
-    """``swarm up`` on free ports with its report in ``folder``, and a Zenoh peer of it."""
-    from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
+    """``swarm up`` on free ports with its report in ``folder``, meeting at a Zenoh peer of this
+    process on a free port (never the default rendezvous port, which another swarm on the
+    machine may hold or take at the same moment)."""
+    from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
     from gcs.station.commands import Request, encode_request
     from protocols.keys import SwarmKeys
 
@@ -392,22 +394,23 @@ def _swarm(args: argparse.Namespace, n: int, folder: Path) -> Iterator[Swarm]:
         "--clock", args.clock, "--base-port", str(base), "--gcs-port", str(base + n),
         "--swarm-id", args.swarm_id,
     ]  # fmt: skip
+    endpoint = free_loopback_endpoint()
+    bus = ZenohBus.open(ZenohSettings(listen=(endpoint,)))
+    argv += ["--zenoh-connect", endpoint]
     run_file = folder / "logs" / "run.json"
     with suppress(FileNotFoundError):
         run_file.unlink()
     folder.mkdir(parents=True, exist_ok=True)
     with (folder.parent / "swarm-up.log").open("wb") as out:
         proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT)
-    swarm = Swarm(proc, folder, n, args.swarm_id, None)
+    swarm = Swarm(proc, folder, n, args.swarm_id, bus)
     try:
         deadline = time.monotonic() + 60.0
         while not run_file.exists():
             if proc.poll() is not None or time.monotonic() > deadline:
                 raise DrillsError(f"swarm up did not start: {swarm._tail()}")
             time.sleep(0.2)
-        endpoint = json.loads(run_file.read_text())["zenoh"]
-        swarm.bus = ZenohBus.open(ZenohSettings(connect=(endpoint,)))
-        swarm.bus.subscribe_callback(SwarmKeys(args.swarm_id, 1.0).status_all(), swarm.on_status)
+        bus.subscribe_callback(SwarmKeys(args.swarm_id, 1.0).status_all(), swarm.on_status)
         deadline = time.monotonic() + 120.0
         while len(swarm.latest) < n:
             if proc.poll() is not None or time.monotonic() > deadline:

@@ -89,6 +89,9 @@ class Criteria:
     """What a drill must show to pass (None: not judged).
 
     ``max_centroid_m`` / ``max_spread``: peak formation error over the window (m, relative);
+    ``max_centroid_rise_m``: how far the centroid error may rise above its value at the drill's
+    start (a drill that takes a drone out moves the others' centroid at once by the lost drone's
+    offset over N - 1: that jump is geometry; the controller must close it, not add to it);
     ``max_estimate``: peak member estimate error over the window (relative); ``reconverge_s``:
     re-converged at most this long after the fault ended; ``min_separation_m``; ``lost``: exactly
     these drones lost; ``rejected``: each of these reasons counted at least once; ``may_end``:
@@ -96,6 +99,7 @@ class Criteria:
     requests answered; ``rejoin``: this drone leaves and comes back (the REJOIN_* bars)."""
 
     max_centroid_m: float | None = 0.5
+    max_centroid_rise_m: float | None = None
     max_spread: float | None = 0.25
     max_estimate: float | None = None
     reconverge_s: float | None = 20.0
@@ -111,6 +115,11 @@ class Criteria:
         out = []
         if self.max_centroid_m is not None:
             out.append(f"peak centroid error <= {self.max_centroid_m:g} m")
+        if self.max_centroid_rise_m is not None:
+            out.append(
+                f"centroid error never more than {self.max_centroid_rise_m:g} m above its jump "
+                "when the drone leaves (the others' centroid moves at once by its offset / (N-1))"
+            )
         if self.max_spread is not None:
             out.append(f"peak spread error <= {100 * self.max_spread:g} %")
         if self.max_estimate is not None:
@@ -173,6 +182,13 @@ def catalogue(n_drones: int, loss: float = 0.5) -> tuple[DrillSpec, ...]:
     last = n_drones - 1
     crashed, dropped, restarted = last, last - 1, n_drones // 2
     hold = Criteria(max_estimate=0.05)
+    # a lost drone's absence jumps the others' centroid by its offset / (N - 1) (0.35-0.56 m
+    # for a corner of the 3 x 3 grid): judged is that the swarm closes it without overshoot
+    losing = Criteria(max_centroid_m=None, max_centroid_rise_m=0.1)
+    # split in two, each group averages its own half only: while the formation changes shape
+    # no estimator can know the other half's (9.7 % seen with a 25 % stretch); judged are the
+    # formation while split and the re-convergence after the heal
+    split = Criteria(max_centroid_m=0.1, max_spread=0.15)
     fault, watch = 8.0, 8.0
     east = [1.0]
 
@@ -182,14 +198,16 @@ def catalogue(n_drones: int, loss: float = 0.5) -> tuple[DrillSpec, ...]:
         stretch = {"factor": STRETCH if east[0] < 0 else 1.0 / STRETCH, "duration_s": STRETCH_S}
         return (*steps, Step(1.0, "move", move), Step(1.0, "scale", stretch))
 
-    def link(name: str, summary: str, *steps: Step, observe_s: float = watch) -> DrillSpec:
+    def link(
+        name: str, summary: str, *steps: Step, observe_s: float = watch, judged: Criteria = hold
+    ) -> DrillSpec:
         return DrillSpec(
             name,
             f"{summary}; the formation moves 1 m and stretches 25 % meanwhile",
             moving(*steps),
             fault,
             observe_s,
-            hold,
+            judged,
         )
 
     big = f"loss-{round(100 * loss)}"
@@ -207,7 +225,7 @@ def catalogue(n_drones: int, loss: float = 0.5) -> tuple[DrillSpec, ...]:
              Step(fault, "fault", {"fault": Clear()})),
         link("partition", "split the swarm into a northern and a southern group for 8 s, heal",
              Step(0.0, "fault", {"fault": Partition(None), "split": "north"}),
-             Step(fault, "fault", {"fault": Partition(None)}), observe_s=12.0),
+             Step(fault, "fault", {"fault": Partition(None)}), observe_s=12.0, judged=split),
         DrillSpec(
             "garbage",
             "2 s of malformed, wrong-version and foreign messages on the consensus keys",
@@ -234,14 +252,14 @@ def catalogue(n_drones: int, loss: float = 0.5) -> tuple[DrillSpec, ...]:
             f"SIGKILL drone {dropped}'s agent",
             (Step(0.0, "gcs", {"name": "dropout", "drone": dropped}),),
             0.0, 25.0,
-            Criteria(lost=frozenset({dropped}), may_end=frozenset({f"agent {dropped}"})),
+            replace(losing, lost=frozenset({dropped}), may_end=frozenset({f"agent {dropped}"})),
         ),
         DrillSpec(
             "crash",
             f"stop every motor of drone {crashed}",
             (Step(0.0, "gcs", {"name": "crash", "drone": crashed}),),
             0.0, 25.0,
-            Criteria(lost=frozenset({crashed}), may_end=frozenset({f"agent {crashed}"})),
+            replace(losing, lost=frozenset({crashed}), may_end=frozenset({f"agent {crashed}"})),
         ),
         DrillSpec(
             "restart",
@@ -383,6 +401,7 @@ class Measurement:
     rejected: Mapping[str, int] = field(default_factory=dict)
     ended: tuple[str, ...] = ()
     extra: Mapping[str, Any] = field(default_factory=dict)
+    start_centroid_m: float | None = None  # the centroid error at the drill's first sample
 
 
 def _peak(x: FloatArray) -> float | None:
@@ -410,6 +429,7 @@ def measure(
     sep, _ = separation(w.t_s[during], w.position_ned_m[during], w.airborne[during])
     return Measurement(
         peak_centroid_m=_peak(s.centroid_m[during]),
+        start_centroid_m=_peak(s.centroid_m[first : first + 1]),
         peak_spread=_peak(s.spread[during]),
         peak_estimate=_peak(s.estimate[during]),
         reconverge_s=reconverge_time(s, w.t_recover_s),
@@ -485,6 +505,13 @@ def judge(spec: DrillSpec, m: Measurement, t_start_s: float = float("nan")) -> D
             fail.append(f"{what} {value:.3g}{unit} > {limit:g}{unit}")
 
     over(m.peak_centroid_m, c.max_centroid_m, "peak centroid error", " m")
+    if c.max_centroid_rise_m is not None:
+        rise = (
+            None
+            if m.peak_centroid_m is None or m.start_centroid_m is None
+            else m.peak_centroid_m - m.start_centroid_m
+        )
+        over(rise, c.max_centroid_rise_m, "centroid error rose above its start by", " m")
     over(m.peak_spread, c.max_spread, "peak spread error")
     over(m.peak_estimate, c.max_estimate, "peak estimate error")
     if c.reconverge_s is not None:
@@ -569,6 +596,7 @@ def to_json(results: Sequence[DrillResult], info: Mapping[str, Any]) -> dict[str
                 "passed": r.passed,
                 "failures": list(r.failures),
                 "peak_centroid_error_m": m.peak_centroid_m,
+                "start_centroid_error_m": m.start_centroid_m,
                 "peak_spread_error": m.peak_spread,
                 "peak_estimate_error": m.peak_estimate,
                 "time_to_reconverge_s": m.reconverge_s,
