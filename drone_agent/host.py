@@ -41,6 +41,10 @@ from protocols.trajectory import DescriptorTrajectory
 TransportFactory = Callable[[Bus, int, Position], AgentTransport]
 #: Lockstep: with no tick computed for this long (wall s), re-send the newest round markers.
 REPEAT_MARKERS_S = 0.2
+#: A restarted drone's new port first greets its vehicle this long (wall s) after the old port
+#: closed: longer than the simulator's re-send period (0.25 s), so that it has seen the old port
+#: closed (and stopped waiting for it) before a new address speaks for the vehicle.
+REGREET_DELAY_S = 0.6
 
 
 class DroneIdError(ValueError):
@@ -154,6 +158,12 @@ class AgentHost:
                 return None
             slot.agent.leave(f"killed by a restart drill; a new agent starts in {gap_s:g} s")
             slot.left_reported = True  # said by the caller
+            # the old port closes (the simulator stops waiting for it at once); the new one
+            # greets the vehicle shortly to see its time go on until the new agent starts
+            self._selector.unregister(slot.link)
+            slot.link.reopen()
+            self._selector.register(slot.link, selectors.EVENT_READ, slot)
+            slot.greeted_at = self._clock() - 1.0 + REGREET_DELAY_S
             slot.revive_at_ms = slot.newest_ms + round(gap_s * 1000)
             t_s = slot.newest_ms / 1000.0
             back_s = t_s + gap_s
@@ -199,7 +209,7 @@ class AgentHost:
                 on_loop()
             due: dict[tuple[int, int], list[tuple[HostedAgent, DueTick]]] = {}
             for slot in self._slots:
-                if slot.agent is None:
+                if slot.agent is None or slot.revive_at_ms is not None:
                     self._greet(slot)
                     continue
                 tick = slot.agent.prepare()
@@ -218,6 +228,7 @@ class AgentHost:
             for slot in self._slots:
                 if slot.agent is not None and slot.agent.left and not slot.left_reported:
                     slot.left_reported = True
+                    self._let_go(slot)
                     if on_leave is not None:
                         on_leave(slot.agent)
             if self._slots and all(
@@ -267,6 +278,13 @@ class AgentHost:
         )
         for (agent, tick), out in zip(group, outs, strict=True):
             agent.finish(tick, out)
+
+    def _let_go(self, slot: _Slot) -> None:
+        """An agent that left for good: close its vehicle link, so that the simulator sees its
+        port closed and a lockstep barrier stops waiting for it at once (not after its silence
+        timeout); the vehicle fails safe."""
+        self._selector.unregister(slot.link)
+        slot.link.close()
 
     def _greet(self, slot: _Slot) -> None:
         """Until the vehicle answers: heartbeat it once a second so it learns our address."""

@@ -106,6 +106,19 @@ class VehicleLink:
     def close(self) -> None:
         self._sock.close()
 
+    def reopen(self) -> None:
+        """Close this link's port and speak from a new one to the same vehicle: the simulator
+        sees the old port closed at its next send (an agent gone: lockstep stops waiting for it
+        at once), and whoever speaks next from the new port is a new agent to it. Samples half
+        assembled on the old port are dropped. Re-register :meth:`fileno` with any selector."""
+        old = self._sock
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock.setblocking(False)
+        self._sock.connect(self.address)
+        old.close()
+        self._pos.clear()
+        self._att.clear()
+
     def __enter__(self) -> VehicleLink:
         return self
 

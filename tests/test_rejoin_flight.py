@@ -174,6 +174,10 @@ def test_agents_killed_in_flight_come_back_into_the_formation(tmp_path: Path) ->
     track = read_tlog(report / "flight.tlog")
     for drone, landed in ((RESTARTED, True), (RETYPED, False)):  # 3: landed or not
         _judge(drone, landed, events, track, tmp_path)
+    # the restart drill let go of the killed agent's port: the lockstep barrier stopped waiting
+    # for it at once, not after its 2 s silence timeout
+    texts = [m.text for m in track.statustexts if m.sysid == RESTARTED + 1 and "barrier" in m.text]
+    assert texts and texts[0] == "Lockstep: agent gone, left the barrier", texts
     metrics = json.loads((report / "metrics.json").read_text())
     assert sorted(r["index"] for r in metrics["rejoins"]) == [RESTARTED, RETYPED], metrics[
         "rejoins"

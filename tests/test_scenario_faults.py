@@ -169,6 +169,11 @@ def test_every_scenario_fault_happens_in_both_runners(tmp_path: Path) -> None:
     assert DROPOUT in gone and not gone & set(SURVIVORS), gone
     left = [e for e in events if e["kind"] == "dropout_detected" and e["drone"] == DROPOUT]
     assert abs(float(left[0]["t_s"]) - KINDS["dropout"]) < 1.0, left
+    # its process let go of its vehicle link: the lockstep barrier stopped waiting for it at
+    # once (the port closed), not after the 2 s silence timeout
+    texts = [m.text for m in read_tlog(reports["up"] / "flight.tlog").statustexts
+             if m.sysid == DROPOUT + 1 and "barrier" in m.text]  # fmt: skip
+    assert texts and texts[0] == "Lockstep: agent gone, left the barrier", texts
     # the two runners fly the same flight: survivors within 5 cm at common times
     for i in SURVIVORS:
         a, b = flights["simulate"][i], flights["up"][i]

@@ -27,8 +27,8 @@ import dataclasses
 import json
 import time
 
-from drone_agent.agent_cli import RENDEZVOUS_PORT
-from gcs.cli.secured import add_secrets_flags, refusal, secrets_of
+from gcs.cli.operator import add_operator_flags
+from gcs.cli.secured import refusal, secrets_of
 from gcs.station.commands import Request, encode_request
 from protocols.keys import SwarmKeys
 from protocols.swarm_secrets import RoleSecrets
@@ -73,14 +73,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
     def drill(name: str, help_: str) -> argparse.ArgumentParser:
         d = drills.add_parser(name, help=help_, description=help_)
-        d.add_argument("--swarm-id", default="swarm", help="swarm name (default %(default)s)")
-        d.add_argument(
-            "--zenoh-connect",
-            default=f"tcp/127.0.0.1:{RENDEZVOUS_PORT}",
-            metavar="ENDPOINT",
-            help="a Zenoh endpoint of the swarm (default %(default)s)",
-        )
-        add_secrets_flags(d, "operator")
+        add_operator_flags(d)
         d.add_argument(
             "--json", action="store_true", help="print the reply as one JSON object (for scripts)"
         )

@@ -31,7 +31,9 @@ class OperatorError(Exception):
     """Usage error or no ground station: one line, exit code 2."""
 
 
-def _common(p: argparse.ArgumentParser) -> None:
+def add_operator_flags(p: argparse.ArgumentParser) -> None:
+    """The flags of a command an operator sends to a running swarm (the operator commands and
+    ``swarm drill``): its swarm id, where to reach it, and the operator's secrets."""
     p.add_argument("--swarm-id", default="swarm", help="swarm name on Zenoh (default %(default)s)")
     p.add_argument(
         "--zenoh-connect",
@@ -59,7 +61,7 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     }
     for name in OPERATOR_COMMANDS:
         p = sub.add_parser(name, help=f"operator: {helps[name]}", description=helps[name])
-        _common(p)
+        add_operator_flags(p)
         if name not in ("hold", "land", "status", "shutdown"):
             p.add_argument(
                 "--duration-s", type=float, metavar="S", help="take exactly this long (s)"

@@ -28,6 +28,12 @@ def summary_lines(metrics: dict[str, Any], files: Sequence[Path]) -> list[str]:
     tr = metrics.get("tracking", {})
     cons = metrics.get("consensus_steady", {})
     sep = metrics.get("separation") or {}
+    if metrics.get("n_drones") is None:  # nothing flew: the ground station heard no vehicle
+        return [
+            f"scenario {metrics.get('scenario')}: no vehicle telemetry was recorded, nothing "
+            "to report (did the simulator start? see the logs)",
+            "report: " + ", ".join(str(f) for f in files),
+        ]
     lines = [
         f"scenario {metrics.get('scenario')}: {metrics.get('n_drones')} drones, "
         f"{_fmt(metrics.get('duration_s'), ' s', 1)} simulated in "
