@@ -17,12 +17,12 @@ import numpy as np
 
 from drone_agent.agent_core import AgentCore, AgentOutput, BatchAgentCore
 from drone_agent.config import agent_config
+from drone_agent.consensus_batch import frozen_factory, frozen_replace
 from drone_agent.fault_timeline import TimedAction, timeline
 from drone_agent.flight_phase import FlightPhase, Readiness, Request, VehicleView
 from drone_agent.link_faults import LinkFaults, PairRandom
 from gcs.reference.network import InProcessNetwork
 from gcs.report.flight_record import FlightRecord, scenario_link_cuts
-from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray, quat_from_zyx
 from protocols.scenario import Scenario
 from protocols.wire_plan import FlightCommand
@@ -45,6 +45,7 @@ HARD_LANDING_M_S = 2.0
 #: An agent leaves the swarm this long after its vehicle crashes: the next control tick, as the
 #: distributed agent does on its vehicle's EMERGENCY STATUSTEXT (drone_agent/hosted_agent.py).
 CRASH_NOTICE_S = 0.0
+_new_vehicle_view = frozen_factory(VehicleView)
 
 
 def reported(values: FloatArray) -> FloatArray:
@@ -157,7 +158,7 @@ class ReferenceFlight:
         self.t_s = 0.0
         self._kernel = PhysicsKernel(self.params, self.n, self.dt / self.substeps, self.att_gains)
         self._oldest_setpoint_s: float | None = None
-        self._any_failsafe = False  # whether in_failsafe has any True
+        self._any_failsafe = False  # whether a vehicle in failsafe may still be armed
         self._live_cache: tuple[list[int], list[int], frozenset[int]] | None = None
         #: the agents that finished the previous tick (None before the first)
         self._finished: frozenset[int] | None = None
@@ -279,22 +280,23 @@ class ReferenceFlight:
                 rec.neighbour_ids[k] = {
                     i: out.active_neighbours for i, out in zip(live, outs, strict=True)
                 }
-        yaw = reported(euler_from_quat_batch(self.state[QUAT])[2])
+        yaw = reported(euler_from_quat_batch(self.state[QUAT])[2]).tolist()
+        altitude = (-pos[:, 2]).tolist()
         messages = []
         flying: list[int] = []
         commands: list[tuple[float, float, float, float]] = []
+        separating, crashed = self.separating, self.crashed.tolist()
+        phases, readiness_of = self.phases, self.readiness
         for i, out in zip(live, outs, strict=True):
-            if out.separating != self.separating[i]:
-                self.separating[i] = out.separating
+            if out.separating != separating[i]:
+                separating[i] = out.separating
                 self._event("separation" if out.separating else "separation_end", drone=i)
-            phase, readiness = self.phases[i], self.readiness[i]
+            phase, readiness = phases[i], readiness_of[i]
             ready = readiness.update(out, inboxes[i], members, phase.committed)
-            messages.append(
-                ConsensusMessage(**{**vars(out.message), "ready_hops": readiness.level})
-            )
-            if self.crashed[i]:
+            messages.append(frozen_replace(out.message, ready_hops=readiness.level))
+            if crashed[i]:
                 continue
-            sp = self._decide(i, out, phase.committed or ready, -float(pos[i, 2]), yaw[i])
+            sp = self._decide(i, out, phase.committed or ready, altitude[i], yaw[i])
             if sp is not None:
                 flying.append(i)
                 commands.append(sp)
@@ -323,22 +325,18 @@ class ReferenceFlight:
         scenario's plan always says FLY. The vehicle here has no flight modes: arming takes the
         offboard setpoints at once, and a hold (no valid setpoint in the air) flies the order's
         level hover setpoint."""
-        arming = not self.armed[i] and not self.in_failsafe[i]
-        vehicle = VehicleView(
-            armed=bool(self.armed[i]),
-            in_offboard=bool(self.armed[i]),
-            in_land=bool(self.in_failsafe[i]),
-            in_hold=False,
-            altitude_m=altitude_m,
-        )
+        armed, in_failsafe = bool(self.armed[i]), bool(self.in_failsafe[i])
+        arming = not armed and not in_failsafe
+        # VehicleView(armed, in_offboard, in_land, in_hold, altitude_m)
+        vehicle = _new_vehicle_view(armed, armed, in_failsafe, False, altitude_m)
         assert out.desired is not None
         order = self.phases[i].decide(
             FlightCommand.FLY, True, ready, out.setpoint, -float(out.desired[2]), vehicle, yaw_rad
         )
         if order.request == Request.ARM_OFFBOARD and arming:
-            self.armed[i] = True
+            self.armed[i] = armed = True
             self._event("armed", drone=i)
-        if not self.armed[i]:
+        if not armed:
             return None
         sp = order.setpoint
         return (sp.roll_rad, sp.pitch_rad, sp.yaw_rad, sp.thrust_normalised)
@@ -395,3 +393,5 @@ class ReferenceFlight:
         for i in np.flatnonzero(landed):
             self.armed[i] = False
             self._event("disarmed", drone=int(i), reason="failsafe landing complete")
+        # a vehicle in failsafe is never armed again: once all are disarmed, nothing to check
+        self._any_failsafe = bool((self.in_failsafe & self.armed).any())
