@@ -233,16 +233,101 @@ def _plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
     fig.savefig(path, dpi=110, bbox_inches="tight")
 
 
+def profile_worker(scenario: str, duration_s: float) -> dict[str, Any]:
+    """CPU µs per control tick of ``swarm simulate``'s flight loop, per part (the parts of
+    ``bench.agent_batch._PARTS``, timers of the thread's CPU time around them, nested calls
+    counted once), the flight loop's CPU µs per tick without the timers, and the top functions
+    of a cProfile run (without the timers)."""
+    import cProfile
+    import importlib
+    import pstats
+
+    from bench.agent_batch import _PARTS
+    from gcs.reference.flight import ReferenceFlight
+    from protocols.scenario import load_scenario
+
+    sc = dataclasses.replace(load_scenario(Path(scenario)), duration_s=duration_s)
+    ticks = round(duration_s / sc.rates.dt_control_s) + 1
+    flight = ReferenceFlight(sc)
+    c0 = time.thread_time()
+    flight.run()
+    plain = time.thread_time() - c0
+    flight = ReferenceFlight(sc)
+    prof = cProfile.Profile()
+    prof.enable()
+    flight.run()
+    prof.disable()
+    parts: dict[str, float] = {}
+    depth: dict[str, int] = {}
+    for label, module, owner_name, name in _PARTS:
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError:  # a part the tree under test does not have
+            continue
+        owner = mod if owner_name is None else getattr(mod, owner_name, None)
+        if owner is None or not hasattr(owner, name):
+            continue
+        _wrap_cpu(owner, name, label, parts, depth)
+    flight = ReferenceFlight(sc)
+    c0 = time.thread_time()
+    flight.run()
+    timed = time.thread_time() - c0
+    per_tick = {k: 1e6 * v / ticks for k, v in parts.items()}
+    per_tick["total (flight loop)"] = 1e6 * timed / ticks
+    with tempfile.NamedTemporaryFile("w+", suffix=".txt") as out:
+        stats = pstats.Stats(prof, stream=out)
+        stats.sort_stats("tottime").print_stats(15)
+        out.seek(0)
+        top = out.read()
+    lines = [ln for ln in top.splitlines() if ln.strip()]
+    start = next(i for i, ln in enumerate(lines) if ln.lstrip().startswith("ncalls"))
+    return {
+        "us_per_tick": per_tick,
+        "plain_us_per_tick": 1e6 * plain / ticks,
+        "ticks": ticks,
+        "cprofile_top_tottime": lines[start:],
+    }
+
+
+def _wrap_cpu(
+    owner: Any, name: str, label: str, parts: dict[str, float], depth: dict[str, int]
+) -> None:
+    """Time ``owner.name`` (a method, or a module function wherever it was imported by name)
+    into ``parts[label]``: the thread's CPU seconds, the outermost call of the label only."""
+    original = getattr(owner, name)
+    clock = time.thread_time
+
+    def timed(*args: Any, **kwargs: Any) -> Any:
+        outer = depth.get(label, 0) == 0
+        depth[label] = depth.get(label, 0) + 1
+        t0 = clock()
+        try:
+            return original(*args, **kwargs)
+        finally:
+            depth[label] -= 1
+            if outer:
+                parts[label] = parts.get(label, 0.0) + clock() - t0
+
+    if isinstance(owner, type):
+        setattr(owner, name, timed)
+    else:  # module-level function: patch every module that imported it by name
+        for mod in list(sys.modules.values()):
+            if getattr(mod, name, None) is original:
+                setattr(mod, name, timed)
+
+
 def profile_text() -> str:
     """Where one control tick goes, per part, and cProfile's top functions, at N = 9 (the paper,
     first 40 s) and N = 100 (large_grid100, first 20 s), each in a fresh process."""
     out = [
-        "Where one 50 Hz control tick of `swarm simulate` goes (wall µs per tick, timers around",
-        "the parts, nested parts indented; 'rest' is the loop, the fault timeline and",
-        "the in-loop recording), and cProfile's top functions by own time (its overhead",
-        "included). Written by `python -m bench.simulate_rtf --profile` (bench/simulate_rtf.py);",
-        "the machine is shared (last run at load 22-40: wall time per tick was 20-40x what it",
-        "is on a quiet machine), so compare shares rather than absolute figures.",
+        "Where one 50 Hz control tick of `swarm simulate` goes (CPU µs per tick: the thread's",
+        "CPU time, timers around the parts, nested parts indented; 'rest' is the loop, the fault",
+        "timeline and the in-loop recording; 'total' includes the timers' own cost, 'untimed'",
+        "is the same flight without them), and cProfile's top functions by own time (its",
+        "overhead included: it inflates numpy-heavy code such as the physics sub-step).",
+        "Written by `python -m bench.simulate_rtf --profile` (bench/simulate_rtf.py). The",
+        "machine is shared by several jobs: CPU time is less sensitive to them than wall time",
+        "but still grows with the load (hyperthreads and caches shared), so compare shares.",
         "",
     ]
     for label, n, seconds in (("N=9 paper, first 40 s", 9, 40.0), ("N=100 grid, 20 s", 100, 20.0)):
@@ -257,9 +342,12 @@ def profile_text() -> str:
         total = parts.pop("total (flight loop)")
         parts["rest"] = total - sum(us for part, us in parts.items() if not part.startswith(" "))
         parts["total (flight loop)"] = total
-        for part in dict.fromkeys([p[0] for p in _PARTS] + ["rest", "total (flight loop)"]):
+        parts["untimed flight loop"] = r["plain_us_per_tick"]
+        labels = [p[0] for p in _PARTS] + ["rest", "total (flight loop)", "untimed flight loop"]
+        for part in dict.fromkeys(labels):
             if part in parts:
-                out.append(f"  {part:44s} {parts[part]:9.0f}")
+                share = f"{100.0 * parts[part] / total:5.1f} %"
+                out.append(f"  {part:44s} {parts[part]:9.0f}  {share}")
         out.append("")
         out += ["  " + line for line in r["cprofile_top_tottime"]]
         out.append("")
@@ -274,8 +362,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(json.dumps(run_one(Path(argv[1]), float(argv[2]) if len(argv) > 2 else None)))
         return 0
     if argv and argv[0] == "profile":
-        from bench.agent_batch import profile_worker
-
         print(json.dumps(profile_worker(argv[1], float(argv[2]))))
         return 0
     parser = argparse.ArgumentParser(prog="python -m bench.simulate_rtf", description=__doc__)

@@ -24,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drone_agent.consensus import ConsensusParams
-from drone_agent.consensus_batch import BatchConsensus
+from drone_agent.consensus_batch import BatchConsensus, frozen_factory
 from drone_agent.cooperative import (
     CooperativeGains,
     euler_rate_matrix_batch,
@@ -192,10 +192,10 @@ class BatchAgentCore:
         sigma, sigma_rate = list(moments.sigma_m2), list(moments.sigma_rate_m2_s)
         estimates, desired = list(estimate), list(a_d)
         return [
-            AgentOutput(
+            _new_output(
                 out.message,
                 estimates[k],
-                SwarmMoments(centre[k], rate[k], sigma[k], sigma_rate[k]),
+                _new_moments(centre[k], rate[k], sigma[k], sigma_rate[k]),
                 setpoints[k],
                 out.active_neighbours,
                 flies,
@@ -297,10 +297,15 @@ class BatchAgentCore:
             idx.tolist(), command.T.tolist(), limited.tolist(), ok.tolist(), strict=True
         ):
             if good:
-                out[k] = Setpoint(r, p, y, t, lim)
+                out[k] = _new_setpoint(r, p, y, t, lim)
             else:
                 self.rejected_setpoints[rows[k]] += 1
         return out, changed
+
+
+_new_output = frozen_factory(AgentOutput)
+_new_moments = frozen_factory(SwarmMoments)
+_new_setpoint = frozen_factory(Setpoint)
 
 
 class AgentCore:

@@ -11,10 +11,10 @@ neighbour, round) values of the step. Pure and I/O-free.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, fields
 from itertools import chain, pairwise
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -27,6 +27,44 @@ from protocols.mavlink_conventions import MAX_VEHICLES
 
 #: Round tag of an empty history slot (no real round is this old).
 _NO_ROUND = -(2**62)
+
+_T = TypeVar("_T")
+_FACTORIES: dict[type, Callable[..., Any]] = {}
+
+
+def frozen_factory(cls: type[_T]) -> Callable[..., _T]:
+    """A maker of instances of the frozen dataclass ``cls`` (no ``__post_init__``, no init-only
+    fields, no slots) from all its fields, positionally in declaration order: the same object as
+    ``cls(...)``, its ``__dict__`` filled directly instead of through the frozen ``__init__``'s
+    ``object.__setattr__`` per field (about 4 times cheaper: a hundred agents make thousands of
+    output and message fields a tick). Generated once per class, as dataclasses makes its
+    ``__init__``."""
+    maker = _FACTORIES.get(cls)
+    if maker is None:
+        names = [f.name for f in fields(cls)]  # type: ignore[arg-type]
+        body = "".join(f"    d[{name!r}] = {name}\n" for name in names)
+        head = f"def make({', '.join(names)}):\n    o = new(cls)\n    d = o.__dict__\n"
+        source = f"{head}{body}    return o\n"
+        scope: dict[str, Any] = {"new": object.__new__, "cls": cls}
+        exec(source, scope)  # field names of a dataclass are identifiers
+        maker = _FACTORIES[cls] = scope["make"]
+    return maker
+
+
+def frozen_replace(obj: _T, **changes: Any) -> _T:
+    """``dataclasses.replace(obj, **changes)`` for a frozen dataclass made by its ``__init__`` or
+    :func:`frozen_factory` (no ``__post_init__``, no init-only fields, no slots): the same object,
+    made as :func:`frozen_factory` makes one."""
+    fields_of = obj.__dict__
+    if not changes.keys() <= fields_of.keys():
+        raise TypeError(
+            f"{type(obj).__name__} has no field {sorted(changes.keys() - fields_of.keys())}"
+        )
+    new = object.__new__(type(obj))
+    values = new.__dict__
+    values.update(fields_of)
+    values.update(changes)
+    return new
 
 
 @dataclass
@@ -121,6 +159,10 @@ def _sums_for(
     else:
         tags = np.concatenate([_tags(m, n) for m, n in zip(messages, sizes, strict=True)])[found]
     return has, np.concatenate([t.sums for t in arrays])[found], tags
+
+
+_new_output = frozen_factory(ConsensusOutput)
+_new_message = frozen_factory(ConsensusMessage)
 
 
 class BatchConsensus:
@@ -291,21 +333,44 @@ class BatchConsensus:
         """The step's messages, row by row, each row's waiting values first (filed again as if
         they had just arrived), as indices into the distinct message objects (one message
         reaches many rows in process)."""
+        segments: list[tuple[list[ConsensusMessage], list[ConsensusMessage]]] = []
+        for row, inbox in zip(rows.tolist(), inboxes, strict=True):
+            waiting = self._later[row]
+            again: list[ConsensusMessage] = []
+            if waiting:
+                again = list(waiting.values())
+                waiting.clear()
+            segments.append((again, inbox if isinstance(inbox, list) else list(inbox)))
+        mail = self._file(rows, segments, checked=False)
+        if mail is not None and (mail.senders.min() < 0 or mail.senders.max() >= MAX_VEHICLES):
+            mail = self._file(rows, segments, checked=True)
+        return mail
+
+    def _file(
+        self,
+        rows: npt.NDArray[np.intp],
+        segments: list[tuple[list[ConsensusMessage], list[ConsensusMessage]]],
+        checked: bool,
+    ) -> _Mail | None:
+        """:meth:`_gather`'s values from each row's (waiting, inbox) messages; with ``checked``
+        the inbox messages of senders beyond any swarm are dropped (counted), which would make
+        every edge array huge (without, the caller checks the senders and files again)."""
         msgs: list[ConsensusMessage] = []
         counts: list[int] = []
         carried: list[int] = []  # positions in msgs of values filed again
-        for row, inbox in zip(rows.tolist(), inboxes, strict=True):
-            waiting = self._later[row]
+        for row, (again, inbox) in zip(rows.tolist(), segments, strict=True):
             n = len(msgs)
-            if waiting:
-                carried += range(n, n + len(waiting))
-                msgs += waiting.values()
-                waiting.clear()
-            for msg in inbox:  # ids beyond any swarm's would make every edge array huge
-                if 0 <= msg.sender < MAX_VEHICLES:
-                    msgs.append(msg)
-                else:
-                    self.dropped_messages[row] += 1
+            if again:
+                carried += range(n, n + len(again))
+                msgs += again
+            if not checked:
+                msgs += inbox
+            else:
+                for msg in inbox:
+                    if 0 <= msg.sender < MAX_VEHICLES:
+                        msgs.append(msg)
+                    else:
+                        self.dropped_messages[row] += 1
             counts.append(len(msgs) - n)
         if not msgs:
             return None
@@ -635,23 +700,29 @@ class BatchConsensus:
         heard_list = heard_ids_all.tolist()
         gamma_rows = list(gamma)
         heard_sets = [frozenset(heard_list[lo:hi]) for lo, hi in pairwise(heard_bounds)]
-        edge_sums = [EdgeSums(ids[lo:hi], sums[lo:hi]) for lo, hi in pairwise(bounds)]
-        edge_tags = [EdgeIncarnations(ids[lo:hi], tags[lo:hi]) for lo, hi in pairwise(bounds)]
+        spans = list(pairwise(bounds))
+        ids_of = [ids[lo:hi] for lo, hi in spans]
+        edge_sums = [EdgeSums(i, sums[lo:hi]) for i, (lo, hi) in zip(ids_of, spans, strict=True)]
+        edge_tags = [
+            EdgeIncarnations(i, tags[lo:hi]) for i, (lo, hi) in zip(ids_of, spans, strict=True)
+        ]
         own_inc = self._own_inc[rows].tolist()
+        agent_ids = self.agent_ids
         return [
-            ConsensusOutput(
+            _new_output(
                 gamma_rows[p],
-                ConsensusMessage(
-                    sender=self.agent_ids[row],
-                    round=round_,
-                    gamma=gamma_rows[p],
-                    edge_sums=edge_sums[p],
-                    heard=heard_sets[p],
-                    degree=len(heard_sets[p]),
-                    position_ned_m=positions[p],
-                    velocity_ned_m_s=velocities[p],
-                    incarnation=own_inc[p],
-                    edge_incarnations=edge_tags[p],
+                _new_message(
+                    agent_ids[row],  # sender
+                    round_,
+                    gamma_rows[p],
+                    edge_sums[p],
+                    heard_sets[p],
+                    len(heard_sets[p]),  # degree
+                    0,  # ready_hops (the adapter puts its settled level on it)
+                    positions[p],
+                    velocities[p],
+                    own_inc[p],  # incarnation
+                    edge_tags[p],
                 ),
                 active[p],
                 dis,

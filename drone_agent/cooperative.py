@@ -299,8 +299,11 @@ def virtual_acceleration_batch(
     okp, okd = np.asarray(gains.orientation_kp), np.asarray(gains.orientation_kd)
     max_rate = gains.orientation_max_speed_m_s / radius
     max_alpha = gains.orientation_max_accel_m_s2 / radius
-    wanted_rate = np.clip(okp / okd * rotation_error_batch(axes, r_d), -max_rate, max_rate)
-    alpha_fb = np.clip(-okd * (rate_error + wanted_rate), -max_alpha, max_alpha)
+    # np.clip's arithmetic (NaN stays NaN) without its wrapper's overhead
+    wanted_rate = np.minimum(
+        np.maximum(okp / okd * rotation_error_batch(axes, r_d), -max_rate), max_rate
+    )
+    alpha_fb = np.minimum(np.maximum(-okd * (rate_error + wanted_rate), -max_alpha), max_alpha)
     comp_diag, comp_pairs = plan_rate_terms(s, sg, omega_d, s_d_dot)
     a = shape_matrix_batch(s, w_s + comp_diag, alpha_d + alpha_fb, comp_pairs, s_min, flat)
 
@@ -323,7 +326,7 @@ def virtual_acceleration_batch(
     unexplained = p_dot_swarm - fields[:, 3:, 0]
     # the flat-axis PD damps the offset rate beyond the plan's own turn (not G p: its estimated
     # part, times the lever of a drone far out, broke the 250-drone grid at a drop-out)
-    planned = p_dot_swarm - np.cross(omega_d, p_swarm)
+    planned = p_dot_swarm - _cross_rows(omega_d, p_swarm)
     v_swarm = np.where(flat, v_swarm - (gains.flat_kp * p_swarm + gains.flat_kd * planned), v_swarm)
     v_swarm = v_swarm - gains.null_damping_per_s * unexplained
     out: FloatArray = w_mu + _matvec(axes, v_swarm)
@@ -365,6 +368,17 @@ def plan_rate_terms(
         s_dot[:, _K] - s_dot[:, _J]
     )
     return diag, pairs
+
+
+#: ``(a x b)_i = a_(i+1) b_(i+2) - a_(i+2) b_(i+1)``
+_NEXT, _AFTER = [1, 2, 0], [2, 0, 1]
+
+
+def _cross_rows(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Row-wise cross products of (K, 3) arrays: ``np.cross(a, b)``'s arithmetic (the same
+    products and difference per component) without its axis handling."""
+    out: FloatArray = a[:, _NEXT] * b[:, _AFTER] - a[:, _AFTER] * b[:, _NEXT]
+    return out
 
 
 def _columns(u: FloatArray, w: FloatArray) -> FloatArray:

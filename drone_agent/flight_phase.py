@@ -105,7 +105,10 @@ class Settling:
 
     def update(self, out: AgentOutput, members: frozenset[int]) -> bool:
         """Take one tick's output and the membership; whether the estimate has settled."""
-        calm = out.disagreement < self.tolerance and members == self._members
+        # (the same view object tick after tick: identity first, before comparing the sets)
+        calm = out.disagreement < self.tolerance and (
+            members is self._members or members == self._members
+        )
         self._members = members
         self.calm_ticks = self.calm_ticks + 1 if calm else 0
         self.settled = out.ready_to_fly and self.agrees
@@ -156,18 +159,20 @@ class SwarmSettled:
     ) -> bool:
         """Take this tick's own settled flag, the neighbour messages that arrived and the live
         membership; whether the whole swarm has settled (this agent's new level is the cap)."""
+        latest = self._latest
         for msg in inbox:
-            seen = self._latest.get(msg.sender)
-            if seen is None or msg.round > seen[0]:
-                self._latest[msg.sender] = (msg.round, msg.ready_hops)
+            sender, round_j = msg.sender, msg.round
+            seen = latest.get(sender)
+            if seen is None or round_j > seen[0]:
+                latest[sender] = (round_j, msg.ready_hops)
         recent = round_ - 1 - self.timeout
-        for j in [j for j, (r, _) in self._latest.items() if j not in members or r < recent]:
-            del self._latest[j]
+        for j in [j for j, (r, _) in latest.items() if r < recent or j not in members]:
+            del latest[j]
         cap = max(len(members), 1)
         if not settled:
             self.level = 0
         else:
-            lowest = min((lvl for _, lvl in self._latest.values()), default=cap)
+            lowest = min([lvl for _, lvl in latest.values()], default=cap)
             self.level = min(cap, 1 + lowest)
         return self.level >= cap
 
@@ -257,7 +262,6 @@ class FlightPhase:
         vehicle: VehicleView,
         yaw_rad: float,
     ) -> Order:
-        hover = hover_setpoint(self.limits, yaw_rad)
         if command == FlightCommand.FLY:
             if setpoint is not None and arm_allowed and (self.committed or converged):
                 self.committed, self.landed = True, False
@@ -269,11 +273,11 @@ class FlightPhase:
                 return Order(mode, setpoint, Request.ARM_OFFBOARD)
             if vehicle.airborne:  # nothing valid to fly: the autopilot holds its altitude
                 request = Request.NONE if vehicle.in_hold else Request.HOLD_MODE
-                return Order(AgentMode.HOLDING, hover, request)
+                return Order(AgentMode.HOLDING, hover_setpoint(self.limits, yaw_rad), request)
         elif vehicle.airborne:  # LAND or GROUND
             if vehicle.in_land:  # handed over (or its own failsafe): it lands and disarms
                 self.handed_over = True
-                return Order(AgentMode.LANDING, hover)
+                return Order(AgentMode.LANDING, hover_setpoint(self.limits, yaw_rad))
             handover = (
                 command == FlightCommand.GROUND
                 or commanded_altitude_m <= LAND_HANDOVER_ALTITUDE_M
@@ -281,7 +285,8 @@ class FlightPhase:
             )
             if handover or setpoint is None:
                 self.handed_over = True
-                return Order(AgentMode.LANDING, setpoint or hover, Request.LAND_MODE)
+                landing = setpoint or hover_setpoint(self.limits, yaw_rad)
+                return Order(AgentMode.LANDING, landing, Request.LAND_MODE)
             return Order(AgentMode.LANDING, setpoint)
         # disarmed on the ground
         self.handed_over = False

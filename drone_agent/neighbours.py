@@ -116,6 +116,7 @@ class NeighbourTable:
         self._known = np.zeros((0, MAX_VEHICLES), dtype=bool)
         self._round = np.zeros((0, MAX_VEHICLES), dtype=np.int64)
         self._later: list[list[ConsensusMessage]] = []  # per row: from rounds not yet reached
+        self._width = 0  # every sender id filed is below this (the columns a query looks at)
 
     def rows_of(self, agents: Sequence[int]) -> list[int]:
         """The rows of agents ``agents`` (new agents get new rows)."""
@@ -201,6 +202,7 @@ class NeighbourTable:
         vel = np.array([nowhere if m.velocity_ned_m_s is None else m.velocity_ned_m_s
                         for m in distinct], dtype=float)  # fmt: skip
         known = np.array([m.velocity_ned_m_s is not None for m in distinct], dtype=bool)
+        self._width = max(self._width, int(j.max()) + 1)
         self._round[r, j] = q
         self._pos[r, j] = pos[which]
         self._vel[r, j] = vel[which]
@@ -209,7 +211,7 @@ class NeighbourTable:
     def query(self, agents: Sequence[int], round_now: int) -> HeardPairs:
         """The neighbours of agents ``agents`` at round ``round_now`` (module docstring), flat."""
         rows = np.asarray(self.rows_of(agents), dtype=np.intp)
-        age = round_now - self._round[rows]  # (K, MAX_VEHICLES)
+        age = round_now - self._round[rows, : self._width]  # (K, ids filed so far)
         heard = (age >= 0) & (age <= self.max_age_rounds)
         owner, ids = np.nonzero(heard)  # ordered by (agent, id); never oneself (not filed)
         row = rows[owner]

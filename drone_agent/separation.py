@@ -326,7 +326,7 @@ def nobody_near(
         ok = c + u < -_PRECHECK_SLACK * (1.0 + np.abs(c) + u)  # NaN: not sure
         sure[owner[~ok]] = False
         np.minimum.at(closest, owner, rho)
-    m, b, is_floor = _walls(params)
+    m, b, is_floor = _walls_of(params)
     if b.shape[0]:
         s = own_pos @ m.T - b
         speed_own = np.sqrt(np.einsum("ki,ki->k", own_vel, own_vel))
@@ -339,6 +339,19 @@ def nobody_near(
         ok_wall[:, is_floor] |= below
         sure &= ok_wall.all(axis=1)
     return sure, closest
+
+
+_LAST_WALLS: list[tuple[SeparationParams, tuple[FloatArray, FloatArray, BoolArray]]] = []
+
+
+def _walls_of(p: SeparationParams) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """:func:`_walls`, remembered for the last parameter object (the layer passes the same one
+    every tick: no hashing of the parameters each call)."""
+    if _LAST_WALLS and _LAST_WALLS[0][0] is p:
+        return _LAST_WALLS[0][1]
+    walls = _walls(p)
+    _LAST_WALLS[:] = [(p, walls)]
+    return walls
 
 
 @lru_cache(maxsize=32)
@@ -370,7 +383,7 @@ def _wall_rows(
     own_pos: FloatArray, own_vel: FloatArray, p: SeparationParams, floor_on: BoolArray | None
 ) -> tuple[FloatArray, FloatArray, BoolArray, BoolArray]:
     """Normals (W, 3), bounds c (K, W), which are in force (K, W), which is the floor (W,)."""
-    m, b, is_floor = _walls(p)
+    m, b, is_floor = _walls_of(p)
     s = own_pos @ m.T - b
     c = _barrier(s - p.wall_margin_m, own_vel @ m.T, p.brake_m_s2, p)
     in_force = np.ones_like(s, dtype=bool)

@@ -128,7 +128,7 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
     einsum, empty, copyto = np.einsum, np.empty, np.copyto
     greater, greater_equal, less, invert = np.greater, np.greater_equal, np.less, np.invert
     isnan = np.isnan
-    logical_and, logical_or, flatnonzero = np.logical_and, np.logical_or, np.flatnonzero
+    logical_and, logical_or = np.logical_and, np.logical_or
 
     def c0(x: float) -> FloatArray:
         return np.array(x, dtype=np.float64)
@@ -476,7 +476,7 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
         columns with masks instead of on the gathered contact columns); touchdown speeds (N,)."""
         z0, vz0, z1, vz1 = prev[2], prev[5], new[2], new[5]
         greater_equal(z1, zero, in_contact)
-        touching = flatnonzero(in_contact)
+        touching = in_contact.nonzero()[0]
         if touching.size <= _FEW_IN_CONTACT:  # a crashed or landed drone or two: one by one
             impact = np.zeros(n)
             for i in touching.tolist():

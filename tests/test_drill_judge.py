@@ -18,6 +18,7 @@ from gcs.report.drill_judge import (
     catalogue,
     joins,
     judge,
+    judge_window,
     measure,
     reconverge_time,
     rejoin_facts,
@@ -246,6 +247,28 @@ def test_table_and_json_say_pass_and_fail() -> None:
     out = to_json([ok, bad], {"drones": 6})
     assert out["passed"] is False and out["drones"] == 6
     assert [d["passed"] for d in out["drills"]] == [True, False]
+
+
+def test_a_crash_drill_judges_the_jump_from_its_first_sample() -> None:
+    """The catalogue's crash drill through judge_window (what swarm drills run calls): the
+    crashed corner drone is heard 1 s late, yet the survivors' centroid jump (its offset / 5)
+    is the start value, so closing it passes; a rise above it fails."""
+    crash = {d.name: d for d in catalogue(6)}["crash"]
+    # its centroid criteria only (five of the six grid drones cannot hold the six's spreads)
+    spec = replace(crash, criteria=replace(crash.criteria, reconverge_s=None, max_spread=None))
+    w = window(t_start=2.0)
+    falling = w.t_s >= 2.0
+    w.position_ned_m[falling, 5, 2] = -3.0 + 2.0 * (w.t_s[falling] - 2.0)
+    w.member[w.t_s >= 3.0, 5] = False
+    survivors = np.mean(GRID[:5], axis=0)
+    closing = np.clip((w.t_s - 2.0) / 3.0, 0.0, 1.0)[:, None]  # the others re-centre in 3 s
+    w.position_ned_m[:, :5] += (np.mean(GRID, axis=0) - survivors) * closing[:, :, None]
+    result = judge_window(spec, w)
+    jump = float(np.linalg.norm(survivors - np.mean(GRID, axis=0)))
+    assert result.measurement.start_centroid_m == pytest.approx(jump)
+    assert result.passed, result.failures
+    w.position_ned_m[(w.t_s > 6.0) & (w.t_s < 7.0), :5, 0] += jump + 0.2  # overshoots
+    assert not judge_window(spec, w).passed
 
 
 def test_a_drone_the_drill_takes_out_is_not_judged_in_the_formation() -> None:

@@ -213,3 +213,34 @@ def test_a_sparse_25_drone_swarm_takes_off_and_hovers_flat() -> None:
     a = true_descriptors(rec)
     assert np.abs(a[late, 8]).max() < 0.05  # flat: the height variance stays near 0
     assert np.abs(a[late, 6:8] - np.square(spread[:2])).max() < 1.0
+
+
+def test_agents_get_what_a_swarm_agent_gets() -> None:
+    """The core's inputs are a ``swarm agent``'s (issue 10: a square grid's estimated heading
+    turns on their last bit): the tick's time is the vehicle's time_boot_ms / 1000 (not k * dt),
+    positions and velocities the telemetry's float32, the membership view of tick k the agents
+    that finished round k - 1 (a drop-out at k is still a member at k, gone at k + 1); the
+    vehicles fly the setpoints in SET_ATTITUDE_TARGET's float32."""
+    dropout_k = 350  # airborne from 5.2 s
+    scenario = _scenario([{"t_s": dropout_k * DT_S, "kind": "dropout", "drone": 4}], 7.5)
+    flight = ReferenceFlight(scenario)
+    seen: dict[int, tuple[float, Any, Any, frozenset[int]]] = {}
+    tick = flight.core.tick
+
+    def spy(rows: Any, k: int, t_s: float, x: Any, v: Any, *rest: Any) -> Any:
+        seen[k] = (t_s, np.array(x), np.array(v), rest[2][0])
+        return tick(rows, k, t_s, x, v, *rest)
+
+    flight.core.tick = spy  # type: ignore[method-assign, assignment]
+    record = flight.run()
+    # k * 0.02 is 6.0200000000000005 at k = 301: the agents' clock says 6.02
+    assert [k for k in seen if seen[k][0] != round(k * 20) / 1000] == []
+    assert seen[163][0] == 3.26 and 163 * DT_S != 3.26
+    ks = range(dropout_k)  # all five live
+    xs, vs = np.array([seen[k][1] for k in ks]), np.array([seen[k][2] for k in ks])
+    assert np.array_equal(xs, xs.astype(np.float32)) and np.array_equal(vs, vs.astype(np.float32))
+    # the record keeps the truth (float64)
+    assert not np.array_equal(xs, record.position_ned_m[:dropout_k])
+    assert 4 in seen[dropout_k][3] and 4 not in seen[dropout_k + 1][3]
+    assert flight.thrust_sp[:4].min() > 0.0  # flying
+    assert np.array_equal(flight.thrust_sp, flight.thrust_sp.astype(np.float32))

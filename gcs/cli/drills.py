@@ -40,8 +40,7 @@ from gcs.report.drill_judge import (
     Window,
     catalogue,
     joins,
-    judge,
-    measure,
+    judge_window,
     rejoin_facts,
     series,
     split_north,
@@ -460,7 +459,7 @@ def _run_drill(swarm: Swarm, spec: DrillSpec, gone: set[int]) -> DrillResult:
     if spec.criteria.rejoin is not None:
         back = [t for t in joins(events, spec.criteria.rejoin) if t > t0]
         extra |= rejoin_facts(w, spec.criteria.rejoin, back[0] if back else None)
-    result = judge(spec, measure(w, rejected, ended, extra), t0)
+    result = judge_window(spec, w, rejected, ended, extra)
     if not steady:
         result = DrillResult(
             spec, result.measurement, ("not steady at its start", *result.failures), t0

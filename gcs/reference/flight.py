@@ -17,12 +17,13 @@ import numpy as np
 
 from drone_agent.agent_core import AgentCore, AgentOutput, BatchAgentCore
 from drone_agent.config import agent_config
+from drone_agent.consensus_batch import frozen_factory, frozen_replace
 from drone_agent.fault_timeline import TimedAction, timeline
 from drone_agent.flight_phase import FlightPhase, Readiness, Request, VehicleView
 from drone_agent.link_faults import LinkFaults, PairRandom
 from gcs.reference.network import InProcessNetwork
 from gcs.report.flight_record import FlightRecord, scenario_link_cuts
-from protocols.consensus_message import ConsensusMessage
+from protocols.frames import FloatArray, quat_from_zyx
 from protocols.scenario import Scenario
 from protocols.wire_plan import FlightCommand
 from sitl_sim.attitude_control import euler_from_quat_batch
@@ -37,12 +38,49 @@ from sitl_sim.dynamics import (
 )
 from sitl_sim.failsafe import FailsafeConfig, failsafe_command
 from sitl_sim.physics_kernel import PhysicsKernel
+from sitl_sim.setpoint import AttitudeSetpoint, validate_attitude_target
 
 AIRBORNE_ALTITUDE_M = 0.1
 HARD_LANDING_M_S = 2.0
 #: An agent leaves the swarm this long after its vehicle crashes: the next control tick, as the
 #: distributed agent does on its vehicle's EMERGENCY STATUSTEXT (drone_agent/hosted_agent.py).
 CRASH_NOTICE_S = 0.0
+_new_vehicle_view = frozen_factory(VehicleView)
+
+
+def reported(values: FloatArray) -> FloatArray:
+    """``values`` as a vehicle reports them to its agent: LOCAL_POSITION_NED and ATTITUDE carry
+    float32 (drone_agent/vehicle_link.py reads them back as float64). The in-process agents read
+    their vehicles through this, as every ``swarm agent`` does, so the two runners compute on the
+    same inputs: a square grid's orientation estimate is ill-conditioned (equal spreads: its axes
+    are any), and the rounding alone turned one agent's estimated heading by 0.13 rad at the
+    take-off of the 25-drone grid, which the formation then flew (up to 14 mm apart at N = 25,
+    12 cm at N = 100)."""
+    return np.asarray(values, dtype=np.float64).astype(np.float32).astype(np.float64)
+
+
+def received(
+    drones: list[int], commands: list[tuple[float, float, float, float]]
+) -> tuple[list[int], FloatArray, FloatArray]:
+    """The setpoints ``commands`` (roll, pitch, yaw rad, normalised thrust) of ``drones`` as their
+    vehicles take them from a swarm agent: the agent's quaternion (drone_agent/hosted_agent.py:
+    ``quat_from_zyx``, the same values over an array as one by one), SET_ATTITUDE_TARGET's
+    float32, the simulator's validation (sitl_sim/setpoint.py: normalised, back to ZYX angles).
+    Returns the drones whose setpoint was valid (the others keep their last one, as the
+    simulator's vehicles do), their attitudes (3, K) and thrusts (K,). A square grid's take-off
+    turned on the last bit of a command: 1e-13 m of one vehicle's position flipped its agent's
+    estimated heading by 90 degrees at N = 100."""
+    values = np.array(commands).T
+    quats = quat_from_zyx(values[2], values[1], values[0]).astype(np.float32).T.tolist()
+    thrusts = values[3].astype(np.float32).tolist()
+    taken, attitude, thrust = [], [], []
+    for i, q, t in zip(drones, quats, thrusts, strict=True):
+        sp = validate_attitude_target(q, t)
+        if isinstance(sp, AttitudeSetpoint):
+            taken.append(i)
+            attitude.append(sp.euler_rad)
+            thrust.append(sp.thrust)
+    return taken, np.array(attitude, dtype=float).reshape(-1, 3).T, np.array(thrust, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -120,8 +158,10 @@ class ReferenceFlight:
         self.t_s = 0.0
         self._kernel = PhysicsKernel(self.params, self.n, self.dt / self.substeps, self.att_gains)
         self._oldest_setpoint_s: float | None = None
-        self._any_failsafe = False  # whether in_failsafe has any True
+        self._any_failsafe = False  # whether a vehicle in failsafe may still be armed
         self._live_cache: tuple[list[int], list[int], frozenset[int]] | None = None
+        #: the agents that finished the previous tick (None before the first)
+        self._finished: frozenset[int] | None = None
 
     # -- FaultTarget ---------------------------------------------------------------------------
     @property
@@ -210,13 +250,23 @@ class ReferenceFlight:
                     self._event("agent_left", drone=drone, reason="vehicle crashed")
 
     def _control_tick(self, k: int, rec: _Recorder) -> None:
-        pos, vel = self.state[POS].T, self.state[VEL].T
-        live, rows, members = self._live()
+        true_pos = self.state[POS].T
+        # what each agent reads of its vehicle, as a swarm agent reads it (the telemetry's float32)
+        pos, vel = reported(true_pos), reported(self.state[VEL].T)
+        live, rows, now_live = self._live()
+        # the membership view of tick k: the agents that finished round k - 1, as the lockstep
+        # round gate of every swarm agent has it (drone_agent/round_gate.py: an agent that died
+        # before its tick k - 1 is known dead only when its round k - 1 does not come)
+        members = now_live if self._finished is None else self._finished
+        self._finished = now_live
         inboxes = self.network.receive(k)
+        # the tick's time as the agents read it: the vehicle's time_boot_ms (sitl_sim/world.py),
+        # not k * dt (6.0200000000000005 s at k = 301, where the plan's climb starts)
+        t_s = round(k * 1000 / self.scenario.rates.control_hz) / 1000.0
         outs = self.core.tick(
             rows,
             k,
-            self.t_s,
+            t_s,
             pos[live],
             vel[live],
             [self.plan] * len(live),
@@ -230,39 +280,40 @@ class ReferenceFlight:
                 rec.neighbour_ids[k] = {
                     i: out.active_neighbours for i, out in zip(live, outs, strict=True)
                 }
-        yaw = euler_from_quat_batch(self.state[QUAT])[2]
+        yaw = reported(euler_from_quat_batch(self.state[QUAT])[2]).tolist()
+        altitude = (-pos[:, 2]).tolist()
         messages = []
         flying: list[int] = []
         commands: list[tuple[float, float, float, float]] = []
+        separating, crashed = self.separating, self.crashed.tolist()
+        phases, readiness_of = self.phases, self.readiness
         for i, out in zip(live, outs, strict=True):
-            if out.separating != self.separating[i]:
-                self.separating[i] = out.separating
+            if out.separating != separating[i]:
+                separating[i] = out.separating
                 self._event("separation" if out.separating else "separation_end", drone=i)
-            phase, readiness = self.phases[i], self.readiness[i]
+            phase, readiness = phases[i], readiness_of[i]
             ready = readiness.update(out, inboxes[i], members, phase.committed)
-            messages.append(
-                ConsensusMessage(**{**vars(out.message), "ready_hops": readiness.level})
-            )
-            if self.crashed[i]:
+            messages.append(frozen_replace(out.message, ready_hops=readiness.level))
+            if crashed[i]:
                 continue
-            sp = self._decide(i, out, phase.committed or ready, -float(pos[i, 2]), yaw[i])
+            sp = self._decide(i, out, phase.committed or ready, altitude[i], yaw[i])
             if sp is not None:
                 flying.append(i)
                 commands.append(sp)
         if flying:
-            values = np.array(commands).T
-            self.attitude_sp[:, flying] = values[:3]
-            self.thrust_sp[flying] = values[3]
-            self.last_setpoint_s[flying] = self.t_s
+            flown, attitude, thrust = received(flying, commands)
+            self.attitude_sp[:, flown] = attitude
+            self.thrust_sp[flown] = thrust
+            self.last_setpoint_s[flown] = self.t_s
         self.network.send(k, messages, self.network.in_range(pos))
         rec.t[k] = self.t_s
-        rec.pos[k], rec.vel[k] = pos, vel
+        rec.pos[k], rec.vel[k] = true_pos, self.state[VEL].T
         rec.quat[k] = self.state[QUAT]
         rec.rates[k] = self.state[RATES].T
         rec.rotor_speed[k] = self.rotor_speed
         rec.desired[k] = outs[0].desired if outs else self.plan.evaluate(self.t_s)[0]
         rec.member[k] = self.member
-        rec.airborne[k] = -pos[:, 2] > AIRBORNE_ALTITUDE_M
+        rec.airborne[k] = -true_pos[:, 2] > AIRBORNE_ALTITUDE_M
         rec.armed[k] = self.armed
 
     def _decide(
@@ -274,29 +325,25 @@ class ReferenceFlight:
         scenario's plan always says FLY. The vehicle here has no flight modes: arming takes the
         offboard setpoints at once, and a hold (no valid setpoint in the air) flies the order's
         level hover setpoint."""
-        arming = not self.armed[i] and not self.in_failsafe[i]
-        vehicle = VehicleView(
-            armed=bool(self.armed[i]),
-            in_offboard=bool(self.armed[i]),
-            in_land=bool(self.in_failsafe[i]),
-            in_hold=False,
-            altitude_m=altitude_m,
-        )
+        armed, in_failsafe = bool(self.armed[i]), bool(self.in_failsafe[i])
+        arming = not armed and not in_failsafe
+        # VehicleView(armed, in_offboard, in_land, in_hold, altitude_m)
+        vehicle = _new_vehicle_view(armed, armed, in_failsafe, False, altitude_m)
         assert out.desired is not None
         order = self.phases[i].decide(
             FlightCommand.FLY, True, ready, out.setpoint, -float(out.desired[2]), vehicle, yaw_rad
         )
         if order.request == Request.ARM_OFFBOARD and arming:
-            self.armed[i] = True
+            self.armed[i] = armed = True
             self._event("armed", drone=i)
-        if not self.armed[i]:
+        if not armed:
             return None
         sp = order.setpoint
         return (sp.roll_rad, sp.pitch_rad, sp.yaw_rad, sp.thrust_normalised)
 
     def _live(self) -> tuple[list[int], list[int], frozenset[int]]:
-        """The live agents (sorted), their rows in the batched core, and the membership view;
-        one view object while the agents do not change."""
+        """The live agents (sorted), their rows in the batched core, and their set; one set
+        object while the agents do not change."""
         members = frozenset(self.agents)
         if self._live_cache is None or self._live_cache[2] != members:
             live = sorted(members)
@@ -346,3 +393,5 @@ class ReferenceFlight:
         for i in np.flatnonzero(landed):
             self.armed[i] = False
             self._event("disarmed", drone=int(i), reason="failsafe landing complete")
+        # a vehicle in failsafe is never armed again: once all are disarmed, nothing to check
+        self._any_failsafe = bool((self.in_failsafe & self.armed).any())

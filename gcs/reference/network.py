@@ -16,6 +16,9 @@ from drone_agent.link_faults import LinkFaults, PairRandom
 from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
 
+#: Loss draws made ahead per link at a time (one ``random(size)`` call instead of one call each).
+DRAW_BLOCK = 64
+
 
 class InProcessNetwork:
     """Delivers each round's messages to the drones in range, ``base_delay_ticks`` (≥ 1) later."""
@@ -41,6 +44,10 @@ class InProcessNetwork:
         self.sent = 0
         self.delivered = 0
         self.lost = 0
+        # per link drawing from a PairRandom: its row of draws made ahead, and the next one
+        self._link_row: npt.NDArray[np.intp] | None = None  # (N, N) [sender, receiver], -1
+        self._drawn = np.empty((0, DRAW_BLOCK))
+        self._next = np.zeros(0, dtype=np.intp)
 
     def in_range(self, positions_ned_m: FloatArray) -> FloatArray:
         """Boolean matrix (N, N): pairs within radio range (no self-links)."""
@@ -74,10 +81,8 @@ class InProcessNetwork:
             p = loss[i, receivers]
             draw = keep & (p > 0.0)
             if isinstance(self.rng, PairRandom):
-                pair = self.rng
                 at = np.flatnonzero(draw)
-                links = zip(i[at].tolist(), receivers[at].tolist(), p[at].tolist(), strict=True)
-                keep[at] = [pair(a, b).random() >= q for a, b, q in links]
+                keep[at] = self._link_draws(i[at], receivers[at]) >= p[at]
             else:
                 keep[draw] = self.rng.random(int(draw.sum())) >= p[draw]
         self.lost += int(receivers.shape[0] - keep.sum())
@@ -89,6 +94,44 @@ class InProcessNetwork:
         for d in np.unique(ticks).tolist():
             on = ticks == d
             self._in_flight[round_ + d].append((receivers[on].tolist(), which[on].tolist(), msgs))
+
+    def _link_draws(
+        self, senders: npt.NDArray[np.intp], receivers: npt.NDArray[np.intp]
+    ) -> FloatArray:
+        """The next draw of each link (senders[k], receivers[k]), in order, from its own
+        generator of the :class:`PairRandom`: the values one ``random()`` call per message
+        would give (a generator's ``random(size)`` is its next ``size`` single draws), taken
+        from blocks of :data:`DRAW_BLOCK` drawn ahead per link; so the network must be its
+        generators' only user (as in :class:`gcs.reference.flight.ReferenceFlight`)."""
+        assert isinstance(self.rng, PairRandom)
+        if self._link_row is None:
+            self._link_row = np.full((self.n, self.n), -1, dtype=np.intp)
+        links = senders * self.n + receivers
+        if np.unique(links).shape[0] < links.shape[0]:  # a link twice (two messages of a sender)
+            return np.array([self._link_draws(senders[k : k + 1], receivers[k : k + 1])[0]
+                             for k in range(links.shape[0])])  # fmt: skip
+        rows = self._link_row[senders, receivers]
+        new = np.flatnonzero(rows < 0)
+        if new.shape[0]:
+            start = self._drawn.shape[0]
+            rows[new] = self._link_row[senders[new], receivers[new]] = start + np.arange(
+                new.shape[0]
+            )
+            grown = np.empty((start + new.shape[0], DRAW_BLOCK))
+            grown[:start] = self._drawn
+            self._drawn = grown
+            self._next = np.concatenate([self._next, np.full(new.shape[0], DRAW_BLOCK)])
+        used = self._next[rows] >= DRAW_BLOCK
+        if used.any():
+            pair = self.rng
+            for row, a, b in zip(
+                rows[used].tolist(), senders[used].tolist(), receivers[used].tolist(), strict=True
+            ):
+                self._drawn[row] = pair(a, b).random(DRAW_BLOCK)
+            self._next[rows[used]] = 0
+        values: FloatArray = self._drawn[rows, self._next[rows]]
+        self._next[rows] += 1
+        return values
 
     def _link_matrices(
         self,

@@ -485,6 +485,21 @@ class DrillResult:
         return not self.failures
 
 
+def judge_window(
+    spec: DrillSpec,
+    w: Window,
+    rejected: Mapping[str, int] | None = None,
+    ended: Sequence[str] = (),
+    extra: Mapping[str, Any] | None = None,
+) -> DrillResult:
+    """Measure the drill's window ``w`` and judge it: the drones the drill takes out (its
+    criteria's ``lost``) are left out of the formation from the drill's start, so that the jump
+    their absence makes is seen at its first sample (``start_centroid_m``), not when the ground
+    station hears of it."""
+    m = measure(w, rejected, ended, extra, leaving=spec.criteria.lost)
+    return judge(spec, m, w.t_start_s)
+
+
 def judge(spec: DrillSpec, m: Measurement, t_start_s: float = float("nan")) -> DrillResult:
     """Compare ``m`` with the drill's criteria."""
     c, fail = spec.criteria, []
