@@ -27,6 +27,7 @@ import selectors
 import threading
 import time
 from collections.abc import Callable, Sequence
+from contextlib import suppress
 from dataclasses import dataclass
 
 import numpy as np
@@ -147,8 +148,8 @@ class AgentHost:
         for slot in self._slots:
             if slot.drone == drone:
                 if slot.agent is None:  # not joined yet: it never will
+                    self._unwatch(slot)
                     slot.link.close()
-                    self._selector.unregister(slot.link)
                     self._slots.remove(slot)
                 else:
                     slot.agent.leave(reason)
@@ -168,7 +169,7 @@ class AgentHost:
             slot.left_reported = True  # said by the caller
             # the old port closes (the simulator stops waiting for it at once); the new one
             # greets the vehicle shortly to see its time go on until the new agent starts
-            self._selector.unregister(slot.link)
+            self._unwatch(slot)
             slot.link.reopen()
             self._selector.register(slot.link, selectors.EVENT_READ, slot)
             slot.greeted_at = self._clock() - 1.0 + REGREET_DELAY_S
@@ -304,8 +305,13 @@ class AgentHost:
         """An agent that left for good: close its vehicle link, so that the simulator sees its
         port closed and a lockstep barrier stops waiting for it at once (not after its silence
         timeout); the vehicle fails safe."""
-        self._selector.unregister(slot.link)
+        self._unwatch(slot)
         slot.link.close()
+
+    def _unwatch(self, slot: _Slot) -> None:
+        """Stop watching ``slot``'s vehicle link (once; a link let go of is not watched)."""
+        with suppress(KeyError, ValueError):  # already let go of (and closed)
+            self._selector.unregister(slot.link)
 
     def _greet(self, slot: _Slot) -> None:
         """Until the vehicle answers: heartbeat it once a second so it learns our address."""
@@ -336,7 +342,7 @@ class AgentHost:
         for slot in self._slots:
             if slot.agent is not None:
                 slot.agent.leave()
-            self._selector.unregister(slot.link)
+            self._unwatch(slot)
             slot.link.close()
         self._selector.close()
         if self._rounds is not None:
