@@ -161,7 +161,10 @@ def test_land_then_take_off_the_flying_paper_swarm(tmp_path: Path, clock: str) -
     agent reports LANDED."""
     cmd = ["up", str(ROOT / "scenarios" / "paper.toml"), "--duration-s", "29"]
     if clock == "realtime":
-        cmd += ["--clock", "realtime"]
+        # nine agents in one process: nine agent processes cannot keep up in realtime on two
+        # cores (the simulator says OVERLOAD from the start: issue 9), and a late re-arm made
+        # this flight's verdict a matter of the machine's load
+        cmd += ["--clock", "realtime", "--agents-per-process", "9"]
     proc = subprocess.Popen(
         swarm_command(*cmd), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=ENV, cwd=tmp_path
     )
