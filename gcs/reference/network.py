@@ -96,8 +96,10 @@ class InProcessNetwork:
         ticks = np.full(receivers.shape[0], self.base_delay_ticks, dtype=np.int64)
         if delay is not None:
             ticks += delay[i, receivers]
+        if receivers.shape[0] == 0:
+            return
         msgs = list(messages)
-        if int(ticks.min(initial=0)) == int(ticks.max(initial=0)):  # one delay for all
+        if int(ticks.min()) == int(ticks.max()):  # one delay for all
             self._in_flight[round_ + int(ticks[0])].append((receivers, which, msgs, meta))
             return
         for d in np.unique(ticks).tolist():
