@@ -204,8 +204,9 @@ class ReferenceFlight:
             if k < n_ticks - 1:
                 armed = self.last_setpoint_s[self.armed]
                 self._oldest_setpoint_s = float(armed.min()) if armed.shape[0] else None
-                for sub in range(self.substeps):
-                    self._physics_step(self.t_s + sub * self.dt / self.substeps)
+                if not self._physics_steps():
+                    for sub in range(self.substeps):
+                        self._physics_step(self.t_s + sub * self.dt / self.substeps)
         self._event("run_end", lost=sorted(self.lost_at))
         # per-tick conversions done once over the whole record (same arithmetic per sample)
         n_ticks_n = rec.quat.shape[0] * self.n
@@ -375,6 +376,25 @@ class ReferenceFlight:
             live = sorted(members)
             self._live_cache = (live, [self.agents[i].row for i in live], members)
         return self._live_cache
+
+    def _physics_steps(self) -> bool:
+        """The tick's sub-steps in one kernel call (the same numbers as one
+        :meth:`_physics_step` each) when nothing can change between them: no vehicle in
+        failsafe and none that can go stale before the last sub-step (its time is the latest;
+        staleness is monotonic in time). Whether it did."""
+        if self._any_failsafe:
+            return False
+        oldest = self._oldest_setpoint_s
+        last_s = self.t_s + (self.substeps - 1) * self.dt / self.substeps
+        if oldest is not None and last_s - oldest > self.failsafe.offboard_timeout_s:
+            return False
+        self.state, self.rotor_speed, impacts = self._kernel.substeps(
+            self.state, self.attitude_sp, self.thrust_sp, self.armed, self.substeps
+        )
+        for impact in impacts:
+            for i in np.flatnonzero(impact > HARD_LANDING_M_S):
+                self._event("hard_landing", drone=int(i), impact_m_s=round(float(impact[i]), 2))
+        return True
 
     def _physics_step(self, t_s: float) -> None:
         attitude, thrust = self.attitude_sp, self.thrust_sp
