@@ -74,6 +74,9 @@ class LinkSettings:
     #: lockstep: a message of a round this agent has not sent yet waits until it has, so that
     #: the range is measured between the two drones' positions of that round
     hold_early: bool = False
+    #: the consensus publishers' congestion control: DROP (express; realtime) or QUEUED
+    #: (lockstep: the pass's messages leave in one batch behind the round-done marker)
+    consensus_congestion: Congestion = Congestion.DROP
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.comm_range_m) and self.comm_range_m > 0):
@@ -200,7 +203,9 @@ class AgentLink(ClosesOnExit):
             inbox = self._inboxes.pop(c)
             self._pending += inbox.drain()
             inbox.close()
-        publisher = self._bus.publisher(keys.consensus(cell, self._drone), Congestion.DROP)
+        publisher = self._bus.publisher(
+            keys.consensus(cell, self._drone), settings.consensus_congestion
+        )
         old, self._publisher, self._cell = self._publisher, publisher, cell
         if old is not None:
             old.close()
