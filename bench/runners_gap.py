@@ -71,6 +71,7 @@ def runners_gap(
     scenario: Path = ROOT / "scenarios" / "large_grid100.toml",
     per_process: int = 25,
     duration_s: float | None = None,
+    keep: Path | None = None,
 ) -> dict[str, Any]:
     """Fly ``scenario`` both ways and compare (module docstring)."""
     spec = load_scenario(scenario)
@@ -78,7 +79,8 @@ def runners_gap(
     n = spec.n_drones
     extra = ["--duration-s", str(duration_s)] if duration_s else []
     with tempfile.TemporaryDirectory() as tmp:
-        work = Path(tmp)
+        work = keep or Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
         load = os.getloadavg()[0]
         sim_s = _swarm("simulate", str(scenario), "--report", "sim", "--no-plots", *extra, cwd=work)
         base, gcs_port = _free_block(n), _free_block(1)
@@ -117,8 +119,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--per-process", type=int, default=25)
     parser.add_argument("--duration-s", type=float, default=None)
     parser.add_argument("--out", type=Path, default=OUT_JSON)
+    parser.add_argument("--keep", type=Path, help="fly in this folder and keep both reports")
     args = parser.parse_args(argv)
-    result = runners_gap(args.scenario.resolve(), args.per_process, args.duration_s)
+    keep = args.keep.resolve() if args.keep else None
+    result = runners_gap(args.scenario.resolve(), args.per_process, args.duration_s, keep)
     brief = {k: v for k, v in result.items() if k != "per_drone"}
     print(json.dumps(brief, indent=1))
     args.out.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
