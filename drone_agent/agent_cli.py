@@ -19,7 +19,7 @@ from drone_agent.hosted_agent import HostedAgent, RunOptions
 from drone_agent.link_faults import FaultyTransport, LinkFaults, PairRandom
 from drone_agent.round_gate import RoundBook
 from drone_agent.transport import AgentTransport, Bus, Position
-from drone_agent.transport_link import AgentLink, LinkSettings
+from drone_agent.transport_link import AgentLink, ConsensusHub, LinkSettings
 from drone_agent.vehicle_link import VehicleLink
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, tcp_listen_free
 from protocols.mavlink_conventions import vehicle_port
@@ -31,6 +31,12 @@ RENDEZVOUS_PORT = 7447
 LOCKSTEP_LEASE_MS = 5000
 #: How long (µs) a lockstep agent's DROP publishers wait for room in a full send queue.
 LOCKSTEP_DROP_WAIT_US = 100_000
+#: A directory: the agent process runs under cProfile and dumps its profile there on exit
+#: (``agent-<first drone>-<pid>.prof``, in the main thread's CPU time;
+#: bench/agent_process_profile.txt).
+PROFILE_ENV = "SWARM_AGENT_PROFILE"
+#: Set: the agent process says on exit how much CPU it used, on its own thread and in all.
+CPU_ENV = "SWARM_AGENT_CPU"
 
 
 class AgentCliError(Exception):
@@ -302,16 +308,21 @@ def run(args: argparse.Namespace) -> int:
     seed = args.seed if args.seed is not None else (scenario.seed if scenario else 0)
     pair_random = PairRandom(seed)
 
+    # one hub for the process's agents: shared subscriptions, and (several agents) their
+    # messages of a pass sent as one sample per cell (protocols/wire_batch.py)
+    rounds = RoundBook(bus, settings.keys(), drones) if lockstep else None
+    news = None if rounds is None else (lambda: rounds.version)
+    hub = ConsensusHub(bus, settings, batch=len(drones) > 1, news=news)
+
     def transport(bus_: Bus, drone: int, position: Position) -> AgentTransport:
         # called once the host runs; ``host`` is bound by then
-        inner = AgentLink(bus_, drone, position, settings)
+        inner = AgentLink(bus_, drone, position, settings, hub)
         return FaultyTransport(inner, faults, pair_random, lambda: host.round_of(drone))
 
     options = RunOptions(control_period_ms=period_ms, arm=not args.no_arm, lockstep=lockstep)
-    rounds = RoundBook(bus, settings.keys(), drones) if lockstep else None
     roster = range(scenario.n_drones) if scenario is not None else ()
     host = AgentHost(drones, links, bus, transport, config, plan, options, rounds=rounds,
-                     roster=roster)  # fmt: skip
+                     roster=roster, hub=hub)  # fmt: skip
     drills = _Drills(scenario, faults, host) if scenario else None
 
     def restart(drone: int, gap_s: float) -> None:  # the restart drill (swarm drill restart)
@@ -353,6 +364,14 @@ def run(args: argparse.Namespace) -> int:
             flush=True,
         )
 
+    profile_dir = os.environ.get(PROFILE_ENV)
+    profiler = None
+    if profile_dir:
+        import cProfile
+
+        # the main thread's CPU time (not wall time: the machine may be loaded)
+        profiler = cProfile.Profile(time.thread_time)
+        profiler.enable()
     try:
         host.run(
             on_second=None if args.quiet else report,
@@ -361,8 +380,20 @@ def run(args: argparse.Namespace) -> int:
             on_return=back,
         )
     finally:
+        if profiler is not None and profile_dir:
+            profiler.disable()
+            out = Path(profile_dir) / f"agent-{drones[0]}-{os.getpid()}.prof"
+            profiler.dump_stats(out)
+        if os.environ.get(CPU_ENV):  # where the process's CPU went: its thread or Zenoh's
+            print(
+                f"agents: CPU {time.process_time():.2f} s, of which the agents' thread "
+                f"{time.thread_time():.2f} s (the rest: Zenoh's threads)",
+                file=sys.stderr,
+                flush=True,
+            )
         live.close()
         host.close()
+        hub.close()
         bus.close()
     return 0
 

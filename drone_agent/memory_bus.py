@@ -202,8 +202,8 @@ class MemorySession(ClosesOnExit):
         self._handles.append(handle)
         return handle
 
-    def publisher(self, key: str, congestion: Congestion) -> Publisher:
-        """A publisher on ``key`` (congestion control has no effect in memory)."""
+    def publisher(self, key: str, congestion: Congestion, *, express: bool = True) -> Publisher:
+        """A publisher on ``key`` (congestion control and express have no effect in memory)."""
         return self._keep(_Publisher(self._bus, key))
 
     def subscribe(self, key_expr: str, capacity: int) -> Inbox:
@@ -217,6 +217,10 @@ class MemorySession(ClosesOnExit):
     ) -> Closeable:
         """``on_sample(key, payload)`` for each sample, on the publisher's thread."""
         return self._keep(_Handle(self._bus.subscribe(key_expr, on_sample)))
+
+    def is_closed(self) -> bool:
+        """Whether this session is closed."""
+        return self._closed
 
     def declare_token(self, key: str) -> Closeable:
         """A liveliness token on ``key``."""

@@ -83,8 +83,10 @@ class Inbox(Closeable, Protocol):
 class Bus(Closeable, Protocol):
     """A byte-level publish/subscribe session on key expressions (``*`` one chunk, ``**`` any)."""
 
-    def publisher(self, key: str, congestion: Congestion) -> Publisher:
-        """Declare a publisher on the concrete key ``key``."""
+    def publisher(self, key: str, congestion: Congestion, *, express: bool = True) -> Publisher:
+        """Declare a publisher on the concrete key ``key``. ``express``: each sample is sent at
+        once; otherwise the session may batch it with others (far cheaper per sample, a little
+        later: for messages nobody waits on, such as agent statuses)."""
         ...
 
     def subscribe(self, key_expr: str, capacity: int) -> Inbox:
@@ -99,6 +101,10 @@ class Bus(Closeable, Protocol):
 
     def declare_token(self, key: str) -> Closeable:
         """A liveliness token on ``key``: alive until closed or until this session dies."""
+        ...
+
+    def is_closed(self) -> bool:
+        """Whether the session is closed (callback subscriptions then fall silent)."""
         ...
 
     def watch_liveliness(self, key_expr: str, on_change: Callable[[str, bool], None]) -> Closeable:

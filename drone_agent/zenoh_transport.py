@@ -6,8 +6,9 @@ gossip over those links and connect directly. Multi-host: ``client`` mode connec
 (a ``zenohd`` or a Python session in router mode), or peers connected to each other.
 
 Consensus and status publishers use congestion control DROP (periodic; the estimator tolerates
-loss) and are express (not batched: measured on loopback, batching added about 1 ms at 50
-agents); plans and commands use BLOCK. Consensus subscriptions are pulled ring channels
+loss); consensus (and the lockstep round markers) are express (not batched: measured on
+loopback, batching added about 1 ms at 50 agents), statuses are batched (cheaper; nobody waits
+on them); plans and commands use BLOCK. Consensus subscriptions are pulled ring channels
 (bounded, oldest dropped): no Python runs on Zenoh's threads for them; the agent drains and
 decodes them on its own thread. Liveliness, plan and queryable callbacks only store what they
 get.
@@ -222,11 +223,14 @@ class ZenohBus(ClosesOnExit):
                 settings = dataclasses.replace(settings, connect_timeout_ms=0)
         return cls(zenoh.open(settings.config()))
 
-    def publisher(self, key: str, congestion: Congestion) -> Publisher:
+    def publisher(self, key: str, congestion: Congestion, *, express: bool = True) -> Publisher:
         """A declared publisher on ``key`` with the given congestion control; DROP publishers
-        (periodic, latency-bound) are also *express*: sent at once, not batched."""
+        (periodic, latency-bound) are also *express* (sent at once, not batched) unless
+        ``express`` is False: then Zenoh batches their samples (measured: 0.6 µs a put instead
+        of 7 µs on the caller's thread, and a fraction of the session's work; for the agents'
+        statuses, which nobody waits on)."""
         cc = _CONGESTION[congestion]
-        express = congestion is Congestion.DROP
+        express = express and congestion is Congestion.DROP
         return _Publisher(
             self.session.declare_publisher(key, congestion_control=cc, express=express)
         )
@@ -245,6 +249,10 @@ class ZenohBus(ClosesOnExit):
             on_sample(str(sample.key_expr), sample.payload.to_bytes())
 
         return _Declared(self.session.declare_subscriber(key_expr, callback))
+
+    def is_closed(self) -> bool:
+        """Whether the session is closed."""
+        return bool(self.session.is_closed())
 
     def declare_token(self, key: str) -> Closeable:
         """A liveliness token on ``key``, alive as long as it and the session are."""
