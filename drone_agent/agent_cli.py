@@ -18,7 +18,7 @@ from drone_agent.host import AgentHost, DroneIdError, parse_drone_ids
 from drone_agent.hosted_agent import HostedAgent, RunOptions
 from drone_agent.link_faults import FaultyTransport, LinkFaults, PairRandom
 from drone_agent.round_gate import RoundBook
-from drone_agent.transport import AgentTransport, Bus, Position
+from drone_agent.transport import AgentTransport, Bus, Congestion, Position
 from drone_agent.transport_link import AgentLink, ConsensusHub, LinkSettings
 from drone_agent.vehicle_link import VehicleLink
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, tcp_listen_free
@@ -281,6 +281,8 @@ def run(args: argparse.Namespace) -> int:
         swarm_id=args.swarm_id,
         comm_range_m=comm_range,
         hold_early=lockstep,
+        # lockstep: no consensus message is ever dropped (nor a round marker, below)
+        consensus_congestion=Congestion.BLOCK if lockstep else Congestion.DROP,
     )
     faults = LinkFaults()
     period_ms = round(config.consensus.dt_s * 1000)
@@ -310,7 +312,9 @@ def run(args: argparse.Namespace) -> int:
 
     # one hub for the process's agents: shared subscriptions, and (several agents) their
     # messages of a pass sent as one sample per cell (protocols/wire_batch.py)
-    rounds = RoundBook(bus, settings.keys(), drones) if lockstep else None
+    rounds = (
+        RoundBook(bus, settings.keys(), drones, settings.consensus_congestion) if lockstep else None
+    )
     news = None if rounds is None else (lambda: rounds.version)
     hub = ConsensusHub(bus, settings, batch=len(drones) > 1, news=news)
 

@@ -202,7 +202,9 @@ class MemorySession(ClosesOnExit):
         self._handles.append(handle)
         return handle
 
-    def publisher(self, key: str, congestion: Congestion, *, express: bool = True) -> Publisher:
+    def publisher(
+        self, key: str, congestion: Congestion, *, express: bool | None = None
+    ) -> Publisher:
         """A publisher on ``key`` (congestion control and express have no effect in memory)."""
         return self._keep(_Publisher(self._bus, key))
 

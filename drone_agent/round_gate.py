@@ -43,7 +43,15 @@ class RoundBook(ClosesOnExit):
     finished (its markers), which drones are alive and which have ever been (liveliness), and
     the markers of its own agents to publish (:meth:`finished`, :meth:`flush`)."""
 
-    def __init__(self, bus: Bus, keys: SwarmKeys, hosted: Sequence[int]) -> None:
+    def __init__(
+        self,
+        bus: Bus,
+        keys: SwarmKeys,
+        hosted: Sequence[int],
+        congestion: Congestion = Congestion.DROP,
+    ) -> None:
+        """``congestion``: the markers' congestion control, the consensus messages' (BLOCK in a
+        lockstep swarm)."""
         self._keys = keys
         self.done: dict[int, int] = {}
         self.alive: set[int] = set()
@@ -57,9 +65,11 @@ class RoundBook(ClosesOnExit):
         #: moves whenever :meth:`poll` took in a marker or a liveliness change
         self.version = 0
         self._declared: list[Closeable] = []
-        # DROP as the consensus messages: never blocking the agent's thread (BLOCK stalled whole
-        # lockstep swarms on a loaded machine); a lost marker is made up for by :meth:`repeat`
-        self._publisher = bus.publisher(keys.round_done(min(hosted)), Congestion.DROP)
+        # the consensus messages' congestion control (lockstep: BLOCK, never dropped; a lost
+        # DROP marker would be made up for by :meth:`repeat`), express as they are: a marker is
+        # sent after the messages of the rounds it closes, and Zenoh keeps that order
+        key = keys.round_done(min(hosted))
+        self._publisher = bus.publisher(key, congestion, express=True)
         self._declared.append(self._publisher)
         # pulled (no Python on Zenoh's threads), drained by :meth:`poll`
         self._inbox = bus.subscribe(keys.round_done_all(), MARKER_CAPACITY)

@@ -83,10 +83,13 @@ class Inbox(Closeable, Protocol):
 class Bus(Closeable, Protocol):
     """A byte-level publish/subscribe session on key expressions (``*`` one chunk, ``**`` any)."""
 
-    def publisher(self, key: str, congestion: Congestion, *, express: bool = True) -> Publisher:
-        """Declare a publisher on the concrete key ``key``. ``express``: each sample is sent at
-        once; otherwise the session may batch it with others (far cheaper per sample, a little
-        later: for messages nobody waits on, such as agent statuses)."""
+    def publisher(
+        self, key: str, congestion: Congestion, *, express: bool | None = None
+    ) -> Publisher:
+        """Declare a publisher on the concrete key ``key``. ``express`` True: each sample is
+        sent at once; False: the session may batch it with others (far cheaper per sample, a
+        little later: for messages nobody waits on, such as agent statuses); None: express for
+        DROP, batched for BLOCK."""
         ...
 
     def subscribe(self, key_expr: str, capacity: int) -> Inbox:

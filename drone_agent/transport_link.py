@@ -87,6 +87,11 @@ class LinkSettings:
     #: lockstep: a message of a round this agent has not sent yet waits until it has, so that
     #: the range is measured between the two drones' positions of that round
     hold_early: bool = False
+    #: the consensus publishers' congestion control: DROP in realtime (a late message is
+    #: worthless; the estimator tolerates loss), BLOCK in lockstep (a message must never be
+    #: dropped: the flight must not depend on the machine's load). Express either way, so
+    #: that the round-done markers (express too) follow the messages they close
+    consensus_congestion: Congestion = Congestion.DROP
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.comm_range_m) and self.comm_range_m > 0):
@@ -297,7 +302,8 @@ class ConsensusHub(ClosesOnExit):
                 for old in self._publishers.values():
                     old.close()
                 self._publishers.clear()
-            publisher = self._bus.publisher(key, Congestion.DROP)
+            congestion = self._settings.consensus_congestion
+            publisher = self._bus.publisher(key, congestion, express=True)
             self._publishers[key] = publisher
         publisher.put(payload)
 

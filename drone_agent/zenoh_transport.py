@@ -5,10 +5,12 @@ Embedded default (no router, nothing to install): peer mode, multicast scouting 
 gossip over those links and connect directly. Multi-host: ``client`` mode connected to a router
 (a ``zenohd`` or a Python session in router mode), or peers connected to each other.
 
-Consensus and status publishers use congestion control DROP (periodic; the estimator tolerates
-loss); consensus (and the lockstep round markers) are express (not batched: measured on
-loopback, batching added about 1 ms at 50 agents), statuses are batched (cheaper; nobody waits
-on them); plans and commands use BLOCK. Consensus subscriptions are pulled ring channels
+Consensus and status publishers use congestion control DROP in realtime (periodic; the
+estimator tolerates loss); in lockstep the consensus publishers and the round markers use BLOCK
+(never dropped: a lockstep flight must not depend on the machine's load). Consensus and markers
+are express (not batched: measured on loopback, batching added about 1 ms at 50 agents; and a
+marker stays behind the messages it closes), statuses are batched (cheaper; nobody waits on
+them); plans and commands use BLOCK. Consensus subscriptions are pulled ring channels
 (bounded, oldest dropped): no Python runs on Zenoh's threads for them; the agent drains and
 decodes them on its own thread. Liveliness, plan and queryable callbacks only store what they
 get.
@@ -223,14 +225,19 @@ class ZenohBus(ClosesOnExit):
                 settings = dataclasses.replace(settings, connect_timeout_ms=0)
         return cls(zenoh.open(settings.config()))
 
-    def publisher(self, key: str, congestion: Congestion, *, express: bool = True) -> Publisher:
-        """A declared publisher on ``key`` with the given congestion control; DROP publishers
-        (periodic, latency-bound) are also *express* (sent at once, not batched) unless
-        ``express`` is False: then Zenoh batches their samples (measured: 0.6 µs a put instead
-        of 7 µs on the caller's thread, and a fraction of the session's work; for the agents'
-        statuses, which nobody waits on)."""
+    def publisher(
+        self, key: str, congestion: Congestion, *, express: bool | None = None
+    ) -> Publisher:
+        """A declared publisher on ``key`` with the given congestion control. ``express`` None:
+        DROP publishers (periodic, latency-bound) are *express* (sent at once, not batched),
+        BLOCK ones (plans, commands) are not. ``express`` False: Zenoh batches the samples
+        (measured: 0.6 µs a put instead of 7 µs on the caller's thread, and a fraction of the
+        session's work; for the agents' statuses, which nobody waits on). ``express`` True with
+        BLOCK: lockstep's consensus messages and round markers (never dropped, sent at once, in
+        the order they were put)."""
         cc = _CONGESTION[congestion]
-        express = express and congestion is Congestion.DROP
+        if express is None:
+            express = congestion is Congestion.DROP
         return _Publisher(
             self.session.declare_publisher(key, congestion_control=cc, express=express)
         )
