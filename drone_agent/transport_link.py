@@ -14,9 +14,11 @@ The consensus traffic of the agents of one process goes through one :class:`Cons
 split and its messages' heads read once (a message is fully decoded once, the first time an agent
 in range takes it), and, with ``batch=True``, the messages its agents publish in one pass sent
 as one sample per cell (protocols/wire_batch.py; the host calls :meth:`ConsensusHub.flush` before
-its round-done markers). Each agent still applies its own cells, radio range, early-round hold and
-counters exactly as when it had its own subscriptions. An agent made without a hub gets a private
-one that publishes each message at once, alone (the single-message schema on the wire).
+its round-done markers), and their statuses of the pass as one status batch
+(protocols/wire_status.py, on the first drone's status key). Each agent still applies its own
+cells, radio range, early-round hold and counters exactly as when it had its own subscriptions.
+An agent made without a hub gets a private one that publishes each message (and status) at once,
+alone (the single-message schemas on the wire).
 """
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ from protocols.wire import (
 )
 from protocols.wire_batch import encode_batch, split_batch
 from protocols.wire_plan import MAX_PLAN_BYTES, PlanMessage, decode_plan, encode_plan
-from protocols.wire_status import AgentStatus, encode_status
+from protocols.wire_status import AgentStatus, encode_status, encode_status_batch
 
 _COUNTER_OF = {Reason.WRONG_SWARM: "wrong_swarm", Reason.BAD_VERSION: "wrong_version"}
 #: Rounds of own positions kept for the range check of late messages.
@@ -180,6 +182,8 @@ class ConsensusHub(ClosesOnExit):
         self._readers: dict[Cell, list[AgentLink]] = {}
         self._cell_of_key: dict[str, tuple[Cell, int | None] | None] = {}
         self._outbox: dict[Cell, list[tuple[int, bytes]]] = {}
+        #: statuses staged in this pass: (drone, payload, the drone's status publisher)
+        self._statuses: list[tuple[int, bytes, Publisher]] = []
         self._publishers: dict[str, Publisher] = {}
         self._pass: int | None = None  # None: not paced by a host, drain on every pump
         self._pumped: tuple[int, int] | None = None
@@ -279,8 +283,24 @@ class ConsensusHub(ClosesOnExit):
         else:
             self._put(cell, sender, payload)
 
+    def send_status(self, drone: int, payload: bytes, publisher: Publisher) -> None:
+        """Publish ``drone``'s status payload on its own ``publisher``: now, or at :meth:`flush`
+        with the pass's other statuses in one status batch (protocols/wire_status.py)."""
+        if self._batch:
+            self._statuses.append((drone, payload, publisher))
+        else:
+            publisher.put(payload)
+
     def flush(self) -> None:
-        """Publish the staged messages: one sample per cell."""
+        """Publish the staged messages: one sample per cell, and the statuses in one sample."""
+        if self._statuses:
+            statuses, self._statuses = self._statuses, []
+            if len(statuses) == 1:
+                statuses[0][2].put(statuses[0][1])
+            else:
+                statuses.sort(key=lambda s: s[0])
+                batch = encode_status_batch([(d, p) for d, p, _ in statuses], self._keys.swarm_id)
+                statuses[0][2].put(batch)  # on the first drone's status key
         if not self._outbox:
             return
         outbox, self._outbox = self._outbox, {}
@@ -506,7 +526,7 @@ class AgentLink(ClosesOnExit):
         self._check_open()
         if status.drone != self._drone:
             raise ValueError(f"drone {self._drone} cannot publish the status of {status.drone}")
-        self._status.put(encode_status(status, self._keys.swarm_id))
+        self._hub.send_status(self._drone, encode_status(status, self._keys.swarm_id), self._status)
 
     def plan(self) -> PlanMessage | None:
         """The newest plan received (largest seq), or None (then asks again now and then, in
@@ -540,6 +560,9 @@ class AgentLink(ClosesOnExit):
         token = getattr(self, "_token", None)
         if token is not None:
             token.close()
+        if not self._bus.is_closed():
+            # what this agent staged goes out now: its status publisher closes below
+            self._hub.flush()
         self._hub.follow(self, self._cell, None)
         if self._own_hub:
             self._hub.close()

@@ -48,7 +48,8 @@ Decoders raise only :class:`WireError`, whose ``reason`` says why (callers count
 reason); encoders raise ValueError for a message that cannot be sent.
 Status, plan, fault and round-done messages live in ``protocols.wire_status``,
 ``protocols.wire_plan``, ``protocols.wire_fault`` and ``protocols.wire_round``; a process's
-consensus messages of one tick and cell travel together in ``protocols.wire_batch``.
+consensus messages of one tick and cell travel together in ``protocols.wire_batch``, its
+statuses of one tick in a status batch (``protocols.wire_status``).
 """
 
 from __future__ import annotations
@@ -97,6 +98,7 @@ class Kind(IntEnum):
     FAULT = 4
     ROUND_DONE = 5
     CONSENSUS_BATCH = 6  # protocols/wire_batch.py
+    STATUS_BATCH = 7  # protocols/wire_status.py
 
 
 class Reason(StrEnum):

@@ -1,12 +1,14 @@
-"""The consensus batch (protocols/wire_batch.py): golden bytes, round trip, malformed input, and
-the process hub that sends and takes batches (drone_agent/transport_link.ConsensusHub) on the
-in-memory bus: several hosted agents' messages of a pass go as one sample per cell, each agent
-still applies its own range, and a process of one agent sends the single-message schema."""
+"""The consensus batch (protocols/wire_batch.py) and the status batch (protocols/wire_status.py):
+golden bytes, round trip, malformed input, and the process hub that sends and takes batches
+(drone_agent/transport_link.ConsensusHub) on the in-memory bus: several hosted agents' messages
+(statuses) of a pass go as one sample per cell (one sample), each agent still applies its own
+range, and a process of one agent sends the single-message schema."""
 
 from __future__ import annotations
 
 import contextlib
 import struct
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -19,6 +21,16 @@ from drone_agent.transport_link import AgentLink, ConsensusHub, LinkSettings
 from protocols.consensus_message import ConsensusMessage
 from protocols.wire import Kind, Reason, WireError, decode_consensus, encode_consensus
 from protocols.wire_batch import BATCH_VERSION, encode_batch, split_batch
+from protocols.wire_status import (
+    STATUS_BATCH_VERSION,
+    AgentMode,
+    AgentStatus,
+    Health,
+    StatusCounters,
+    decode_statuses,
+    encode_status,
+    encode_status_batch,
+)
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -208,3 +220,88 @@ def test_messages_of_the_batched_core_encode_to_the_same_bytes_as_plain_ones() -
     )
     with pytest.raises(ValueError, match="finite"):
         encode_consensus(bad, (0, 0, 0), SID)
+
+
+# -- the status batch (protocols/wire_status.py, Kind.STATUS_BATCH) ----------------------------
+
+
+def _status(drone: int) -> AgentStatus:
+    return AgentStatus(
+        drone=drone,
+        round=1000,
+        t_s=20.0,
+        mode=AgentMode.FLYING,
+        armed=True,
+        health=Health.VEHICLE_LINK | Health.PLAN,
+        estimate=np.arange(9.0),
+        neighbours=(1, 5),
+        counters=StatusCounters(100, 1, 2, 3, 50, 0),
+        plan_seq=7,
+    )
+
+
+def test_status_batch_golden_bytes_and_round_trip() -> None:
+    a, b = encode_status(_status(2), SID), encode_status(_status(6), SID)
+    assert len(a) == len(b) == 155 and STATUS_BATCH_VERSION == 1
+    batch = encode_status_batch([(2, a), (6, b)], SID)
+    # magic, status batch schema 1, kind 7, swarm "demo"; 2 statuses of 155 bytes each
+    assert batch.hex() == "5101070464656d6f" + "0200" + "9b000000" * 2 + a.hex() + b.hex()
+    assert decode_statuses(batch, SID) == [_status(2), _status(6)]
+    assert decode_statuses(a, SID) == [_status(2)]  # one status alone: the single schema
+
+
+@pytest.mark.parametrize(
+    ("cut", "reason"),
+    [
+        (lambda x: x[:-1], Reason.TRUNCATED),
+        (lambda x: x + b"\0", Reason.TRAILING),
+        (lambda x: x[:10], Reason.TRUNCATED),
+        (lambda x: x[:1] + b"\2" + x[2:], Reason.BAD_VERSION),
+        (lambda x: x[:8] + b"\1\0" + x[10:], Reason.BAD_VALUE),  # a batch of one
+    ],
+)
+def test_malformed_status_batches_are_rejected_with_their_reason(
+    cut: Callable[[bytes], bytes], reason: Reason
+) -> None:
+    a, b = encode_status(_status(2), SID), encode_status(_status(6), SID)
+    with pytest.raises(WireError) as err:
+        decode_statuses(cut(encode_status_batch([(2, a), (6, b)], SID)), SID)
+    assert err.value.reason == reason
+    unsorted = encode_status_batch([(2, b), (6, a)], SID)  # the drones inside are 6, 2
+    with pytest.raises(WireError, match="increasing"):
+        decode_statuses(unsorted, SID)
+    with pytest.raises(ValueError, match=r"2\.\."):
+        encode_status_batch([(2, a)], SID)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=600))
+def test_random_status_bytes_raise_only_wire_errors(data: bytes) -> None:
+    for blob in (data, bytes.fromhex("5101070464656d6f0200") + data):
+        with contextlib.suppress(WireError):
+            decode_statuses(blob, SID)
+
+
+def test_hosted_agents_send_their_statuses_of_a_pass_in_one_sample() -> None:
+    memory = MemoryBus()
+    seen: list[tuple[str, bytes]] = []
+    memory.session().subscribe_callback(KEYS.status_all(), lambda k, p: seen.append((k, p)))
+    bus = memory.session()
+    hub = ConsensusHub(bus, SETTINGS, batch=True)
+    a = AgentLink(bus, 6, (1.0, 1.0, -1.0), SETTINGS, hub)
+    b = AgentLink(bus, 2, (2.0, 1.0, -1.0), SETTINGS, hub)
+    alone = AgentLink(memory.session(), 9, (3.0, 1.0, -1.0), SETTINGS)
+    a.publish_status(_status(6))
+    b.publish_status(_status(2))
+    assert not seen  # staged until the pass ends
+    hub.flush()
+    assert [k for k, _ in seen] == [KEYS.status(2)]  # on the first drone's key
+    assert [s.drone for s in decode_statuses(seen[0][1], SID)] == [2, 6]
+    alone.publish_status(_status(9))  # one agent: the single schema, at once
+    assert seen[1] == (KEYS.status(9), encode_status(_status(9), SID))
+    a.publish_status(_status(6))
+    a.close()  # what it staged goes out before its publisher closes
+    assert seen[2] == (KEYS.status(6), encode_status(_status(6), SID))
+    for link in (b, alone):
+        link.close()
+    hub.close()

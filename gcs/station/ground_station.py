@@ -61,7 +61,7 @@ from protocols.keys import SwarmKeys
 from protocols.scenario import Scenario
 from protocols.wire import WireError
 from protocols.wire_plan import FlightCommand, PlanMessage, decode_plan
-from protocols.wire_status import decode_status
+from protocols.wire_status import decode_statuses
 from sitl_sim.config import vehicle_params
 
 _POLL_S = 0.02
@@ -328,14 +328,15 @@ class GroundStation:
 
     def _drain_zenoh(self) -> None:
         while self._statuses:
-            try:
-                status = decode_status(self._statuses.popleft(), self._o.swarm_id)
+            try:  # one status, or a process's batch of them
+                statuses = decode_statuses(self._statuses.popleft(), self._o.swarm_id)
             except WireError:
                 continue
-            self._t_status_s = max(self._t_status_s, status.t_s)
-            if kind := self.watch.on_status(status, self.telemetry.vehicles):
-                self.events.record(status.t_s, kind, drone=status.drone)
-            self.telemetry.log_agent_status(status)
+            for status in statuses:
+                self._t_status_s = max(self._t_status_s, status.t_s)
+                if kind := self.watch.on_status(status, self.telemetry.vehicles):
+                    self.events.record(status.t_s, kind, drone=status.drone)
+                self.telemetry.log_agent_status(status)
         while self._liveliness:
             key, alive = self._liveliness.popleft()
             drone = self._keys.drone_of(key)
