@@ -39,6 +39,13 @@ PROFILE_ENV = "SWARM_AGENT_PROFILE"
 #: Set: the agent process says on exit how much CPU it used, on its own thread and in all, and
 #: how much of it went to the garbage collector.
 CPU_ENV = "SWARM_AGENT_CPU"
+#: Batches in a lockstep agent's send queue per link (Zenoh's default 2; see ZenohSettings).
+LOCKSTEP_TX_QUEUE_BATCHES = 16
+#: How long (wall s) a lockstep agent waits for its vehicle's state before it leaves: longer
+#: than the simulator's barrier timeout (sitl_sim ClockConfig.drop_timeout_s, 10 s), since a
+#: barrier waiting for the slowest process of a loaded machine legitimately sends nothing (at
+#: 3 s, 14 of 100 agents left a lockstep flight at load 25, and it flew another flight).
+LOCKSTEP_VEHICLE_TIMEOUT_S = 15.0
 
 
 class AgentCliError(Exception):
@@ -197,6 +204,7 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
             connect_timeout_ms=ROUTER_WAIT_MS if client else 0,
             lease_ms=lease_ms,
             drop_wait_us=LOCKSTEP_DROP_WAIT_US if lockstep else None,
+            tx_queue_batches=LOCKSTEP_TX_QUEUE_BATCHES if lockstep else None,
         )
     except ValueError as exc:
         raise AgentCliError(str(exc)) from None
@@ -283,8 +291,7 @@ def run(args: argparse.Namespace) -> int:
         swarm_id=args.swarm_id,
         comm_range_m=comm_range,
         hold_early=lockstep,
-        # lockstep: no consensus message is ever dropped (nor a round marker, below)
-        consensus_congestion=Congestion.BLOCK if lockstep else Congestion.DROP,
+        consensus_congestion=Congestion.QUEUED if lockstep else Congestion.DROP,
     )
     faults = LinkFaults()
     period_ms = round(config.consensus.dt_s * 1000)
@@ -314,9 +321,7 @@ def run(args: argparse.Namespace) -> int:
 
     # one hub for the process's agents: shared subscriptions, and (several agents) their
     # messages of a pass sent as one sample per cell (protocols/wire_batch.py)
-    rounds = (
-        RoundBook(bus, settings.keys(), drones, settings.consensus_congestion) if lockstep else None
-    )
+    rounds = RoundBook(bus, settings.keys(), drones) if lockstep else None
     news = None if rounds is None else (lambda: rounds.version)
     hub = ConsensusHub(bus, settings, batch=len(drones) > 1, news=news)
 
@@ -325,7 +330,12 @@ def run(args: argparse.Namespace) -> int:
         inner = AgentLink(bus_, drone, position, settings, hub)
         return FaultyTransport(inner, faults, pair_random, lambda: host.round_of(drone))
 
-    options = RunOptions(control_period_ms=period_ms, arm=not args.no_arm, lockstep=lockstep)
+    options = RunOptions(
+        control_period_ms=period_ms,
+        arm=not args.no_arm,
+        lockstep=lockstep,
+        vehicle_timeout_s=LOCKSTEP_VEHICLE_TIMEOUT_S if lockstep else RunOptions.vehicle_timeout_s,
+    )
     roster = range(scenario.n_drones) if scenario is not None else ()
     host = AgentHost(drones, links, bus, transport, config, plan, options, rounds=rounds,
                      roster=roster, hub=hub)  # fmt: skip

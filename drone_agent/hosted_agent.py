@@ -16,8 +16,9 @@ and two runs of a scenario repeat exactly.
 Safety: it arms only once the plan says fly and every agent's estimate has settled (flight_phase's
 Readiness: the swarm leaves the ground together); an airborne vehicle is
 never sent less than the minimum thrust (flight_phase's invariant); it leaves the swarm (drops its
-liveliness token) when its vehicle falls silent (``vehicle_timeout_s``, longer than the
-simulator's lockstep timeout, during which a stalled barrier legitimately sends nothing) or says
+liveliness token) when its vehicle falls silent (``vehicle_timeout_s``; a lockstep agent's
+(agent_cli) is longer than the simulator's barrier timeout, during which a barrier waiting for
+the slowest process legitimately sends nothing) or says
 it is lost (an EMERGENCY text, emergency or termination state, or disarmed under it while it flies
 the formation); the core checks every setpoint for NaN and limits before it is sent.
 
@@ -88,7 +89,7 @@ class RunOptions:
     #: statuses at 25 Hz (control ticks of 20 ms): the ground station's view and record; the
     #: distributed report holds each estimate on its 25 Hz grid, so a slower rate reads a held
     #: estimate of a moving centre as consensus error (10 Hz: 49 mm instead of < 2.5 mm).
-    #: The session batches them (not express), so 25 Hz costs little
+    #: A process's statuses of a pass go in one sample (protocols/wire_status.py), QUEUED
     status_every_ticks: int = 2
     command_retry_s: float = 0.5
     #: lockstep: wait for every live drone's previous round (drone_agent/round_gate.py), retry

@@ -202,10 +202,8 @@ class MemorySession(ClosesOnExit):
         self._handles.append(handle)
         return handle
 
-    def publisher(
-        self, key: str, congestion: Congestion, *, express: bool | None = None
-    ) -> Publisher:
-        """A publisher on ``key`` (congestion control and express have no effect in memory)."""
+    def publisher(self, key: str, congestion: Congestion) -> Publisher:
+        """A publisher on ``key`` (congestion control has no effect in memory)."""
         return self._keep(_Publisher(self._bus, key))
 
     def subscribe(self, key_expr: str, capacity: int) -> Inbox:

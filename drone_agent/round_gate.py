@@ -4,8 +4,10 @@ In lockstep the simulator steps once every agent has answered the tick, so every
 *sent* its round ``k - 1`` consensus message before any agent sees tick ``k``; the message may
 still be on its way. Each agent process therefore publishes a round-done marker after its agents
 finish a round (protocols/wire_round.py; it follows their consensus messages on the same Zenoh
-session, so whoever has the marker has those messages, unless Zenoh's DROP congestion control
-lost one on a machine too loaded to send it), and an agent starts tick ``k`` once it
+session, in the same send batch as far as it goes (Congestion.QUEUED), so whoever has the marker
+has those messages, unless Zenoh's DROP congestion control lost one because every batch of the
+send queue was still waiting for the wire for 100 ms (a machine too loaded to run Zenoh's threads:
+lockstep sessions queue 16 batches, not 2)), and an agent starts tick ``k`` once it
 holds the round ``k - 1`` marker of every drone of its roster (:class:`RoundGate`). Liveliness
 says who will never send it: a drone whose token is gone is dropped from the roster at once (after
 ``dead_grace_s``, for a marker still in flight), never waited for; a drone never seen alive is
@@ -43,15 +45,7 @@ class RoundBook(ClosesOnExit):
     finished (its markers), which drones are alive and which have ever been (liveliness), and
     the markers of its own agents to publish (:meth:`finished`, :meth:`flush`)."""
 
-    def __init__(
-        self,
-        bus: Bus,
-        keys: SwarmKeys,
-        hosted: Sequence[int],
-        congestion: Congestion = Congestion.DROP,
-    ) -> None:
-        """``congestion``: the markers' congestion control, the consensus messages' (BLOCK in a
-        lockstep swarm)."""
+    def __init__(self, bus: Bus, keys: SwarmKeys, hosted: Sequence[int]) -> None:
         self._keys = keys
         self.done: dict[int, int] = {}
         self.alive: set[int] = set()
@@ -65,11 +59,10 @@ class RoundBook(ClosesOnExit):
         #: moves whenever :meth:`poll` took in a marker or a liveliness change
         self.version = 0
         self._declared: list[Closeable] = []
-        # the consensus messages' congestion control (lockstep: BLOCK, never dropped; a lost
-        # DROP marker would be made up for by :meth:`repeat`), express as they are: a marker is
-        # sent after the messages of the rounds it closes, and Zenoh keeps that order
-        key = keys.round_done(min(hosted))
-        self._publisher = bus.publisher(key, congestion, express=True)
+        # DROP, express: never blocking the agent's thread (BLOCK stalled whole lockstep swarms
+        # on a loaded machine), and it flushes the pass's QUEUED consensus messages ahead of it
+        # in one send batch (Congestion); a lost marker is made up for by :meth:`repeat`
+        self._publisher = bus.publisher(keys.round_done(min(hosted)), Congestion.DROP)
         self._declared.append(self._publisher)
         # pulled (no Python on Zenoh's threads), drained by :meth:`poll`
         self._inbox = bus.subscribe(keys.round_done_all(), MARKER_CAPACITY)

@@ -89,10 +89,9 @@ class LinkSettings:
     #: lockstep: a message of a round this agent has not sent yet waits until it has, so that
     #: the range is measured between the two drones' positions of that round
     hold_early: bool = False
-    #: the consensus publishers' congestion control: DROP in realtime (a late message is
-    #: worthless; the estimator tolerates loss), BLOCK in lockstep (a message must never be
-    #: dropped: the flight must not depend on the machine's load). Express either way, so
-    #: that the round-done markers (express too) follow the messages they close
+    #: the consensus publishers' congestion control: DROP (express; realtime) or QUEUED
+    #: (lockstep: a process's pass of messages leaves in one send batch behind its round-done
+    #: marker). Statuses are QUEUED either way (nobody waits on them: far cheaper)
     consensus_congestion: Congestion = Congestion.DROP
 
     def __post_init__(self) -> None:
@@ -322,8 +321,9 @@ class ConsensusHub(ClosesOnExit):
                 for old in self._publishers.values():
                     old.close()
                 self._publishers.clear()
-            congestion = self._settings.consensus_congestion
-            publisher = self._bus.publisher(key, congestion, express=True)
+            # QUEUED in lockstep: the pass's batches leave in one send batch behind the
+            # round-done marker (drone_agent/transport.Congestion)
+            publisher = self._bus.publisher(key, self._settings.consensus_congestion)
             self._publishers[key] = publisher
         publisher.put(payload)
 
@@ -383,8 +383,9 @@ class AgentLink(ClosesOnExit):
         self._declared: list[Closeable] = []
         try:
             self._declare(bus.watch_liveliness(self._keys.alive_all(), self._on_liveliness))
-            # batched by the session (not express): far cheaper, and nobody waits on a status
-            self._status = bus.publisher(self._keys.status(drone), Congestion.DROP, express=False)
+            # QUEUED (not express): far cheaper, and nobody waits on a status; in lockstep it
+            # leaves with the pass's consensus messages behind the round-done marker
+            self._status = bus.publisher(self._keys.status(drone), Congestion.QUEUED)
             self._declare(self._status)
             self._declare(bus.subscribe_callback(self._keys.plan, self._on_plan))
             if settings.serve_plan:

@@ -5,12 +5,11 @@ Embedded default (no router, nothing to install): peer mode, multicast scouting 
 gossip over those links and connect directly. Multi-host: ``client`` mode connected to a router
 (a ``zenohd`` or a Python session in router mode), or peers connected to each other.
 
-Consensus and status publishers use congestion control DROP in realtime (periodic; the
-estimator tolerates loss); in lockstep the consensus publishers and the round markers use BLOCK
-(never dropped: a lockstep flight must not depend on the machine's load). Consensus and markers
-are express (not batched: measured on loopback, batching added about 1 ms at 50 agents; and a
-marker stays behind the messages it closes), statuses are batched (cheaper; nobody waits on
-them); plans and commands use BLOCK. Consensus subscriptions are pulled ring channels
+Consensus publishers use congestion control DROP (periodic; the estimator tolerates loss),
+express in realtime (not batched: measured on loopback, batching added about 1 ms at 50 agents)
+and QUEUED in lockstep (a process's pass leaves in one send batch behind its express round-done
+marker: drone_agent/transport.Congestion); statuses are QUEUED (cheaper; nobody waits on them);
+plans and commands use BLOCK. Consensus subscriptions are pulled ring channels
 (bounded, oldest dropped): no Python runs on Zenoh's threads for them; the agent drains and
 decodes them on its own thread. Liveliness, plan and queryable callbacks only store what they
 get.
@@ -39,6 +38,7 @@ from protocols.swarm_secrets import RoleSecrets
 _CONGESTION = {
     Congestion.DROP: zenoh.CongestionControl.DROP,
     Congestion.BLOCK: zenoh.CongestionControl.BLOCK,
+    Congestion.QUEUED: zenoh.CongestionControl.DROP,
 }
 MODES = ("peer", "client", "router")
 
@@ -72,6 +72,11 @@ class ZenohSettings:
     #: message changes the flight (a burst of declarations when a drone changes cell filled
     #: the queue on a loaded machine)
     drop_wait_us: int | None = None
+    #: batches the send queue of data-priority messages (consensus, markers, status) holds per
+    #: link (None: Zenoh's 2); an express message takes a batch of its own, so a process that
+    #: publishes many agents' messages at once fills Zenoh's two at once, and DROP then waits
+    #: (``drop_wait_us``) and drops; lockstep agents use a deeper queue
+    tx_queue_batches: int | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -81,6 +86,8 @@ class ZenohSettings:
         for endpoint in (*self.listen, *self.connect):
             if not isinstance(endpoint, str) or "/" not in endpoint:
                 raise ValueError(f"zenoh endpoint must look like tcp/HOST:PORT, got {endpoint!r}")
+        if self.tx_queue_batches is not None and not 1 <= self.tx_queue_batches <= 64:
+            raise ValueError(f"tx_queue_batches must be 1..64, got {self.tx_queue_batches}")
         if self.secrets is not None:
             plain = [e for e in (*self.listen, *self.connect) if not e.startswith("tls/")]
             if plain:
@@ -114,6 +121,8 @@ class ZenohSettings:
         if self.drop_wait_us is not None:
             key = "transport/link/tx/queue/congestion_control/drop/wait_before_drop"
             conf.insert_json5(key, json.dumps(self.drop_wait_us))
+        if self.tx_queue_batches is not None:
+            conf.insert_json5("transport/link/tx/queue/size/data", str(self.tx_queue_batches))
         if self.secrets is not None:
             from drone_agent.zenoh_config import secure
 
@@ -225,19 +234,12 @@ class ZenohBus(ClosesOnExit):
                 settings = dataclasses.replace(settings, connect_timeout_ms=0)
         return cls(zenoh.open(settings.config()))
 
-    def publisher(
-        self, key: str, congestion: Congestion, *, express: bool | None = None
-    ) -> Publisher:
-        """A declared publisher on ``key`` with the given congestion control. ``express`` None:
-        DROP publishers (periodic, latency-bound) are *express* (sent at once, not batched),
-        BLOCK ones (plans, commands) are not. ``express`` False: Zenoh batches the samples
-        (measured: 0.6 µs a put instead of 7 µs on the caller's thread, and a fraction of the
-        session's work; for the agents' statuses, which nobody waits on). ``express`` True with
-        BLOCK: lockstep's consensus messages and round markers (never dropped, sent at once, in
-        the order they were put)."""
+    def publisher(self, key: str, congestion: Congestion) -> Publisher:
+        """A declared publisher on ``key`` with the given congestion control; DROP publishers
+        (periodic, latency-bound) are also *express*: sent at once, not batched (QUEUED is DROP
+        without express: see Congestion)."""
         cc = _CONGESTION[congestion]
-        if express is None:
-            express = congestion is Congestion.DROP
+        express = congestion is Congestion.DROP
         return _Publisher(
             self.session.declare_publisher(key, congestion_control=cc, express=express)
         )
