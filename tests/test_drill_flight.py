@@ -54,7 +54,7 @@ from gcs.report.tlog import read_tlog
 from protocols.descriptors import descriptors
 from protocols.keys import SwarmKeys
 from protocols.mavlink_conventions import DEFAULT_BASE_PORT, DEFAULT_GCS_PORT
-from protocols.wire_status import AgentMode, AgentStatus, decode_status
+from protocols.wire_status import AgentMode, AgentStatus, decode_statuses
 
 pytestmark = pytest.mark.slow
 
@@ -88,13 +88,14 @@ class Seen:
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def on_status(self, _key: str, payload: bytes) -> None:
-        try:
-            status = decode_status(payload, SWARM_ID)
+        try:  # one status, or a hosting process's batch of them
+            statuses = decode_statuses(payload, SWARM_ID)
         except ValueError:
             return
         with self.lock:
-            self.history.append(status)
-            self.latest[status.drone] = status
+            for status in statuses:
+                self.history.append(status)
+                self.latest[status.drone] = status
 
     def on_alive(self, key: str, alive: bool) -> None:
         with self.lock:

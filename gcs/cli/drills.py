@@ -223,16 +223,17 @@ class Swarm:
 
     # -- what the agents say -------------------------------------------------------------------
     def on_status(self, _key: str, payload: bytes) -> None:
-        from protocols.wire_status import decode_status
+        from protocols.wire_status import decode_statuses
 
-        try:
-            status = decode_status(payload, self.swarm_id)
+        try:  # one status, or a process's batch of them
+            statuses = decode_statuses(payload, self.swarm_id)
         except ValueError:
             return
         with self.lock:
-            old = self.latest.get(status.drone)
-            if old is None or status.t_s >= old.t_s or status.round < old.round:
-                self.latest[status.drone] = status
+            for status in statuses:
+                old = self.latest.get(status.drone)
+                if old is None or status.t_s >= old.t_s or status.round < old.round:
+                    self.latest[status.drone] = status
 
     def now(self) -> float:
         """The newest simulated time an agent reported (s)."""
