@@ -18,7 +18,7 @@ from drone_agent.host import AgentHost, DroneIdError, parse_drone_ids
 from drone_agent.hosted_agent import HostedAgent, RunOptions
 from drone_agent.link_faults import FaultyTransport, LinkFaults, PairRandom
 from drone_agent.round_gate import RoundBook
-from drone_agent.transport import AgentTransport, Bus, Position
+from drone_agent.transport import AgentTransport, Bus, Congestion, Position
 from drone_agent.transport_link import AgentLink, LinkSettings
 from drone_agent.vehicle_link import VehicleLink
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, tcp_listen_free
@@ -31,6 +31,13 @@ RENDEZVOUS_PORT = 7447
 LOCKSTEP_LEASE_MS = 5000
 #: How long (µs) a lockstep agent's DROP publishers wait for room in a full send queue.
 LOCKSTEP_DROP_WAIT_US = 100_000
+#: Batches in a lockstep agent's send queue per link (Zenoh's default 2; see ZenohSettings).
+LOCKSTEP_TX_QUEUE_BATCHES = 16
+#: How long (wall s) a lockstep agent waits for its vehicle's state before it leaves: longer
+#: than the simulator's barrier timeout (sitl_sim ClockConfig.drop_timeout_s, 10 s), since a
+#: barrier waiting for the slowest process of a loaded machine legitimately sends nothing (at
+#: 3 s, 14 of 100 agents left a lockstep flight at load 25, and it flew another flight).
+LOCKSTEP_VEHICLE_TIMEOUT_S = 15.0
 
 
 class AgentCliError(Exception):
@@ -189,6 +196,7 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
             connect_timeout_ms=ROUTER_WAIT_MS if client else 0,
             lease_ms=lease_ms,
             drop_wait_us=LOCKSTEP_DROP_WAIT_US if lockstep else None,
+            tx_queue_batches=LOCKSTEP_TX_QUEUE_BATCHES if lockstep else None,
         )
     except ValueError as exc:
         raise AgentCliError(str(exc)) from None
@@ -275,6 +283,7 @@ def run(args: argparse.Namespace) -> int:
         swarm_id=args.swarm_id,
         comm_range_m=comm_range,
         hold_early=lockstep,
+        consensus_congestion=Congestion.QUEUED if lockstep else Congestion.DROP,
     )
     faults = LinkFaults()
     period_ms = round(config.consensus.dt_s * 1000)
@@ -307,7 +316,12 @@ def run(args: argparse.Namespace) -> int:
         inner = AgentLink(bus_, drone, position, settings)
         return FaultyTransport(inner, faults, pair_random, lambda: host.round_of(drone))
 
-    options = RunOptions(control_period_ms=period_ms, arm=not args.no_arm, lockstep=lockstep)
+    options = RunOptions(
+        control_period_ms=period_ms,
+        arm=not args.no_arm,
+        lockstep=lockstep,
+        vehicle_timeout_s=LOCKSTEP_VEHICLE_TIMEOUT_S if lockstep else RunOptions.vehicle_timeout_s,
+    )
     rounds = RoundBook(bus, settings.keys(), drones) if lockstep else None
     roster = range(scenario.n_drones) if scenario is not None else ()
     host = AgentHost(drones, links, bus, transport, config, plan, options, rounds=rounds,

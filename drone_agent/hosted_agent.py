@@ -16,8 +16,9 @@ and two runs of a scenario repeat exactly.
 Safety: it arms only once the plan says fly and every agent's estimate has settled (flight_phase's
 Readiness: the swarm leaves the ground together); an airborne vehicle is
 never sent less than the minimum thrust (flight_phase's invariant); it leaves the swarm (drops its
-liveliness token) when its vehicle falls silent (``vehicle_timeout_s``, longer than the
-simulator's lockstep timeout, during which a stalled barrier legitimately sends nothing) or says
+liveliness token) when its vehicle falls silent (``vehicle_timeout_s``; a lockstep agent's
+(agent_cli) is longer than the simulator's barrier timeout, during which a barrier waiting for
+the slowest process legitimately sends nothing) or says
 it is lost (an EMERGENCY text, emergency or termination state, or disarmed under it while it flies
 the formation); the core checks every setpoint for NaN and limits before it is sent.
 

@@ -4,8 +4,10 @@ In lockstep the simulator steps once every agent has answered the tick, so every
 *sent* its round ``k - 1`` consensus message before any agent sees tick ``k``; the message may
 still be on its way. Each agent process therefore publishes a round-done marker after its agents
 finish a round (protocols/wire_round.py; it follows their consensus messages on the same Zenoh
-session, so whoever has the marker has those messages, unless Zenoh's DROP congestion control
-lost one on a machine too loaded to send it), and an agent starts tick ``k`` once it
+session, in the same send batch as far as it goes (Congestion.QUEUED), so whoever has the marker
+has those messages, unless Zenoh's DROP congestion control lost one because every batch of the
+send queue was still waiting for the wire for 100 ms (a machine too loaded to run Zenoh's threads:
+lockstep sessions queue 16 batches, not 2)), and an agent starts tick ``k`` once it
 holds the round ``k - 1`` marker of every drone of its roster (:class:`RoundGate`). Liveliness
 says who will never send it: a drone whose token is gone is dropped from the roster at once (after
 ``dead_grace_s``, for a marker still in flight), never waited for; a drone never seen alive is
@@ -53,8 +55,9 @@ class RoundBook(ClosesOnExit):
         self._newest: dict[int, int] = {}  # hosted drone -> newest round finished
         self.rejected = 0
         self._declared: list[Closeable] = []
-        # DROP as the consensus messages: never blocking the agent's thread (BLOCK stalled whole
-        # lockstep swarms on a loaded machine); a lost marker is made up for by :meth:`repeat`
+        # DROP, express: never blocking the agent's thread (BLOCK stalled whole lockstep swarms
+        # on a loaded machine), and it flushes the pass's QUEUED consensus messages ahead of it
+        # in one send batch (Congestion); a lost marker is made up for by :meth:`repeat`
         self._publisher = bus.publisher(keys.round_done(min(hosted)), Congestion.DROP)
         self._declared.append(self._publisher)
         # pulled (no Python on Zenoh's threads), drained by :meth:`poll`

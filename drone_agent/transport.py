@@ -36,10 +36,18 @@ Position = Sequence[float] | FloatArray
 
 class Congestion(StrEnum):
     """What a publisher does when the network cannot keep up: DROP for periodic, loss-tolerant
-    messages (consensus, status), BLOCK for messages that must arrive (plans, commands)."""
+    messages (consensus, status), BLOCK for messages that must arrive (plans, commands).
+
+    DROP messages are *express* (each goes out at once, in a send batch of its own), except
+    QUEUED: DROP, but the message waits in the link's current batch until a DROP message of
+    the same session flushes it (or the link is idle). Lockstep consensus messages are QUEUED
+    and the round-done marker that follows them is DROP: a process's whole pass leaves in one
+    batch behind its marker, instead of one batch per message, which on a loaded machine filled
+    Zenoh's send queue and dropped messages the marker then vouched for."""
 
     DROP = "drop"
     BLOCK = "block"
+    QUEUED = "queued"
 
 
 class ClosesOnExit:

@@ -74,6 +74,10 @@ class LinkSettings:
     #: lockstep: a message of a round this agent has not sent yet waits until it has, so that
     #: the range is measured between the two drones' positions of that round
     hold_early: bool = False
+    #: the consensus and status publishers' congestion control: DROP (express; realtime) or
+    #: QUEUED (lockstep: a process's pass of messages and statuses leaves in one send batch
+    #: behind its round-done marker; express, 25 hosted agents' statuses alone took 25 batches)
+    consensus_congestion: Congestion = Congestion.DROP
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.comm_range_m) and self.comm_range_m > 0):
@@ -145,7 +149,7 @@ class AgentLink(ClosesOnExit):
         self._declared: list[Closeable] = []
         try:
             self._declare(bus.watch_liveliness(self._keys.alive_all(), self._on_liveliness))
-            self._status = bus.publisher(self._keys.status(drone), Congestion.DROP)
+            self._status = bus.publisher(self._keys.status(drone), settings.consensus_congestion)
             self._declare(self._status)
             self._declare(bus.subscribe_callback(self._keys.plan, self._on_plan))
             if settings.serve_plan:
@@ -200,7 +204,9 @@ class AgentLink(ClosesOnExit):
             inbox = self._inboxes.pop(c)
             self._pending += inbox.drain()
             inbox.close()
-        publisher = self._bus.publisher(keys.consensus(cell, self._drone), Congestion.DROP)
+        publisher = self._bus.publisher(
+            keys.consensus(cell, self._drone), settings.consensus_congestion
+        )
         old, self._publisher, self._cell = self._publisher, publisher, cell
         if old is not None:
             old.close()

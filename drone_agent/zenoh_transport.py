@@ -36,6 +36,7 @@ from protocols.swarm_secrets import RoleSecrets
 _CONGESTION = {
     Congestion.DROP: zenoh.CongestionControl.DROP,
     Congestion.BLOCK: zenoh.CongestionControl.BLOCK,
+    Congestion.QUEUED: zenoh.CongestionControl.DROP,
 }
 MODES = ("peer", "client", "router")
 
@@ -69,6 +70,11 @@ class ZenohSettings:
     #: message changes the flight (a burst of declarations when a drone changes cell filled
     #: the queue on a loaded machine)
     drop_wait_us: int | None = None
+    #: batches the send queue of data-priority messages (consensus, markers, status) holds per
+    #: link (None: Zenoh's 2); an express message takes a batch of its own, so a process that
+    #: publishes many agents' messages at once fills Zenoh's two at once, and DROP then waits
+    #: (``drop_wait_us``) and drops; lockstep agents use a deeper queue
+    tx_queue_batches: int | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -78,6 +84,8 @@ class ZenohSettings:
         for endpoint in (*self.listen, *self.connect):
             if not isinstance(endpoint, str) or "/" not in endpoint:
                 raise ValueError(f"zenoh endpoint must look like tcp/HOST:PORT, got {endpoint!r}")
+        if self.tx_queue_batches is not None and not 1 <= self.tx_queue_batches <= 64:
+            raise ValueError(f"tx_queue_batches must be 1..64, got {self.tx_queue_batches}")
         if self.secrets is not None:
             plain = [e for e in (*self.listen, *self.connect) if not e.startswith("tls/")]
             if plain:
@@ -111,6 +119,8 @@ class ZenohSettings:
         if self.drop_wait_us is not None:
             key = "transport/link/tx/queue/congestion_control/drop/wait_before_drop"
             conf.insert_json5(key, json.dumps(self.drop_wait_us))
+        if self.tx_queue_batches is not None:
+            conf.insert_json5("transport/link/tx/queue/size/data", str(self.tx_queue_batches))
         if self.secrets is not None:
             from drone_agent.zenoh_config import secure
 
@@ -224,7 +234,8 @@ class ZenohBus(ClosesOnExit):
 
     def publisher(self, key: str, congestion: Congestion) -> Publisher:
         """A declared publisher on ``key`` with the given congestion control; DROP publishers
-        (periodic, latency-bound) are also *express*: sent at once, not batched."""
+        (periodic, latency-bound) are also *express*: sent at once, not batched (QUEUED is DROP
+        without express: see Congestion)."""
         cc = _CONGESTION[congestion]
         express = congestion is Congestion.DROP
         return _Publisher(

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from protocols.mavlink_conventions import DEFAULT_GCS_PORT, MAX_VEHICLES
+from sitl_sim.sim_config import ClockConfig
 
 DESCRIPTION = (
     "Simulate N quadcopters behind real MAVLink 2 UDP endpoints, as PX4 SITL does: vehicle i "
@@ -147,9 +148,11 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument(
         "--lockstep-timeout",
         type=float,
-        default=2.0,
+        default=ClockConfig.drop_timeout_s,
         metavar="S",
-        help="an agent silent for S wall seconds leaves the barrier (default 2)",
+        help="an agent silent for S wall seconds leaves the barrier (default %(default)g: on a "
+        "machine so loaded that a process waits seconds for the CPU, lockstep slows down, it does "
+        "not drop anyone; an agent whose process ends leaves at once, its port closed)",
     )
     p.add_argument(
         "--join-timeout",

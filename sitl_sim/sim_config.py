@@ -68,7 +68,7 @@ class ClockConfig:
 
     mode: str = "realtime"
     speedup: float = 1.0
-    drop_timeout_s: float = 2.0
+    drop_timeout_s: float = 10.0
     join_timeout_s: float = 10.0
     wait_agents: int = 1
     duration_s: float | None = None
