@@ -27,7 +27,10 @@ from protocols.mavlink_signing import SigningKeyError, load_signing_key
 from protocols.scenario import Scenario, ScenarioError, load_scenario
 
 RENDEZVOUS_PORT = 7447
-#: Zenoh lease (ms) of a lockstep agent's session: how long a frozen agent looks alive.
+#: Zenoh lease (ms) of a lockstep agent's session: how long a frozen agent looks alive. Lockstep's
+#: wall-clock limits go lease (5 s) < the simulator's barrier timeout (10 s) < an agent's vehicle
+#: timeout (LOCKSTEP_VEHICLE_TIMEOUT_S, 15 s): a hung process's drones leave its peers' rosters
+#: first, so they echo the tick again before the barrier gives up on anyone.
 LOCKSTEP_LEASE_MS = 5000
 #: How long (µs) a lockstep agent's DROP publishers wait for room in a full send queue.
 LOCKSTEP_DROP_WAIT_US = 100_000
