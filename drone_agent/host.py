@@ -36,12 +36,16 @@ from drone_agent.agent_core import AgentConfig, AgentCore, BatchAgentCore
 from drone_agent.hosted_agent import DueTick, HostedAgent, RunOptions
 from drone_agent.round_gate import RoundBook, RoundGate
 from drone_agent.transport import AgentTransport, Bus, Position
+from drone_agent.transport_link import ConsensusHub
 from drone_agent.vehicle_link import VehicleLink
 from protocols.trajectory import DescriptorTrajectory
 
 TransportFactory = Callable[[Bus, int, Position], AgentTransport]
 #: Lockstep: with no tick computed for this long (wall s), re-send the newest round markers.
 REPEAT_MARKERS_S = 0.2
+#: Lockstep: while no vehicle sample, marker or liveliness change comes in, the agents are looked
+#: at (heartbeats, timeouts, the gates' grace periods) only this often (wall s).
+IDLE_PASS_S = 0.02
 #: A restarted drone's new port first greets its vehicle this long (wall s) after the old port
 #: closed: longer than the simulator's re-send period (0.25 s), so that it has seen the old port
 #: closed (and stopped waiting for it) before a new address speaks for the vehicle.
@@ -108,12 +112,16 @@ class AgentHost:
         wall_clock: Callable[[], float] = time.monotonic,
         rounds: RoundBook | None = None,
         roster: Sequence[int] = (),
+        hub: ConsensusHub | None = None,
     ) -> None:
         """``rounds`` and ``roster`` (the drones expected from the first tick on, e.g. the
-        scenario's) are needed in lockstep (``options.lockstep``)."""
+        scenario's) are needed in lockstep (``options.lockstep``). ``hub``: the process's
+        consensus hub, if its agents' transports share one; flushed after each pass's ticks,
+        before the round-done markers (which must follow the messages they close)."""
         if options.lockstep and rounds is None:
             raise ValueError("lockstep agents need the process's round book")
         self._rounds = rounds
+        self._hub = hub
         self._roster = tuple(roster)
         self._slots = [_Slot(d, link) for d, link in zip(drones, links, strict=True)]
         self._slot_of = {slot.drone: slot for slot in self._slots}
@@ -193,11 +201,13 @@ class AgentHost:
         ticks now due, :meth:`pending_rounds`), ``on_leave`` once for each agent that leaves the
         swarm on its own, ``on_return(drone, time_boot_ms)`` when a restarted drone's new agent
         starts."""
-        last_report = last_tick = self._clock()
+        last_report = last_tick = last_full = self._clock()
         while not self._stop.is_set():
+            fresh = False
             for key, _ in self._selector.select(timeout=0.002):
                 slot: _Slot = key.data
                 for sample in slot.link.poll():
+                    fresh = True
                     slot.newest_ms = max(slot.newest_ms, sample.time_boot_ms)
                     if slot.revive_at_ms is not None and slot.newest_ms >= slot.revive_at_ms:
                         self._revive(slot)
@@ -208,8 +218,17 @@ class AgentHost:
                     slot.agent.on_sample(sample)
             if on_loop is not None:
                 on_loop()
+            if self._hub is not None:
+                self._hub.new_pass()
             due: dict[tuple[int, int], list[tuple[HostedAgent, DueTick]]] = {}
-            for slot in self._slots:
+            now = self._clock()
+            if self._rounds is not None and not fresh and now - last_full < IDLE_PASS_S:
+                # lockstep, waiting: nothing can have become due unless a marker or a
+                # liveliness change came in (the time-based checks run every IDLE_PASS_S)
+                fresh = self._rounds.poll()
+            else:
+                fresh, last_full = True, now
+            for slot in self._slots if fresh else ():
                 if slot.agent is None or slot.revive_at_ms is not None:
                     self._greet(slot)
                     continue
@@ -219,6 +238,8 @@ class AgentHost:
                     due.setdefault(when, []).append((slot.agent, tick))
             for group in due.values():
                 self._run_cores(group)
+            if self._hub is not None:
+                self._hub.flush()
             if self._rounds is not None:
                 self._rounds.flush()
                 if due:

@@ -218,6 +218,10 @@ class MemorySession(ClosesOnExit):
         """``on_sample(key, payload)`` for each sample, on the publisher's thread."""
         return self._keep(_Handle(self._bus.subscribe(key_expr, on_sample)))
 
+    def is_closed(self) -> bool:
+        """Whether this session is closed."""
+        return self._closed
+
     def declare_token(self, key: str) -> Closeable:
         """A liveliness token on ``key``."""
         return self._keep(_Handle(self._bus.token(key)))

@@ -26,6 +26,7 @@ decision, pure apart from the book it reads and the wall time passed in.
 
 from __future__ import annotations
 
+import itertools
 from collections import deque
 from collections.abc import Iterable, Sequence
 
@@ -34,6 +35,7 @@ from protocols.keys import SwarmKeys
 from protocols.wire import WireError
 from protocols.wire_round import RoundDone, decode_round_done, encode_round_done
 
+_NOT_YET = itertools.repeat(-1)  # done.get's default: no round finished
 #: Markers kept between two polls (oldest dropped beyond: a newer marker says more).
 MARKER_CAPACITY = 1024
 
@@ -54,6 +56,8 @@ class RoundBook(ClosesOnExit):
         self._to_send: dict[int, list[int]] = {}
         self._newest: dict[int, int] = {}  # hosted drone -> newest round finished
         self.rejected = 0
+        #: moves whenever :meth:`poll` took in a marker or a liveliness change
+        self.version = 0
         self._declared: list[Closeable] = []
         # DROP, express: never blocking the agent's thread (BLOCK stalled whole lockstep swarms
         # on a loaded machine), and it flushes the pass's QUEUED consensus messages ahead of it
@@ -70,8 +74,10 @@ class RoundBook(ClosesOnExit):
         if drone is not None:
             self._changes.append((drone, alive))
 
-    def poll(self) -> None:
-        """Take in the markers and liveliness changes that arrived (on the caller's thread)."""
+    def poll(self) -> bool:
+        """Take in the markers and liveliness changes that arrived (on the caller's thread);
+        whether there were any."""
+        news = bool(self._changes)
         while self._changes:
             drone, alive = self._changes.popleft()
             if alive:
@@ -82,6 +88,7 @@ class RoundBook(ClosesOnExit):
                 self.alive.discard(drone)
                 self.gone.add(drone)
         for _key, payload in self._inbox.drain():
+            news = True
             try:
                 marker = decode_round_done(payload, self._keys.swarm_id)
             except WireError:
@@ -92,6 +99,9 @@ class RoundBook(ClosesOnExit):
                 if marker.round > done.get(drone, -1):
                     done[drone] = marker.round
                 self.seen.add(drone)
+        if news:
+            self.version += 1
+        return news
 
     def finished(self, drone: int, round_: int) -> None:
         """Hosted ``drone`` has finished ``round_`` (its consensus message, if any, is sent)."""
@@ -149,6 +159,8 @@ class RoundGate:
         self._tick = -1
         self._tick_since = 0.0
         self._members = frozenset(self.roster)
+        #: the roster but this agent, sorted (None: to be made again after a change)
+        self._others: tuple[int, ...] | None = None
 
     def ready(self, tick: int, now: float) -> bool:
         """Whether every drone of the roster has finished round ``tick - 1`` or is dead (dropped
@@ -168,11 +180,21 @@ class RoundGate:
             self._first_tick = tick
             self.roster = {j for j in self.roster if j in alive} | {self.me}
             self._members = frozenset(self.roster)
+            self._others = None
         if tick > self._first_tick:
             book = self.book
             book.poll()
             need = tick - 1
             done, alive = book.done, book.alive
+            if self._others is None:
+                self._others = tuple(sorted(self.roster - {self.me}))
+            newcomers = done.keys() - self.roster
+            # the usual case, at C speed: every other drone of the roster has sent its round
+            # and nobody joins (the loops below would change nothing)
+            if min(map(done.get, self._others, _NOT_YET), default=need) >= need and not any(
+                done[j] >= need and j in alive for j in newcomers
+            ):
+                return True
             changed = False
             for j in sorted(self.roster):
                 if j == self.me or done.get(j, -1) >= need:
@@ -188,12 +210,13 @@ class RoundGate:
                 self.roster.discard(j)
                 self._since.pop(j, None)
                 changed = True
-            for j, r in done.items():  # newcomers (a restarted agent): from their next round
-                if j not in self.roster and r >= need and j in alive:
+            for j in sorted(newcomers):  # newcomers (a restarted agent): from their next round
+                if done[j] >= need and j in alive:
                     self.roster.add(j)
                     changed = True
             if changed:
                 self._members = frozenset(self.roster)
+                self._others = None
         return True
 
     def members(self) -> frozenset[int]:

@@ -109,6 +109,10 @@ class Bus(Closeable, Protocol):
         """A liveliness token on ``key``: alive until closed or until this session dies."""
         ...
 
+    def is_closed(self) -> bool:
+        """Whether the session is closed (callback subscriptions then fall silent)."""
+        ...
+
     def watch_liveliness(self, key_expr: str, on_change: Callable[[str, bool], None]) -> Closeable:
         """``on_change(key, alive)`` for every token matching ``key_expr``: first for those
         already alive (history), then on every change."""

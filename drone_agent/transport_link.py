@@ -8,13 +8,26 @@ the in-process radio does; in lockstep a message of a round it has not sent yet 
 has), holds the agent's liveliness token and watches everyone's, publishes its status, and keeps
 the newest plan (fetched on joining, then subscribed; it also answers other agents' plan queries,
 so a late joiner gets the plan even when the ground station is gone).
+
+The consensus traffic of the agents of one process goes through one :class:`ConsensusHub`
+(issue 9, batched messaging): one subscription per cell any of its agents listens to, each sample
+split and its messages' heads read once (a message is fully decoded once, the first time an agent
+in range takes it), and, with ``batch=True``, the messages its agents publish in one pass sent
+as one sample per cell (protocols/wire_batch.py; the host calls :meth:`ConsensusHub.flush` before
+its round-done markers), and their statuses of the pass as one status batch
+(protocols/wire_status.py, on the first drone's status key). Each agent still applies its own
+cells, radio range, early-round hold and counters exactly as when it had its own subscriptions.
+An agent made without a hub gets a private one that publishes each message (and status) at once,
+alone (the single-message schemas on the wire).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,14 +47,16 @@ from protocols.keys import Cell, SwarmKeys, cell_size_for, neighbourhood, track_
 from protocols.wire import (
     MAX_CONSENSUS_BYTES,
     ConsensusPacket,
+    Kind,
     Reason,
     WireError,
     consensus_head,
     decode_consensus,
     encode_consensus,
 )
+from protocols.wire_batch import encode_batch, split_batch
 from protocols.wire_plan import MAX_PLAN_BYTES, PlanMessage, decode_plan, encode_plan
-from protocols.wire_status import AgentStatus, encode_status
+from protocols.wire_status import AgentStatus, encode_status, encode_status_batch
 
 _COUNTER_OF = {Reason.WRONG_SWARM: "wrong_swarm", Reason.BAD_VERSION: "wrong_version"}
 #: Rounds of own positions kept for the range check of late messages.
@@ -74,9 +89,9 @@ class LinkSettings:
     #: lockstep: a message of a round this agent has not sent yet waits until it has, so that
     #: the range is measured between the two drones' positions of that round
     hold_early: bool = False
-    #: the consensus and status publishers' congestion control: DROP (express; realtime) or
-    #: QUEUED (lockstep: a process's pass of messages and statuses leaves in one send batch
-    #: behind its round-done marker; express, 25 hosted agents' statuses alone took 25 batches)
+    #: the consensus publishers' congestion control: DROP (express; realtime) or QUEUED
+    #: (lockstep: a process's pass of messages leaves in one send batch behind its round-done
+    #: marker). Statuses are QUEUED either way (nobody waits on them: far cheaper)
     consensus_congestion: Congestion = Congestion.DROP
 
     def __post_init__(self) -> None:
@@ -112,6 +127,218 @@ def _vec3(position_ned_m: Position) -> tuple[float, float, float]:
     return (x, y, z)
 
 
+class _Entry:
+    """One consensus message as received: its sender, round and radio origin, the cell it came
+    from, and its payload, decoded at most once (by the first agent that takes it)."""
+
+    __slots__ = ("_packet", "error", "origin", "payload", "round", "sender")
+
+    def __init__(
+        self,
+        sender: int,
+        round_: int,
+        origin: tuple[float, float, float],
+        payload: bytes,
+        error: str | None = None,
+    ) -> None:
+        self.sender, self.round, self.origin, self.payload = sender, round_, origin, payload
+        self.error = error  # the counter to bump for a payload that did not decode
+        self._packet: ConsensusPacket | None = None
+
+    def packet(self, swarm_id: str, max_bytes: int) -> ConsensusPacket:
+        """The decoded message (WireError if it does not decode, each time asked)."""
+        if self._packet is None:
+            self._packet = decode_consensus(self.payload, swarm_id, max_bytes=max_bytes)
+        return self._packet
+
+
+def _rejected(sender: int, exc: WireError) -> _Entry:
+    return _Entry(sender, -1, (0.0, 0.0, 0.0), b"", _COUNTER_OF.get(exc.reason, "malformed"))
+
+
+class ConsensusHub(ClosesOnExit):
+    """The consensus subscriptions and publications of the agents of one process (module doc).
+
+    ``batch``: send the messages staged in a pass (:meth:`send`) as one sample per cell at
+    :meth:`flush` (a cell with one message sends it alone); otherwise each is sent at once."""
+
+    def __init__(
+        self,
+        bus: Bus,
+        settings: LinkSettings,
+        *,
+        batch: bool = True,
+        news: Callable[[], int] | None = None,
+    ) -> None:
+        """``news``: a counter that moves whenever the process's lockstep round book took in a
+        marker (:attr:`RoundBook.version`); with it and :meth:`new_pass`, :meth:`pump` drains
+        the subscriptions only when something may have come that an agent must see."""
+        self._bus, self._settings, self._keys = bus, settings, settings.keys()
+        self._batch = batch
+        self._news = news
+        # pulled ring channels (no Python on Zenoh's threads), drained by :meth:`pump`
+        self._subs: dict[Cell, Inbox] = {}
+        self._readers: dict[Cell, list[AgentLink]] = {}
+        self._cell_of_key: dict[str, tuple[Cell, int | None] | None] = {}
+        self._outbox: dict[Cell, list[tuple[int, bytes]]] = {}
+        #: statuses staged in this pass: (drone, payload, the drone's status publisher)
+        self._statuses: list[tuple[int, bytes, Publisher]] = []
+        self._publishers: dict[str, Publisher] = {}
+        self._pass: int | None = None  # None: not paced by a host, drain on every pump
+        self._pumped: tuple[int, int] | None = None
+        self._closed = False
+
+    def new_pass(self) -> None:
+        """A host's new pass over its agents: the next :meth:`pump` drains."""
+        self._pass = 0 if self._pass is None else self._pass + 1
+
+    def follow(self, link: AgentLink, old: Cell | None, new: Cell | None) -> None:
+        """``link`` now listens to the 27 cells around ``new`` (None: to none)."""
+        with contextlib.suppress(RuntimeError):  # a closed session: nothing more comes
+            self._drain()  # what came in so far goes to the readers of its time
+        before = set(neighbourhood(old)) if old is not None else set()
+        after = set(neighbourhood(new)) if new is not None else set()
+        for c in sorted(after - before):
+            readers = self._readers.setdefault(c, [])
+            readers.append(link)
+            if c not in self._subs:
+                key = self._keys.consensus_cell(c)
+                self._subs[c] = self._bus.subscribe(key, self._settings.inbox_capacity)
+        for c in sorted(before - after):
+            readers = self._readers.get(c, [])
+            if link in readers:
+                readers.remove(link)
+            if not readers:
+                self._readers.pop(c, None)
+                sub = self._subs.pop(c, None)
+                if sub is not None:
+                    sub.close()
+
+    def _where(self, key: str) -> tuple[Cell, int | None] | None:
+        """The cell and drone of a consensus key (None for a key that is not one)."""
+        got = self._cell_of_key.get(key, ())
+        if got == ():
+            if len(self._cell_of_key) > 4096:  # bounded: garbage may come on many keys
+                self._cell_of_key.clear()
+            parts = key.split("/")
+            try:
+                cell = (int(parts[3]), int(parts[4]), int(parts[5]))
+                got = (cell, self._keys.drone_of(key))
+            except (IndexError, ValueError):
+                got = None
+            self._cell_of_key[key] = got
+        return got  # type: ignore[return-value]
+
+    def pump(self) -> None:
+        """Split the samples that arrived and hand their messages to the agents of their cell.
+        Paced by a host (:meth:`new_pass`): once per pass, and again after the round book took
+        in a marker (whose messages came before it: they must be drained before an agent that
+        saw the marker takes in its inbox)."""
+        if self._pass is not None:
+            epoch = (self._pass, self._news() if self._news is not None else 0)
+            if epoch == self._pumped:
+                return
+            self._pumped = epoch
+        self._drain()
+
+    def _drain(self) -> None:
+        sid, limit = self._keys.swarm_id, self._settings.max_consensus_bytes
+        readers_of = self._readers
+        for cell, inbox in list(self._subs.items()):
+            samples = inbox.drain()
+            if not samples:
+                continue
+            readers = readers_of.get(cell)
+            if not readers:
+                continue
+            for key, payload in samples:
+                where = self._where(key)
+                if where is None or where[0] != cell:
+                    continue
+                sender = where[1]
+                entries = self._split(payload, -1 if sender is None else sender, sid, limit)
+                for link in readers:
+                    link._incoming.append(entries)
+
+    def _split(self, payload: bytes, key_sender: int, sid: str, limit: int) -> list[_Entry]:
+        """The messages of one sample (a single message or a batch), heads read."""
+        try:
+            if len(payload) > 2 and payload[2] == Kind.CONSENSUS_BATCH:
+                batch = split_batch(payload, sid, max_consensus_bytes=limit)
+                if batch[0].sender != key_sender:
+                    raise WireError(Reason.BAD_VALUE, f"batch of {key_sender} from another")
+                return [_Entry(b.sender, b.round, b.origin, b.payload) for b in batch]
+            sender, round_, origin = consensus_head(payload, sid, max_bytes=limit)
+            if sender != key_sender:
+                raise WireError(Reason.BAD_VALUE, f"key of {key_sender} carries sender {sender}")
+            return [_Entry(sender, round_, origin, payload)]
+        except WireError as exc:
+            return [_rejected(key_sender, exc)]
+
+    def send(self, cell: Cell, sender: int, payload: bytes) -> None:
+        """Publish ``sender``'s consensus payload from ``cell``: now, or at :meth:`flush`."""
+        if self._batch:
+            self._outbox.setdefault(cell, []).append((sender, payload))
+        else:
+            self._put(cell, sender, payload)
+
+    def send_status(self, drone: int, payload: bytes, publisher: Publisher) -> None:
+        """Publish ``drone``'s status payload on its own ``publisher``: now, or at :meth:`flush`
+        with the pass's other statuses in one status batch (protocols/wire_status.py)."""
+        if self._batch:
+            self._statuses.append((drone, payload, publisher))
+        else:
+            publisher.put(payload)
+
+    def flush(self) -> None:
+        """Publish the staged messages: one sample per cell, and the statuses in one sample."""
+        if self._statuses:
+            statuses, self._statuses = self._statuses, []
+            if len(statuses) == 1:
+                statuses[0][2].put(statuses[0][1])
+            else:
+                statuses.sort(key=lambda s: s[0])
+                batch = encode_status_batch([(d, p) for d, p, _ in statuses], self._keys.swarm_id)
+                statuses[0][2].put(batch)  # on the first drone's status key
+        if not self._outbox:
+            return
+        outbox, self._outbox = self._outbox, {}
+        sid = self._keys.swarm_id
+        for cell, staged in outbox.items():
+            if len(staged) == 1:
+                self._put(cell, *staged[0])
+                continue
+            staged.sort(key=lambda sp: sp[0])
+            self._put(cell, staged[0][0], encode_batch(staged, sid))
+
+    def _put(self, cell: Cell, sender: int, payload: bytes) -> None:
+        key = self._keys.consensus(cell, sender)
+        publisher = self._publishers.get(key)
+        if publisher is None:
+            if self._bus.is_closed():
+                raise RuntimeError("cannot publish: the session is closed")
+            if len(self._publishers) >= 64:  # cells left long ago
+                for old in self._publishers.values():
+                    old.close()
+                self._publishers.clear()
+            # QUEUED in lockstep: the pass's batches leave in one send batch behind the
+            # round-done marker (drone_agent/transport.Congestion)
+            publisher = self._bus.publisher(key, self._settings.consensus_congestion)
+            self._publishers[key] = publisher
+        publisher.put(payload)
+
+    def close(self) -> None:
+        """Undeclare the subscriptions and publishers."""
+        if self._closed:
+            return
+        self._closed = True
+        for thing in [*self._publishers.values(), *self._subs.values()]:
+            thing.close()
+        self._publishers.clear()
+        self._subs.clear()
+        self._readers.clear()
+
+
 class AgentLink(ClosesOnExit):
     """Drone ``drone``'s transport over ``bus``, starting at ``position_ned_m`` (3,) NED, m.
 
@@ -122,34 +349,43 @@ class AgentLink(ClosesOnExit):
     """
 
     def __init__(
-        self, bus: Bus, drone: int, position_ned_m: Position, settings: LinkSettings
+        self,
+        bus: Bus,
+        drone: int,
+        position_ned_m: Position,
+        settings: LinkSettings,
+        hub: ConsensusHub | None = None,
     ) -> None:
+        """``hub``: the process's consensus hub (shared by its agents); None for a private one
+        that sends each message at once."""
         self._bus, self._drone, self._settings = bus, drone, settings
+        self._own_hub = hub is None
+        self._hub = ConsensusHub(bus, settings, batch=False) if hub is None else hub
         self._keys = settings.keys()
         self._keys.alive(drone)  # validates the drone id
         self._position = _vec3(position_ned_m)
         self._counts: Counter[str] = Counter()
         self._alive: set[int] = set()
-        self._sender_of: dict[str, int | None] = {}  # consensus key -> drone id
         self._alive_lock = threading.Lock()
         self._plan: PlanMessage | None = None
         self._plan_payload: bytes | None = None
         self._plan_inbox: deque[bytes] = deque(maxlen=64)
         self._plan_calls = 0
         self._cell: Cell | None = None
-        self._inboxes: dict[Cell, Inbox] = {}
-        self._pending: list[tuple[str, bytes]] = []
+        #: what the hub handed over since the last receive: per sample, its messages
+        self._incoming: list[list[_Entry]] = []
         #: own positions by the round they were published at (the last _HISTORY rounds)
         self._sent_at: dict[int, tuple[float, float, float]] = {}
         self._last_sent = -1
-        #: messages of rounds not sent by this agent yet: (key, payload, sender, round, origin)
-        self._early: list[tuple[str, bytes, int, int, tuple[float, float, float]]] = []
-        self._publisher: Publisher | None = None
+        #: messages of rounds not sent by this agent yet
+        self._early: list[_Entry] = []
         self._closed = False
         self._declared: list[Closeable] = []
         try:
             self._declare(bus.watch_liveliness(self._keys.alive_all(), self._on_liveliness))
-            self._status = bus.publisher(self._keys.status(drone), settings.consensus_congestion)
+            # QUEUED (not express): far cheaper, and nobody waits on a status; in lockstep it
+            # leaves with the pass's consensus messages behind the round-done marker
+            self._status = bus.publisher(self._keys.status(drone), Congestion.QUEUED)
             self._declare(self._status)
             self._declare(bus.subscribe_callback(self._keys.plan, self._on_plan))
             if settings.serve_plan:
@@ -192,24 +428,13 @@ class AgentLink(ClosesOnExit):
         self._bus.query(self._keys.plan, self._plan_inbox.append, timeout_s)
 
     def _move(self, position: tuple[float, float, float]) -> None:
-        """Follow the drone to ``position``: change cell (subscriptions, publisher) if needed."""
+        """Follow the drone to ``position``: change cell (the hub's subscriptions) if needed."""
         keys, settings = self._keys, self._settings
         cell = track_cell(self._cell, position, keys.cell_size_m, settings.hysteresis_m)
         if cell == self._cell:
             return
-        wanted = set(neighbourhood(cell))
-        for c in sorted(wanted - set(self._inboxes)):
-            self._inboxes[c] = self._bus.subscribe(keys.consensus_cell(c), settings.inbox_capacity)
-        for c in sorted(set(self._inboxes) - wanted):
-            inbox = self._inboxes.pop(c)
-            self._pending += inbox.drain()
-            inbox.close()
-        publisher = self._bus.publisher(
-            keys.consensus(cell, self._drone), settings.consensus_congestion
-        )
-        old, self._publisher, self._cell = self._publisher, publisher, cell
-        if old is not None:
-            old.close()
+        self._hub.follow(self, self._cell, cell)
+        self._cell = cell
 
     def _check_open(self) -> None:
         if self._closed:
@@ -222,16 +447,11 @@ class AgentLink(ClosesOnExit):
             raise ValueError(f"drone {self._drone} cannot send a message of {message.sender}")
         self._position = _vec3(position_ned_m)
         self._move(self._position)
-        if self._publisher is None:  # only if _move failed half-way
-            raise RuntimeError(f"drone {self._drone} has no consensus publisher")
-        self._publisher.put(
-            encode_consensus(
-                message,
-                self._position,
-                self._keys.swarm_id,
-                max_bytes=self._settings.max_consensus_bytes,
-            )
-        )
+        if self._cell is None:  # only if _move failed half-way
+            raise RuntimeError(f"drone {self._drone} has no consensus cell")
+        limit = self._settings.max_consensus_bytes
+        payload = encode_consensus(message, self._position, self._keys.swarm_id, max_bytes=limit)
+        self._hub.send(self._cell, self._drone, payload)
         self._counts["tx"] += 1
         self._last_sent = max(self._last_sent, message.round)
         self._sent_at[message.round] = self._position
@@ -242,56 +462,57 @@ class AgentLink(ClosesOnExit):
         """Decoded messages from drones within range since the last call (see AgentTransport);
         messages of rounds this agent has not sent yet wait for the next calls."""
         self._check_open()
-        samples, self._pending = self._pending, []
-        for inbox in self._inboxes.values():
-            samples += inbox.drain()
+        self._hub.pump()
+        incoming, self._incoming = self._incoming, []
         early, self._early = self._early, []
-        out = [p for e in early if (p := self._in_range(*e)) is not None]
-        out += [p for key, payload in samples if (p := self._accept(key, payload)) is not None]
+        counts, me = self._counts, self._drone
+        out = [p for e in early if (p := self._in_range(e)) is not None]
+        # the loop of _in_range, inlined for the usual case (a round this agent has sent)
+        settings, sent_at, position = self._settings, self._sent_at, self._position
+        hold = settings.hold_early and self._last_sent >= 0
+        last, reach, dist = self._last_sent, settings.comm_range_m, math.dist
+        rx = out_of_range = 0
+        for entries in incoming:
+            for e in entries:
+                if e.sender == me:
+                    continue  # our own message, back from our own cell
+                rx += 1
+                if e.error is not None:
+                    counts[e.error] += 1
+                elif hold and e.round > last:
+                    self._in_range(e)  # held
+                elif dist(e.origin, sent_at.get(e.round, position)) >= reach:
+                    out_of_range += 1
+                elif (p := self._decoded(e)) is not None:
+                    out.append(p)
+        counts["rx"] += rx
+        counts["out_of_range"] += out_of_range
         out.sort(key=lambda p: (p.message.sender, p.message.round))
-        self._counts["delivered"] += len(out)
+        counts["delivered"] += len(out)
         return out
 
-    def _accept(self, key: str, payload: bytes) -> ConsensusPacket | None:
-        """The packet if it is well-formed, from another drone, within range; else counted."""
-        sender = self._sender_of.get(key, -1)
-        if sender == -1:
-            if len(self._sender_of) > 4096:  # bounded: garbage may come on many keys
-                self._sender_of.clear()
-            sender = self._sender_of[key] = self._keys.drone_of(key)
-        if sender == self._drone:
-            return None  # our own message, back from our own cell
-        counts, sid, limit = self._counts, self._keys.swarm_id, self._settings.max_consensus_bytes
-        counts["rx"] += 1
-        try:
-            origin_sender, round_, origin = consensus_head(payload, sid, max_bytes=limit)
-            if origin_sender != sender:
-                raise WireError(Reason.BAD_VALUE, f"key {key} carries sender {origin_sender}")
-        except WireError as exc:
-            counts[_COUNTER_OF.get(exc.reason, "malformed")] += 1
-            return None
-        return self._in_range(key, payload, sender, round_, origin)
-
-    def _in_range(
-        self, key: str, payload: bytes, sender: int, round_: int, origin: tuple[float, float, float]
-    ) -> ConsensusPacket | None:
+    def _in_range(self, e: _Entry) -> ConsensusPacket | None:
         """Range check between the sender's position and ours of the message's round (ours now
         for rounds not in the history); with ``hold_early`` a message of a round we have not
         sent yet waits (at most 4 x _HISTORY of them; beyond, the oldest are dropped)."""
+        round_ = e.round
         if self._settings.hold_early and self._last_sent >= 0 and round_ > self._last_sent:
-            self._early.append((key, payload, sender, round_, origin))
+            self._early.append(e)
             if len(self._early) > 4 * _HISTORY:
                 self._counts["malformed"] += 1
                 del self._early[0]
             return None
         own = self._sent_at.get(round_, self._position)
-        if math.dist(origin, own) >= self._settings.comm_range_m:
+        if math.dist(e.origin, own) >= self._settings.comm_range_m:
             self._counts["out_of_range"] += 1
             return None
+        return self._decoded(e)
+
+    def _decoded(self, e: _Entry) -> ConsensusPacket | None:
+        """The entry's message, decoded once for all the agents that take it; None (counted)
+        if it does not decode."""
         try:
-            return decode_consensus(
-                payload, self._keys.swarm_id, max_bytes=self._settings.max_consensus_bytes
-            )
+            return e.packet(self._keys.swarm_id, self._settings.max_consensus_bytes)
         except WireError as exc:
             self._counts[_COUNTER_OF.get(exc.reason, "malformed")] += 1
             return None
@@ -306,7 +527,7 @@ class AgentLink(ClosesOnExit):
         self._check_open()
         if status.drone != self._drone:
             raise ValueError(f"drone {self._drone} cannot publish the status of {status.drone}")
-        self._status.put(encode_status(status, self._keys.swarm_id))
+        self._hub.send_status(self._drone, encode_status(status, self._keys.swarm_id), self._status)
 
     def plan(self) -> PlanMessage | None:
         """The newest plan received (largest seq), or None (then asks again now and then, in
@@ -338,11 +559,16 @@ class AgentLink(ClosesOnExit):
             return
         self._closed = True
         token = getattr(self, "_token", None)
-        things = [token, self._publisher, *self._inboxes.values(), *reversed(self._declared)]
-        for thing in things:
-            if thing is not None:
-                thing.close()
-        self._inboxes.clear()
+        if token is not None:
+            token.close()
+        if not self._bus.is_closed():
+            # what this agent staged goes out now: its status publisher closes below
+            self._hub.flush()
+        self._hub.follow(self, self._cell, None)
+        if self._own_hub:
+            self._hub.close()
+        for thing in reversed(self._declared):
+            thing.close()
 
 
 class PlanServer(ClosesOnExit):

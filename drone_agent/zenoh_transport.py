@@ -5,9 +5,11 @@ Embedded default (no router, nothing to install): peer mode, multicast scouting 
 gossip over those links and connect directly. Multi-host: ``client`` mode connected to a router
 (a ``zenohd`` or a Python session in router mode), or peers connected to each other.
 
-Consensus and status publishers use congestion control DROP (periodic; the estimator tolerates
-loss) and are express (not batched: measured on loopback, batching added about 1 ms at 50
-agents); plans and commands use BLOCK. Consensus subscriptions are pulled ring channels
+Consensus publishers use congestion control DROP (periodic; the estimator tolerates loss),
+express in realtime (not batched: measured on loopback, batching added about 1 ms at 50 agents)
+and QUEUED in lockstep (a process's pass leaves in one send batch behind its express round-done
+marker: drone_agent/transport.Congestion); statuses are QUEUED (cheaper; nobody waits on them);
+plans and commands use BLOCK. Consensus subscriptions are pulled ring channels
 (bounded, oldest dropped): no Python runs on Zenoh's threads for them; the agent drains and
 decodes them on its own thread. Liveliness, plan and queryable callbacks only store what they
 get.
@@ -256,6 +258,10 @@ class ZenohBus(ClosesOnExit):
             on_sample(str(sample.key_expr), sample.payload.to_bytes())
 
         return _Declared(self.session.declare_subscriber(key_expr, callback))
+
+    def is_closed(self) -> bool:
+        """Whether the session is closed."""
+        return bool(self.session.is_closed())
 
     def declare_token(self, key: str) -> Closeable:
         """A liveliness token on ``key``, alive as long as it and the session are."""

@@ -24,7 +24,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse.csgraph import connected_components
 
 from protocols.frames import FloatArray
 
@@ -149,6 +148,8 @@ def radio_graph(positions_ned_m: FloatArray, range_m: float) -> RadioGraph:
     d = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=-1)
     adjacency = d < range_m
     np.fill_diagonal(adjacency, False)
+    from scipy.sparse.csgraph import connected_components  # scipy: only when checking a layout
+
     components, _ = connected_components(adjacency, directed=False)
     degree = adjacency.sum(axis=1)
     return RadioGraph(
@@ -175,5 +176,7 @@ def is_cut_free(adjacency: np.ndarray, removed: set[int]) -> bool:
     keep = np.array([i for i in range(adjacency.shape[0]) if i not in removed])
     if keep.size <= 1:
         return True
+    from scipy.sparse.csgraph import connected_components
+
     components, _ = connected_components(adjacency[np.ix_(keep, keep)], directed=False)
     return int(components) == 1

@@ -47,7 +47,9 @@ its ``position_ned_m`` and ``velocity_ned_m_s`` fields.
 Decoders raise only :class:`WireError`, whose ``reason`` says why (callers count drops by
 reason); encoders raise ValueError for a message that cannot be sent.
 Status, plan, fault and round-done messages live in ``protocols.wire_status``,
-``protocols.wire_plan``, ``protocols.wire_fault`` and ``protocols.wire_round``.
+``protocols.wire_plan``, ``protocols.wire_fault`` and ``protocols.wire_round``; a process's
+consensus messages of one tick and cell travel together in ``protocols.wire_batch``, its
+statuses of one tick in a status batch (``protocols.wire_status``).
 """
 
 from __future__ import annotations
@@ -63,7 +65,7 @@ from typing import Any
 
 import numpy as np
 
-from protocols.consensus_message import ConsensusMessage
+from protocols.consensus_message import ConsensusMessage, EdgeIncarnations, EdgeSums
 from protocols.frames import FloatArray
 from protocols.keys import MAX_DRONE_ID, validate_swarm_id
 
@@ -95,6 +97,8 @@ class Kind(IntEnum):
     PLAN = 3
     FAULT = 4
     ROUND_DONE = 5
+    CONSENSUS_BATCH = 6  # protocols/wire_batch.py
+    STATUS_BATCH = 7  # protocols/wire_status.py
 
 
 class Reason(StrEnum):
@@ -201,7 +205,15 @@ def _uint(value: int, limit: int, what: str) -> int:
 def uint_ids(ids: Iterable[int], what: str) -> list[int]:
     """Drone ids sorted for encoding; ValueError unless each is 0..65535 and there are at most
     65535 (a u16 count)."""
-    out = sorted(_uint(j, MAX_DRONE_ID, what) for j in ids)
+    try:  # the usual case: plain ints in range, checked at C speed
+        out = sorted(ids)
+        fine = not out or (
+            out[0] >= 0 and out[-1] <= MAX_DRONE_ID and all(type(j) is int for j in out)
+        )
+    except TypeError:
+        fine = False
+    if not fine:
+        out = sorted(_uint(j, MAX_DRONE_ID, what) for j in ids)
     if len(out) > MAX_DRONE_ID:
         raise ValueError(f"{len(out)} {what}s do not fit a u16 count")
     return out
@@ -247,10 +259,18 @@ def encode_consensus(
     ready = _uint(message.ready_hops, MAX_DRONE_ID, "ready_hops")
     incarnation = _uint(message.incarnation, MAX_U32 - 1, "incarnation")
     heard = uint_ids(message.heard, "heard id")
-    neighbours = uint_ids(message.edge_sums, "edge neighbour")
-    floats = [message.gamma, *(message.edge_sums[j] for j in neighbours)]
-    ids = heard + neighbours
-    edge_incs = _edge_incarnations(message, neighbours)
+    fast = _edge_arrays(message)
+    if fast is not None:  # the batched core's messages: the same bytes, from arrays
+        neighbours, ids_block, incs_block, floats_block = fast
+        ids_block = struct.pack(f"<{len(heard)}H", *heard) + ids_block
+    else:
+        neighbours = uint_ids(message.edge_sums, "edge neighbour")
+        floats = [message.gamma, *(message.edge_sums[j] for j in neighbours)]
+        ids = heard + neighbours
+        edge_incs = _edge_incarnations(message, neighbours)
+        ids_block = struct.pack(f"<{len(ids)}H", *ids)
+        incs_block = struct.pack(f"<{len(edge_incs)}I", *edge_incs)
+        floats_block = finite_block(floats, (len(floats), N_GAMMA), "gamma and edge sums")
     velocity = message.velocity_ned_m_s
     payload = b"".join(
         (
@@ -266,14 +286,52 @@ def encode_consensus(
                 len(heard),
                 len(neighbours),
             ),
-            struct.pack(f"<{len(ids)}H", *ids),
-            struct.pack(f"<{len(edge_incs)}I", *edge_incs),
-            finite_block(floats, (len(floats), N_GAMMA), "gamma and edge sums"),
+            ids_block,
+            incs_block,
+            floats_block,
         )
     )
     if len(payload) > max_bytes:
         raise ValueError(f"consensus payload of {len(payload)} bytes exceeds {max_bytes}")
     return payload
+
+
+def _edge_arrays(message: ConsensusMessage) -> tuple[list[int], bytes, bytes, bytes] | None:
+    """For a message whose edge sums (and incarnations) are arrays over one id array
+    (:class:`~protocols.consensus_message.EdgeSums`): the edge ids and the bytes of the ids,
+    incarnations and floats blocks, as the general path makes them; None for any other message
+    (the general path then encodes it, or says what is wrong with it)."""
+    sums = message.edge_sums
+    if not isinstance(sums, EdgeSums):
+        return None
+    tags = message.edge_incarnations
+    ids = np.asarray(sums.ids)
+    n = ids.shape[0]
+    if tags is not None and not (
+        isinstance(tags, EdgeIncarnations)
+        and (tags.ids is sums.ids or np.array_equal(np.asarray(tags.ids), ids))
+    ):
+        return None
+    if ids.ndim != 1 or np.shape(message.gamma) != (N_GAMMA,):
+        return None
+    if np.shape(sums.sums) != (n, N_GAMMA) or (tags is not None and np.shape(tags.tags) != (n,)):
+        return None
+    if n and not (ids[0] >= 0 and ids[-1] <= MAX_DRONE_ID and (ids[1:] > ids[:-1]).all()):
+        return None
+    floats = np.empty((n + 1, N_GAMMA), dtype="<f8")
+    floats[0] = message.gamma
+    if n:
+        floats[1:] = sums.sums
+    if not np.isfinite(floats).all():
+        return None  # the general path says why
+    if tags is None:
+        incs = np.full(n, NO_INCARNATION, dtype="<u4")
+    else:
+        t = np.asarray(tags.tags, dtype=np.int64)
+        if n and t.max() > MAX_U32 - 1:
+            return None
+        incs = np.where(t < 0, NO_INCARNATION, t).astype("<u4")
+    return ids.tolist(), ids.astype("<u2").tobytes(), incs.tobytes(), floats.tobytes()
 
 
 def _edge_incarnations(message: ConsensusMessage, neighbours: list[int]) -> list[int]:
@@ -338,7 +396,10 @@ def decode_consensus(
     """Decode a consensus payload of swarm ``swarm_id``; WireError for anything malformed.
 
     The arrays of the returned message are float64 copies, read-only; its ``position_ned_m`` is
-    the packet's, its ``velocity_ned_m_s`` None from a version-1 sender.
+    the packet's, its ``velocity_ned_m_s`` None from a version-1 sender. Its edge sums and
+    incarnations are array-backed mappings (:class:`~protocols.consensus_message.EdgeSums`,
+    :class:`~protocols.consensus_message.EdgeIncarnations`, the incarnations said only), as the
+    batched core's own messages: a receiver's estimator reads them as arrays.
     """
     off, version, fields = _fixed(data, swarm_id, max_bytes)
     round_, sender, degree, ready, incarnation = fields[:5]
@@ -346,34 +407,42 @@ def decode_consensus(
     n_ids = n_heard + n_edges
     n_tags = n_edges if version >= 3 else 0
     expect_length(data, off + 2 * n_ids + 4 * n_tags + _FLOATS * (1 + n_edges), "consensus")
-    ids = struct.unpack_from(f"<{n_ids}H", data, off)
-    heard, neighbours = ids[:n_heard], ids[n_heard:]
-    tags = struct.unpack_from(f"<{n_tags}I", data, off + 2 * n_ids)
+    ids = np.frombuffer(data, "<u2", n_ids, off).astype(np.intp)
+    tags = np.frombuffer(data, "<u4", n_tags, off + 2 * n_ids).astype(np.int64)
     floats = np.frombuffer(
         data, "<f8", N_GAMMA * (1 + n_edges), off + 2 * n_ids + 4 * n_tags
     ).reshape(-1, N_GAMMA)
     if not np.isfinite(floats).all():
         raise WireError(Reason.NOT_FINITE, "consensus gamma or an edge sum is NaN or infinite")
-    check_ids(heard, "heard")
-    check_ids(neighbours, "edge neighbour")
+    heard, neighbours = ids[:n_heard], ids[n_heard:]
+    if n_heard > 1 and (heard[1:] <= heard[:-1]).any():
+        raise WireError(Reason.BAD_VALUE, "heard ids must be strictly increasing")
+    if n_edges > 1 and (neighbours[1:] <= neighbours[:-1]).any():
+        raise WireError(Reason.BAD_VALUE, "edge neighbour ids must be strictly increasing")
     floats = floats.astype(np.float64)  # a native, aligned, writable copy ...
     floats.setflags(write=False)  # ... made read-only
+    neighbours.setflags(write=False)
     motion = np.array(fields[5:-2])  # position (3), then velocity (3) from version 2
     motion.setflags(write=False)
     position = motion[:3]
+    edge_tags: EdgeIncarnations | None = None
+    if version >= 3:  # the ones said (a plain mapping of them, as the arrays it is made of)
+        said = tags != NO_INCARNATION
+        if said.all():
+            edge_tags = EdgeIncarnations(neighbours, tags)
+        else:
+            edge_tags = EdgeIncarnations(neighbours[said], tags[said])
     message = ConsensusMessage(
         sender=sender,
         round=round_,
         gamma=floats[0],
-        edge_sums=dict(zip(neighbours, floats[1:], strict=True)),
-        heard=frozenset(heard),
+        edge_sums=EdgeSums(neighbours, floats[1:]),
+        heard=frozenset(heard.tolist()),
         degree=degree,
         ready_hops=ready,
         position_ned_m=position,
         velocity_ned_m_s=None if version == 1 else motion[3:],
         incarnation=incarnation,
-        edge_incarnations=None
-        if version < 3
-        else {j: t for j, t in zip(neighbours, tags, strict=True) if t != NO_INCARNATION},
+        edge_incarnations=edge_tags,
     )
     return ConsensusPacket(message, position)

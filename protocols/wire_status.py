@@ -15,13 +15,26 @@ Body after the common header (``protocols.wire``), little-endian::
                          rx_dropped_wrong_version, tx, rejected_setpoints
     u16 n_neighbours
     n x u16              the neighbours integrating this round, strictly increasing
+
+The status batch (Kind.STATUS_BATCH, schema STATUS_BATCH_VERSION; issue 9, batched messaging):
+the statuses one agent process's agents publish in one pass, in one Zenoh sample, on the status
+key of its first drone (``swarm/<sid>/status/<first drone>``). A process hosting one agent (or
+publishing one status in a pass) sends that status alone (Kind.STATUS): every reader takes both
+kinds on the status keys (:func:`decode_statuses`). Body after the common header::
+
+    u16 n                number of statuses (2..MAX_STATUS_BATCH)
+    n x u32 length       byte length of each status
+    n x status           complete status payloads (header included), drones strictly
+                         increasing
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import struct
-from dataclasses import astuple, dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass
 from enum import IntEnum, IntFlag
 
 import numpy as np
@@ -37,10 +50,16 @@ from protocols.wire import (
     encode_header,
     expect_length,
     open_payload,
+    open_versioned,
     uint_ids,
 )
 
 MAX_STATUS_BYTES = 8 * 1024
+#: Schema version of status batches.
+STATUS_BATCH_VERSION = 1
+#: Most statuses in one batch (one process's agents).
+MAX_STATUS_BATCH = 256
+_COUNT = struct.Struct("<H")
 NO_PLAN = MAX_U32
 N_ESTIMATE = 9
 _MAX_U64 = 2**64 - 1
@@ -87,7 +106,8 @@ class StatusCounters:
     rejected_setpoints: int = 0
 
     def __post_init__(self) -> None:
-        for name, value in zip(self.__dataclass_fields__, astuple(self), strict=True):
+        for name in self.__dataclass_fields__:  # (not astuple: it deep-copies, at 25 Hz a drone)
+            value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= _MAX_U64:
                 raise ValueError(f"counter {name} must be an integer >= 0, got {value!r}")
 
@@ -150,7 +170,7 @@ def encode_status(status: AgentStatus, swarm_id: str) -> bytes:
                 int(status.health),
                 plan_seq,
                 *status.estimate.tolist(),
-                *astuple(status.counters),
+                *(getattr(status.counters, n) for n in status.counters.__dataclass_fields__),
                 len(neighbours),
             ),
             struct.pack(f"<{len(neighbours)}H", *neighbours),
@@ -186,3 +206,63 @@ def decode_status(data: bytes, swarm_id: str, *, max_bytes: int = MAX_STATUS_BYT
         counters=StatusCounters(*counters),
         plan_seq=None if plan_seq == NO_PLAN else plan_seq,
     )
+
+
+def max_status_batch_bytes(max_status_bytes: int = MAX_STATUS_BYTES) -> int:
+    """The largest status batch a reader with this status size limit accepts."""
+    return 64 + MAX_STATUS_BATCH * (4 + max_status_bytes)
+
+
+def encode_status_batch(payloads: Sequence[tuple[int, bytes]], swarm_id: str) -> bytes:
+    """The batch of ``payloads``, (drone, status payload) pairs with drones strictly increasing;
+    ValueError for fewer than two, more than MAX_STATUS_BATCH, or unsorted."""
+    n = len(payloads)
+    if not 2 <= n <= MAX_STATUS_BATCH:
+        raise ValueError(f"a status batch holds 2..{MAX_STATUS_BATCH} statuses, got {n}")
+    if any(a >= b for (a, _), (b, _) in itertools.pairwise(payloads)):
+        raise ValueError("status batch drones must be strictly increasing")
+    parts = [p for _, p in payloads]
+    return b"".join(
+        (
+            encode_header(Kind.STATUS_BATCH, swarm_id, STATUS_BATCH_VERSION),
+            _COUNT.pack(n),
+            struct.pack(f"<{n}I", *(len(p) for p in parts)),
+            *parts,
+        )
+    )
+
+
+def decode_statuses(
+    data: bytes, swarm_id: str, *, max_bytes: int = MAX_STATUS_BYTES
+) -> list[AgentStatus]:
+    """The statuses of a status payload or a status batch of swarm ``swarm_id`` (``max_bytes``:
+    the limit of one status); WireError for anything malformed (a bad status in a batch rejects
+    the whole batch: one process wrote it)."""
+    if len(data) <= 2 or data[2] != Kind.STATUS_BATCH:
+        return [decode_status(data, swarm_id, max_bytes=max_bytes)]
+    off, _ = open_versioned(
+        data,
+        Kind.STATUS_BATCH,
+        swarm_id,
+        max_status_batch_bytes(max_bytes),
+        (STATUS_BATCH_VERSION,),
+    )
+    if len(data) < off + _COUNT.size:
+        raise WireError(Reason.TRUNCATED, f"status batch: {len(data)} bytes")
+    (n,) = _COUNT.unpack_from(data, off)
+    off += _COUNT.size
+    if not 2 <= n <= MAX_STATUS_BATCH:
+        raise WireError(Reason.BAD_VALUE, f"status batch of {n} statuses")
+    if len(data) < off + 4 * n:
+        raise WireError(Reason.TRUNCATED, f"status batch: {len(data)} bytes, {n} lengths")
+    lengths = struct.unpack_from(f"<{n}I", data, off)
+    off += 4 * n
+    expect_length(data, off + sum(lengths), "status batch")
+    out: list[AgentStatus] = []
+    for length in lengths:
+        status = decode_status(data[off : off + length], swarm_id, max_bytes=max_bytes)
+        off += length
+        if out and status.drone <= out[-1].drone:
+            raise WireError(Reason.BAD_VALUE, "status batch drones must be strictly increasing")
+        out.append(status)
+    return out

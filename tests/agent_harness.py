@@ -18,7 +18,7 @@ from sitl_client import ENV, ROOT, swarm_command
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
 from protocols.descriptors import descriptors
 from protocols.keys import SwarmKeys
-from protocols.wire_status import AgentStatus, decode_status
+from protocols.wire_status import AgentStatus, decode_statuses
 
 SWARM = "test"
 
@@ -116,12 +116,13 @@ class SwarmObserver:
         return ["--zenoh-listen", "tcp/127.0.0.1:0", "--zenoh-connect", self.endpoint]
 
     def _on_status(self, _key: str, payload: bytes) -> None:
-        try:
-            status = decode_status(payload, self.swarm_id)
+        try:  # one status, or a hosting process's batch of them
+            statuses = decode_statuses(payload, self.swarm_id)
         except ValueError:
             return
         with self._lock:
-            self.latest[status.drone] = Seen(status, time.monotonic())
+            for status in statuses:
+                self.latest[status.drone] = Seen(status, time.monotonic())
 
     def _on_alive(self, key: str, alive: bool) -> None:
         drone = int(key.rsplit("/", 1)[1])

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 from hypothesis import settings
-from paper_flight import simulate_paper
+from paper_flight import run_demo, simulate_paper
 
 # Property tests draw the same examples on every run (CI included): a failure is reproducible,
 # and a green run stays green. Set HYPOTHESIS_PROFILE=explore to draw new examples.
@@ -20,3 +20,11 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repeatable"))
 def simulated_paper_report(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The report of ``swarm simulate scenarios/paper.toml`` (about a minute), run once."""
     return simulate_paper(tmp_path_factory.mktemp("paper"))
+
+
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """``swarm demo`` (what ``make demo`` runs: the paper's 200 s flight, lockstep, one agent
+    process per drone; about 3 minutes), run once: its report folder and printed output. Read by
+    tests/test_demo_paper.py and, for its first 20 s, by tests/test_lockstep_repeats.py."""
+    return run_demo(tmp_path_factory.mktemp("demo"))

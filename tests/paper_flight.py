@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from sitl_client import free_port_block, free_udp_port
 
 from gcs.report.tlog import TlogTrack, read_tlog
 from protocols.scenario import Crash, load_scenario
@@ -34,6 +35,25 @@ def simulate_paper(out: Path) -> Path:
     assert proc.returncode == 0, proc.stderr
     assert "centroid tracking" in proc.stdout
     return out
+
+
+def run_demo(out: Path) -> tuple[Path, str]:
+    """Run ``swarm demo`` in ``out`` (free ports and its own swarm id, so it does not clash with
+    a swarm already running); returns its report folder and printed output."""
+    report = out / "report"
+    base, gcs_port = free_port_block(9), free_udp_port()
+    proc = subprocess.run(
+        [*SWARM, "demo", "--report", str(report), "--base-port", str(base),
+         "--gcs-port", str(gcs_port), "--swarm-id", "demotest"],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        cwd=out,  # not the project folder: the demo finds the paper's scenario by itself
+        timeout=900,
+    )  # fmt: skip
+    logs = "\n".join(f"{p.name}: {p.read_text()[-2000:]}" for p in (report / "logs").glob("*.log"))
+    assert proc.returncode == 0, proc.stderr[-3000:] + logs
+    return report, proc.stdout
 
 
 def paper_flight(report: Path) -> dict[str, np.ndarray]:

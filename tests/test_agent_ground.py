@@ -28,7 +28,7 @@ from drone_agent.transport import Congestion
 from protocols.consensus_message import ConsensusMessage
 from protocols.keys import SwarmKeys
 from protocols.wire import encode_consensus
-from protocols.wire_status import AgentStatus, decode_status
+from protocols.wire_status import AgentStatus, decode_statuses
 
 pytestmark = pytest.mark.slow
 TRUTH = truth_of(GRID)
@@ -102,9 +102,9 @@ class StatusLog:
 
     def _on_status(self, _key: str, payload: bytes) -> None:
         with contextlib.suppress(ValueError):
-            status = decode_status(payload, SWARM)
-            with self._lock:
-                self.by_drone.setdefault(status.drone, []).append(status)
+            for status in decode_statuses(payload, SWARM):  # one, or a process's batch
+                with self._lock:
+                    self.by_drone.setdefault(status.drone, []).append(status)
 
     def since(self, t_s: float) -> dict[int, list[AgentStatus]]:
         """The statuses of simulated time ``t_s`` on."""

@@ -34,8 +34,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from paper_flight import ENV, ROOT, SWARM, flight_of, min_airborne_separation, paper_flight
-from sitl_client import free_port_block, free_udp_port
+from paper_flight import ENV, ROOT, flight_of, min_airborne_separation, paper_flight
 
 from gcs.report.events import read_events
 from gcs.report.metrics import descriptors_of, tracking_from_positions
@@ -51,33 +50,9 @@ ESTIMATES_BACK_S = 1.0
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
-    """Run ``swarm demo`` once (free ports, so it does not clash with a swarm already running)."""
-    out = tmp_path_factory.mktemp("demo")
-    report = out / "report"
-    base, gcs_port = free_port_block(9), free_udp_port()
-    proc = subprocess.run(
-        [
-            *SWARM,
-            "demo",
-            "--report",
-            str(report),
-            "--base-port",
-            str(base),
-            "--gcs-port",
-            str(gcs_port),
-            "--swarm-id",
-            "demotest",
-        ],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        cwd=out,  # not the project folder: the demo finds the paper's scenario by itself
-        timeout=900,
-    )
-    logs = "\n".join(f"{p.name}: {p.read_text()[-2000:]}" for p in (report / "logs").glob("*.log"))
-    assert proc.returncode == 0, proc.stderr[-3000:] + logs
-    return report, proc.stdout
+def demo(demo_run: tuple[Path, str]) -> tuple[Path, str]:
+    """``swarm demo``, run once for the session (tests/conftest.py)."""
+    return demo_run
 
 
 @pytest.fixture(scope="module")

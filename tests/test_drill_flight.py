@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import itertools
 import json
 import os
 import signal
@@ -54,7 +55,7 @@ from gcs.report.tlog import read_tlog
 from protocols.descriptors import descriptors
 from protocols.keys import SwarmKeys
 from protocols.mavlink_conventions import DEFAULT_BASE_PORT, DEFAULT_GCS_PORT
-from protocols.wire_status import AgentMode, AgentStatus, decode_status
+from protocols.wire_status import AgentMode, AgentStatus, decode_statuses
 
 pytestmark = pytest.mark.slow
 
@@ -88,13 +89,14 @@ class Seen:
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def on_status(self, _key: str, payload: bytes) -> None:
-        try:
-            status = decode_status(payload, SWARM_ID)
+        try:  # one status, or a hosting process's batch of them
+            statuses = decode_statuses(payload, SWARM_ID)
         except ValueError:
             return
         with self.lock:
-            self.history.append(status)
-            self.latest[status.drone] = status
+            for status in statuses:
+                self.history.append(status)
+                self.latest[status.drone] = status
 
     def on_alive(self, key: str, alive: bool) -> None:
         with self.lock:
@@ -588,6 +590,9 @@ def test_dropout_kills_the_agent_process_and_the_gcs_detects_it(flight: Flight) 
         lambda: all(len(flight.latest()[d].neighbours) == N - 3 for d in survivors), 3.0
     )
     assert all(flight.latest()[d].mode == AgentMode.FLYING for d in survivors)
+    # typed again: refused, its agent is not running (logged as a refused drill)
+    again = flight.swarm("drill", "dropout", "--drone", str(DROPPED))
+    assert again.returncode == 1 and "not running" in again.stdout, again.stdout + again.stderr
 
 
 def _running(pid: int) -> bool:
@@ -600,16 +605,18 @@ def _running(pid: int) -> bool:
 
 def test_gcs_restart_comes_back_and_the_swarm_flies_on(flight: Flight) -> None:
     """``swarm drill gcs-restart``: the ground station stops and swarm up starts it again; it
-    answers ``swarm status`` with the simulated time carrying on and the seven survivors flying."""
+    answers ``swarm status`` with the simulated time carrying on and the seven survivors flying,
+    and goes on from the current plan (the partition drill's move, plan 1): ``swarm hold``
+    publishes plan 2."""
     t_before, _ = flight.status_table()
     assert "drill gcs-restart: accepted" in flight.drill("gcs-restart")
     survivors = [d for d in range(N) if d not in (CRASHED, DROPPED)]
 
     def back() -> bool:
-        done = flight.swarm("status")
-        if done.returncode != 0:
+        try:  # one ``swarm status`` a try (about a second of CPU each)
+            t, table = flight.status_table()
+        except AssertionError:  # no answer yet
             return False
-        t, table = flight.status_table()
         return t > t_before + 1.0 and all(table[d]["mode"] == "FLYING" for d in survivors)
 
     deadline = time.monotonic() + 90.0
@@ -628,13 +635,15 @@ def test_gcs_restart_comes_back_and_the_swarm_flies_on(flight: Flight) -> None:
     t, table = flight.status_table()
     errors = [table[d]["err"] for d in survivors]
     print(f"gcs-restart: at t={t:.1f} survivors' centre estimate errors (m) {errors}")
+    held = flight.swarm("hold")
+    assert held.returncode == 0 and "plan 2" in held.stdout, held.stdout + held.stderr
 
 
 def test_the_logs_hold_every_drill_and_the_survivors_flew_to_the_end(flight: Flight) -> None:
     """Ctrl-C ends the run; the ground station's events.jsonl lists every drill in order, one
     crash (the drilled one), and flight.tlog covers the whole flight across the restart: the
     survivors at 3 m to the end, the crashed vehicle on the ground, the neighbour counts the
-    agents logged changed with the drills."""
+    agents logged changed with the drills, the restarted station flew the current plan."""
     flight.pass_sim(2.0)
     code = flight.stop()
     assert code == 1 and "swarm up: interrupted" in flight.output, flight.output
@@ -653,9 +662,14 @@ def test_the_logs_hold_every_drill_and_the_survivors_flew_to_the_end(flight: Fli
         "partition",
         "crash",
         "dropout",
+        "dropout",  # typed again: refused
         "gcs_restart",
     ]
-    assert [d for d, _ in drills] == expected and all(ok for _, ok in drills), drills
+    assert [d for d, _ in drills] == expected, drills
+    assert [ok for _, ok in drills] == [True] * 12 + [False, True], drills  # 2nd dropout refused
+    # the restarted station's clock carries on (vehicle and agent clocks may differ by a tick)
+    times = [float(e["t_s"]) for e in events]
+    assert all(b >= a - 0.5 for a, b in itertools.pairwise(times)), times
     cuts = [e for e in events if e["kind"] == "drill" and e["drill"] == "link_cut"]
     assert [(c["link"], c["one_way"], c["duration_s"]) for c in cuts] == [
         ([0, 1], False, 5.0),
@@ -666,6 +680,8 @@ def test_the_logs_hold_every_drill_and_the_survivors_flew_to_the_end(flight: Fli
     # the report's wall time is the whole run's, not the restarted station's alone
     assert metrics["wall_time_s"] > 30.0 and metrics["real_time_factor"] < 5.0, metrics
     assert kinds.count("gcs_stopped") == 1 and kinds.count("gcs_restarted") == 1
+    assert metrics["plan_seq"] == 2  # the partition's move (1), the hold after the restart (2)
+    assert sorted(d["sysid"] for d in metrics["drones_lost"]) == [DROPPED + 1, CRASHED + 1]
     assert {e["drone"] for e in events if e["kind"] == "crash"} == {CRASHED}
     assert any(e["kind"] == "dropout_detected" and e["drone"] == DROPPED for e in events)
 
@@ -679,6 +695,12 @@ def test_the_logs_hold_every_drill_and_the_survivors_flew_to_the_end(flight: Fli
         altitude = -v.position_ned_m[airborne, 2]
         assert altitude.min() > 2.5 and altitude.max() < 3.5, (d, altitude.min(), altitude.max())
     assert -track.vehicles[CRASHED + 1].position_ned_m[-1, 2] < 0.5
+    # the restarted station flew the plan it found (the move 2 m north), not the scenario's: the
+    # survivors' formation is centred there (the scenario's centre is 2 m south)
+    alive = [d for d in range(N) if d not in (CRASHED, DROPPED)]
+    end = track.resample(np.array([t_end - 0.5]), N)[0, alive]
+    centre = end.mean(axis=0)
+    assert abs(centre[0] - (TRUTH[0] + 2.0)) < 0.25 and abs(centre[1] - TRUTH[1]) < 0.25, centre
     # the dropped-out drone's vehicle was left to its failsafe: level hold, then it descends
     assert any(e["kind"] == "failsafe" and e["drone"] == DROPPED for e in events)
     assert -track.vehicles[DROPPED + 1].position_ned_m[-1, 2] < 2.0

@@ -26,7 +26,7 @@ with or without a router) for the two that do:
 Measured across the namespaces: 0.103 m / 0.201 m^2 with the crash, 0.25 mm / 0.005 m^2 steady,
 2.01 m; from ``swarm simulate`` 0.2 mm / 0.006-0.0075 m^2 steady, 0.4-0.5 mm / 0.007-0.011 m^2
 with the crash. Lockstep runs about 3x real time: each flight takes 30 s on a quiet 2-core
-machine, about 1 minute at load 20 (plus ``swarm simulate``'s 10-60 s, once).
+machine, about 1 minute at load 20 (plus the session's ``swarm simulate`` of the paper, shared).
 
 Without root or ``ip netns`` the test is skipped, saying why.
 """
@@ -95,16 +95,10 @@ def _wait_for(path: Path, text: str, timeout_s: float) -> bool:
 
 
 @pytest.fixture(scope="module")
-def one_host(tmp_path_factory: pytest.TempPathFactory) -> dict[str, np.ndarray]:
-    """``swarm simulate``'s first 60 s of the paper flight (the in-process reference)."""
-    out = tmp_path_factory.mktemp("simulate")
-    proc = subprocess.run(
-        [*SWARM, "simulate", str(PAPER), "--report", str(out), "--progress", "off",
-         "--duration-s", str(DURATION_S), "--no-plots"],
-        capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=300,
-    )  # fmt: skip
-    assert proc.returncode == 0, proc.stderr
-    return _first_60_s(out)
+def one_host(simulated_paper_report: Path) -> dict[str, np.ndarray]:
+    """``swarm simulate``'s first 60 s of the paper flight (the in-process reference: the
+    session's 200 s run, tests/conftest.py; seeded, so its first 60 s are a 60 s run's)."""
+    return _first_60_s(simulated_paper_report)
 
 
 @pytest.mark.skipif(WHY_NOT is not None, reason=f"network namespaces: {WHY_NOT}")

@@ -24,9 +24,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from agent_harness import SwarmObserver
 from sitl_client import ENV
 from test_drill_flight import _default_ports_lock, _swarm_exe
 from test_operator_flight import (
+    DEFAULT_ENDPOINT,
     _armed_at,
     _command_time,
     _positions,
@@ -50,10 +52,29 @@ Rows = dict[int, tuple[str, bool]]
 
 
 class Session:
-    """``swarm up --drones 4`` running in ``cwd``, and the operator's commands typed beside it."""
+    """``swarm up --drones 4`` running in ``cwd``, and the operator's commands typed beside it.
+    Waits watch the agents' statuses as a Zenoh peer of the run's default rendezvous (polling
+    ``swarm status``, a new process of about a second of CPU each time, took a core from the
+    lockstep flight it waited for); ``swarm status`` itself is typed and checked at the
+    session's milestones."""
 
     def __init__(self, cwd: Path, proc: subprocess.Popen[bytes], out: Path) -> None:
         self.cwd, self.proc, self.out = cwd, proc, out
+        self.obs: SwarmObserver | None = None
+
+    def __enter__(self) -> Session:
+        run_file = self.cwd / "report" / "logs" / "run.json"
+        deadline = time.monotonic() + 60.0
+        while not run_file.exists() and time.monotonic() < deadline:
+            assert self.proc.poll() is None, self.log()
+            time.sleep(0.1)
+        assert run_file.exists(), self.log()
+        self.obs = SwarmObserver(swarm_id="swarm", connect=(DEFAULT_ENDPOINT,))
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        if self.obs is not None:
+            self.obs.close()
 
     def swarm(self, *words: str) -> subprocess.CompletedProcess[str]:
         """``swarm WORDS``, nothing else: the defaults find the session."""
@@ -80,16 +101,23 @@ class Session:
                 rows[int(words[0])] = (words[2], words[3] == "yes")
         return t_s, rows
 
+    def seen(self) -> tuple[float, Rows]:
+        """Simulated time and each drone's (mode, armed), from the agents' own statuses."""
+        assert self.obs is not None
+        st = self.obs.statuses()
+        t_s = max((s.t_s for s in st.values()), default=-1.0)
+        return t_s, {d: (s.mode.name, s.armed) for d, s in st.items()}
+
     def wait(self, what: str, ok: Callable[[float, Rows], bool], timeout_s: float = 180.0) -> float:
-        """Poll ``swarm status`` until ``ok(t_s, rows)``; the simulated time then."""
+        """Wait until ``ok(t_s, rows)`` holds for the agents' statuses; the simulated time then."""
         deadline = time.monotonic() + timeout_s
         t_s, rows = -1.0, {}  # type: tuple[float, Rows]
         while time.monotonic() < deadline:
             assert self.proc.poll() is None, self.log()
-            t_s, rows = self.status()
+            t_s, rows = self.seen()
             if ok(t_s, rows):
                 return t_s
-            time.sleep(0.5)
+            time.sleep(0.05)
         pytest.fail(f"waiting for {what}: t = {t_s}, {rows}\n{self.log()}")
 
     def wait_t(self, t_s: float) -> float:
@@ -103,6 +131,11 @@ class Session:
 
     def log(self) -> str:
         return self.out.read_text(errors="replace")[-3000:]
+
+    def status_says(self, mode: str, armed: bool) -> None:
+        """``swarm status`` typed: every drone in ``mode``, armed or not (what the agents say)."""
+        t_s, rows = self.status()
+        assert t_s >= 0.0 and rows == {d: (mode, armed) for d in range(N)}, (t_s, rows)
 
 
 def _arrival(reply: str) -> float:
@@ -123,36 +156,39 @@ def test_an_operator_session_from_power_up_to_the_report(tmp_path: Path) -> None
             [*_swarm_exe(), "up", "--drones", str(N)],
             stdout=sink, stderr=subprocess.STDOUT, env=ENV, cwd=tmp_path,
         )  # fmt: skip
-        session = Session(tmp_path, proc, out)
         started = time.monotonic()
         try:
-            # powered up, settled, and waiting on the ground: nobody arms by itself
-            t_ready = session.wait_modes("READY")
-            session.wait(
-                "the swarm still on the ground",
-                lambda t, rows: (
-                    t >= t_ready + GROUND_WAIT_S
-                    and all(m == "READY" and not armed for m, armed in rows.values())
-                ),
-            )
-            # refused on the ground: a shape command before the take-off
-            early = session.swarm("formation", "--heading-deg", "30")
-            assert early.returncode == 1 and "take off first" in early.stdout, early.stdout
-            reply = session.command("takeoff", "--altitude-m", str(ALTITUDE_M))
-            session.wait_modes("FLYING")
-            session.wait_t(_arrival(reply) + 2.0)
-            reply = session.command(
-                "formation", "--heading-deg", "30", "--length-m", "2", "--width-m", "1.5"
-            )
-            # four drones turn slowly: 14 deg of 30 when the plan arrives, 23 deg 5 s later
-            session.wait_t(_arrival(reply) + FORMATION_SETTLE_S)
-            reply = session.command("rotate", "--delta-deg", "-30")
-            session.wait_t(_arrival(reply) + 2.0)
-            session.command("land")
-            t_landed = session.wait_modes("LANDED")
-            reply = session.command("shutdown")
-            assert "on the ground" in reply, reply
-            code = proc.wait(120)
+            with Session(tmp_path, proc, out) as session:
+                # powered up, settled, and waiting on the ground: nobody arms by itself
+                t_ready = session.wait_modes("READY")
+                session.wait(
+                    "the swarm still on the ground",
+                    lambda t, rows: (
+                        t >= t_ready + GROUND_WAIT_S
+                        and all(m == "READY" and not armed for m, armed in rows.values())
+                    ),
+                )
+                session.status_says("READY", armed=False)
+                # refused on the ground: a shape command before the take-off
+                early = session.swarm("formation", "--heading-deg", "30")
+                assert early.returncode == 1 and "take off first" in early.stdout, early.stdout
+                reply = session.command("takeoff", "--altitude-m", str(ALTITUDE_M))
+                session.wait_modes("FLYING")
+                session.wait_t(_arrival(reply) + 2.0)
+                session.status_says("FLYING", armed=True)
+                reply = session.command(
+                    "formation", "--heading-deg", "30", "--length-m", "2", "--width-m", "1.5"
+                )
+                # four drones turn slowly: 14 deg of 30 when the plan arrives, 23 deg 5 s later
+                session.wait_t(_arrival(reply) + FORMATION_SETTLE_S)
+                reply = session.command("rotate", "--delta-deg", "-30")
+                session.wait_t(_arrival(reply) + 2.0)
+                session.command("land")
+                t_landed = session.wait_modes("LANDED")
+                session.status_says("LANDED", armed=False)
+                reply = session.command("shutdown")
+                assert "on the ground" in reply, reply
+                code = proc.wait(120)
         finally:
             if proc.poll() is None:
                 proc.kill()
@@ -209,14 +245,14 @@ def test_ctrl_c_lands_a_flying_session_before_it_stops(tmp_path: Path) -> None:
             [*_swarm_exe(), "up", "--drones", str(N), "--layout", "line"],
             stdout=sink, stderr=subprocess.STDOUT, env=ENV, cwd=tmp_path,
         )  # fmt: skip
-        session = Session(tmp_path, proc, out)
         try:
-            session.wait_modes("READY")
-            reply = session.command("takeoff", "--altitude-m", str(ALTITUDE_M))
-            session.wait_modes("FLYING")
-            session.wait_t(_arrival(reply) + 1.0)
-            proc.send_signal(signal.SIGINT)  # Ctrl-C
-            code = proc.wait(120)
+            with Session(tmp_path, proc, out) as session:
+                session.wait_modes("READY")
+                reply = session.command("takeoff", "--altitude-m", str(ALTITUDE_M))
+                session.wait_modes("FLYING")
+                session.wait_t(_arrival(reply) + 1.0)
+                proc.send_signal(signal.SIGINT)  # Ctrl-C
+                code = proc.wait(120)
         finally:
             if proc.poll() is None:
                 proc.kill()

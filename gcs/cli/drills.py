@@ -47,7 +47,6 @@ from gcs.report.drill_judge import (
     table,
     to_json,
 )
-from gcs.report.drill_logs import RATE_HZ, plot_drills, window_from_logs
 from gcs.report.tlog import TlogReader
 
 #: Altitude of a session's steady formation (m).
@@ -182,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
         "wall_time_s": round(time.monotonic() - wall0, 1),
     }
     (report / "drills.json").write_text(json.dumps(to_json(results, info), indent=2) + "\n")
+    from gcs.report.drill_logs import plot_drills  # matplotlib: only when there is a report
+
     plot_drills(report / "swarm", results, n, report / "drills.png")
     for line in table(results):
         print(line)
@@ -223,16 +224,17 @@ class Swarm:
 
     # -- what the agents say -------------------------------------------------------------------
     def on_status(self, _key: str, payload: bytes) -> None:
-        from protocols.wire_status import decode_status
+        from protocols.wire_status import decode_statuses
 
-        try:
-            status = decode_status(payload, self.swarm_id)
+        try:  # one status, or a process's batch of them
+            statuses = decode_statuses(payload, self.swarm_id)
         except ValueError:
             return
         with self.lock:
-            old = self.latest.get(status.drone)
-            if old is None or status.t_s >= old.t_s or status.round < old.round:
-                self.latest[status.drone] = status
+            for status in statuses:
+                old = self.latest.get(status.drone)
+                if old is None or status.t_s >= old.t_s or status.round < old.round:
+                    self.latest[status.drone] = status
 
     def now(self) -> float:
         """The newest simulated time an agent reported (s)."""
@@ -480,7 +482,7 @@ def _wait_steady(swarm: Swarm) -> bool:
             continue
         s = series(w)
         recent = s.t_s >= t - HOLD_S - 0.2
-        if recent.sum() >= HOLD_S * RATE_HZ * 0.8 and bool(np.all(s.converged[recent])):
+        if recent.sum() >= HOLD_S * _rate_hz() * 0.8 and bool(np.all(s.converged[recent])):
             return True
     return False
 
@@ -594,6 +596,13 @@ def _gcs_rejections(events: list[dict[str, Any]], t0: float, t1: float) -> dict[
 
 
 # -- what the ground station logged ----------------------------------------------------------
+def _rate_hz() -> float:
+    """The drill logs' sample rate (gcs.report.drill_logs imports matplotlib: only when used)."""
+    from gcs.report.drill_logs import RATE_HZ
+
+    return RATE_HZ
+
+
 def _window(
     swarm: Swarm, t_from: float, t_to: float, t_start: float, t_recover: float
 ) -> tuple[Window, list[dict[str, Any]]]:
@@ -604,6 +613,8 @@ def _window(
         f.seek(swarm.tlog_offset)
         swarm.tlog_offset += swarm.tlog.feed(f.read())
     track = swarm.tlog.track()
+    from gcs.report.drill_logs import window_from_logs
+
     return window_from_logs(swarm.dir, swarm.n, t_from, t_to, t_start, t_recover, track)
 
 

@@ -61,10 +61,12 @@ from protocols.keys import SwarmKeys
 from protocols.scenario import Scenario
 from protocols.wire import WireError
 from protocols.wire_plan import FlightCommand, PlanMessage, decode_plan
-from protocols.wire_status import decode_status
+from protocols.wire_status import decode_statuses
 from sitl_sim.config import vehicle_params
 
 _POLL_S = 0.02
+#: Shortest time between two passes of the main loop (s).
+_MIN_PASS_S = 0.005
 #: How long a restarted ground station asks the swarm for its current plan (s).
 RESUME_PLAN_WAIT_S = 10.0
 #: A vehicle silent this long (simulated s) is not waited for at shutdown (crashed, gone).
@@ -117,6 +119,9 @@ class GroundStation:
             _last_event_time(options.report_dir / "events.jsonl") if options.resume else 0.0
         )
         self._statuses: deque[bytes] = deque(maxlen=10_000)
+        #: the newest simulated time of an agent status (kept as they come: not a loop over all
+        #: drones each time the time is asked, several times a pass)
+        self._t_status_s = 0.0
         self._liveliness: deque[tuple[str, bool]] = deque()
         self.watch = SwarmWatch(range_m=options.scenario.comms.range_m)
         options.report_dir.mkdir(parents=True, exist_ok=True)
@@ -204,8 +209,7 @@ class GroundStation:
     @property
     def now_s(self) -> float:
         """The newest simulated time (s) heard from a vehicle or an agent."""
-        t_status = max((s.t_s for s in self.watch.latest.values()), default=0.0)
-        return max(self.telemetry.sim_time_s, t_status, self._t_floor_s)
+        return max(self.telemetry.sim_time_s, self._t_status_s, self._t_floor_s)
 
     def _on_status(self, _key: str, payload: bytes) -> None:  # Zenoh thread: enqueue only
         self._statuses.append(payload)
@@ -254,8 +258,15 @@ class GroundStation:
         next_line = time.monotonic() + 1.0
         # the simulator's last report
         last_sample_s = math.inf if end_s is None else end_s - 1.0 / self._o.telemetry_hz
+        last_pass = time.monotonic()
         while not self._stop and self.now_s < last_sample_s:
             select.select([self.telemetry], [], [], _POLL_S)
+            # at most one pass every _MIN_PASS_S: what came meanwhile waits in the socket and the
+            # queues, and is taken in one pass (not one pass per datagram)
+            pause = last_pass + _MIN_PASS_S - time.monotonic()
+            if pause > 0:
+                time.sleep(pause)
+            last_pass = time.monotonic()
             for text in self.telemetry.poll():
                 self._vehicle_text(text.t_s, text.drone, text.severity, text.text)
             self._drain_zenoh()
@@ -317,13 +328,15 @@ class GroundStation:
 
     def _drain_zenoh(self) -> None:
         while self._statuses:
-            try:
-                status = decode_status(self._statuses.popleft(), self._o.swarm_id)
+            try:  # one status, or a process's batch of them
+                statuses = decode_statuses(self._statuses.popleft(), self._o.swarm_id)
             except WireError:
                 continue
-            if kind := self.watch.on_status(status, self.telemetry.vehicles):
-                self.events.record(status.t_s, kind, drone=status.drone)
-            self.telemetry.log_agent_status(status)
+            for status in statuses:
+                self._t_status_s = max(self._t_status_s, status.t_s)
+                if kind := self.watch.on_status(status, self.telemetry.vehicles):
+                    self.events.record(status.t_s, kind, drone=status.drone)
+                self.telemetry.log_agent_status(status)
         while self._liveliness:
             key, alive = self._liveliness.popleft()
             drone = self._keys.drone_of(key)

@@ -1,0 +1,307 @@
+"""The consensus batch (protocols/wire_batch.py) and the status batch (protocols/wire_status.py):
+golden bytes, round trip, malformed input, and the process hub that sends and takes batches
+(drone_agent/transport_link.ConsensusHub) on the in-memory bus: several hosted agents' messages
+(statuses) of a pass go as one sample per cell (one sample), each agent still applies its own
+range, and a process of one agent sends the single-message schema."""
+
+from __future__ import annotations
+
+import contextlib
+import struct
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drone_agent.memory_bus import MemoryBus
+from drone_agent.transport import Congestion
+from drone_agent.transport_link import AgentLink, ConsensusHub, LinkSettings
+from protocols.consensus_message import ConsensusMessage
+from protocols.wire import Kind, Reason, WireError, decode_consensus, encode_consensus
+from protocols.wire_batch import BATCH_VERSION, encode_batch, split_batch
+from protocols.wire_status import (
+    STATUS_BATCH_VERSION,
+    AgentMode,
+    AgentStatus,
+    Health,
+    StatusCounters,
+    decode_statuses,
+    encode_status,
+    encode_status_batch,
+)
+
+pytestmark = pytest.mark.timeout(60)
+
+SID = "demo"
+
+
+def _message(sender: int, round_: int = 7) -> ConsensusMessage:
+    return ConsensusMessage(
+        sender=sender,
+        round=round_,
+        gamma=np.full(18, 0.5 * sender),
+        edge_sums={},
+        heard=frozenset(),
+        degree=0,
+    )
+
+
+#: drone 3's and drone 4's round-7 messages (consensus schema version 3, no edges)
+INNER_3 = (
+    "5103010464656d6f07000000030000000000000000000000803f00000040000040c0000000000000"
+    "00000000000000000000" + "000000000000f83f" * 18
+)
+INNER_4 = (
+    "5103010464656d6f07000000040000000000000000000000003f00000000000080bf000000000000"
+    "00000000000000000000" + "0000000000000040" * 18
+)
+#: magic, batch schema 1, kind 6, swarm "demo"; 2 messages; their lengths (194 bytes each)
+BATCH_HEX = "5101060464656d6f" + "0200" + "c2000000" + "c2000000" + INNER_3 + INNER_4
+
+
+def test_batch_golden_bytes() -> None:
+    a = encode_consensus(_message(3), (1.0, 2.0, -3.0), SID)
+    b = encode_consensus(_message(4), (0.5, 0.0, -1.0), SID)
+    assert a.hex() == INNER_3 and b.hex() == INNER_4
+    assert BATCH_VERSION == 1
+    assert encode_batch([(3, a), (4, b)], SID).hex() == BATCH_HEX
+    entries = split_batch(bytes.fromhex(BATCH_HEX), SID)
+    assert [(e.sender, e.round, e.origin) for e in entries] == [
+        (3, 7, (1.0, 2.0, -3.0)),
+        (4, 7, (0.5, 0.0, -1.0)),
+    ]
+    assert decode_consensus(entries[1].payload, SID).message.gamma.tolist() == [2.0] * 18
+
+
+@pytest.mark.parametrize(
+    ("data", "reason"),
+    [
+        (bytes.fromhex(BATCH_HEX)[:-1], Reason.TRUNCATED),
+        (bytes.fromhex(BATCH_HEX) + b"\0", Reason.TRAILING),
+        (bytes.fromhex(BATCH_HEX)[:12], Reason.TRUNCATED),
+        (bytes.fromhex("5102060464656d6f") + bytes.fromhex(BATCH_HEX)[8:], Reason.BAD_VERSION),
+        (bytes.fromhex("5101060465656d6f") + bytes.fromhex(BATCH_HEX)[8:], Reason.WRONG_SWARM),
+        (bytes.fromhex(INNER_3), Reason.WRONG_KIND),
+        # one message only: a batch holds two or more
+        (bytes.fromhex("5101060464656d6f0100c2000000" + INNER_3), Reason.BAD_VALUE),
+        # senders out of order
+        (bytes.fromhex(BATCH_HEX[:36] + INNER_4 + INNER_3), Reason.BAD_VALUE),
+    ],
+)
+def test_malformed_batches_are_rejected_with_their_reason(data: bytes, reason: Reason) -> None:
+    with pytest.raises(WireError) as err:
+        split_batch(data, SID)
+    assert err.value.reason == reason
+
+
+def test_encoder_refuses_what_is_not_a_batch() -> None:
+    a = bytes.fromhex(INNER_3)
+    with pytest.raises(ValueError, match=r"2\.\."):
+        encode_batch([(3, a)], SID)
+    with pytest.raises(ValueError, match="increasing"):
+        encode_batch([(4, a), (3, a)], SID)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=600))
+def test_random_bytes_raise_only_wire_errors(data: bytes) -> None:
+    for blob in (data, bytes.fromhex(BATCH_HEX)[:16] + data):
+        with contextlib.suppress(WireError):
+            split_batch(blob, SID)
+
+
+SETTINGS = LinkSettings(SID, comm_range_m=10.0)
+KEYS = SETTINGS.keys()
+
+
+def _kinds(bus: MemoryBus) -> list[tuple[str, int]]:
+    seen: list[tuple[str, int]] = []
+    bus_session = bus.session()
+    bus_session.subscribe_callback(KEYS.consensus_all(), lambda k, p: seen.append((k, p[2])))
+    return seen
+
+
+def test_hosted_agents_send_one_batch_per_cell_and_each_applies_its_own_range() -> None:
+    memory = MemoryBus()
+    seen = _kinds(memory)
+    host_bus, other_bus = memory.session(), memory.session()
+    hub = ConsensusHub(host_bus, SETTINGS, batch=True)
+    # drones 0 and 1 in one process, 8 m apart; drone 2 alone, 9 m from drone 0 and 17 m from 1
+    a = AgentLink(host_bus, 0, (1.0, 1.0, -1.0), SETTINGS, hub)
+    b = AgentLink(host_bus, 1, (9.0, 1.0, -1.0), SETTINGS, hub)
+    c = AgentLink(other_bus, 2, (1.0, 10.0, -1.0), SETTINGS)
+    for link, pos in ((a, (1.0, 1.0, -1.0)), (b, (9.0, 1.0, -1.0))):
+        link.publish_consensus(_message(link.drone, 3), pos)
+    assert not seen  # staged until the pass ends
+    hub.flush()
+    assert [kind for _, kind in seen] == [Kind.CONSENSUS_BATCH]
+    assert seen[0][0] == KEYS.consensus(KEYS.cell((1.0, 1.0, -1.0)), 0)
+    c.publish_consensus(_message(2, 3), (1.0, 10.0, -1.0))
+    assert [kind for _, kind in seen][1:] == [Kind.CONSENSUS]  # one agent: the single schema
+    assert [p.message.sender for p in a.receive()] == [1, 2]
+    assert [p.message.sender for p in b.receive()] == [0]  # drone 2 is out of its range
+    assert [p.message.sender for p in c.receive()] == [0]  # drone 1 is out of its range
+    assert a.counters().rx == 2 and b.counters().out_of_range == 1
+    for link in (a, b, c):
+        link.close()
+    hub.close()
+
+
+def test_a_bad_batch_is_counted_by_each_agent_that_hears_it() -> None:
+    memory = MemoryBus()
+    bus = memory.session()
+    hub = ConsensusHub(bus, SETTINGS, batch=True)
+    a = AgentLink(bus, 0, (1.0, 1.0, -1.0), SETTINGS, hub)
+    b = AgentLink(bus, 1, (2.0, 1.0, -1.0), SETTINGS, hub)
+    rogue = memory.session().publisher(
+        KEYS.consensus(KEYS.cell((3.0, 1.0, -1.0)), 5), Congestion.DROP
+    )
+    rogue.put(bytes.fromhex(BATCH_HEX)[:-3])
+    # a batch whose key names another drone than its first message
+    rogue.put(bytes.fromhex(BATCH_HEX))
+    assert a.receive() == [] and b.receive() == []
+    for link in (a, b):
+        counters = link.counters()
+        assert counters.rx == 2 and counters.malformed == 2
+    a.close()
+    b.close()
+    hub.close()
+
+
+def test_batch_lengths_are_little_endian_u32() -> None:
+    data = bytes.fromhex(BATCH_HEX)
+    assert struct.unpack_from("<H2I", data, 8) == (2, 194, 194)
+
+
+def test_messages_of_the_batched_core_encode_to_the_same_bytes_as_plain_ones() -> None:
+    from protocols.consensus_message import EdgeIncarnations, EdgeSums
+
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 4, 17):
+        ids = np.sort(rng.choice(200, n, replace=False)).astype(np.intp)
+        sums = rng.normal(size=(n, 18))
+        tags = rng.integers(-1, 5000, n).astype(np.int64)
+        for with_tags in (True, False):
+            arrays = ConsensusMessage(
+                sender=250,
+                round=99,
+                gamma=rng.normal(size=18),
+                edge_sums=EdgeSums(ids, sums),
+                heard=frozenset(rng.choice(200, 5, replace=False).tolist()),
+                degree=5,
+                ready_hops=2,
+                velocity_ned_m_s=np.array([0.1, 0.2, -0.3]),
+                incarnation=12,
+                edge_incarnations=EdgeIncarnations(ids, tags) if with_tags else None,
+            )
+            plain = ConsensusMessage(
+                **{
+                    **arrays.__dict__,
+                    "edge_sums": {int(j): sums[k] for k, j in enumerate(ids)},
+                    "edge_incarnations": (
+                        {int(j): int(t) for j, t in zip(ids, tags, strict=True)}
+                        if with_tags
+                        else None
+                    ),
+                }
+            )
+            assert encode_consensus(arrays, (1, 2, 3), SID) == encode_consensus(
+                plain, (1, 2, 3), SID
+            )
+    bad = ConsensusMessage(
+        sender=1,
+        round=1,
+        gamma=np.zeros(18),
+        edge_sums=EdgeSums(np.array([2]), np.full((1, 18), np.nan)),
+        heard=frozenset(),
+        degree=0,
+    )
+    with pytest.raises(ValueError, match="finite"):
+        encode_consensus(bad, (0, 0, 0), SID)
+
+
+# -- the status batch (protocols/wire_status.py, Kind.STATUS_BATCH) ----------------------------
+
+
+def _status(drone: int) -> AgentStatus:
+    return AgentStatus(
+        drone=drone,
+        round=1000,
+        t_s=20.0,
+        mode=AgentMode.FLYING,
+        armed=True,
+        health=Health.VEHICLE_LINK | Health.PLAN,
+        estimate=np.arange(9.0),
+        neighbours=(1, 5),
+        counters=StatusCounters(100, 1, 2, 3, 50, 0),
+        plan_seq=7,
+    )
+
+
+def test_status_batch_golden_bytes_and_round_trip() -> None:
+    a, b = encode_status(_status(2), SID), encode_status(_status(6), SID)
+    assert len(a) == len(b) == 155 and STATUS_BATCH_VERSION == 1
+    batch = encode_status_batch([(2, a), (6, b)], SID)
+    # magic, status batch schema 1, kind 7, swarm "demo"; 2 statuses of 155 bytes each
+    assert batch.hex() == "5101070464656d6f" + "0200" + "9b000000" * 2 + a.hex() + b.hex()
+    assert decode_statuses(batch, SID) == [_status(2), _status(6)]
+    assert decode_statuses(a, SID) == [_status(2)]  # one status alone: the single schema
+
+
+@pytest.mark.parametrize(
+    ("cut", "reason"),
+    [
+        (lambda x: x[:-1], Reason.TRUNCATED),
+        (lambda x: x + b"\0", Reason.TRAILING),
+        (lambda x: x[:10], Reason.TRUNCATED),
+        (lambda x: x[:1] + b"\2" + x[2:], Reason.BAD_VERSION),
+        (lambda x: x[:8] + b"\1\0" + x[10:], Reason.BAD_VALUE),  # a batch of one
+    ],
+)
+def test_malformed_status_batches_are_rejected_with_their_reason(
+    cut: Callable[[bytes], bytes], reason: Reason
+) -> None:
+    a, b = encode_status(_status(2), SID), encode_status(_status(6), SID)
+    with pytest.raises(WireError) as err:
+        decode_statuses(cut(encode_status_batch([(2, a), (6, b)], SID)), SID)
+    assert err.value.reason == reason
+    unsorted = encode_status_batch([(2, b), (6, a)], SID)  # the drones inside are 6, 2
+    with pytest.raises(WireError, match="increasing"):
+        decode_statuses(unsorted, SID)
+    with pytest.raises(ValueError, match=r"2\.\."):
+        encode_status_batch([(2, a)], SID)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=600))
+def test_random_status_bytes_raise_only_wire_errors(data: bytes) -> None:
+    for blob in (data, bytes.fromhex("5101070464656d6f0200") + data):
+        with contextlib.suppress(WireError):
+            decode_statuses(blob, SID)
+
+
+def test_hosted_agents_send_their_statuses_of_a_pass_in_one_sample() -> None:
+    memory = MemoryBus()
+    seen: list[tuple[str, bytes]] = []
+    memory.session().subscribe_callback(KEYS.status_all(), lambda k, p: seen.append((k, p)))
+    bus = memory.session()
+    hub = ConsensusHub(bus, SETTINGS, batch=True)
+    a = AgentLink(bus, 6, (1.0, 1.0, -1.0), SETTINGS, hub)
+    b = AgentLink(bus, 2, (2.0, 1.0, -1.0), SETTINGS, hub)
+    alone = AgentLink(memory.session(), 9, (3.0, 1.0, -1.0), SETTINGS)
+    a.publish_status(_status(6))
+    b.publish_status(_status(2))
+    assert not seen  # staged until the pass ends
+    hub.flush()
+    assert [k for k, _ in seen] == [KEYS.status(2)]  # on the first drone's key
+    assert [s.drone for s in decode_statuses(seen[0][1], SID)] == [2, 6]
+    alone.publish_status(_status(9))  # one agent: the single schema, at once
+    assert seen[1] == (KEYS.status(9), encode_status(_status(9), SID))
+    a.publish_status(_status(6))
+    a.close()  # what it staged goes out before its publisher closes
+    assert seen[2] == (KEYS.status(6), encode_status(_status(6), SID))
+    for link in (b, alone):
+        link.close()
+    hub.close()
