@@ -155,10 +155,12 @@ _PARTS = (
     ("    nobody-near pre-check", "drone_agent.separation", None, "nobody_near"),
     ("    filter (agents not cleared)", "drone_agent.separation", None, "filter_accelerations"),
     ("readiness and flight phase", "drone_agent.flight_phase", "Readiness", "update"),
+    ("readiness and flight phase", "drone_agent.flight_phase", "BatchReadiness", "update"),
     ("readiness and flight phase", "gcs.reference.flight", "ReferenceFlight", "_decide"),
     ("radio (in-memory, send + receive)", "gcs.reference.network", "InProcessNetwork", "send"),
     ("radio (in-memory, send + receive)", "gcs.reference.network", "InProcessNetwork", "receive"),
     ("physics (10 sub-steps)", "gcs.reference.flight", "ReferenceFlight", "_physics_step"),
+    ("physics (10 sub-steps)", "gcs.reference.flight", "ReferenceFlight", "_physics_steps"),
 )
 
 

@@ -51,6 +51,12 @@ Enable = FloatArray | npt.NDArray[np.bool_] | None
 SubStep = Callable[
     [FloatArray, FloatArray, FloatArray, Enable], tuple[FloatArray, FloatArray, FloatArray | None]
 ]
+#: ``substeps(state, euler_des, thrust_normalised, enable, count) -> (state, rotor_speed,
+#: impacts)``
+SubSteps = Callable[
+    [FloatArray, FloatArray, FloatArray, Enable, int],
+    tuple[FloatArray, FloatArray, list[FloatArray]],
+]
 
 
 class PhysicsKernel:
@@ -71,7 +77,7 @@ class PhysicsKernel:
         self._gains: list[FloatArray] = [self._kp, self._kd]
         g = gains if gains is not None else AttitudeGains()
         self.use_gains(g.kp_col(), g.kd_col())
-        self._substep: SubStep = _make_substep(params, n, dt_s, self._gains)
+        self._substep, self._substeps = _make_substep(params, n, dt_s, self._gains)
 
     def use_gains(self, kp: FloatArray, kd: FloatArray) -> None:
         """Attitude gains for the next sub-steps: (3, N) arrays are used as they are (so a fleet's
@@ -108,6 +114,21 @@ class PhysicsKernel:
         """
         return self._substep(state, euler_des, thrust_normalised, enable)
 
+    def substeps(
+        self,
+        state: FloatArray,
+        euler_des: FloatArray,
+        thrust_normalised: FloatArray,
+        enable: Enable,
+        count: int,
+    ) -> tuple[FloatArray, FloatArray, list[FloatArray]]:
+        """``count`` (>= 1) sub-steps under the same setpoint and ``enable``: the same numbers
+        as ``count`` calls of :meth:`substep` (about 12 numpy calls fewer per sub-step: the
+        extended state is not contracted and loaded again between them). Returns the last
+        state and rotor speeds, and the touchdown speeds (N,) of each sub-step in which a
+        vehicle touched the ground, in order."""
+        return self._substeps(state, euler_des, thrust_normalised, enable, count)
+
 
 def _full(value: float | FloatArray, rows: int, n: int) -> FloatArray:
     """A (rows, n) array of ``value`` (a scalar or a column of ``rows`` values)."""
@@ -116,8 +137,11 @@ def _full(value: float | FloatArray, rows: int, n: int) -> FloatArray:
     return out
 
 
-def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatArray]) -> SubStep:
-    """Build the sub-step: a closure over preallocated buffers and their views.
+def _make_substep(
+    params: VehicleParams, n: int, dt_s: float, gains: list[FloatArray]
+) -> tuple[SubStep, SubSteps]:
+    """Build the sub-step (one, and several in a row): closures over preallocated buffers and
+    their views.
 
     Everything the hot path touches is a local of this function (a closure cell for the
     sub-step): no global, attribute or index look-ups per call, no temporaries.
@@ -272,12 +296,11 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
     x1_pos_vel, x1_zz, x1_www, x1_xyz, x1_xy = x1[0:6], x1[6:8], x1[8:11], x1[11:14], x1[14:16]
     x1_x, x1_pqr, x1_pq, x1_yzx, x1_zxy = x1[16], x1[17:20], x1[20:22], x1[12:15], x1[13:16]
     k2_pos_vel, k2_quat, k2_pqr = k2[0:6], k2[10:14], k2[17:20]
+    k2_z, k2_q11, k2_pqr5, x1_q11, x1_pqr5 = k2[2], k2[6:17], k2[17:22], x1[6:17], x1[17:22]
     p_row, q_row, r_row = x1[17], x1[18], x1[19]
 
-    def substep(
-        state: FloatArray, euler_des: FloatArray, thrust_normalised: FloatArray, enable: Enable
-    ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
-        kp, kd = gains
+    def load(state: FloatArray) -> None:
+        """The stage-1 extended state from ``state`` (13, N)."""
         x1_pos_vel[...] = state[0:6]
         x1_zz[...] = state[9]
         x1_www[...] = state[6]
@@ -286,6 +309,62 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
         x1_x[...] = state[7]
         x1_pqr[...] = state[10:13]
         x1_pq[...] = state[10:12]
+
+    def substep(
+        state: FloatArray, euler_des: FloatArray, thrust_normalised: FloatArray, enable: Enable
+    ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+        load(state)
+        rotor = advance(euler_des, thrust_normalised, enable)
+        # contract to (13, N), normalising the quaternion
+        sqrt(einsum("ij,ij->j", k2_quat, k2_quat), norm)
+        new = empty((13, n))
+        new[0:6] = k2_pos_vel
+        div(k2_quat, norm, new[6:10])
+        new[10:13] = k2_pqr
+        # --- ground contact (dynamics._ground_contact_inplace) --------------------------------
+        impact = None
+        if not new[2].max() < 0.0:
+            impact = contact(new, state)
+        return new, rotor, impact
+
+    def substeps(
+        state: FloatArray,
+        euler_des: FloatArray,
+        thrust_normalised: FloatArray,
+        enable: Enable,
+        count: int,
+    ) -> tuple[FloatArray, FloatArray, list[FloatArray]]:
+        """``count`` sub-steps under the same setpoint and enable: the same numbers as
+        ``count`` calls of :func:`substep`, without contracting to (13, N) and loading the
+        extended state again between them: the next stage-1 state is the RK4 result (whose
+        repeated rows hold the same values as the rows they repeat) with its quaternion rows,
+        repeats included, divided by the same norm. A sub-step that touches the ground goes
+        through the (13, N) state and :func:`contact`, as in :func:`substep`."""
+        load(state)
+        impacts: list[FloatArray] = []
+        for left in range(count - 1, -1, -1):
+            rotor = advance(euler_des, thrust_normalised, enable)
+            sqrt(einsum("ij,ij->j", k2_quat, k2_quat), norm)
+            if left and k2_z.max() < 0.0:  # in the air: the next stage-1 state directly
+                x1_pos_vel[...] = k2_pos_vel
+                div(k2_q11, norm, x1_q11)
+                x1_pqr5[...] = k2_pqr5
+                continue
+            new = empty((13, n))
+            new[0:6] = k2_pos_vel
+            div(k2_quat, norm, new[6:10])
+            new[10:13] = k2_pqr
+            if not new[2].max() < 0.0:
+                impacts.append(contact(new, x1))  # (x1's rows 0:6 are the previous pos, vel)
+            if not left:
+                return new, rotor, impacts
+            load(new)
+        raise ValueError(f"count must be at least 1, got {count}")
+
+    def advance(euler_des: FloatArray, thrust_normalised: FloatArray, enable: Enable) -> FloatArray:
+        """One sub-step from the stage-1 state ``x1``: the inner loop and RK4, the new extended
+        state (not normalised) in ``k2``; the rotor speeds applied (a new array)."""
+        kp, kd = gains
         # --- attitude controller (attitude_control.attitude_moments) --------------------------
         # ZYX Euler angles of the quaternion
         mul(x1_www, x1_zxy, e3)  # wz wx wy
@@ -453,17 +532,7 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
         add(k2, k4, k2)
         mul(k2, h_sixth, k2)
         add(k2, x1, k2)
-        # contract to (13, N), normalising the quaternion
-        sqrt(einsum("ij,ij->j", k2_quat, k2_quat), norm)
-        new = empty((13, n))
-        new[0:6] = k2_pos_vel
-        div(k2_quat, norm, new[6:10])
-        new[10:13] = k2_pqr
-        # --- ground contact (dynamics._ground_contact_inplace) --------------------------------
-        impact = None
-        if not new[2].max() < 0.0:
-            impact = contact(new, state)
-        return new, rotor, impact
+        return rotor
 
     # --- ground contact buffers -----------------------------------------------------------------
     bool_n = [np.empty(n, dtype=bool) for _ in range(6)]
@@ -530,7 +599,7 @@ def _make_substep(params: VehicleParams, n: int, dt_s: float, gains: list[FloatA
             copyto(z, sin(yaw_half), where=resting)
         return impact
 
-    return substep
+    return substep, substeps
 
 
 #: Up to this many vehicles on the ground, contact is applied one by one (cheaper than masks).

@@ -245,3 +245,79 @@ def test_readiness_combines_own_settling_and_the_swarm() -> None:
     msg = replace(out.message, round=10)
     assert readiness.update(replace(out, message=msg), peer_high, members, False)
     assert readiness.level == 2
+
+
+def test_batch_readiness_is_readiness_row_by_row() -> None:
+    """BatchReadiness (swarm simulate's, all agents in one call) gives each row the levels and
+    the readiness K Readiness objects give, over random traffic: losses, late and duplicated
+    messages (a sender twice in one inbox), senders outside the membership, membership changes,
+    rows skipped for a tick, commitments and agents that never settle."""
+    from types import SimpleNamespace
+
+    from drone_agent.flight_phase import Arrivals, BatchReadiness
+
+    config = AgentConfig(  # type: ignore[arg-type]
+        ConsensusParams(heard_timeout_ticks=3), None, LIMITS, settle_ticks=4, settle_tolerance=0.05
+    )
+    rng = np.random.default_rng(7)
+    k = 12
+    scalar = [Readiness(config) for _ in range(k)]
+    batch = BatchReadiness(k, config)
+    members = frozenset(range(k))
+    levels_sent: dict[int, list[int]] = {}
+    committed = np.zeros(k, dtype=bool)
+    for round_ in range(400):
+        if (
+            round_ % 57 == 0 and round_ < 300
+        ):  # a new membership view (another object, sometimes equal)
+            members = frozenset(int(j) for j in np.flatnonzero(rng.random(k) < 0.9)) | {0}
+        if round_ == 300:  # a small swarm: its agents become ready
+            members = frozenset({0, 1, 2})
+        rows = [i for i in range(k) if rng.random() < 0.95]
+        receiver, sender, rnds, lvls, inboxes = [], [], [], [], {i: [] for i in range(k)}
+        for i in range(k):
+            for j in range(k):
+                back = int(rng.integers(1, 5))
+                if i == j or rng.random() < 0.15 or round_ - back not in levels_sent:
+                    continue
+                copies = 2 if rng.random() < 0.05 else 1
+                for c in range(copies):
+                    r = round_ - back - c
+                    lvl = levels_sent.get(r, [0] * k)[j]
+                    inboxes[i].append(SimpleNamespace(sender=j, round=r, ready_hops=lvl))
+                    receiver.append(i)
+                    sender.append(j)
+                    rnds.append(r)
+                    lvls.append(lvl)
+        dis = rng.random(k) * 0.052 * (1 + (np.arange(k) == 5) * (round_ < 200))
+        fly = rng.random(k) < 0.9
+        committed |= rng.random(k) < 0.01
+        committed &= rng.random(k) > 0.02
+        expected = []
+        for i in rows:
+            out = SimpleNamespace(
+                disagreement=float(dis[i]),
+                ready_to_fly=bool(fly[i]),
+                message=SimpleNamespace(round=round_),
+            )
+            expected.append(scalar[i].update(out, inboxes[i], members, bool(committed[i])))
+        arrivals = Arrivals(
+            np.array(receiver, dtype=np.intp),
+            np.array(sender, dtype=np.intp),
+            np.array(rnds, dtype=np.int64),
+            np.array(lvls, dtype=np.int64),
+        )
+        got = batch.update(
+            rows,
+            round_,
+            dis[rows].tolist(),
+            fly[rows].tolist(),
+            arrivals,
+            members,
+            committed[rows].tolist(),
+        )
+        assert got.tolist() == expected, round_
+        assert batch.level[rows].tolist() == [scalar[i].level for i in rows], round_
+        levels_sent[round_] = [scalar[i].level for i in range(k)]
+    assert max(max(v) for v in levels_sent.values()) >= 3  # the flood did run
+    assert any(s.ready for s in scalar)

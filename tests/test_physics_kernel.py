@@ -308,3 +308,44 @@ def test_swarm_simulate_flies_as_with_the_reference_functions(
     assert kinds == [(e.t_s, e.kind, e.fields.get("drone")) for e in ref.events]
     # the flight went through a crash (hard landing), a failsafe landing and a disarm
     assert {"hard_landing", "failsafe", "disarmed"} <= {k for _, k, _ in kinds}
+
+
+@pytest.mark.parametrize(("n", "seed"), [(1, 0), (9, 2), (40, 3)])
+def test_substeps_is_substep_after_substep(n: int, seed: int) -> None:
+    """PhysicsKernel.substeps (swarm simulate's tick) gives the numbers of as many substep calls,
+    bit for bit, through take-off, flight, saturation, a falling disarmed vehicle and touchdowns
+    (ground contact within a run and on its last sub-step), and the same touchdown speeds."""
+    rng = np.random.default_rng(seed)
+    params = VehicleParams()
+    kernel = PhysicsKernel(params, n, DT)
+    state = _fleet(n, rng)
+    state[2, ::2] = 0.0  # some on the ground
+    armed = np.ones(n, dtype=bool)
+    touched = 0
+    for tick in range(120):
+        euler = np.stack(
+            [0.3 * np.sin(0.1 * tick + np.arange(n)), 0.2 * np.cos(0.07 * tick + np.arange(n)),
+             np.full(n, 3.1)]
+        )  # fmt: skip
+        thrust = np.clip(0.55 + 0.3 * np.sin(0.2 * tick + np.arange(n)), 0.0, 1.0)
+        if tick >= 60:
+            thrust[:] = 0.05 if tick < 100 else 1.0
+            armed[::3] = False
+        count = 1 + tick % 10
+        one = state
+        impacts = []
+        for _ in range(count):
+            one, rotor_one, impact = kernel.substep(one, euler, thrust, armed)
+            if impact is not None:
+                impacts.append(impact)
+        many, rotor_many, impacts_many = kernel.substeps(state, euler, thrust, armed, count)
+        np.testing.assert_array_equal(many, one, err_msg=f"tick {tick}")
+        np.testing.assert_array_equal(rotor_many, rotor_one)
+        assert len(impacts_many) == len(impacts)
+        for a, b in zip(impacts_many, impacts, strict=True):
+            np.testing.assert_array_equal(a, b)
+        touched += len(impacts)
+        state = many
+    assert touched > 0
+    with pytest.raises(ValueError, match="at least 1"):
+        kernel.substeps(state, euler, thrust, armed, 0)

@@ -19,7 +19,7 @@ from drone_agent.agent_core import AgentCore, AgentOutput, BatchAgentCore
 from drone_agent.config import agent_config
 from drone_agent.consensus_batch import frozen_factory, frozen_replace
 from drone_agent.fault_timeline import TimedAction, timeline
-from drone_agent.flight_phase import FlightPhase, Readiness, Request, VehicleView
+from drone_agent.flight_phase import BatchReadiness, FlightPhase, Request, VehicleView
 from drone_agent.link_faults import LinkFaults, PairRandom
 from gcs.reference.network import InProcessNetwork
 from gcs.report.flight_record import FlightRecord, scenario_link_cuts
@@ -132,7 +132,7 @@ class ReferenceFlight:
         self.agents: dict[int, AgentCore] = {
             i: AgentCore(i, self.config, self.core) for i in range(self.n)
         }
-        self.readiness = [Readiness(self.config) for _ in range(self.n)]
+        self.readiness = BatchReadiness(self.n, self.config)
         self.phases = [FlightPhase(self.config.limits) for _ in range(self.n)]
         #: the separation layer changes the drone's command (events on each change)
         self.separating = [False] * self.n
@@ -204,8 +204,9 @@ class ReferenceFlight:
             if k < n_ticks - 1:
                 armed = self.last_setpoint_s[self.armed]
                 self._oldest_setpoint_s = float(armed.min()) if armed.shape[0] else None
-                for sub in range(self.substeps):
-                    self._physics_step(self.t_s + sub * self.dt / self.substeps)
+                if not self._physics_steps():
+                    for sub in range(self.substeps):
+                        self._physics_step(self.t_s + sub * self.dt / self.substeps)
         self._event("run_end", lost=sorted(self.lost_at))
         # per-tick conversions done once over the whole record (same arithmetic per sample)
         n_ticks_n = rec.quat.shape[0] * self.n
@@ -286,17 +287,20 @@ class ReferenceFlight:
         flying: list[int] = []
         commands: list[tuple[float, float, float, float]] = []
         separating, crashed = self.separating, self.crashed.tolist()
-        phases, readiness_of = self.phases, self.readiness
-        for i, out in zip(live, outs, strict=True):
+        phases = self.phases
+        committed = [phases[i].committed for i in live]
+        ready_all = self._ready(live, outs, members, committed)
+        levels = self.readiness.level[live].tolist() if live else []
+        for i, out, level, ready, flies in zip(
+            live, outs, levels, ready_all, committed, strict=True
+        ):
             if out.separating != separating[i]:
                 separating[i] = out.separating
                 self._event("separation" if out.separating else "separation_end", drone=i)
-            phase, readiness = phases[i], readiness_of[i]
-            ready = readiness.update(out, inboxes[i], members, phase.committed)
-            messages.append(frozen_replace(out.message, ready_hops=readiness.level))
+            messages.append(frozen_replace(out.message, ready_hops=level))
             if crashed[i]:
                 continue
-            sp = self._decide(i, out, phase.committed or ready, altitude[i], yaw[i])
+            sp = self._decide(i, out, flies or ready, altitude[i], yaw[i])
             if sp is not None:
                 flying.append(i)
                 commands.append(sp)
@@ -315,6 +319,29 @@ class ReferenceFlight:
         rec.member[k] = self.member
         rec.airborne[k] = -true_pos[:, 2] > AIRBORNE_ALTITUDE_M
         rec.armed[k] = self.armed
+
+    def _ready(
+        self,
+        live: list[int],
+        outs: list[AgentOutput],
+        members: frozenset[int],
+        committed: list[bool],
+    ) -> list[bool]:
+        """Whether each live agent's swarm is ready to leave the ground (the one rule of
+        drone_agent/flight_phase.py, :class:`BatchReadiness`: all agents in one call), from the
+        tick's outputs and the messages that arrived (the network's arrivals)."""
+        if not live:
+            return []
+        ready = self.readiness.update(
+            live,
+            outs[0].message.round,
+            [out.disagreement for out in outs],
+            [out.ready_to_fly for out in outs],
+            self.network.arrivals,
+            members,
+            committed,
+        )
+        return ready.tolist()
 
     def _decide(
         self, i: int, out: AgentOutput, ready: bool, altitude_m: float, yaw_rad: float
@@ -349,6 +376,25 @@ class ReferenceFlight:
             live = sorted(members)
             self._live_cache = (live, [self.agents[i].row for i in live], members)
         return self._live_cache
+
+    def _physics_steps(self) -> bool:
+        """The tick's sub-steps in one kernel call (the same numbers as one
+        :meth:`_physics_step` each) when nothing can change between them: no vehicle in
+        failsafe and none that can go stale before the last sub-step (its time is the latest;
+        staleness is monotonic in time). Whether it did."""
+        if self._any_failsafe:
+            return False
+        oldest = self._oldest_setpoint_s
+        last_s = self.t_s + (self.substeps - 1) * self.dt / self.substeps
+        if oldest is not None and last_s - oldest > self.failsafe.offboard_timeout_s:
+            return False
+        self.state, self.rotor_speed, impacts = self._kernel.substeps(
+            self.state, self.attitude_sp, self.thrust_sp, self.armed, self.substeps
+        )
+        for impact in impacts:
+            for i in np.flatnonzero(impact > HARD_LANDING_M_S):
+                self._event("hard_landing", drone=int(i), impact_m_s=round(float(impact[i]), 2))
+        return True
 
     def _physics_step(self, t_s: float) -> None:
         attitude, thrust = self.attitude_sp, self.thrust_sp

@@ -8,10 +8,12 @@ from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Sequence
+from itertools import pairwise
 
 import numpy as np
 import numpy.typing as npt
 
+from drone_agent.flight_phase import Arrivals
 from drone_agent.link_faults import LinkFaults, PairRandom
 from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
@@ -37,10 +39,11 @@ class InProcessNetwork:
         self.rng = rng
         self.base_delay_ticks = base_delay_ticks
         self.conditions = LinkFaults()
-        # arrival round -> batches of (receivers, index into messages, messages), in send order
-        self._in_flight: dict[int, list[tuple[list[int], list[int], list[ConsensusMessage]]]] = (
-            defaultdict(list)
-        )
+        # arrival round -> batches of (receivers, index into messages, messages, the messages'
+        # (3, len) senders, rounds and levels), in send order
+        self._in_flight: dict[int, list[_Batch]] = defaultdict(list)
+        #: the messages that arrived at the last :meth:`receive`, as arrays
+        self.arrivals = _NO_ARRIVALS
         self.sent = 0
         self.delivered = 0
         self.lost = 0
@@ -67,7 +70,10 @@ class InProcessNetwork:
         link's delay."""
         if not messages:
             return
-        senders = np.array([m.sender for m in messages], dtype=np.intp)
+        meta = np.array(
+            [(m.sender, m.round, m.ready_hops) for m in messages], dtype=np.int64
+        ).T.copy()
+        senders = meta[0].astype(np.intp)
         reach = np.array(in_range, dtype=bool)[senders]
         reach[np.arange(senders.shape[0]), senders] = False
         which, receivers = np.nonzero(reach)
@@ -90,10 +96,15 @@ class InProcessNetwork:
         ticks = np.full(receivers.shape[0], self.base_delay_ticks, dtype=np.int64)
         if delay is not None:
             ticks += delay[i, receivers]
+        if receivers.shape[0] == 0:
+            return
         msgs = list(messages)
+        if int(ticks.min()) == int(ticks.max()):  # one delay for all
+            self._in_flight[round_ + int(ticks[0])].append((receivers, which, msgs, meta))
+            return
         for d in np.unique(ticks).tolist():
             on = ticks == d
-            self._in_flight[round_ + d].append((receivers[on].tolist(), which[on].tolist(), msgs))
+            self._in_flight[round_ + d].append((receivers[on], which[on], msgs, meta))
 
     def _link_draws(
         self, senders: npt.NDArray[np.intp], receivers: npt.NDArray[np.intp]
@@ -165,10 +176,34 @@ class InProcessNetwork:
         return blocked, loss, delay
 
     def receive(self, round_: int) -> list[list[ConsensusMessage]]:
-        """The inboxes (one list per drone) of messages that arrive at round ``round_``."""
-        inboxes: list[list[ConsensusMessage]] = [[] for _ in range(self.n)]
-        for receivers, which, msgs in self._in_flight.pop(round_, []):
-            for j, k in zip(receivers, which, strict=True):
-                inboxes[j].append(msgs[k])
-            self.delivered += len(receivers)
+        """The inboxes (one list per drone) of messages that arrive at round ``round_``, each in
+        send order (batch by batch, messages in order); the same as :attr:`arrivals`."""
+        batches = self._in_flight.pop(round_, [])
+        if not batches:
+            self.arrivals = _NO_ARRIVALS
+            return [[] for _ in range(self.n)]
+        if len(batches) == 1:
+            receivers, which, msgs, meta = batches[0]
+        else:
+            msgs, offsets = [], []
+            for batch in batches:
+                offsets.append(len(msgs))
+                msgs += batch[2]
+            receivers = np.concatenate([b[0] for b in batches])
+            which = np.concatenate([b[1] + o for b, o in zip(batches, offsets, strict=True)])
+            meta = np.concatenate([b[3] for b in batches], axis=1)
+        order = np.argsort(receivers, kind="stable")  # by receiver, in send order
+        receivers, which = receivers[order], which[order]
+        self.delivered += int(receivers.shape[0])
+        bounds = np.searchsorted(receivers, np.arange(self.n + 1)).tolist()
+        flat = [msgs[k] for k in which.tolist()]
+        inboxes = [flat[lo:hi] for lo, hi in pairwise(bounds)]
+        self.arrivals = Arrivals(receivers, meta[0, which], meta[1, which], meta[2, which])
         return inboxes
+
+
+_Batch = tuple[
+    npt.NDArray[np.intp], npt.NDArray[np.intp], list[ConsensusMessage], npt.NDArray[np.int64]
+]
+_EMPTY = np.zeros(0, dtype=np.intp)
+_NO_ARRIVALS = Arrivals(_EMPTY, _EMPTY, _EMPTY.astype(np.int64), _EMPTY.astype(np.int64))
