@@ -4,6 +4,8 @@ liveliness, and scenario files written for a test."""
 from __future__ import annotations
 
 import contextlib
+import json
+import os
 import signal
 import subprocess
 import threading
@@ -13,12 +15,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from sitl_client import ENV, ROOT, swarm_command
+from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
 
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
 from protocols.descriptors import descriptors
 from protocols.keys import SwarmKeys
-from protocols.wire_status import AgentStatus, decode_statuses
+from protocols.wire_status import AgentMode, AgentStatus, decode_statuses
 
 SWARM = "test"
 
@@ -155,6 +157,55 @@ def observer(swarm_id: str = SWARM, connect: tuple[str, ...] = ()) -> Iterator[S
         yield obs
     finally:
         obs.close()
+
+
+def up_with_a_frozen_agent(
+    scenario: Path,
+    report: Path,
+    *flags: str,
+    swarm_id: str,
+    drones: int,
+    freeze: int,
+    frozen_s: float,
+    flying_after_s: float,
+    timeout_s: float = 300.0,
+) -> tuple[int, str]:
+    """``swarm up SCENARIO --report REPORT FLAGS`` on free ports, watched as a Zenoh peer: once
+    all ``drones`` agents fly past ``flying_after_s`` of simulated time, the agent process
+    hosting drone ``freeze`` is frozen (SIGSTOP) for ``frozen_s`` wall seconds, as a machine that
+    cannot keep up freezes it, then resumed; the run's exit code and printed output."""
+    base, gcs_port = free_port_block(drones), free_udp_port()
+    with observer(swarm_id=swarm_id) as obs:
+        proc = subprocess.Popen(
+            swarm_command(
+                *("up", str(scenario), "--report", str(report), *flags),
+                *("--base-port", str(base), "--gcs-port", str(gcs_port)),
+                *("--swarm-id", swarm_id, "--zenoh-connect", obs.endpoint),
+            ),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            env=ENV,
+            cwd=ROOT,
+        )
+        try:
+            flying = obs.wait_until(
+                lambda: len(obs.statuses()) == drones
+                and all(s.mode == AgentMode.FLYING and s.t_s > flying_after_s
+                        for s in obs.statuses().values()),
+                timeout_s,
+            )  # fmt: skip
+            assert flying, obs.statuses()
+            pid = json.loads((report / "logs" / "run.json").read_text())["agents"][str(freeze)]
+            os.kill(pid, signal.SIGSTOP)
+            time.sleep(frozen_s)
+            os.kill(pid, signal.SIGCONT)
+            out, _ = proc.communicate(timeout=timeout_s)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(10)
+        assert all(s.mode == AgentMode.FLYING for s in obs.statuses().values()), obs.statuses()
+    return proc.returncode, out.decode(errors="replace")
 
 
 def write_scenario(

@@ -9,19 +9,14 @@ same scenario, sample for sample."""
 
 from __future__ import annotations
 
-import json
-import os
-import signal
 import subprocess
-import time
 from pathlib import Path
 
 import pytest
-from agent_harness import observer, write_scenario
-from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
+from agent_harness import up_with_a_frozen_agent, write_scenario
+from sitl_client import ENV, ROOT, swarm_command
 
 from gcs.report.tlog import vehicle_samples
-from protocols.wire_status import AgentMode
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 SQUARE = [(0.0, 0.0, 0.0), (0.0, 3.0, 0.0), (4.0, 0.0, 0.0), (4.0, 3.0, 0.0)]
@@ -48,39 +43,18 @@ def test_a_frozen_agent_process_slows_lockstep_without_changing_the_flight(
         timeout=300,
     )
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-    base, gcs_port = free_port_block(4), free_udp_port()
     report = tmp_path / "up"
-    with observer(swarm_id="stall") as obs:
-        proc = subprocess.Popen(
-            swarm_command(
-                *("up", str(scenario), "--report", str(report), "--agents-per-process", "2"),
-                *("--base-port", str(base), "--gcs-port", str(gcs_port)),
-                *("--swarm-id", "stall", "--zenoh-connect", obs.endpoint),
-            ),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            env=ENV,
-            cwd=ROOT,
-        )
-        try:
-            flying = obs.wait_until(
-                lambda: len(obs.statuses()) == 4
-                and all(s.mode == AgentMode.FLYING and s.t_s > 6.0
-                        for s in obs.statuses().values()),
-                240.0,
-            )  # fmt: skip
-            assert flying, obs.statuses()
-            pid = json.loads((report / "logs" / "run.json").read_text())["agents"]["3"]
-            os.kill(pid, signal.SIGSTOP)
-            time.sleep(FROZEN_S)
-            os.kill(pid, signal.SIGCONT)
-            out, _ = proc.communicate(timeout=300)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait(10)
-    text = out.decode(errors="replace")
-    assert proc.returncode == 0, text[-3000:]
+    code, text = up_with_a_frozen_agent(
+        scenario,
+        report,
+        *("--agents-per-process", "2"),
+        swarm_id="stall",
+        drones=4,
+        freeze=3,
+        frozen_s=FROZEN_S,
+        flying_after_s=6.0,
+    )
+    assert code == 0, text[-3000:]
     logs = report / "logs"
     sim_log = (logs / "sim.log").read_text()
     assert "left the barrier" not in sim_log, sim_log[-2000:]

@@ -7,17 +7,10 @@ with the share of ticks it answered in time."""
 from __future__ import annotations
 
 import json
-import os
-import signal
-import subprocess
-import time
 from pathlib import Path
 
 import pytest
-from agent_harness import observer, write_scenario
-from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
-
-from protocols.wire_status import AgentMode
+from agent_harness import up_with_a_frozen_agent, write_scenario
 
 pytestmark = pytest.mark.slow
 SQUARE = [(0.0, 0.0, 0.0), (0.0, 3.0, 0.0), (4.0, 0.0, 0.0), (4.0, 3.0, 0.0)]
@@ -33,39 +26,19 @@ def test_a_frozen_agent_is_reported_late_and_its_failsafe_explained(tmp_path: Pa
         duration_s=22.0,
         settle_s=8.0,
     )
-    base, gcs_port = free_port_block(4), free_udp_port()
     report = tmp_path / "report"
-    with observer(swarm_id="late") as obs:
-        proc = subprocess.Popen(
-            swarm_command(
-                *("up", str(scenario), "--report", str(report), "--clock", "realtime"),
-                *("--base-port", str(base), "--gcs-port", str(gcs_port)),
-                *("--swarm-id", "late", "--zenoh-connect", obs.endpoint),
-            ),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            env=ENV,
-            cwd=ROOT,
-        )
-        try:
-            flying = obs.wait_until(
-                lambda: len(obs.statuses()) == 4
-                and all(s.mode == AgentMode.FLYING and s.t_s > 8.0
-                        for s in obs.statuses().values()),
-                60.0,
-            )  # fmt: skip
-            assert flying, obs.statuses()
-            pid = json.loads((report / "logs" / "run.json").read_text())["agents"]["1"]
-            os.kill(pid, signal.SIGSTOP)
-            time.sleep(FROZEN_S)
-            os.kill(pid, signal.SIGCONT)
-            out, _ = proc.communicate(timeout=120)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait(10)
-    text = out.decode(errors="replace")
-    assert proc.returncode == 0, text[-3000:]
+    code, text = up_with_a_frozen_agent(
+        scenario,
+        report,
+        *("--clock", "realtime"),
+        swarm_id="late",
+        drones=4,
+        freeze=1,
+        frozen_s=FROZEN_S,
+        flying_after_s=8.0,
+        timeout_s=120.0,
+    )
+    assert code == 0, text[-3000:]
     metrics = json.loads((report / "metrics.json").read_text())
     timing = metrics["agent_timing"]
     assert timing["measured"] and timing["overloaded"], timing
@@ -74,5 +47,4 @@ def test_a_frozen_agent_is_reported_late_and_its_failsafe_explained(tmp_path: Pa
     assert [(f["drone"], f["cause"]) for f in timing["failsafes"]] == [(1, "overload")], timing
     assert "drone 1 failed safe at" in text and "its agent fell behind" in text, text[-3000:]
     assert "OVERLOAD" in text
-    # the agent took its vehicle back: all four fly at the end
-    assert all(s.mode == AgentMode.FLYING for s in obs.statuses().values()), obs.statuses()
+    # the agent took its vehicle back: all four fly at the end (up_with_a_frozen_agent checks)
