@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import gc
 import os
 import signal
 import sys
@@ -39,8 +38,7 @@ LOCKSTEP_DROP_WAIT_US = 100_000
 #: (``agent-<first drone>-<pid>.prof``, in the main thread's CPU time;
 #: bench/agent_process_profile.txt).
 PROFILE_ENV = "SWARM_AGENT_PROFILE"
-#: Set: the agent process says on exit how much CPU it used, on its own thread and in all, and
-#: how much of it went to the garbage collector.
+#: Set: the agent process says on exit how much CPU it used, on its own thread and in all.
 CPU_ENV = "SWARM_AGENT_CPU"
 #: Batches in a lockstep agent's send queue per link (Zenoh's default 2; see ZenohSettings).
 LOCKSTEP_TX_QUEUE_BATCHES = 16
@@ -391,9 +389,6 @@ def run(args: argparse.Namespace) -> int:
         # the main thread's CPU time (not wall time: the machine may be loaded)
         profiler = cProfile.Profile(time.thread_time)
         profiler.enable()
-    # measured: the collector is no part of the cost (a handful of passes in a whole flight:
-    # the agents' garbage is freed by reference counting)
-    gc_time = _GcTimer() if os.environ.get(CPU_ENV) else None
     try:
         host.run(
             on_second=None if args.quiet else report,
@@ -409,8 +404,7 @@ def run(args: argparse.Namespace) -> int:
         if os.environ.get(CPU_ENV):  # where the process's CPU went: its thread or Zenoh's
             print(
                 f"agents: CPU {time.process_time():.2f} s, of which the agents' thread "
-                f"{time.thread_time():.2f} s (the rest: Zenoh's threads)"
-                + ("" if gc_time is None else f"; garbage collection {gc_time.report()}"),
+                f"{time.thread_time():.2f} s (the rest: Zenoh's threads)",
                 file=sys.stderr,
                 flush=True,
             )
@@ -419,31 +413,6 @@ def run(args: argparse.Namespace) -> int:
         hub.close()
         bus.close()
     return 0
-
-
-class _GcTimer:
-    """The agents' thread CPU time spent in the garbage collector, per generation."""
-
-    def __init__(self) -> None:
-        self.seconds = [0.0, 0.0, 0.0]
-        self.passes = [0, 0, 0]
-        self._started = 0.0
-        gc.callbacks.append(self._on_gc)
-
-    def _on_gc(self, phase: str, info: dict[str, int]) -> None:
-        if phase == "start":
-            self._started = time.thread_time()
-        else:
-            self.seconds[info["generation"]] += time.thread_time() - self._started
-            self.passes[info["generation"]] += 1
-
-    def report(self) -> str:
-        """E.g. ``0.12 s (gen 0: 0.05 s in 1200 passes, ...)``."""
-        parts = ", ".join(
-            f"gen {g}: {s:.2f} s in {n} passes"
-            for g, (s, n) in enumerate(zip(self.seconds, self.passes, strict=True))
-        )
-        return f"{sum(self.seconds):.2f} s ({parts})"
 
 
 def host_round(host: AgentHost) -> Callable[[], int]:
