@@ -220,12 +220,8 @@ class ConsensusHub(ClosesOnExit):
         if got == ():
             if len(self._cell_of_key) > 4096:  # bounded: garbage may come on many keys
                 self._cell_of_key.clear()
-            parts = key.split("/")
-            try:
-                cell = (int(parts[3]), int(parts[4]), int(parts[5]))
-                got = (cell, self._keys.drone_of(key))
-            except (IndexError, ValueError):
-                got = None
+            cell = self._keys.cell_of_key(key)
+            got = None if cell is None else (cell, self._keys.drone_of(key))
             self._cell_of_key[key] = got
         return got  # type: ignore[return-value]
 

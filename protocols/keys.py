@@ -189,6 +189,17 @@ class SwarmKeys:
         """The ground station's queryable of operator commands."""
         return f"{self.prefix}/command"
 
+    def cell_of_key(self, key: str) -> Cell | None:
+        """The cell a consensus key of this swarm was published from (whatever its drone id:
+        :meth:`drone_of`); None if ``key`` is not one."""
+        parts = key.split("/")
+        if len(parts) != 7 or parts[:3] != [ROOT, self.swarm_id, "consensus"]:
+            return None
+        try:
+            return (int(parts[3]), int(parts[4]), int(parts[5]))
+        except ValueError:
+            return None
+
     def drone_of(self, key: str) -> int | None:
         """The drone id that ends a consensus, alive or status key of this swarm; None if ``key``
         is not one (foreign swarm, other kind, malformed id)."""

@@ -179,3 +179,12 @@ def test_memory_bus_matching_agrees_with_zenoh(key: list[str], expr: list[str]) 
     e = str(zenoh.KeyExpr.autocanonize("/".join(expr)))  # Zenoh only takes canonical forms
     assert key_matches("/".join(expr), k) == key_matches(e, k)
     assert key_matches(e, k) == zenoh.KeyExpr(e).intersects(zenoh.KeyExpr(k))
+
+
+def test_the_cell_of_a_consensus_key() -> None:
+    keys = SwarmKeys("s1", 10.0)
+    assert keys.cell_of_key(keys.consensus((-1, 2, 0), 7)) == (-1, 2, 0)
+    assert keys.cell_of_key("swarm/s1/consensus/1/2/3/x") == (1, 2, 3)  # a bad id: drone_of's
+    for key in ("swarm/s2/consensus/1/2/3/7", "swarm/s1/status/7", "swarm/s1/consensus/a/2/3/7",
+                "swarm/s1/consensus/1/2/7"):  # fmt: skip
+        assert keys.cell_of_key(key) is None, key
