@@ -60,8 +60,7 @@ plan's own turn: a formation turning with the plan is not braked (the flat-axis 
 tilt rate of a planar formation with its 1.75 /s before, the 12-15 s lag of issue 15), and mu
 and Sigma are still untouched by that damping to first order.
 
-The field is one compiled loop over the drones (numba, cached on disk): numpy's per-call
-overhead was most of its cost at the few drones of an agent process. Pure and I/O-free.
+The field is one compiled loop over the drones (drone_agent/jit_math.py). Pure and I/O-free.
 """
 
 from __future__ import annotations
@@ -71,8 +70,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from numba import njit
 
+from drone_agent.jit_math import f64, jit, nmax, nmin
 from drone_agent.moments import SwarmMoments
 from protocols.descriptors import align_axes_batch, desired_axes_batch
 from protocols.frames import FloatArray
@@ -164,37 +163,21 @@ _J, _K = (1, 0, 0), (2, 2, 1)
 _SIGN = (-1.0, 1.0, -1.0)
 
 
-@njit(cache=True)
-def _nmax(a: float, b: float) -> float:
-    """``np.maximum`` of two floats (a NaN wins)."""
-    if a != a or b != b:
-        return a + b
-    return a if a >= b else b
-
-
-@njit(cache=True)
-def _nmin(a: float, b: float) -> float:
-    """``np.minimum`` of two floats (a NaN wins)."""
-    if a != a or b != b:
-        return a + b
-    return a if a <= b else b
-
-
-@njit(cache=True)
+@jit
 def _shape_row(s, w_shape, alpha, damping, s_min, flat, a):  # type: ignore[no-untyped-def]
     """:func:`shape_matrix` into ``a`` (3, 3): one drone's A from its variances ``s``, commanded
     variance accelerations ``w_shape``, angular acceleration ``alpha``, pair numerators
     ``damping`` (3,) each, the variance guard and the flat axes (3,) bool."""
     for i in range(3):
-        a[i, i] = 0.0 if flat[i] else w_shape[i] / (2.0 * _nmax(s[i], s_min))
+        a[i, i] = 0.0 if flat[i] else w_shape[i] / (2.0 * nmax(s[i], s_min))
     for m in range(3):
         j, k = _J[m], _K[m]
-        value = ((s[k] - s[j]) * (alpha[m] * _SIGN[m]) + damping[m]) / _nmax(s[j] + s[k], s_min)
+        value = ((s[k] - s[j]) * (alpha[m] * _SIGN[m]) + damping[m]) / nmax(s[j] + s[k], s_min)
         a[j, k] = value
         a[k, j] = value
 
 
-@njit(cache=True)
+@jit
 def _shape_rows(s, w_shape, alpha, damping, s_min, flat, out):  # type: ignore[no-untyped-def]
     for r in range(s.shape[0]):
         _shape_row(s[r], w_shape[r], alpha[r], damping[r], s_min, flat[r], out[r])
@@ -212,20 +195,15 @@ def shape_matrix_batch(
     (K, 3) bool) -> A (K, 3, 3)."""
     out = np.zeros((variances_m2.shape[0], 3, 3))
     _shape_rows(
-        _f64(variances_m2),
-        _f64(w_shape),
-        _f64(alpha),
-        _f64(damping),
+        f64(variances_m2),
+        f64(w_shape),
+        f64(alpha),
+        f64(damping),
         float(min_variance_m2),
         np.ascontiguousarray(flat, dtype=np.bool_),
         out,
     )
     return out
-
-
-def _f64(a: FloatArray) -> FloatArray:
-    """``a`` as a C-contiguous float64 array (no copy when it is one already)."""
-    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 @functools.lru_cache(maxsize=16)
@@ -271,24 +249,24 @@ def virtual_acceleration_batch(
         r_d, axes, s = frame
     out = np.empty((a_d.shape[0], 3))
     _field_rows(
-        _f64(positions_ned_m),
-        _f64(velocities_ned_m_s),
-        _f64(swarm.centre_ned_m),
-        _f64(swarm.centre_rate_ned_m_s),
-        _f64(swarm.sigma_rate_m2_s),
-        _f64(a_d),
-        _f64(ad_dot),
-        _f64(ad_ddot),
-        _f64(r_d),
-        _f64(axes),
-        _f64(s),
+        f64(positions_ned_m),
+        f64(velocities_ned_m_s),
+        f64(swarm.centre_ned_m),
+        f64(swarm.centre_rate_ned_m_s),
+        f64(swarm.sigma_rate_m2_s),
+        f64(a_d),
+        f64(ad_dot),
+        f64(ad_ddot),
+        f64(r_d),
+        f64(axes),
+        f64(s),
         _gain_vector(gains),
         out,
     )
     return out
 
 
-@njit(cache=True)
+@jit
 def _field_rows(  # type: ignore[no-untyped-def]
     x, v, centre, centre_rate, sigma_rate, a_d, ad_dot, ad_ddot, r_d, axes, s_all, g, out
 ):
@@ -318,14 +296,14 @@ def _field_rows(  # type: ignore[no-untyped-def]
                 rf[i, c] = tmp[i, 0] * rot[0, c] + tmp[i, 1] * rot[1, c] + tmp[i, 2] * rot[2, c]
         for i in range(3):
             flat[i] = a_d[r, 6 + i] < s_min
-            sg[i] = _nmax(s[i], s_min)
+            sg[i] = nmax(s[i], s_min)
             w_s[i] = (
                 ad_ddot[r, 6 + i]
                 - kd[6 + i] * (rf[i, i] - ad_dot[r, 6 + i])
                 - kp[6 + i] * (s[i] - a_d[r, 6 + i])
             )
         for m in range(3):
-            pair_sum[m] = _nmax(s[_J[m]] + s[_K[m]], s_min)
+            pair_sum[m] = nmax(s[_J[m]] + s[_K[m]], s_min)
         # the plan's angular rate and acceleration (omega = E eta_dot, omega_dot = E eta_ddot +
         # E_dot eta_dot) in the desired frame, then about the estimated swarm axes
         _euler_rate_matrix_into(a_d[r, 3], a_d[r, 4], e)
@@ -354,14 +332,14 @@ def _field_rows(  # type: ignore[no-untyped-def]
             j, k = _J[m], _K[m]
             spread = (s[k] - s[j]) * _SIGN[m]
             twist[m] = spread * omega[m]
-            guard = (-1.0 if spread < 0.0 else 1.0) * _nmax(abs(spread), s_min)
+            guard = (-1.0 if spread < 0.0 else 1.0) * nmax(abs(spread), s_min)
             rate_error = (rf[j, k] - twist[m]) / guard
             radius = np.sqrt(pair_sum[m])  # RMS radius of the formation in the pair's plane
             max_rate = max_speed / radius
             max_alpha = max_accel / radius
             rotation_error = 0.5 * (turn[j, k] - turn[k, j]) * -_SIGN[m]
-            wanted = _nmin(_nmax(okp[m] / okd[m] * rotation_error, -max_rate), max_rate)
-            feedback = _nmin(_nmax(-okd[m] * (rate_error + wanted), -max_alpha), max_alpha)
+            wanted = nmin(nmax(okp[m] / okd[m] * rotation_error, -max_rate), max_rate)
+            feedback = nmin(nmax(-okd[m] * (rate_error + wanted), -max_alpha), max_alpha)
             alpha_cmd[m] = alpha[m] + feedback
         _plan_rate_terms_into(s, sg, omega, ad_dot[r, 6:9], c_diag, c_pairs)
         for i in range(3):
@@ -411,7 +389,7 @@ def _field_rows(  # type: ignore[no-untyped-def]
             ) + (rot[i, 0] * vs[0] + rot[i, 1] * vs[1] + rot[i, 2] * vs[2])
 
 
-@njit(cache=True)
+@jit
 def _add_plan_null_field(s, sg, pair_sum, omega, alpha, s_dot, a):  # type: ignore[no-untyped-def]
     """Add to ``a`` (3, 3) the null-space part N of the plan's field (module doc, "The plan's
     whole field"): ``N_jk = s_j D_jk / (s_j + s_k)``, ``N_kj = -s_k D_jk / (s_j + s_k)`` with
@@ -421,11 +399,11 @@ def _add_plan_null_field(s, sg, pair_sum, omega, alpha, s_dot, a):  # type: igno
         j, k = _J[m], _K[m]
         d = (2.0 * alpha[m] + omega[m] * (s_dot[j] / sg[j] + s_dot[k] / sg[k])) * _SIGN[m]
         d = d / pair_sum[m]
-        a[j, k] = a[j, k] + _nmax(s[j], 0.0) * d
-        a[k, j] = a[k, j] + -_nmax(s[k], 0.0) * d
+        a[j, k] = a[j, k] + nmax(s[j], 0.0) * d
+        a[k, j] = a[k, j] + -nmax(s[k], 0.0) * d
 
 
-@njit(cache=True)
+@jit
 def _plan_rate_terms_into(s, sg, omega, s_dot, diag, pairs):  # type: ignore[no-untyped-def]
     """The terms of ``Rᵀ Σ̈ R`` that the affine field leaves out, for a formation moving as the
     plan does (module doc, "Terms the field leaves out"): ``C = W²S + SW² + [W, Ṡ] − Ṡ² S⁻¹ / 2``
@@ -442,7 +420,7 @@ def _plan_rate_terms_into(s, sg, omega, s_dot, diag, pairs):  # type: ignore[no-
         pairs[m] = omega[j] * omega[k] * (s[j] + s[k]) + omega[m] * _SIGN[m] * (s_dot[k] - s_dot[j])
 
 
-@njit(cache=True)
+@jit
 def _euler_rate_matrix_into(roll, pitch, e):  # type: ignore[no-untyped-def]
     """:func:`euler_rate_matrix` into ``e`` (3, 3)."""
     sr, cr = np.sin(roll), np.cos(roll)
@@ -452,7 +430,7 @@ def _euler_rate_matrix_into(roll, pitch, e):  # type: ignore[no-untyped-def]
     e[2, 0], e[2, 1], e[2, 2] = 0.0, -sr, cr * cp
 
 
-@njit(cache=True)
+@jit
 def _euler_rate_derivative_into(roll, pitch, eta_dot, out):  # type: ignore[no-untyped-def]
     """``E_dot eta_dot`` (3,) into ``out``: the part of the body angular acceleration
     ``omega_dot = E eta_ddot + E_dot eta_dot`` that the Euler-angle rates ``eta_dot`` = (roll,
@@ -465,7 +443,7 @@ def _euler_rate_derivative_into(roll, pitch, eta_dot, out):  # type: ignore[no-u
     out[2] = -cr * rd * pd - sr * cp * rd * yd - cr * sp * pd * yd
 
 
-@njit(cache=True)
+@jit
 def _euler_rows(roll, pitch, eta_dot, e, e_dot):  # type: ignore[no-untyped-def]
     for r in range(roll.shape[0]):
         _euler_rate_matrix_into(roll[r], pitch[r], e[r])
@@ -476,7 +454,7 @@ def euler_rate_matrix_batch(roll: FloatArray, pitch: FloatArray) -> FloatArray:
     """:func:`euler_rate_matrix` of K angle pairs (K,): (K, 3, 3)."""
     n = roll.shape[0]
     e = np.empty((n, 3, 3))
-    _euler_rows(_f64(roll), _f64(pitch), np.zeros((n, 3)), e, np.empty((n, 3)))
+    _euler_rows(f64(roll), f64(pitch), np.zeros((n, 3)), e, np.empty((n, 3)))
     return e
 
 
@@ -487,7 +465,7 @@ def euler_rate_derivative_batch(
     (:func:`_euler_rate_derivative_into`)."""
     n = roll.shape[0]
     out = np.empty((n, 3))
-    _euler_rows(_f64(roll), _f64(pitch), _f64(eta_dot), np.empty((n, 3, 3)), out)
+    _euler_rows(f64(roll), f64(pitch), f64(eta_dot), np.empty((n, 3, 3)), out)
     return out
 
 

@@ -18,7 +18,7 @@ graph that chase left the estimated heading 1-3 deg behind during a turn). The a
 exactly: ``m1 = R_d m1'``, ``M2 = R_d M2' R_d^T``, ``m3 = R_d (m3' + W_d m1')``,
 ``M4 = R_d (M4' + W_d M2' - M2' W_d) R_d^T``. Every agent evaluates the same plan at the same
 round time, so every agent uses the same frame. The batched forms are compiled loops over the
-drones (numba, cached on disk). Pure and I/O-free.
+drones (drone_agent/jit_math.py). Pure and I/O-free.
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
+from drone_agent.jit_math import f64, jit
 from protocols.frames import FloatArray
 
 N_CHANNELS = 18
@@ -71,14 +71,14 @@ def channels_batch(
 ) -> FloatArray:
     """Channels (N, 18) of N drones at once (positions and velocities (N, 3)); ``plan_frame``:
     the plan's axes (N, 3, 3) and angular rate about them (N, 3) (module doc), None: NED."""
-    y = _f64(np.asarray(positions_ned_m, dtype=float) - ref_centre_ned_m)
-    yd = _f64(np.asarray(velocities_ned_m_s, dtype=float) - ref_centre_rate_ned_m_s)
+    y = f64(np.asarray(positions_ned_m, dtype=float) - ref_centre_ned_m)
+    yd = f64(np.asarray(velocities_ned_m_s, dtype=float) - ref_centre_rate_ned_m_s)
     out = np.empty((y.shape[0], N_CHANNELS))
     if plan_frame is None:
         _channel_rows(y, yd, _NO_FRAME[0], _NO_FRAME[1], False, out)
     else:
         axes, omega = plan_frame
-        _channel_rows(y, yd, _f64(axes), _f64(omega), True, out)
+        _channel_rows(y, yd, f64(axes), f64(omega), True, out)
     return out
 
 
@@ -86,12 +86,7 @@ def channels_batch(
 _NO_FRAME = (np.zeros((1, 3, 3)), np.zeros((1, 3)))
 
 
-def _f64(a: FloatArray) -> FloatArray:
-    """``a`` as a C-contiguous float64 array (no copy when it is one already)."""
-    return np.ascontiguousarray(a, dtype=np.float64)
-
-
-@njit(cache=True)
+@jit
 def _channel_rows(y_all, yd_all, axes, omega, turning, out):  # type: ignore[no-untyped-def]
     """The channels of each drone into ``out`` (N, 18) from its offset and offset rate from the
     reference (N, 3) each; with ``turning`` taken in the plan's frame (module doc)."""
@@ -161,10 +156,10 @@ def moments_from_averages_batch(
     m1, m3 = np.empty((k, 3)), np.empty((k, 3))
     sigma, sigma_rate = np.empty((k, 3, 3)), np.empty((k, 3, 3))
     if plan_frame is None:
-        _moment_rows(_f64(averages), _NO_FRAME[0], _NO_FRAME[1], False, m1, m3, sigma, sigma_rate)
+        _moment_rows(f64(averages), _NO_FRAME[0], _NO_FRAME[1], False, m1, m3, sigma, sigma_rate)
     else:
-        axes, omega = _f64(plan_frame[0]), _f64(plan_frame[1])
-        _moment_rows(_f64(averages), axes, omega, True, m1, m3, sigma, sigma_rate)
+        axes, omega = f64(plan_frame[0]), f64(plan_frame[1])
+        _moment_rows(f64(averages), axes, omega, True, m1, m3, sigma, sigma_rate)
     return SwarmMoments(
         centre_ned_m=ref_centre_ned_m + m1,
         centre_rate_ned_m_s=ref_centre_rate_ned_m_s + m3,
@@ -173,7 +168,7 @@ def moments_from_averages_batch(
     )
 
 
-@njit(cache=True)
+@jit
 def _moment_rows(averages, axes, omega, turning, m1_out, m3_out, sigma, sigma_rate):  # type: ignore[no-untyped-def]
     """Each row's m1, m3 (the centre and its rate from the reference), Sigma and Sigma_dot from
     its channel averages; with ``turning`` back from the plan's frame (module doc)."""
@@ -219,7 +214,7 @@ def _moment_rows(averages, axes, omega, turning, m1_out, m3_out, sigma, sigma_ra
                 sigma_rate[r, i, c] = m4[i, c] - m3[i] * m1[c] - m1[i] * m3[c]
 
 
-@njit(cache=True)
+@jit
 def _skew_dot(w, m, i, c):  # type: ignore[no-untyped-def]
     """``(skew(w) @ m)[i, c]`` (skew(w) = [[0, -w2, w1], [w2, 0, -w0], [-w1, w0, 0]])."""
     if i == 0:
@@ -229,7 +224,7 @@ def _skew_dot(w, m, i, c):  # type: ignore[no-untyped-def]
     return -w[1] * m[0, c] + w[0] * m[1, c] + 0.0 * m[2, c]
 
 
-@njit(cache=True)
+@jit
 def _rotate(rot, m, out):  # type: ignore[no-untyped-def]
     """``out = (R @ m) @ R^T`` (3, 3)."""
     t = np.empty((3, 3))
