@@ -246,3 +246,17 @@ def advance(
                     s[6], s[7], s[8], s[9] = math.cos(0.5 * yaw_l), 0.0, 0.0, math.sin(0.5 * yaw_l)
         new[:, i] = s
         rotor[0, i], rotor[1, i], rotor[2, i], rotor[3, i] = w0, w1, w2, w3
+
+
+def ready() -> None:
+    """Compile :func:`advance` (or load it from the cache) now, on one vehicle at rest, so that
+    the first sub-step of a flight does not pay for it: a simulator calls this before it serves
+    (a first compile takes seconds, longer than an agent waits for its vehicle in realtime)."""
+    state = np.zeros((13, 1))
+    state[6] = 1.0
+    gains = np.ones((3, 1))
+    advance(
+        state, np.zeros((3, 1)), np.zeros(1), np.ones((4, 1)), gains, gains,
+        constants(VehicleParams(), 0.002), 1, np.empty((13, 1)), np.empty((4, 1)),
+        np.zeros((1, 1)), np.zeros(1, dtype=np.bool_),
+    )  # fmt: skip

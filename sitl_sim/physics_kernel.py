@@ -50,6 +50,7 @@ class PhysicsKernel:
         # modules without stepping vehicles (the ground station, `swarm` commands) skip it
         from sitl_sim import physics_jit
 
+        physics_jit.ready()
         self._advance = physics_jit.advance
         self._constants = physics_jit.constants(params, dt_s)
         self._kp = np.empty((3, n))
