@@ -103,11 +103,37 @@ def climb_acceleration(x: FloatArray, v: FloatArray, target_z_m: float) -> Float
     return np.array([a_h[0], a_h[1], float(np.clip(a_z, -vertical, vertical))])
 
 
+_warm = False
+
+
+def warm_up(config: AgentConfig) -> None:
+    """Load the core's compiled loops (drone_agent/jit_math.py) once per process, compiling them
+    first if numba's cache does not have them: a first tick must not pay it (a realtime agent's
+    vehicle would wait on it). Called by :class:`BatchAgentCore`."""
+    global _warm
+    if _warm:
+        return
+    plan = np.zeros((1, 9))
+    plan[0, 6:] = 1.0
+    x, v = np.zeros((1, 3)), np.zeros((1, 3))
+    r_d = desired_axes_batch(plan)
+    omega_d = euler_rate_matrix_batch(plan[:, I_ROLL], plan[:, I_PITCH])[:, :, 0]
+    channels_batch(x, v, plan[:, CENTRE], v, (r_d, omega_d))
+    moments = moments_from_averages_batch(np.zeros((1, 18)), x, v, (r_d, omega_d))
+    axes, s = align_axes_batch(moments.sigma_m2, r_d)
+    accel = virtual_acceleration_batch(
+        x, v, moments, (plan, plan, plan), config.gains, (r_d, axes, s)
+    )
+    attitude_thrust_batch(accel, plan[:, I_YAW], config.limits)
+    _warm = True
+
+
 class BatchAgentCore:
     """Estimators + controllers of the drones ``agent_ids``, one row each. Call :meth:`tick`
     once per control round with the rows due in that round."""
 
     def __init__(self, agent_ids: Sequence[int], config: AgentConfig) -> None:
+        warm_up(config)
         self.agent_ids = tuple(int(i) for i in agent_ids)
         self.config = config
         self.consensus = BatchConsensus(self.agent_ids, config.consensus)
