@@ -125,6 +125,11 @@ def warm_up(config: AgentConfig) -> None:
         x, v, moments, (plan, plan, plan), config.gains, (r_d, axes, s)
     )
     attitude_thrust_batch(accel, plan[:, I_YAW], config.limits)
+    pair = BatchConsensus((0, 1), config.consensus)  # two agents hearing each other: a pairing
+    inboxes: list[list[ConsensusMessage]] = [[], []]
+    for round_ in range(3):
+        _, outs = pair.step((0, 1), round_, np.zeros((2, 18)), inboxes, (None, None))
+        inboxes = [[outs[1].message], [outs[0].message]]
     _warm = True
 
 

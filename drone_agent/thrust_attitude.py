@@ -76,9 +76,9 @@ def attitude_thrust_batch(
     _attitude_rows(
         np.ascontiguousarray(accel_ned_m_s2, dtype=np.float64),
         np.ascontiguousarray(yaw_rad, dtype=np.float64),
-        limits.mass_kg,
-        t_min,
-        t_max,
+        float(limits.mass_kg),
+        float(t_min),
+        float(t_max),
         float(np.tan(limits.max_tilt_rad)),
         out,
         limited,
