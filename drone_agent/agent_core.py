@@ -31,6 +31,7 @@ from drone_agent.cooperative import (
     virtual_acceleration_batch,
 )
 from drone_agent.moments import SwarmMoments, channels_batch, moments_from_averages_batch
+from drone_agent.separation import nobody_near
 from drone_agent.separation_layer import SeparationConfig, SeparationLayer
 from drone_agent.thrust_attitude import ThrustLimits, attitude_thrust_batch
 from protocols.consensus_message import ConsensusMessage
@@ -125,6 +126,9 @@ def warm_up(config: AgentConfig) -> None:
         x, v, moments, (plan, plan, plan), config.gains, (r_d, axes, s)
     )
     attitude_thrust_batch(accel, plan[:, I_YAW], config.limits)
+    if config.separation is not None:
+        params = config.separation.params(config.limits)
+        nobody_near(x, v, accel, np.zeros(1, dtype=np.intp), x + 5.0, v, params, accel)
     pair = BatchConsensus((0, 1), config.consensus)  # two agents hearing each other: a pairing
     inboxes: list[list[ConsensusMessage]] = [[], []]
     for round_ in range(3):
