@@ -602,15 +602,20 @@ class BatchConsensus:
         integrate those whose own value of that round is still in the history, newer than the
         edge's last integrated round, and where both ends heard each other in that round.
         Returns the active neighbours per row and the disagreement per row. The arithmetic is
-        one compiled loop over the due values (:func:`_pair_rounds`)."""
+        compiled loops over the due values (:func:`_pair_rounds`, :func:`_pair_increments`) around
+        numpy's tanh."""
         n_rows = rows.shape[0]
         disagreement = np.zeros(n_rows)
         active: list[tuple[int, ...]] = [()] * n_rows
         if due is None:
             return active, disagreement
         p = self.params
-        heads = np.zeros(due.pos.shape[0], dtype=np.bool_)
-        _pair_rounds(
+        n_due = due.pos.shape[0]
+        heads = np.zeros(n_due, dtype=np.bool_)
+        integrated = np.zeros(n_due, dtype=np.bool_)
+        steps = np.empty(n_due)
+        args = np.empty((n_due, N_CHANNELS))
+        n_ok = _pair_rounds(
             rows,
             due.pos,
             due.sender,
@@ -625,14 +630,33 @@ class BatchConsensus:
             self._hist_largest,
             self._edge,
             self._edge_round,
-            self._q_own,
             self._heard_by(due),
             np.array([m.gamma for m in due.messages], dtype=np.float64),
             np.array([m.degree for m in due.messages], dtype=np.int64),
             (float(p.rho), float(p.rho_cap), float(p.dt_s), float(p.c), bool(p.degree_normalised)),
             self._scales,
             disagreement,
+            integrated,
             heads,
+            steps,
+            args,
+        )
+        if n_ok == 0:
+            return active, disagreement
+        # numpy's tanh over the whole step (vectorised: several times faster than one by one)
+        np.tanh(args[:n_ok], out=args[:n_ok])
+        _pair_increments(
+            rows,
+            due.pos,
+            due.sender,
+            due.round,
+            integrated,
+            steps,
+            args,
+            self._scales,
+            self._q_own,
+            self._edge,
+            self._edge_round,
         )
         if not heads.any():
             return active, disagreement
@@ -752,42 +776,38 @@ def _pair_rounds(  # type: ignore[no-untyped-def]
     hist_largest,
     edge,
     edge_round,
-    q_own,
     heard_by,
     gamma_msg,
     degree_msg,
     gains,
     scales,
     disagreement,
+    integrated,
     heads,
+    steps,
+    args,
 ):
-    """:meth:`BatchConsensus._integrate`'s arithmetic over the due values (T,), ordered by
-    (agent, neighbour, round): which pass rules 2, 3 and 6 (read before any is integrated),
-    then each one's tanh increment subtracted from ``q_own`` in that order (several rounds on
-    one edge add up in round order, as one agent integrating them one after the other), the
-    edge marked with its newest integrated round, the disagreement per position (the largest
-    scaled difference) and ``heads``: the first integrated value of each (agent, neighbour)."""
+    """:meth:`BatchConsensus._integrate` over the due values (T,), ordered by (agent,
+    neighbour, round): which pass rules 2, 3 and 6 (``integrated``), the disagreement per
+    position (the largest scaled difference), ``heads`` (the first integrated value of each
+    (agent, neighbour)), and for the integrated ones, in order, the gain ``rho dt`` (``steps``)
+    and the tanh arguments ``c diff / scale`` per channel (``args``, rows 0..n). Returns n."""
     rho0, rho_cap, dt, c, normalised = gains
     h = hist_round.shape[1]
-    n = pos.shape[0]
-    ok = np.zeros(n, dtype=np.bool_)
-    for t in range(n):
-        r, j, q = rows[pos[t]], sender[t], rounds[t]
-        slot = q % h
-        ok[t] = (
-            hist_round[r, slot] == q
-            and hist_heard[r, slot, j]
-            and (not edge[r, j] or q > edge_round[r, j])
-            and heard_by[msg[t], ids[r]]
-        )
-    diff = np.empty(gamma_msg.shape[1])
+    n_ok = 0
     last_pos, last_j = -1, -1
-    for t in range(n):
-        if not ok[t]:
-            continue
+    for t in range(pos.shape[0]):
         p, j, q, u = pos[t], sender[t], rounds[t], msg[t]
         r = rows[p]
         slot = q % h
+        if not (
+            hist_round[r, slot] == q
+            and hist_heard[r, slot, j]
+            and (not edge[r, j] or q > edge_round[r, j])
+            and heard_by[u, ids[r]]
+        ):
+            continue
+        integrated[t] = True
         pair_degree = max(max(hist_degree[r, slot], degree_msg[u]), 1)
         rho = rho0
         if normalised:
@@ -795,19 +815,36 @@ def _pair_rounds(  # type: ignore[no-untyped-def]
         rho = nmin(rho, rho_cap / pair_degree)  # the step cap (consensus.py)
         rho = rho / max(round_ - q, 1)  # delay-scaled gain (module doc)
         largest_j, worst = 0.0, 0.0
-        for ch in range(diff.shape[0]):
-            diff[ch] = hist_gamma[r, slot, ch] - gamma_msg[u, ch]
+        for ch in range(scales.shape[0]):  # per channel scale (consensus.py)
+            diff = hist_gamma[r, slot, ch] - gamma_msg[u, ch]
             largest_j = nmax(largest_j, abs(gamma_msg[u, ch]))
-            worst = nmax(worst, abs(diff[ch]))
+            worst = nmax(worst, abs(diff))
+            args[n_ok, ch] = c * diff / scales[ch]
         # max |gamma| per own round (kept with the history) and per message
         scaled = worst / (1.0 + nmax(hist_largest[r, slot], largest_j))
         first_of_row = p != last_pos
         disagreement[p] = scaled if first_of_row else nmax(disagreement[p], scaled)
-        step = rho * dt
-        for ch in range(diff.shape[0]):  # per channel scale (consensus.py)
-            k = scales[ch]
-            q_own[r, j, ch] = q_own[r, j, ch] - step * k * np.tanh(c * diff[ch] / k)
-        edge_round[r, j] = max(edge_round[r, j], q) if edge[r, j] else q
-        edge[r, j] = True
+        steps[n_ok] = rho * dt
         heads[t] = first_of_row or j != last_j
         last_pos, last_j = p, j
+        n_ok += 1
+    return n_ok
+
+
+@jit
+def _pair_increments(  # type: ignore[no-untyped-def]
+    rows, pos, sender, rounds, integrated, steps, tanh_args, scales, q_own, edge, edge_round
+):
+    """Each integrated value's increment ``rho dt scale tanh(...)`` subtracted from ``q_own`` in
+    order (several rounds on one edge add up in round order, as one agent integrating them one
+    after the other), the edge marked with its newest integrated round."""
+    k = 0
+    for t in range(pos.shape[0]):
+        if not integrated[t]:
+            continue
+        r, j, q = rows[pos[t]], sender[t], rounds[t]
+        for ch in range(scales.shape[0]):
+            q_own[r, j, ch] = q_own[r, j, ch] - steps[k] * scales[ch] * tanh_args[k, ch]
+        edge_round[r, j] = max(edge_round[r, j], q) if edge[r, j] else q
+        edge[r, j] = True
+        k += 1
