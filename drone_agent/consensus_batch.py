@@ -682,16 +682,9 @@ class BatchConsensus:
         """``sum_j (Q_ij - Q_ji)`` (len(rows), 18) over each row's edges, ``Q_ji`` refreshed from
         the newest message of j that carried one (rule 1), summed in neighbour order."""
         total = np.zeros((rows.shape[0], N_CHANNELS))
-        pos, ids = np.nonzero(self._edge[rows])
-        if pos.shape[0] == 0:
-            return total
-        pair = rows[pos] * self._m + ids
-        q_recv = _flat(self._q_recv)
-        fresh = pair[_flat(self._has_q_for_me).take(pair)]
-        q_recv[fresh] = _flat(self._q_for_me).take(fresh, axis=0)
-        d = _flat(self._q_own).take(pair, axis=0) - q_recv.take(pair, axis=0)
-        starts = np.flatnonzero(_after_true(pos[1:] != pos[:-1]))
-        total[pos[starts]] = np.add.reduceat(d, starts, axis=0)
+        _edge_sums(
+            rows, self._edge, self._has_q_for_me, self._q_for_me, self._q_own, self._q_recv, total
+        )
         return total
 
     def _outputs(
@@ -848,3 +841,20 @@ def _pair_increments(  # type: ignore[no-untyped-def]
         edge_round[r, j] = max(edge_round[r, j], q) if edge[r, j] else q
         edge[r, j] = True
         k += 1
+
+
+@jit
+def _edge_sums(rows, edge, has_q_for_me, q_for_me, q_own, q_recv, total):  # type: ignore[no-untyped-def]
+    """:meth:`BatchConsensus._eta_total` per row, its edges in neighbour order."""
+    for p in range(rows.shape[0]):
+        r = rows[p]
+        started = False
+        for j in range(edge.shape[1]):
+            if not edge[r, j]:
+                continue
+            if has_q_for_me[r, j]:  # rule 1: the newest Q_ji heard
+                q_recv[r, j, :] = q_for_me[r, j, :]
+            for ch in range(total.shape[1]):
+                d = q_own[r, j, ch] - q_recv[r, j, ch]
+                total[p, ch] = total[p, ch] + d if started else d
+            started = True
