@@ -852,9 +852,10 @@ def _edge_sums(rows, edge, has_q_for_me, q_for_me, q_own, q_recv, total):  # typ
         for j in range(edge.shape[1]):
             if not edge[r, j]:
                 continue
-            if has_q_for_me[r, j]:  # rule 1: the newest Q_ji heard
-                q_recv[r, j, :] = q_for_me[r, j, :]
+            fresh = has_q_for_me[r, j]  # rule 1: the newest Q_ji heard
             for ch in range(total.shape[1]):
+                if fresh:
+                    q_recv[r, j, ch] = q_for_me[r, j, ch]
                 d = q_own[r, j, ch] - q_recv[r, j, ch]
                 total[p, ch] = total[p, ch] + d if started else d
             started = True

@@ -201,9 +201,11 @@ def _moment_rows(averages, axes, omega, turning, m1_out, m3_out, sigma, sigma_ra
                 for c in range(3):
                     tmp[i, c] = m4[i, c] + x[i, c] + x[c, i]
             _rotate(rot, tmp, m4)
-            tmp[:, :] = m2
+            for i in range(3):
+                t1[i] = m1[i]
+                for c in range(3):
+                    tmp[i, c] = m2[i, c]
             _rotate(rot, tmp, m2)
-            t1[:] = m1
             for i in range(3):
                 m1[i] = t1[0] * rot[i, 0] + t1[1] * rot[i, 1] + t1[2] * rot[i, 2]
         for i in range(3):

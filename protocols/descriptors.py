@@ -119,8 +119,10 @@ def _assign_rows(evecs, desired, sym, axes, s):  # type: ignore[no-untyped-def]
                     best_k, best_j, best = k, j, value
                     found = value != value  # numpy's argmax stops at the first NaN
         if found or not np.isfinite(best):
-            a[:, :] = np.nan
-            s[r, :] = np.nan
+            for i in range(3):
+                s[r, i] = np.nan
+                for c in range(3):
+                    a[i, c] = np.nan
             continue
         other, second, best = 1 - best_k, -1, -np.inf
         for j in range(3):
