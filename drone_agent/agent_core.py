@@ -31,6 +31,7 @@ from drone_agent.cooperative import (
     virtual_acceleration_batch,
 )
 from drone_agent.moments import SwarmMoments, channels_batch, moments_from_averages_batch
+from drone_agent.neighbours import NeighbourTable
 from drone_agent.separation import nobody_near
 from drone_agent.separation_layer import SeparationConfig, SeparationLayer
 from drone_agent.thrust_attitude import ThrustLimits, attitude_thrust_batch
@@ -134,6 +135,7 @@ def warm_up(config: AgentConfig) -> None:
     for round_ in range(3):
         _, outs = pair.step((0, 1), round_, np.zeros((2, 18)), inboxes, (None, None))
         inboxes = [[outs[1].message], [outs[0].message]]
+    NeighbourTable(config.consensus.dt_s).hear((0,), 3, inboxes[:1])
     _warm = True
 
 
