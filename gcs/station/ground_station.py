@@ -332,9 +332,10 @@ class GroundStation:
                 statuses = decode_statuses(self._statuses.popleft(), self._o.swarm_id)
             except WireError:
                 continue
-            for status in statuses:
+            kinds = self.watch.on_statuses(statuses, self.telemetry.vehicles)
+            for status, kind in zip(statuses, kinds, strict=True):
                 self._t_status_s = max(self._t_status_s, status.t_s)
-                if kind := self.watch.on_status(status, self.telemetry.vehicles):
+                if kind:
                     self.events.record(status.t_s, kind, drone=status.drone)
                 self.telemetry.log_agent_status(status)
         while self._liveliness:
