@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from protocols.descriptor_vector import CENTRE, I_PITCH, I_ROLL, I_YAW, SHAPE
 from protocols.frames import FloatArray, rot_zyx, rot_zyx_batch, zyx_from_rot, zyx_from_rot_batch
@@ -64,86 +63,34 @@ def align_axes_batch(sigma: FloatArray, desired_axes: FloatArray) -> tuple[Float
     The assignment is greedy, most confident first: of the overlaps ``|d_k . e_j|`` of the first
     two desired axes (k = 0, 1) with the three eigenvectors, the largest pair (k, j) is taken (the
     first in (k, j) order on a tie), then the other desired axis takes the largest of the two
-    eigenvectors left. A matrix that is not finite gives NaN axes and variances. Around numpy's
-    eigh, compiled loops over the matrices (numba, cached on disk).
+    eigenvectors left. A matrix that is not finite gives NaN axes and variances.
     """
     k_n = sigma.shape[0]
-    sym = np.empty((k_n, 3, 3))
-    finite = np.empty(k_n, dtype=np.bool_)
-    _symmetric_rows(np.ascontiguousarray(sigma, dtype=np.float64), sym, finite)
+    sym = 0.5 * (sigma + np.swapaxes(sigma, 1, 2))
+    finite = np.isfinite(sym.reshape(k_n, 9)).all(axis=1)
     if finite.all():
         evecs = np.linalg.eigh(sym)[1]
     else:
         evecs = np.full((k_n, 3, 3), np.nan)
         if finite.any():
             evecs[finite] = np.linalg.eigh(sym[finite])[1]
-    axes, s = np.empty((k_n, 3, 3)), np.empty((k_n, 3))
-    _assign_rows(
-        np.ascontiguousarray(evecs),
-        np.ascontiguousarray(desired_axes, dtype=np.float64),
-        sym,
-        axes,
-        s,
-    )
+    overlap = np.abs(np.swapaxes(desired_axes, 1, 2) @ evecs)  # [K, desired k, eigen j]
+    rows = np.arange(k_n)
+    first = np.argmax(overlap[:, :2, :].reshape(k_n, 6), axis=1)
+    k1, j1 = first // 3, first % 3
+    rest = overlap[rows, 1 - k1, :]
+    rest[rows, j1] = -np.inf
+    j2 = np.argmax(rest, axis=1)
+    chosen = np.where((k1 == 0)[:, None], np.stack([j1, j2], axis=1), np.stack([j2, j1], axis=1))
+    e = evecs[rows[:, None], :, chosen]  # (K, 2, 3): the eigenvectors for desired axes 0 and 1
+    along = (np.swapaxes(desired_axes[:, :, :2], 1, 2) * e).sum(axis=2)
+    r12 = e * np.where(along < 0.0, -1.0, 1.0)[:, :, None]  # signed along the desired axis
+    r1, r2 = r12[:, 0], r12[:, 1]
+    axes = np.empty((k_n, 3, 3))
+    axes[:, :, :2] = np.swapaxes(r12, 1, 2)
+    axes[:, :, 2] = r1[:, _NEXT] * r2[:, _AFTER] - r1[:, _AFTER] * r2[:, _NEXT]  # r1 x r2
+    s = (axes * (sym @ axes)).sum(axis=1)
     return axes, s
-
-
-@njit(cache=True)
-def _symmetric_rows(sigma, sym, finite):  # type: ignore[no-untyped-def]
-    """``sym = (sigma + sigma^T) / 2`` per matrix, and whether all its entries are finite."""
-    for r in range(sigma.shape[0]):
-        ok = True
-        for i in range(3):
-            for j in range(3):
-                value = 0.5 * (sigma[r, i, j] + sigma[r, j, i])
-                sym[r, i, j] = value
-                ok = ok and np.isfinite(value)
-        finite[r] = ok
-
-
-@njit(cache=True)
-def _assign_rows(evecs, desired, sym, axes, s):  # type: ignore[no-untyped-def]
-    """The assignment of :func:`align_axes_batch` per matrix: eigenvectors ``evecs`` (columns),
-    desired axes (columns) -> ``axes`` and the variances ``s`` along them."""
-    overlap = np.empty((2, 3))
-    chosen = np.empty(2, dtype=np.int64)
-    for r in range(evecs.shape[0]):
-        e, d, a = evecs[r], desired[r], axes[r]
-        best_k, best_j, best = 0, 0, -np.inf
-        found = False
-        for k in range(2):
-            for j in range(3):
-                value = abs(d[0, k] * e[0, j] + d[1, k] * e[1, j] + d[2, k] * e[2, j])
-                overlap[k, j] = value
-                if not found and (value > best or value != value):
-                    best_k, best_j, best = k, j, value
-                    found = value != value  # numpy's argmax stops at the first NaN
-        if found or not np.isfinite(best):
-            for i in range(3):
-                s[r, i] = np.nan
-                for c in range(3):
-                    a[i, c] = np.nan
-            continue
-        other, second, best = 1 - best_k, -1, -np.inf
-        for j in range(3):
-            if j != best_j and (second < 0 or overlap[other, j] > best):
-                second, best = j, overlap[other, j]
-        chosen[best_k], chosen[other] = best_j, second
-        for c in range(2):  # signed along the desired axis
-            j = chosen[c]
-            along = d[0, c] * e[0, j] + d[1, c] * e[1, j] + d[2, c] * e[2, j]
-            sign = -1.0 if along < 0.0 else 1.0
-            for i in range(3):
-                a[i, c] = e[i, j] * sign
-        a[0, 2] = a[1, 0] * a[2, 1] - a[2, 0] * a[1, 1]  # r1 x r2
-        a[1, 2] = a[2, 0] * a[0, 1] - a[0, 0] * a[2, 1]
-        a[2, 2] = a[0, 0] * a[1, 1] - a[1, 0] * a[0, 1]
-        m = sym[r]
-        for c in range(3):
-            total = 0.0
-            for i in range(3):
-                total += a[i, c] * (m[i, 0] * a[0, c] + m[i, 1] * a[1, c] + m[i, 2] * a[2, c])
-            s[r, c] = total
 
 
 def frame_from_moments(
