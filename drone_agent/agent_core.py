@@ -12,6 +12,8 @@ with the axes assigned to each row's desired axes, the cooperative field, thrust
 their limits, and the setpoint checks. Rows never mix: each uses only its own vehicle state, plan,
 inbox, membership view and estimator state, so a row gives the same output whichever rows share
 its call. :class:`AgentCore` is one row of it (alone, the K = 1 case): there is one implementation.
+The per-drone arithmetic of those steps runs as compiled loops over the rows
+(drone_agent/jit_math.py), loaded once per process by :func:`warm_up`.
 """
 
 from __future__ import annotations

@@ -153,12 +153,7 @@ def shape_matrix(
     return a
 
 
-# The pairs of _PAIRS as index arrays (j, k per m), and the positions of (j, k), (k, j) and the
-# diagonal in a 3 x 3 matrix flattened to 9 (row-major).
-
-
-# The pairs of _PAIRS (j, k per m), the sign of skew(v)[j, k] = _SIGN[m] v[m], and the
-# cooperative gains as one vector for the compiled field (:func:`_gain_vector`).
+# The pairs of _PAIRS (j, k per m) and the sign of skew(v)[j, k] = _SIGN[m] v[m].
 _J, _K = (1, 0, 0), (2, 2, 1)
 _SIGN = (-1.0, 1.0, -1.0)
 
@@ -179,6 +174,7 @@ def _shape_row(s, w_shape, alpha, damping, s_min, flat, a):  # type: ignore[no-u
 
 @jit
 def _shape_rows(s, w_shape, alpha, damping, s_min, flat, out):  # type: ignore[no-untyped-def]
+    """:func:`_shape_row` of each row."""
     for r in range(s.shape[0]):
         _shape_row(s[r], w_shape[r], alpha[r], damping[r], s_min, flat[r], out[r])
 
