@@ -25,7 +25,8 @@ import os
 os.environ["MAVLINK20"] = "1"  # before any pymavlink import (DEPENDENCIES.md)
 
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from operator import attrgetter
 from typing import Any
 
 from fastcrc.crc16 import mcrf4xx
@@ -46,7 +47,7 @@ def fast_receive_ok(codec: Any) -> bool:
 
 
 # -- packing -----------------------------------------------------------------------------------
-_Fields = Callable[[Any], list[Any]]
+_Fields = Callable[[Any], Sequence[Any]]
 _FIELDS: dict[type, _Fields] = {}
 
 
@@ -63,6 +64,11 @@ def _fields_of(cls: type) -> _Fields:
     plan = [
         (f"_{name}_raw", 0) if types[name] == "char" else (name, lengths[name]) for name in names
     ]
+    if not any(length for _, length in plan):  # no arrays to spread: one C call
+        getter = attrgetter(*(name for name, _ in plan))
+        flat: _Fields = (lambda msg: (getter(msg),)) if len(plan) == 1 else getter
+        _FIELDS[cls] = flat
+        return flat
 
     def fields(msg: Any) -> list[Any]:
         out: list[Any] = []
