@@ -12,6 +12,8 @@ with the axes assigned to each row's desired axes, the cooperative field, thrust
 their limits, and the setpoint checks. Rows never mix: each uses only its own vehicle state, plan,
 inbox, membership view and estimator state, so a row gives the same output whichever rows share
 its call. :class:`AgentCore` is one row of it (alone, the K = 1 case): there is one implementation.
+The per-drone arithmetic of those steps runs as compiled loops over the rows
+(drone_agent/jit_math.py), loaded once per process by :func:`warm_up`.
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ from drone_agent.cooperative import (
     virtual_acceleration_batch,
 )
 from drone_agent.moments import SwarmMoments, channels_batch, moments_from_averages_batch
+from drone_agent.neighbours import NeighbourTable
+from drone_agent.separation import nobody_near
 from drone_agent.separation_layer import SeparationConfig, SeparationLayer
 from drone_agent.thrust_attitude import ThrustLimits, attitude_thrust_batch
 from protocols.consensus_message import ConsensusMessage
@@ -103,11 +107,46 @@ def climb_acceleration(x: FloatArray, v: FloatArray, target_z_m: float) -> Float
     return np.array([a_h[0], a_h[1], float(np.clip(a_z, -vertical, vertical))])
 
 
+_warm = False
+
+
+def warm_up(config: AgentConfig) -> None:
+    """Load the core's compiled loops (drone_agent/jit_math.py) once per process, compiling them
+    first if numba's cache does not have them: a first tick must not pay it (a realtime agent's
+    vehicle would wait on it). Called by :class:`BatchAgentCore`."""
+    global _warm
+    if _warm:
+        return
+    plan = np.zeros((1, 9))
+    plan[0, 6:] = 1.0
+    x, v = np.zeros((1, 3)), np.zeros((1, 3))
+    r_d = desired_axes_batch(plan)
+    omega_d = euler_rate_matrix_batch(plan[:, I_ROLL], plan[:, I_PITCH])[:, :, 0]
+    channels_batch(x, v, plan[:, CENTRE], v, (r_d, omega_d))
+    moments = moments_from_averages_batch(np.zeros((1, 18)), x, v, (r_d, omega_d))
+    axes, s = align_axes_batch(moments.sigma_m2, r_d)
+    accel = virtual_acceleration_batch(
+        x, v, moments, (plan, plan, plan), config.gains, (r_d, axes, s)
+    )
+    attitude_thrust_batch(accel, plan[:, I_YAW], config.limits)
+    if config.separation is not None:
+        params = config.separation.params(config.limits)
+        nobody_near(x, v, accel, np.zeros(1, dtype=np.intp), x + 5.0, v, params, accel)
+    pair = BatchConsensus((0, 1), config.consensus)  # two agents hearing each other: a pairing
+    inboxes: list[list[ConsensusMessage]] = [[], []]
+    for round_ in range(3):
+        _, outs = pair.step((0, 1), round_, np.zeros((2, 18)), inboxes, (None, None))
+        inboxes = [[outs[1].message], [outs[0].message]]
+    NeighbourTable(config.consensus.dt_s).hear((0,), 3, inboxes[:1])
+    _warm = True
+
+
 class BatchAgentCore:
     """Estimators + controllers of the drones ``agent_ids``, one row each. Call :meth:`tick`
     once per control round with the rows due in that round."""
 
     def __init__(self, agent_ids: Sequence[int], config: AgentConfig) -> None:
+        warm_up(config)
         self.agent_ids = tuple(int(i) for i in agent_ids)
         self.config = config
         self.consensus = BatchConsensus(self.agent_ids, config.consensus)

@@ -36,18 +36,18 @@ a formation that moves as the plan does, ``p_dot = R G R^T p`` with ``G = W + S_
     C_kk = 2 (omega_k^2 - |omega|^2) s_k - s_dot_k^2 / (2 s_k)
     C_jk = omega_j omega_k (s_j + s_k) + W_jk (s_dot_k - s_dot_j)
 
-(:func:`plan_rate_terms`), taken with the plan's rate omega_d and variance rates; ``A_kk`` gains
-``C_kk / (2 s_k)`` and ``A_jk`` gains ``C_jk / (s_j + s_k)``. A pure rotation gives ``A = W^2``
-(centripetal); a stretch at constant rate gives ``A_kk = -s_dot^2 / (4 s^2)``. The plan's angular
-acceleration is ``omega_dot = E eta_ddot + E_dot eta_dot`` (:func:`euler_rate_derivative_batch`;
-the E_dot term was left out too).
+(:func:`_plan_rate_terms_into`), taken with the plan's rate omega_d and variance rates; ``A_kk``
+gains ``C_kk / (2 s_k)`` and ``A_jk`` gains ``C_jk / (s_j + s_k)``. A pure rotation gives
+``A = W^2`` (centripetal); a stretch at constant rate gives ``A_kk = -s_dot^2 / (4 s^2)``. The
+plan's angular acceleration is ``omega_dot = E eta_ddot + E_dot eta_dot``
+(:func:`euler_rate_derivative_batch`; the E_dot term was left out too).
 
 The plan's whole field. The drones of that formation accelerate as ``p_ddot = R F R^T p`` with
 ``F = W_dot + W^2 + W S_dot S^-1 + S_ddot^1/2 S^-1/2``, which is not symmetric: A is its
 symmetric part in the sense ``A S + S A = F S + S F^T``. The rest, ``N = F - A`` with ``N_jk =
 s_j D_jk / (s_j + s_k)``, ``N_kj = -s_k D_jk / (s_j + s_k)``, ``D_jk = 2 W_dot_jk + W_jk (s_dot_j /
 s_j + s_dot_k / s_k)``, has ``N S`` antisymmetric: it moves neither mu nor Sigma, it turns the
-lattice with the formation (:func:`plan_null_field`). With both, every drone's command is its
+lattice with the formation (:func:`_add_plan_null_field`). With both, every drone's command is its
 own acceleration on the plan (tests/test_cooperative.py checks it against finite differences).
 
 Orientation feedback: its own PD (``CooperativeGains.orientation_*``) on the rotation error and on
@@ -60,18 +60,19 @@ plan's own turn: a formation turning with the plan is not braked (the flat-axis 
 tilt rate of a planar formation with its 1.75 /s before, the 12-15 s lag of issue 15), and mu
 and Sigma are still untouched by that damping to first order.
 
-Pure and I/O-free.
+The field is one compiled loop over the drones (drone_agent/jit_math.py). Pure and I/O-free.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
+from drone_agent.jit_math import f64, jit, nmax, nmin
 from drone_agent.moments import SwarmMoments
-from protocols.descriptor_vector import CENTRE, ORIENTATION, SHAPE
 from protocols.descriptors import align_axes_batch, desired_axes_batch
 from protocols.frames import FloatArray
 
@@ -152,18 +153,30 @@ def shape_matrix(
     return a
 
 
-# The pairs of _PAIRS as index arrays (j, k per m), and the positions of (j, k), (k, j) and the
-# diagonal in a 3 x 3 matrix flattened to 9 (row-major).
-_J, _K = np.array([1, 0, 0]), np.array([2, 2, 1])
-_UPPER, _LOWER, _DIAGONAL = np.array([5, 2, 1]), np.array([7, 6, 3]), slice(None, None, 4)
-#: ``skew(v)[j, k] = _SKEW_SIGN[m] * v[m]`` for each pair (j, k, m).
-_SKEW_SIGN = np.array([-1.0, 1.0, -1.0])
+# The pairs of _PAIRS (j, k per m) and the sign of skew(v)[j, k] = _SIGN[m] v[m].
+_J, _K = (1, 0, 0), (2, 2, 1)
+_SIGN = (-1.0, 1.0, -1.0)
 
 
-def _skew_pairs(v: FloatArray) -> FloatArray:
-    """``skew(v)[j, k]`` (K, 3) for each pair (j, k, m) of :data:`_PAIRS`, indexed by m."""
-    out: FloatArray = v * _SKEW_SIGN
-    return out
+@jit
+def _shape_row(s, w_shape, alpha, damping, s_min, flat, a):  # type: ignore[no-untyped-def]
+    """:func:`shape_matrix` into ``a`` (3, 3): one drone's A from its variances ``s``, commanded
+    variance accelerations ``w_shape``, angular acceleration ``alpha``, pair numerators
+    ``damping`` (3,) each, the variance guard and the flat axes (3,) bool."""
+    for i in range(3):
+        a[i, i] = 0.0 if flat[i] else w_shape[i] / (2.0 * nmax(s[i], s_min))
+    for m in range(3):
+        j, k = _J[m], _K[m]
+        value = ((s[k] - s[j]) * (alpha[m] * _SIGN[m]) + damping[m]) / nmax(s[j] + s[k], s_min)
+        a[j, k] = value
+        a[k, j] = value
+
+
+@jit
+def _shape_rows(s, w_shape, alpha, damping, s_min, flat, out):  # type: ignore[no-untyped-def]
+    """:func:`_shape_row` of each row."""
+    for r in range(s.shape[0]):
+        _shape_row(s[r], w_shape[r], alpha[r], damping[r], s_min, flat[r], out[r])
 
 
 def shape_matrix_batch(
@@ -176,13 +189,280 @@ def shape_matrix_batch(
 ) -> FloatArray:
     """:func:`shape_matrix` of K agents: every argument with a leading K axis ((K, 3); ``flat``
     (K, 3) bool) -> A (K, 3, 3)."""
-    s = variances_m2
-    sg = np.maximum(s, min_variance_m2)
-    a = np.zeros((s.shape[0], 9))
-    a[:, _DIAGONAL] = np.divide(w_shape, 2.0 * sg, out=np.zeros_like(sg), where=~flat)
-    num = (s[:, _K] - s[:, _J]) * _skew_pairs(alpha) + damping
-    a[:, _UPPER] = a[:, _LOWER] = num / np.maximum(s[:, _J] + s[:, _K], min_variance_m2)
-    return a.reshape(-1, 3, 3)
+    out = np.zeros((variances_m2.shape[0], 3, 3))
+    _shape_rows(
+        f64(variances_m2),
+        f64(w_shape),
+        f64(alpha),
+        f64(damping),
+        float(min_variance_m2),
+        np.ascontiguousarray(flat, dtype=np.bool_),
+        out,
+    )
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _gain_vector(gains: CooperativeGains) -> FloatArray:
+    """The gains the compiled field reads, in :func:`_field_rows`'s order (30,)."""
+    return np.array(
+        [
+            *gains.kp,
+            *gains.kd,
+            gains.min_variance_m2,
+            *gains.orientation_kp,
+            *gains.orientation_kd,
+            gains.orientation_max_speed_m_s,
+            gains.orientation_max_accel_m_s2,
+            gains.flat_kp,
+            gains.flat_kd,
+            gains.null_damping_per_s,
+        ],
+        dtype=np.float64,
+    )
+
+
+def virtual_acceleration_batch(
+    positions_ned_m: FloatArray,
+    velocities_ned_m_s: FloatArray,
+    swarm: SwarmMoments,
+    reference: tuple[FloatArray, FloatArray, FloatArray],
+    gains: CooperativeGains,
+    frame: tuple[FloatArray, FloatArray, FloatArray] | None = None,
+) -> FloatArray:
+    """:func:`virtual_acceleration` of K drones, each with its own estimate and plan value:
+    positions and velocities (K, 3), ``swarm`` with fields (K, 3) and (K, 3, 3), ``reference``
+    (K, 9) each. ``frame``: ``(R_d, R, s)`` if already known (desired axes (K, 3, 3), the
+    estimate's axes assigned to them (K, 3, 3) and variances (K, 3)). Returns v (K, 3).
+
+    One compiled loop over the drones (:func:`_field_rows`): at the few drones of an agent
+    process, numpy's per-call overhead was most of the field's cost."""
+    a_d, ad_dot, ad_ddot = reference
+    if frame is None:
+        r_d = desired_axes_batch(a_d)
+        axes, s = align_axes_batch(swarm.sigma_m2, r_d)
+    else:
+        r_d, axes, s = frame
+    out = np.empty((a_d.shape[0], 3))
+    _field_rows(
+        f64(positions_ned_m),
+        f64(velocities_ned_m_s),
+        f64(swarm.centre_ned_m),
+        f64(swarm.centre_rate_ned_m_s),
+        f64(swarm.sigma_rate_m2_s),
+        f64(a_d),
+        f64(ad_dot),
+        f64(ad_ddot),
+        f64(r_d),
+        f64(axes),
+        f64(s),
+        _gain_vector(gains),
+        out,
+    )
+    return out
+
+
+@jit
+def _field_rows(  # type: ignore[no-untyped-def]
+    x, v, centre, centre_rate, sigma_rate, a_d, ad_dot, ad_ddot, r_d, axes, s_all, g, out
+):
+    """The field of each drone r into ``out[r]`` (the module doc, term by term)."""
+    kp, kd, s_min = g[0:9], g[9:18], g[18]
+    okp, okd = g[19:22], g[22:25]
+    max_speed, max_accel, flat_kp, flat_kd, k_null = g[25], g[26], g[27], g[28], g[29]
+    rf = np.empty((3, 3))
+    tmp = np.empty((3, 3))
+    turn = np.empty((3, 3))  # R^T R_d
+    a = np.empty((3, 3))
+    gm = np.empty((3, 3))
+    e = np.empty((3, 3))
+    flat = np.empty(3, dtype=np.bool_)
+    sg, pair_sum, w_s = np.empty(3), np.empty(3), np.empty(3)
+    body_rate, body_accel, e_dot = np.empty(3), np.empty(3), np.empty(3)
+    omega, alpha, twist, alpha_cmd = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    c_diag, c_pairs, p_s, pd_s, vs = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    for r in range(x.shape[0]):
+        rot, s, sr = axes[r], s_all[r], sigma_rate[r]
+        # Sigma_dot' = R^T Sigma_dot R
+        for i in range(3):
+            for c in range(3):
+                tmp[i, c] = rot[0, i] * sr[0, c] + rot[1, i] * sr[1, c] + rot[2, i] * sr[2, c]
+        for i in range(3):
+            for c in range(3):
+                rf[i, c] = tmp[i, 0] * rot[0, c] + tmp[i, 1] * rot[1, c] + tmp[i, 2] * rot[2, c]
+        for i in range(3):
+            flat[i] = a_d[r, 6 + i] < s_min
+            sg[i] = nmax(s[i], s_min)
+            w_s[i] = (
+                ad_ddot[r, 6 + i]
+                - kd[6 + i] * (rf[i, i] - ad_dot[r, 6 + i])
+                - kp[6 + i] * (s[i] - a_d[r, 6 + i])
+            )
+        for m in range(3):
+            pair_sum[m] = nmax(s[_J[m]] + s[_K[m]], s_min)
+        # the plan's angular rate and acceleration (omega = E eta_dot, omega_dot = E eta_ddot +
+        # E_dot eta_dot) in the desired frame, then about the estimated swarm axes
+        _euler_rate_matrix_into(a_d[r, 3], a_d[r, 4], e)
+        _euler_rate_derivative_into(a_d[r, 3], a_d[r, 4], ad_dot[r, 3:6], e_dot)
+        for i in range(3):
+            body_rate[i] = e[i, 0] * ad_dot[r, 3] + e[i, 1] * ad_dot[r, 4] + e[i, 2] * ad_dot[r, 5]
+            body_accel[i] = (
+                e[i, 0] * ad_ddot[r, 3] + e[i, 1] * ad_ddot[r, 4] + e[i, 2] * ad_ddot[r, 5]
+            ) + e_dot[i]
+        for i in range(3):
+            for c in range(3):
+                turn[i, c] = (
+                    rot[0, i] * r_d[r, 0, c] + rot[1, i] * r_d[r, 1, c] + rot[2, i] * r_d[r, 2, c]
+                )
+        for i in range(3):
+            omega[i] = (
+                turn[i, 0] * body_rate[0] + turn[i, 1] * body_rate[1] + turn[i, 2] * body_rate[2]
+            )
+            alpha[i] = (
+                turn[i, 0] * body_accel[0] + turn[i, 1] * body_accel[1] + turn[i, 2] * body_accel[2]
+            )
+        # rotation feedback per axis m of the pair (j, k): the rate error read from Sigma_dot'
+        # (Sigma_dot'_jk = (s_k - s_j) [W]_jk + ...), a PD with limits on the feedback; the
+        # rotation error vee((R_d^T R - R^T R_d) / 2) is turn's antisymmetric part
+        for m in range(3):
+            j, k = _J[m], _K[m]
+            spread = (s[k] - s[j]) * _SIGN[m]
+            twist[m] = spread * omega[m]
+            guard = (-1.0 if spread < 0.0 else 1.0) * nmax(abs(spread), s_min)
+            rate_error = (rf[j, k] - twist[m]) / guard
+            radius = np.sqrt(pair_sum[m])  # RMS radius of the formation in the pair's plane
+            max_rate = max_speed / radius
+            max_alpha = max_accel / radius
+            rotation_error = 0.5 * (turn[j, k] - turn[k, j]) * -_SIGN[m]
+            wanted = nmin(nmax(okp[m] / okd[m] * rotation_error, -max_rate), max_rate)
+            feedback = nmin(nmax(-okd[m] * (rate_error + wanted), -max_alpha), max_alpha)
+            alpha_cmd[m] = alpha[m] + feedback
+        _plan_rate_terms_into(s, sg, omega, ad_dot[r, 6:9], c_diag, c_pairs)
+        for i in range(3):
+            w_s[i] = w_s[i] + c_diag[i]
+        _shape_row(s, w_s, alpha_cmd, c_pairs, s_min, flat, a)
+        _add_plan_null_field(s, sg, pair_sum, omega, alpha, ad_dot[r, 6:9], a)
+        # the explained motion p_dot = G p: the plan's rotation W_d plus the symmetric G_s that
+        # makes G Sigma' + Sigma' G^T the estimated Sigma_dot' (so the damping below leaves mu
+        # and Sigma alone to first order, and a formation turning with the plan is not braked);
+        # the flat-axis PD holds a flat axis: no spreading rate there is "explained" (its
+        # 1/(2 s_min) gain turned estimate noise into a growing split)
+        for i in range(3):
+            gm[i, i] = 0.0 if flat[i] else rf[i, i] / (2.0 * sg[i])
+        for m in range(3):
+            j, k = _J[m], _K[m]
+            sym = (rf[j, k] - twist[m]) / pair_sum[m]
+            gm[j, k] = sym + omega[m] * _SIGN[m]
+            gm[k, j] = sym - omega[m] * _SIGN[m]
+        # p and p_dot in the swarm frame
+        for i in range(3):
+            p_s[i] = (
+                rot[0, i] * (x[r, 0] - centre[r, 0])
+                + rot[1, i] * (x[r, 1] - centre[r, 1])
+                + rot[2, i] * (x[r, 2] - centre[r, 2])
+            )
+            pd_s[i] = (
+                rot[0, i] * (v[r, 0] - centre_rate[r, 0])
+                + rot[1, i] * (v[r, 1] - centre_rate[r, 1])
+                + rot[2, i] * (v[r, 2] - centre_rate[r, 2])
+            )
+        for i in range(3):
+            a_p = a[i, 0] * p_s[0] + a[i, 1] * p_s[1] + a[i, 2] * p_s[2]
+            unexplained = pd_s[i] - (gm[i, 0] * p_s[0] + gm[i, 1] * p_s[1] + gm[i, 2] * p_s[2])
+            if flat[i]:
+                # the flat-axis PD damps the offset rate beyond the plan's own turn (not G p:
+                # its estimated part, times the lever of a drone far out, broke the 250-drone
+                # grid at a drop-out)
+                n, f = (i + 1) % 3, (i + 2) % 3
+                planned = pd_s[i] - (omega[n] * p_s[f] - omega[f] * p_s[n])
+                a_p = a_p - (flat_kp * p_s[i] + flat_kd * planned)
+            vs[i] = a_p - k_null * unexplained
+        for i in range(3):
+            out[r, i] = (
+                ad_ddot[r, i]
+                - kd[i] * (centre_rate[r, i] - ad_dot[r, i])
+                - kp[i] * (centre[r, i] - a_d[r, i])
+            ) + (rot[i, 0] * vs[0] + rot[i, 1] * vs[1] + rot[i, 2] * vs[2])
+
+
+@jit
+def _add_plan_null_field(s, sg, pair_sum, omega, alpha, s_dot, a):  # type: ignore[no-untyped-def]
+    """Add to ``a`` (3, 3) the null-space part N of the plan's field (module doc, "The plan's
+    whole field"): ``N_jk = s_j D_jk / (s_j + s_k)``, ``N_kj = -s_k D_jk / (s_j + s_k)`` with
+    ``D = 2 skew(alpha) + skew(omega) (Ṡ S⁻¹ + S⁻¹ Ṡ)`` entrywise on the pairs. ``N S`` is
+    antisymmetric: it moves no drone's share of mu or Sigma, it turns the lattice with them."""
+    for m in range(3):
+        j, k = _J[m], _K[m]
+        d = (2.0 * alpha[m] + omega[m] * (s_dot[j] / sg[j] + s_dot[k] / sg[k])) * _SIGN[m]
+        d = d / pair_sum[m]
+        a[j, k] = a[j, k] + nmax(s[j], 0.0) * d
+        a[k, j] = a[k, j] + -nmax(s[k], 0.0) * d
+
+
+@jit
+def _plan_rate_terms_into(s, sg, omega, s_dot, diag, pairs):  # type: ignore[no-untyped-def]
+    """The terms of ``Rᵀ Σ̈ R`` that the affine field leaves out, for a formation moving as the
+    plan does (module doc, "Terms the field leaves out"): ``C = W²S + SW² + [W, Ṡ] − Ṡ² S⁻¹ / 2``
+    with ``W = skew(omega)``. Variances ``s`` (3,) (``sg`` the guarded ones), the plan's angular
+    rate about the swarm axes ``omega`` and variance rates ``s_dot``. Writes the diagonal
+    ``C_kk`` into ``diag`` and the pairs ``C_jk`` into ``pairs``, indexed by m as :data:`_PAIRS`."""
+    w0, w1, w2 = omega[0] * omega[0], omega[1] * omega[1], omega[2] * omega[2]
+    total = w0 + w1 + w2
+    diag[0] = 2.0 * (w0 - total) * s[0] - s_dot[0] * s_dot[0] / (2.0 * sg[0])
+    diag[1] = 2.0 * (w1 - total) * s[1] - s_dot[1] * s_dot[1] / (2.0 * sg[1])
+    diag[2] = 2.0 * (w2 - total) * s[2] - s_dot[2] * s_dot[2] / (2.0 * sg[2])
+    for m in range(3):
+        j, k = _J[m], _K[m]
+        pairs[m] = omega[j] * omega[k] * (s[j] + s[k]) + omega[m] * _SIGN[m] * (s_dot[k] - s_dot[j])
+
+
+@jit
+def _euler_rate_matrix_into(roll, pitch, e):  # type: ignore[no-untyped-def]
+    """:func:`euler_rate_matrix` into ``e`` (3, 3)."""
+    sr, cr = np.sin(roll), np.cos(roll)
+    sp, cp = np.sin(pitch), np.cos(pitch)
+    e[0, 0], e[0, 1], e[0, 2] = 1.0, 0.0, -sp
+    e[1, 0], e[1, 1], e[1, 2] = 0.0, cr, sr * cp
+    e[2, 0], e[2, 1], e[2, 2] = 0.0, -sr, cr * cp
+
+
+@jit
+def _euler_rate_derivative_into(roll, pitch, eta_dot, out):  # type: ignore[no-untyped-def]
+    """``E_dot eta_dot`` (3,) into ``out``: the part of the body angular acceleration
+    ``omega_dot = E eta_ddot + E_dot eta_dot`` that the Euler-angle rates ``eta_dot`` = (roll,
+    pitch, yaw rates) give by turning E itself (ALGORITHM.md §1, eq. 38)."""
+    sr, cr = np.sin(roll), np.cos(roll)
+    sp, cp = np.sin(pitch), np.cos(pitch)
+    rd, pd, yd = eta_dot[0], eta_dot[1], eta_dot[2]
+    out[0] = -cp * pd * yd
+    out[1] = -sr * rd * pd + cr * cp * rd * yd - sr * sp * pd * yd
+    out[2] = -cr * rd * pd - sr * cp * rd * yd - cr * sp * pd * yd
+
+
+@jit
+def _euler_rows(roll, pitch, eta_dot, e, e_dot):  # type: ignore[no-untyped-def]
+    for r in range(roll.shape[0]):
+        _euler_rate_matrix_into(roll[r], pitch[r], e[r])
+        _euler_rate_derivative_into(roll[r], pitch[r], eta_dot[r], e_dot[r])
+
+
+def euler_rate_matrix_batch(roll: FloatArray, pitch: FloatArray) -> FloatArray:
+    """:func:`euler_rate_matrix` of K angle pairs (K,): (K, 3, 3)."""
+    n = roll.shape[0]
+    e = np.empty((n, 3, 3))
+    _euler_rows(f64(roll), f64(pitch), np.zeros((n, 3)), e, np.empty((n, 3)))
+    return e
+
+
+def euler_rate_derivative_batch(
+    roll: FloatArray, pitch: FloatArray, eta_dot: FloatArray
+) -> FloatArray:
+    """``E_dot eta_dot`` (K, 3) of K angle pairs (K,) and Euler-angle rates (K, 3)
+    (:func:`_euler_rate_derivative_into`)."""
+    n = roll.shape[0]
+    out = np.empty((n, 3))
+    _euler_rows(f64(roll), f64(pitch), f64(eta_dot), np.empty((n, 3, 3)), out)
+    return out
 
 
 def pinv_block(offset_m: FloatArray, axes: FloatArray, variances_m2: FloatArray) -> FloatArray:
@@ -212,12 +492,6 @@ def pinv_block_zyx(offset_m: FloatArray, axes: FloatArray, variances_m2: FloatAr
     return block
 
 
-def rotation_error(axes: FloatArray, axes_desired: FloatArray) -> FloatArray:
-    """Rotation error (3,) about the swarm axes: ``vee((R_d^T R - R^T R_d) / 2)`` (rad, small)."""
-    out: FloatArray = rotation_error_batch(axes[None], axes_desired[None])[0]
-    return out
-
-
 def virtual_acceleration(
     position_ned_m: FloatArray,
     velocity_ned_m_s: FloatArray,
@@ -243,191 +517,3 @@ def virtual_acceleration(
 def _moment_fields(m: SwarmMoments) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """The fields of ``m`` in declaration order."""
     return m.centre_ned_m, m.centre_rate_ned_m_s, m.sigma_m2, m.sigma_rate_m2_s
-
-
-def virtual_acceleration_batch(
-    positions_ned_m: FloatArray,
-    velocities_ned_m_s: FloatArray,
-    swarm: SwarmMoments,
-    reference: tuple[FloatArray, FloatArray, FloatArray],
-    gains: CooperativeGains,
-    frame: tuple[FloatArray, FloatArray, FloatArray] | None = None,
-) -> FloatArray:
-    """:func:`virtual_acceleration` of K drones, each with its own estimate and plan value:
-    positions and velocities (K, 3), ``swarm`` with fields (K, 3) and (K, 3, 3), ``reference``
-    (K, 9) each. ``frame``: ``(R_d, R, s)`` if already known (desired axes (K, 3, 3), the
-    estimate's axes assigned to them (K, 3, 3) and variances (K, 3)). Returns v (K, 3)."""
-    a_d, ad_dot, ad_ddot = reference
-    kp, kd = np.asarray(gains.kp), np.asarray(gains.kd)
-    s_min = gains.min_variance_m2
-    if frame is None:
-        r_d = desired_axes_batch(a_d)
-        axes, s = align_axes_batch(swarm.sigma_m2, r_d)
-    else:
-        r_d, axes, s = frame
-    axes_t = np.swapaxes(axes, 1, 2)
-    sigma_rate = axes_t @ swarm.sigma_rate_m2_s @ axes
-    rate_flat = sigma_rate.reshape(-1, 9)
-
-    w_mu = (
-        ad_ddot[:, CENTRE]
-        - kd[CENTRE] * (swarm.centre_rate_ned_m_s - ad_dot[:, CENTRE])
-        - kp[CENTRE] * (swarm.centre_ned_m - a_d[:, CENTRE])
-    )
-    s_d, s_d_dot, s_d_ddot = a_d[:, SHAPE], ad_dot[:, SHAPE], ad_ddot[:, SHAPE]
-    w_s = s_d_ddot - kd[SHAPE] * (rate_flat[:, _DIAGONAL] - s_d_dot) - kp[SHAPE] * (s - s_d)
-    flat = s_d < s_min
-    sg = np.maximum(s, s_min)
-    pair_sum = np.maximum(s[:, _J] + s[:, _K], s_min)  # s_j + s_k, indexed by m
-
-    # the plan's angular rate and acceleration (body of the desired frame: omega = E eta_dot,
-    # omega_dot = E eta_ddot + E_dot eta_dot), then in the estimated swarm frame
-    eta_dot, eta_ddot = ad_dot[:, ORIENTATION], ad_ddot[:, ORIENTATION]
-    e_d = euler_rate_matrix_batch(a_d[:, 3], a_d[:, 4])
-    body_d = e_d @ _columns(eta_dot, eta_ddot)
-    body_d[:, :, 1] += euler_rate_derivative_batch(a_d[:, 3], a_d[:, 4], eta_dot)
-    angular = (axes_t @ r_d) @ body_d
-    omega_d, alpha_d = angular[:, :, 0], angular[:, :, 1]
-
-    # rotation feedback, per axis m of the pair (j, k): the rate error from the estimated
-    # Sigma_dot' (Sigma_dot'_jk = (s_k - s_j) [W]_jk + ...), a PD with limits on the feedback
-    spread = (s[:, _K] - s[:, _J]) * _SKEW_SIGN  # [skew(v)]_jk (s_k - s_j) = spread_m v_m
-    twist = spread * omega_d
-    guard = np.where(spread < 0.0, -1.0, 1.0) * np.maximum(np.abs(spread), s_min)
-    rate_error = (rate_flat[:, _UPPER] - twist) / guard
-    radius = np.sqrt(pair_sum)  # RMS radius of the formation in the plane of the pair
-    okp, okd = np.asarray(gains.orientation_kp), np.asarray(gains.orientation_kd)
-    max_rate = gains.orientation_max_speed_m_s / radius
-    max_alpha = gains.orientation_max_accel_m_s2 / radius
-    # np.clip's arithmetic (NaN stays NaN) without its wrapper's overhead
-    wanted_rate = np.minimum(
-        np.maximum(okp / okd * rotation_error_batch(axes, r_d), -max_rate), max_rate
-    )
-    alpha_fb = np.minimum(np.maximum(-okd * (rate_error + wanted_rate), -max_alpha), max_alpha)
-    comp_diag, comp_pairs = plan_rate_terms(s, sg, omega_d, s_d_dot)
-    a = shape_matrix_batch(s, w_s + comp_diag, alpha_d + alpha_fb, comp_pairs, s_min, flat)
-
-    p = positions_ned_m - swarm.centre_ned_m
-    p_dot = velocities_ned_m_s - swarm.centre_rate_ned_m_s
-    offsets = axes_t @ _columns(p, p_dot)  # p and p_dot in the swarm frame
-    p_swarm, p_dot_swarm = offsets[:, :, 0], offsets[:, :, 1]
-    # the explained motion p_dot = G p: the plan's rotation W_d plus the symmetric G_s that
-    # makes G Sigma' + Sigma' G^T the estimated Sigma_dot' (so the damping below leaves mu and
-    # Sigma alone to first order, and a formation turning with the plan is not braked)
-    g = np.zeros((p.shape[0], 9))
-    g[:, _UPPER] = (rate_flat[:, _UPPER] - twist) / pair_sum + _skew_pairs(omega_d)
-    g[:, _LOWER] = (rate_flat[:, _UPPER] - twist) / pair_sum - _skew_pairs(omega_d)
-    # the flat-axis PD holds a flat axis: no spreading rate there is "explained" (its
-    # 1/(2 s_min) gain turned estimate noise into a growing split)
-    g[:, _DIAGONAL] = np.where(flat, 0.0, rate_flat[:, _DIAGONAL] / (2.0 * sg))
-    a = a + plan_null_field(s, sg, pair_sum, omega_d, alpha_d, s_d_dot)
-    fields = np.concatenate([a, g.reshape(-1, 3, 3)], axis=1) @ offsets[:, :, :1]  # A p, G p
-    v_swarm = fields[:, :3, 0]
-    unexplained = p_dot_swarm - fields[:, 3:, 0]
-    # the flat-axis PD damps the offset rate beyond the plan's own turn (not G p: its estimated
-    # part, times the lever of a drone far out, broke the 250-drone grid at a drop-out)
-    planned = p_dot_swarm - _cross_rows(omega_d, p_swarm)
-    v_swarm = np.where(flat, v_swarm - (gains.flat_kp * p_swarm + gains.flat_kd * planned), v_swarm)
-    v_swarm = v_swarm - gains.null_damping_per_s * unexplained
-    out: FloatArray = w_mu + _matvec(axes, v_swarm)
-    return out
-
-
-def plan_null_field(
-    s: FloatArray,
-    sg: FloatArray,
-    pair_sum: FloatArray,
-    omega: FloatArray,
-    alpha: FloatArray,
-    s_dot: FloatArray,
-) -> FloatArray:
-    """The null-space part N (K, 3, 3) of the plan's field (module doc, "The plan's whole
-    field"): ``N_jk = s_j D_jk / (s_j + s_k)``, ``N_kj = -s_k D_jk / (s_j + s_k)`` with
-    ``D = 2 skew(alpha) + skew(omega) (Ṡ S⁻¹ + S⁻¹ Ṡ)`` entrywise on the pairs. ``N S`` is
-    antisymmetric: it moves no drone's share of mu or Sigma, it turns the lattice with them."""
-    ratio = s_dot / sg
-    d = _skew_pairs(2.0 * alpha + omega * (ratio[:, _J] + ratio[:, _K])) / pair_sum
-    s_pos = np.maximum(s, 0.0)
-    n = np.zeros((s.shape[0], 9))
-    n[:, _UPPER] = s_pos[:, _J] * d
-    n[:, _LOWER] = -s_pos[:, _K] * d
-    return n.reshape(-1, 3, 3)
-
-
-def plan_rate_terms(
-    s: FloatArray, sg: FloatArray, omega: FloatArray, s_dot: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """The terms of ``Rᵀ Σ̈ R`` that the affine field leaves out, for a formation moving as the
-    plan does (module doc, "Terms the field leaves out"): ``C = W²S + SW² + [W, Ṡ] − Ṡ² S⁻¹ / 2``
-    with ``W = skew(omega)``. Variances ``s`` (K, 3) (``sg`` the guarded ones), the plan's angular
-    rate about the swarm axes ``omega`` (K, 3) and variance rates ``s_dot`` (K, 3). Returns the
-    diagonal ``C_kk`` (K, 3) and the pairs ``C_jk`` (K, 3), indexed by m as :data:`_PAIRS`."""
-    w2 = omega * omega
-    diag = 2.0 * (w2 - w2.sum(axis=1, keepdims=True)) * s - s_dot * s_dot / (2.0 * sg)
-    pairs = omega[:, _J] * omega[:, _K] * (s[:, _J] + s[:, _K]) + _skew_pairs(omega) * (
-        s_dot[:, _K] - s_dot[:, _J]
-    )
-    return diag, pairs
-
-
-#: ``(a x b)_i = a_(i+1) b_(i+2) - a_(i+2) b_(i+1)``
-_NEXT, _AFTER = [1, 2, 0], [2, 0, 1]
-
-
-def _cross_rows(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Row-wise cross products of (K, 3) arrays: ``np.cross(a, b)``'s arithmetic (the same
-    products and difference per component) without its axis handling."""
-    out: FloatArray = a[:, _NEXT] * b[:, _AFTER] - a[:, _AFTER] * b[:, _NEXT]
-    return out
-
-
-def _columns(u: FloatArray, w: FloatArray) -> FloatArray:
-    """Vectors (K, 3) u and w as the two columns of (K, 3, 2)."""
-    out = np.empty((u.shape[0], 3, 2))
-    out[:, :, 0] = u
-    out[:, :, 1] = w
-    return out
-
-
-def _matvec(m: FloatArray, v: FloatArray) -> FloatArray:
-    """Row-wise ``m[k] @ v[k]``: matrices (K, 3, 3), vectors (K, 3) -> (K, 3)."""
-    out: FloatArray = (m @ v[:, :, None])[:, :, 0]
-    return out
-
-
-def euler_rate_matrix_batch(roll: FloatArray, pitch: FloatArray) -> FloatArray:
-    """:func:`euler_rate_matrix` of K angle pairs (K,): (K, 3, 3)."""
-    sr, cr = np.sin(roll), np.cos(roll)
-    sp, cp = np.sin(pitch), np.cos(pitch)
-    e = np.zeros((roll.shape[0], 3, 3))
-    e[:, 0, 0] = 1.0
-    e[:, 0, 2] = -sp
-    e[:, 1, 1] = cr
-    e[:, 1, 2] = sr * cp
-    e[:, 2, 1] = -sr
-    e[:, 2, 2] = cr * cp
-    return e
-
-
-def euler_rate_derivative_batch(
-    roll: FloatArray, pitch: FloatArray, eta_dot: FloatArray
-) -> FloatArray:
-    """``E_dot eta_dot`` (K, 3): the part of the body angular acceleration ``omega_dot = E eta_ddot
-    + E_dot eta_dot`` that the Euler-angle rates ``eta_dot`` = (roll, pitch, yaw rates) (K, 3)
-    give by turning E itself (ALGORITHM.md §1, eq. 38)."""
-    sr, cr = np.sin(roll), np.cos(roll)
-    sp, cp = np.sin(pitch), np.cos(pitch)
-    rd, pd, yd = eta_dot[:, 0], eta_dot[:, 1], eta_dot[:, 2]
-    out = np.empty_like(eta_dot)
-    out[:, 0] = -cp * pd * yd
-    out[:, 1] = -sr * rd * pd + cr * cp * rd * yd - sr * sp * pd * yd
-    out[:, 2] = -cr * rd * pd - sr * cp * rd * yd - cr * sp * pd * yd
-    return out
-
-
-def rotation_error_batch(axes: FloatArray, axes_desired: FloatArray) -> FloatArray:
-    """:func:`rotation_error` of K frames (K, 3, 3) -> (K, 3)."""
-    # (R^T R_d) = (R_d^T R)^T: the vee of half their difference, entries (2, 1), (0, 2), (1, 0)
-    p = (np.swapaxes(axes_desired, 1, 2) @ axes).reshape(-1, 9)
-    out: FloatArray = 0.5 * (p[:, [7, 2, 3]] - p[:, [5, 6, 1]])
-    return out

@@ -35,6 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drone_agent.agent_core import AgentConfig, AgentOutput, Setpoint
+from drone_agent.jit_math import jit
 from drone_agent.thrust_attitude import ThrustLimits
 from protocols.consensus_message import ConsensusMessage
 from protocols.frames import G_M_S2
@@ -298,33 +299,23 @@ class BatchReadiness:
             self._grow(int(rows_arr.max()) + 1)
         updating = np.zeros(self.k, dtype=bool)
         updating[rows_arr] = True
-        take = updating[receiver]
-        receiver, sender = receiver[take], sender[take]
-        rnd, lvl = arrivals.round[take], arrivals.level[take]
-        if receiver.shape[0]:
-            pair = receiver * self._m + sender
-            order = np.argsort(pair, kind="stable")
-            pair_sorted = pair[order]
-            if (pair_sorted[1:] == pair_sorted[:-1]).any():  # a sender twice in one inbox
-                order = order[np.argsort(-rnd[order], kind="stable")]
-                order = order[np.argsort(pair[order], kind="stable")]
-                pair_sorted = pair[order]
-                first = np.empty(order.shape[0], dtype=bool)
-                first[0] = True
-                first[1:] = pair_sorted[1:] != pair_sorted[:-1]
-                order = order[first]
-            receiver, sender, rnd, lvl = receiver[order], sender[order], rnd[order], lvl[order]
-            newer = rnd > self._round[receiver, sender]
-            self._round[receiver[newer], sender[newer]] = rnd[newer]
-            self._level[receiver[newer], sender[newer]] = lvl[newer]
-        held = self._round[rows_arr]
-        gone = (held < round_ - 1 - self.timeout) | ~self._member_mask(members)
-        held[gone] = _NO_ROUND
-        self._round[rows_arr] = held
         cap = max(len(members), 1)
-        present = held != _NO_ROUND
-        lowest = np.where(present, self._level[rows_arr], cap).min(axis=1, initial=cap)
-        level = np.where(agrees, np.minimum(cap, 1 + lowest), 0)
+        level = np.empty(rows_arr.shape[0], dtype=np.int64)
+        _settled_levels(
+            rows_arr,
+            updating,
+            np.ascontiguousarray(receiver, dtype=np.intp),
+            np.ascontiguousarray(sender, dtype=np.intp),
+            np.ascontiguousarray(arrivals.round, dtype=np.int64),
+            np.ascontiguousarray(arrivals.level, dtype=np.int64),
+            self._round,
+            self._level,
+            int(round_) - 1 - self.timeout,
+            self._member_mask(members),
+            np.ascontiguousarray(agrees, dtype=np.bool_),
+            cap,
+            level,
+        )
         self.level[rows_arr] = level
         ready = (level >= cap) & (fly | flying)
         self.ready[rows_arr] = ready
@@ -431,3 +422,39 @@ class FlightPhase:
         if vehicle.airborne and not sp.thrust_normalised >= self.min_thrust_normalised:
             return Order(order.mode, hover_setpoint(self.limits, yaw_rad), order.request)
         return order
+
+
+@jit
+def _settled_levels(  # type: ignore[no-untyped-def]
+    rows,
+    updating,
+    receiver,
+    sender,
+    rounds,
+    levels,
+    round_table,
+    level_table,
+    oldest,
+    member,
+    agrees,
+    cap,
+    out,
+):
+    """:meth:`BatchReadiness.update`'s SwarmSettled part: the arrivals filed in delivery order
+    (per (row, sender) the first copy of its highest round, newer than the one held), senders
+    not heard since round ``oldest`` or not members dropped, and each row's level: 0 unless it
+    agrees, else ``min(cap, 1 + the lowest level held)`` (``cap`` with none)."""
+    for t in range(receiver.shape[0]):
+        r, j = receiver[t], sender[t]
+        if updating[r] and rounds[t] > round_table[r, j]:
+            round_table[r, j] = rounds[t]
+            level_table[r, j] = levels[t]
+    for p in range(rows.shape[0]):
+        r = rows[p]
+        lowest = cap
+        for j in range(round_table.shape[1]):
+            if round_table[r, j] < oldest or not member[j]:
+                round_table[r, j] = _NO_ROUND
+            elif round_table[r, j] != _NO_ROUND:
+                lowest = min(lowest, level_table[r, j])
+        out[p] = min(cap, 1 + lowest) if agrees[p] else 0

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from drone_agent.jit_math import jit
 from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
 from protocols.mavlink_conventions import MAX_VEHICLES
@@ -172,52 +173,34 @@ class NeighbourTable:
         which = np.empty(len(msgs), dtype=np.intp)
         which[order] = np.cumsum(first) - 1
         distinct = [msgs[k] for k in order[first].tolist()]
-        sender = np.array([m.sender for m in distinct], dtype=np.int64)
-        rounds = np.array([m.round for m in distinct], dtype=np.int64)
-        good = np.array(
-            [m.position_ned_m is not None and 0 <= m.sender < MAX_VEHICLES for m in distinct],
-            dtype=bool,
+        nowhere = (0.0, 0.0, 0.0)
+        future = np.zeros(len(msgs), dtype=bool)
+        self._width = _file(
+            np.array(owner, dtype=np.intp),
+            which,
+            np.array([m.sender for m in distinct], dtype=np.int64),
+            np.array([m.round for m in distinct], dtype=np.int64),
+            np.array([m.position_ned_m is not None for m in distinct], dtype=bool),
+            np.array(
+                [nowhere if m.position_ned_m is None else m.position_ned_m for m in distinct],
+                dtype=np.float64,
+            ),
+            np.array(
+                [nowhere if m.velocity_ned_m_s is None else m.velocity_ned_m_s for m in distinct],
+                dtype=np.float64,
+            ),
+            np.array([m.velocity_ned_m_s is not None for m in distinct], dtype=bool),
+            self._agent_ids,
+            int(round_now),
+            self._round,
+            self._pos,
+            self._vel,
+            self._known,
+            self._width,
+            future,
         )
-        r = np.array(owner, dtype=np.intp)
-        j, q = sender[which], rounds[which]
-        ok = good[which]
-        ok &= j != self._agent_ids[r]
-        future = q > round_now
-        if future.any():
-            for k in np.flatnonzero(ok & future).tolist():
-                self._later[int(r[k])].append(msgs[k])
-            ok &= ~future
-        if not ok.all():
-            sel = np.flatnonzero(ok)
-            if sel.shape[0] == 0:
-                return
-            r, j, q, which = r[sel], j[sel], q[sel], which[sel]
-        key = r * MAX_VEHICLES + j
-        if not (key[1:] > key[:-1]).all():  # not one message per (row, sender) in order
-            # the first copy of the highest round per (row, sender): by key, round down, arrival
-            by = np.lexsort((np.arange(key.shape[0]), -q, key))
-            key, q, r, j, which = key[by], q[by], r[by], j[by], which[by]
-            head = np.empty(key.shape[0], dtype=bool)
-            head[0] = True
-            head[1:] = key[1:] != key[:-1]
-            r, j, q, which = r[head], j[head], q[head], which[head]
-        at = r * MAX_VEHICLES + j  # (row, sender) in the tables viewed flat (one-axis index)
-        newer = q > self._round.reshape(-1).take(at)
-        if not newer.all():
-            r, j, q, which, at = r[newer], j[newer], q[newer], which[newer], at[newer]
-            if r.shape[0] == 0:
-                return
-        nowhere = np.zeros(3)
-        pos = np.array([nowhere if m.position_ned_m is None else m.position_ned_m
-                        for m in distinct], dtype=float)  # fmt: skip
-        vel = np.array([nowhere if m.velocity_ned_m_s is None else m.velocity_ned_m_s
-                        for m in distinct], dtype=float)  # fmt: skip
-        known = np.array([m.velocity_ned_m_s is not None for m in distinct], dtype=bool)
-        self._width = max(self._width, int(j.max()) + 1)
-        _flat(self._round)[at] = q
-        _flat(self._pos)[at] = pos[which]
-        _flat(self._vel)[at] = vel[which]
-        _flat(self._known)[at] = known[which]
+        for k in np.flatnonzero(future).tolist():
+            self._later[owner[k]].append(msgs[k])
 
     def query(self, agents: Sequence[int], round_now: int) -> HeardPairs:
         """The neighbours of agents ``agents`` at round ``round_now`` (module docstring), flat."""
@@ -283,3 +266,46 @@ def neighbour_arrays(
         counts=counts,
     )
     return pairs.padded()
+
+
+@jit
+def _file(  # type: ignore[no-untyped-def]
+    owner,
+    which,
+    sender,
+    rounds,
+    has_position,
+    positions,
+    velocities,
+    known,
+    agent_ids,
+    round_now,
+    round_table,
+    pos_table,
+    vel_table,
+    known_table,
+    width,
+    future,
+):
+    """:meth:`NeighbourTable.hear`'s filing, value by value in arrival order (message
+    ``which[t]`` of the distinct ones, heard by row ``owner[t]``): a message with a position,
+    from another drone below ``MAX_VEHICLES``, is filed where its round is newer than the
+    slot's (so per (row, sender) the first copy of the highest round stays); one from a round
+    after ``round_now`` is flagged in ``future`` (it waits). Returns the new width."""
+    for t in range(owner.shape[0]):
+        r, u = owner[t], which[t]
+        j, q = sender[u], rounds[u]
+        if not has_position[u] or j < 0 or j >= MAX_VEHICLES or j == agent_ids[r]:
+            continue
+        if q > round_now:
+            future[t] = True
+            continue
+        if q <= round_table[r, j]:
+            continue
+        round_table[r, j] = q
+        for i in range(3):
+            pos_table[r, j, i] = positions[u, i]
+            vel_table[r, j, i] = velocities[u, i]
+        known_table[r, j] = known[u]
+        width = max(width, j + 1)
+    return width

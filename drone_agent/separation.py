@@ -77,6 +77,7 @@ from functools import lru_cache
 import numpy as np
 import numpy.typing as npt
 
+from drone_agent.jit_math import f64, jit, nmax, nmin
 from drone_agent.small_qp import project
 from drone_agent.thrust_attitude import ThrustLimits
 from protocols.frames import G_M_S2, FloatArray
@@ -267,18 +268,6 @@ def _pair_rows(
     return n, np.minimum(share * c_pair, p.brake_m_s2), rho
 
 
-def _barrier_bound(
-    s: FloatArray, speed: FloatArray, a_brake: float, p: SeparationParams
-) -> FloatArray:
-    """An upper bound of :func:`_barrier` ``(s, ṡ, a_brake)`` over every rate ``|ṡ| <= speed``,
-    for ``s > 0`` (+inf elsewhere): ``α`` is increasing, so ``-α(h) <= -α(sqrt(2 A s) - speed)``,
-    and ``-A ṡ <= A speed``."""
-    h = np.sqrt(2.0 * a_brake * np.maximum(s, 0.0)) - speed
-    alpha = p.gamma_1_s * h * (1.0 + (h / p.h_scale_m_s) ** 2)
-    bound = a_brake * speed / np.sqrt(2.0 * a_brake * np.maximum(s, _S_EPS_M)) - alpha
-    return np.where(s > 0.0, bound, np.inf)
-
-
 #: Room (relative, of 1 + the magnitudes compared) the pre-check leaves for rounding.
 _PRECHECK_SLACK = 1e-9
 
@@ -303,42 +292,93 @@ def nobody_near(
     :func:`_barrier_bound` with the relative speed ``|w|``, the tangential term dropped, ``a`` the
     common acceleration), a wall if ``c(s, |v_i|) + |u_i| < 0``, with room for rounding. False
     means only "not sure": the filter decides. Far from everyone (a formation 2 m apart at rest
-    needs 11 m/s² of command towards a neighbour to be unsure) it is True."""
-    own_pos = np.asarray(own_pos_ned_m, dtype=float).reshape(-1, 3)
-    own_vel = np.asarray(own_vel_ned_m_s, dtype=float).reshape(-1, 3)
-    u0 = np.asarray(accel_ned_m_s2, dtype=float).reshape(-1, 3)
+    needs 11 m/s² of command towards a neighbour to be unsure) it is True. One compiled loop
+    over the agents, pairs and walls (drone_agent/jit_math.py)."""
+    own_pos = f64(own_pos_ned_m).reshape(-1, 3)
+    own_vel = f64(own_vel_ned_m_s).reshape(-1, 3)
+    u0 = f64(accel_ned_m_s2).reshape(-1, 3)
     k = own_pos.shape[0]
-    rel = u0 if common_accel_ned_m_s2 is None else u0 - common_accel_ned_m_s2
-    u_rel = np.sqrt(np.einsum("ki,ki->k", rel, rel))
-    u_abs = np.sqrt(np.einsum("ki,ki->k", u0, u0))
+    rel = u0 if common_accel_ned_m_s2 is None else f64(u0 - common_accel_ned_m_s2)
     sure = np.ones(k, dtype=bool)
     closest = np.full(k, np.inf)
-    owner = np.asarray(nb_owner, dtype=np.intp)
-    if owner.shape[0]:
-        d = own_pos[owner] - nb_pos_ned_m
-        rho = np.sqrt(np.einsum("pi,pi->p", d, d))
-        w = own_vel[owner] - nb_vel_ned_m_s
-        speed = np.sqrt(np.einsum("pi,pi->p", w, w))
-        c = params.share * _barrier_bound(
-            rho - params.distance_m, speed, params.brake_m_s2 / params.share, params
-        )
-        u = u_rel[owner]
-        ok = c + u < -_PRECHECK_SLACK * (1.0 + np.abs(c) + u)  # NaN: not sure
-        sure[owner[~ok]] = False
-        np.minimum.at(closest, owner, rho)
     m, b, is_floor = _walls_of(params)
-    if b.shape[0]:
-        s = own_pos @ m.T - b
-        speed_own = np.sqrt(np.einsum("ki,ki->k", own_vel, own_vel))
-        c_wall = _barrier_bound(s - params.wall_margin_m, speed_own[:, None], params.brake_m_s2,
-                                params)  # fmt: skip
-        u_wall = u_abs[:, None]
-        ok_wall = c_wall + u_wall < -_PRECHECK_SLACK * (1.0 + np.abs(c_wall) + u_wall)
-        # the floor binds only agents at or above it: one surely below is not bound
-        below = s[:, is_floor] < -_PRECHECK_SLACK * (1.0 + np.abs(b[is_floor]))
-        ok_wall[:, is_floor] |= below
-        sure &= ok_wall.all(axis=1)
+    _precheck_rows(
+        own_pos,
+        own_vel,
+        u0,
+        rel,
+        np.ascontiguousarray(nb_owner, dtype=np.intp),
+        f64(nb_pos_ned_m).reshape(-1, 3),
+        f64(nb_vel_ned_m_s).reshape(-1, 3),
+        m,
+        b,
+        is_floor,
+        (
+            float(params.share),
+            float(params.distance_m),
+            float(params.brake_m_s2),
+            float(params.gamma_1_s),
+            float(params.h_scale_m_s),
+            float(params.wall_margin_m),
+        ),
+        sure,
+        closest,
+    )
     return sure, closest
+
+
+@jit
+def _barrier_bound(s: float, speed: float, a_brake: float, gamma: float, h_scale: float) -> float:
+    """An upper bound of :func:`_barrier` ``(s, ṡ, a_brake)`` over every rate ``|ṡ| <= speed``,
+    for ``s > 0`` (+inf elsewhere): ``α`` is increasing, so ``-α(h) <= -α(sqrt(2 A s) - speed)``,
+    and ``-A ṡ <= A speed``."""
+    h = np.sqrt(2.0 * a_brake * nmax(s, 0.0)) - speed
+    alpha = gamma * h * (1.0 + (h / h_scale) ** 2)
+    bound = a_brake * speed / np.sqrt(2.0 * a_brake * nmax(s, _S_EPS_M)) - alpha
+    return bound if s > 0.0 else np.inf
+
+
+@jit
+def _norm3(x: float, y: float, z: float) -> float:
+    return np.sqrt(x * x + y * y + z * z)
+
+
+@jit
+def _sure_below(c: float, u: float) -> bool:
+    """``c + u < 0`` with room for rounding (:data:`_PRECHECK_SLACK`; NaN: not sure)."""
+    return c + u < -_PRECHECK_SLACK * (1.0 + abs(c) + u)
+
+
+@jit
+def _precheck_rows(  # type: ignore[no-untyped-def]
+    own_pos, own_vel, u0, rel, owner, nb_pos, nb_vel, m, b, is_floor, p, sure, closest
+):
+    """:func:`nobody_near`'s pairs (each clears its agent or not) and walls, per agent."""
+    share, distance, brake, gamma, h_scale, wall_margin = p
+    for t in range(owner.shape[0]):
+        i = owner[t]
+        rho = _norm3(
+            own_pos[i, 0] - nb_pos[t, 0], own_pos[i, 1] - nb_pos[t, 1], own_pos[i, 2] - nb_pos[t, 2]
+        )
+        speed = _norm3(
+            own_vel[i, 0] - nb_vel[t, 0], own_vel[i, 1] - nb_vel[t, 1], own_vel[i, 2] - nb_vel[t, 2]
+        )
+        c = share * _barrier_bound(rho - distance, speed, brake / share, gamma, h_scale)
+        if not _sure_below(c, _norm3(rel[i, 0], rel[i, 1], rel[i, 2])):
+            sure[i] = False
+        closest[i] = nmin(closest[i], rho)
+    for i in range(own_pos.shape[0]):
+        speed_own = _norm3(own_vel[i, 0], own_vel[i, 1], own_vel[i, 2])
+        u_abs = _norm3(u0[i, 0], u0[i, 1], u0[i, 2])
+        for w in range(b.shape[0]):
+            s = own_pos[i, 0] * m[w, 0] + own_pos[i, 1] * m[w, 1] + own_pos[i, 2] * m[w, 2] - b[w]
+            c_wall = _barrier_bound(s - wall_margin, speed_own, brake, gamma, h_scale)
+            ok = _sure_below(c_wall, u_abs)
+            # the floor binds only agents at or above it: one surely below is not bound
+            if is_floor[w] and s < -_PRECHECK_SLACK * (1.0 + abs(b[w])):
+                ok = True
+            if not ok:
+                sure[i] = False
 
 
 _LAST_WALLS: list[tuple[SeparationParams, tuple[FloatArray, FloatArray, BoolArray]]] = []

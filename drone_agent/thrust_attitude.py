@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from drone_agent.jit_math import jit, nmax, nmin
 from protocols.frames import G_M_S2, FloatArray
 
 
@@ -66,27 +67,43 @@ def attitude_thrust_batch(
     accel_ned_m_s2: FloatArray, yaw_rad: FloatArray, limits: ThrustLimits
 ) -> tuple[FloatArray, FloatArray, FloatArray, npt.NDArray[np.bool_]]:
     """:func:`attitude_thrust` of K commands: accelerations (K, 3), headings (K,) ->
-    ``(roll_rad, pitch_rad, thrust_n, limited)``, (K,) each (the yaw setpoint is the heading)."""
-    v = accel_ned_m_s2
-    m = limits.mass_kg
+    ``(roll_rad, pitch_rad, thrust_n, limited)``, (K,) each (the yaw setpoint is the heading).
+    One compiled loop over the commands (drone_agent/jit_math.py)."""
+    k = accel_ned_m_s2.shape[0]
+    out = np.empty((3, k))
+    limited = np.empty(k, dtype=np.bool_)
     t_min, t_max = limits.thrust_range_n
-    up = G_M_S2 - v[:, 2]
-    up_limited = np.minimum(np.maximum(up, t_min / m), t_max / m)
-    horiz = v[:, :2].copy()
-    h_max = np.minimum(
-        np.tan(limits.max_tilt_rad) * up_limited,
-        np.sqrt(np.maximum((t_max / m) ** 2 - up_limited**2, 0.0)),
+    _attitude_rows(
+        np.ascontiguousarray(accel_ned_m_s2, dtype=np.float64),
+        np.ascontiguousarray(yaw_rad, dtype=np.float64),
+        float(limits.mass_kg),
+        float(t_min),
+        float(t_max),
+        float(np.tan(limits.max_tilt_rad)),
+        out,
+        limited,
     )
-    h_norm = np.hypot(horiz[:, 0], horiz[:, 1])
-    limited = up_limited != up
-    cut = h_norm > h_max
-    if cut.any():
-        horiz[cut] *= (h_max[cut] / h_norm[cut])[:, None]
-        limited |= cut
-    thrust = m * np.sqrt(horiz[:, 0] * horiz[:, 0] + horiz[:, 1] * horiz[:, 1] + up_limited**2)
-    cy, sy = np.cos(yaw_rad), np.sin(yaw_rad)
-    pitch = np.arctan2(-(horiz[:, 0] * cy + horiz[:, 1] * sy), up_limited)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        lateral = m * (horiz[:, 1] * cy - horiz[:, 0] * sy) / thrust
-    roll = np.arcsin(np.clip(lateral, -1.0, 1.0))
-    return roll, pitch, thrust, limited
+    return out[0], out[1], out[2], limited
+
+
+@jit
+def _attitude_rows(v, yaw, m, t_min, t_max, tan_tilt, out, limited):  # type: ignore[no-untyped-def]
+    """Roll, pitch and thrust (rows of ``out``) and whether a limit applied, per command (the
+    module doc: vertical first, then the horizontal part to the tilt and the thrust left)."""
+    for r in range(v.shape[0]):
+        up = G_M_S2 - v[r, 2]
+        up_limited = nmin(nmax(up, t_min / m), t_max / m)
+        h_max = nmin(tan_tilt * up_limited, np.sqrt(nmax((t_max / m) ** 2 - up_limited**2, 0.0)))
+        hx, hy = v[r, 0], v[r, 1]
+        h_norm = np.hypot(hx, hy)
+        limited[r] = up_limited != up
+        if h_norm > h_max:
+            hx = hx * (h_max / h_norm)
+            hy = hy * (h_max / h_norm)
+            limited[r] = True
+        thrust = m * np.sqrt(hx * hx + hy * hy + up_limited**2)
+        cy, sy = np.cos(yaw[r]), np.sin(yaw[r])
+        out[1, r] = np.arctan2(-(hx * cy + hy * sy), up_limited)
+        lateral = m * (hy * cy - hx * sy) / thrust
+        out[0, r] = np.arcsin(nmin(nmax(lateral, -1.0), 1.0))
+        out[2, r] = thrust
