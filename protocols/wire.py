@@ -365,10 +365,15 @@ def _edge_incarnations(message: ConsensusMessage, neighbours: list[int]) -> list
 
 
 def _vec3_f32(values: Sequence[float] | FloatArray, what: str) -> tuple[float, float, float]:
+    # the usual cases, in Python: rounded to float32 by struct as numpy rounds them (to
+    # nearest); a value out of float32's range is refused as below
+    xyz: Any = None
     if type(values) is np.ndarray and values.shape == (3,) and values.dtype.kind == "f":
-        # the usual case, in Python: rounded to float32 by struct as numpy rounds them (to
-        # nearest); a value out of float32's range is refused as below
-        x, y, z = values.tolist()
+        xyz = values.tolist()
+    elif type(values) is tuple and len(values) == 3 and all(type(v) is float for v in values):
+        xyz = values
+    if xyz is not None:
+        x, y, z = xyz
         if math.isfinite(x + y + z):
             try:
                 return _VEC3_F32.unpack(_VEC3_F32.pack(x, y, z))
