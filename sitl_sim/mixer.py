@@ -107,14 +107,16 @@ def _yaw_scale(base: FloatArray, yaw: FloatArray, f_min: float, f_max: float) ->
 
     ``base`` (4, N) holds the thrust and roll/pitch shares, ``yaw`` (4, N) the yaw shares (N).
     Forces within ``1e-9 * f_max`` of the limits count as fitting (round-off; the final clip
-    removes it), and yaw shares below that are ignored.
+    removes it), and yaw shares below that are ignored. Each vehicle's factor is its own: a
+    vehicle whose forces all fit keeps its whole yaw share whatever the others need.
     """
     tol = 1e-9 * f_max
     total = base + yaw
-    if np.all((total >= f_min - tol) & (total <= f_max + tol)):
+    fits = np.all((total >= f_min - tol) & (total <= f_max + tol), axis=0)
+    if fits.all():
         return np.ones(base.shape[1])
     room = np.where(yaw > 0.0, f_max - base, base - f_min)
     mag = np.abs(yaw)
     safe_mag = np.where(mag > tol, mag, 1.0)
     ratio = np.where(mag > tol, room / safe_mag, np.inf)
-    return np.clip(ratio.min(axis=0), 0.0, 1.0)
+    return np.where(fits, 1.0, np.clip(ratio.min(axis=0), 0.0, 1.0))

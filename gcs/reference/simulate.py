@@ -23,9 +23,9 @@ from gcs.report.flight_record import FlightRecord
 from gcs.report.metrics import compute_metrics
 from gcs.report.plots import write_plots
 from gcs.report.tlog import TlogWriter
+from gcs.report.trajectory_file import write_trajectory
 from gcs.view.recording import write_recording
 from protocols.scenario import Scenario
-from protocols.trajectory import DescriptorTrajectory
 
 #: MAVLink MAV_STATE values used in heartbeats.
 MAV_STATE_STANDBY, MAV_STATE_ACTIVE, MAV_STATE_EMERGENCY = 3, 4, 6
@@ -73,7 +73,7 @@ def simulate(
             record, flight.events, report_dir / "flight.tlog", tlog_hz, _silent_from(flight)
         ),
         _write_events(flight.events, report_dir / "events.jsonl"),
-        _write_trajectory(flight.plan, report_dir / "trajectory.json"),
+        write_trajectory(flight.plan, report_dir / "trajectory.json"),
     ]
     faults = [
         (e.t_s, str(e.fields.get("description", e.kind)))
@@ -189,19 +189,4 @@ def _write_events(events: list[FlightEvent], path: Path) -> Path:
     with EventLog(path) as log:
         for e in events:
             log.record(e.t_s, e.kind, **e.fields)
-    return path
-
-
-def _write_trajectory(plan: DescriptorTrajectory, path: Path) -> Path:
-    path.write_text(
-        json.dumps(
-            {
-                "seq": plan.seq,
-                "descriptor_order": "mu_x mu_y mu_z roll pitch yaw s1 s2 s3 (NED m, rad, m^2)",
-                "t_knots_s": plan.t_knots_s.tolist(),
-                "coeffs_ascending_powers": plan.coeffs.tolist(),
-            }
-        )
-        + "\n"
-    )
     return path

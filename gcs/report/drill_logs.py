@@ -9,7 +9,6 @@ flaps bridged (:func:`gcs.report.drill_judge.bridge_flaps`).
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -21,7 +20,7 @@ from gcs.report.drill_judge import DrillResult, Window, bridge_flaps, series
 from gcs.report.events import read_events
 from gcs.report.from_logs import MAX_AGE_S, _hold, membership
 from gcs.report.tlog import TlogTrack, read_tlog
-from protocols.trajectory import DescriptorTrajectory
+from gcs.report.trajectory_file import read_trajectory
 
 #: Samples per simulated second of the judged record (the telemetry rate of swarm up).
 RATE_HZ = 25.0
@@ -30,12 +29,7 @@ RATE_HZ = 25.0
 def _plan(folder: Path) -> Any:
     for _ in range(20):
         try:
-            data = json.loads((folder / "trajectory.json").read_text())
-            return DescriptorTrajectory(
-                int(data["seq"]),
-                np.array(data["t_knots_s"]),
-                np.array(data["coeffs_ascending_powers"]),
-            )
+            return read_trajectory(folder / "trajectory.json")
         except (OSError, ValueError, KeyError):
             time.sleep(0.05)
     raise ValueError(f"no plan in {folder / 'trajectory.json'}")

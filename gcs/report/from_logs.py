@@ -29,12 +29,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from gcs.reference.simulate import _write_trajectory
 from gcs.report.events import read_events
 from gcs.report.flight_record import FlightRecord, LinkFault, scenario_link_cuts
 from gcs.report.metrics import compute_metrics
 from gcs.report.plots import write_plots
 from gcs.report.tlog import TlogTrack, VehicleTrack, read_tlog
+from gcs.report.trajectory_file import write_trajectory
 from gcs.view.recording import write_recording
 from protocols.frames import FloatArray
 from protocols.scenario import Scenario
@@ -259,7 +259,7 @@ def write_report(
     """Write ``trajectory.json``, ``metrics.json`` (when there is a record), the plots and, where
     Rerun is installed, ``flight.rrd`` (from the report's files); ``max_thrust_n`` (N) gives the
     metrics' max_thrust_ratio."""
-    files = [_write_trajectory(plan, report_dir / "trajectory.json")]
+    files = [write_trajectory(plan, report_dir / "trajectory.json")]
     metrics_path = report_dir / "metrics.json"
     if record is None:
         metrics: dict[str, Any] = {"n_samples": 0, "note": "no telemetry received", **extra}

@@ -45,6 +45,7 @@ from protocols.mavlink_conventions import (
     AGENT_STATUS_NAME,
     AGENT_STATUS_VALUES,
 )
+from protocols.mavlink_fast import pack, parse
 
 _TS = struct.Struct(">Q")
 _AUTOPILOT_COMPONENT = 1
@@ -111,7 +112,7 @@ class TlogWriter:
 
     def write_message(self, t_s: float, sysid: int, msg: Any) -> None:
         """Encode a pymavlink message object as ``sysid`` and append it."""
-        self.write_packet(t_s, msg.pack(self.codec(sysid)))
+        self.write_packet(t_s, pack(msg, self.codec(sysid)))
 
     def write_vehicle_sample(
         self,
@@ -133,8 +134,8 @@ class TlogWriter:
         roll, pitch, yaw = (float(v) for v in euler_rad)
         p, q, r = (float(v) for v in body_rates_rad_s)
         mav = self.codec(sysid)
-        self.write_packet(t_s, mav.local_position_ned_encode(ms, x, y, z, vx, vy, vz).pack(mav))
-        self.write_packet(t_s, mav.attitude_encode(ms, roll, pitch, yaw, p, q, r).pack(mav))
+        self.write_packet(t_s, pack(mav.local_position_ned_encode(ms, x, y, z, vx, vy, vz), mav))
+        self.write_packet(t_s, pack(mav.attitude_encode(ms, roll, pitch, yaw, p, q, r), mav))
 
     def write_agent_status(
         self,
@@ -158,7 +159,7 @@ class TlogWriter:
         mav = self.codec(sysid, AGENT_COMPID)
         usec = max(0, round(t_s * 1e6))
         msg = mav.debug_float_array_encode(usec, AGENT_STATUS_NAME.encode(), layout, data)
-        self.write_packet(t_s, msg.pack(mav))
+        self.write_packet(t_s, pack(msg, mav))
 
     def write_heartbeat(
         self, t_s: float, sysid: int, armed: bool, system_status: int, custom_mode: int = 0
@@ -176,14 +177,14 @@ class TlogWriter:
             system_status,
             3,
         )
-        self.write_packet(t_s, msg.pack(mav))
+        self.write_packet(t_s, pack(msg, mav))
 
     def write_statustext(self, t_s: float, sysid: int, severity: int, text: str) -> None:
         """STATUSTEXT (``severity`` a MAV_SEVERITY); text longer than 50 bytes is chunked."""
         data = text.encode("utf-8")
         mav = self.codec(sysid)
         if len(data) <= 50:
-            self.write_packet(t_s, mav.statustext_encode(severity, data).pack(mav))
+            self.write_packet(t_s, pack(mav.statustext_encode(severity, data), mav))
             return
         # MAVLink 2 long text: a non-zero id, chunks of 50; a short (NUL-padded) chunk ends it.
         text_id = (self.n_records % 65535) + 1
@@ -192,7 +193,7 @@ class TlogWriter:
             chunks.append(b"")
         for seq, chunk in enumerate(chunks):
             msg = mav.statustext_encode(severity, chunk, text_id, seq)
-            self.write_packet(t_s, msg.pack(mav))
+            self.write_packet(t_s, pack(msg, mav))
 
 
 def _time_boot_ms(t_s: float) -> int:
@@ -352,7 +353,8 @@ class TlogReader:
             try:
                 if length is None:
                     raise common.MAVError("no MAVLink marker")
-                msg = self._codec.decode(bytearray(data[ofs + 8 : end]))
+                fast = parse(data[ofs + 8 : end])  # an unsigned MAVLink 2 record, usually
+                msg = fast[0] if fast else self._codec.decode(bytearray(data[ofs + 8 : end]))
             except common.MAVError:
                 self._bad += 0 if resyncing else 1
                 resyncing = True

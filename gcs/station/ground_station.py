@@ -40,11 +40,11 @@ from drone_agent.fault_timeline import TimedAction, timeline
 from drone_agent.flight_phase import AIRBORNE_ALTITUDE_M
 from drone_agent.transport_link import PlanServer
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
-from gcs.reference.simulate import _write_trajectory
 from gcs.report.agent_timing import timing_metrics
 from gcs.report.events import EventLog, read_events
 from gcs.report.from_logs import build_record, write_report
 from gcs.report.tlog import read_tlog
+from gcs.report.trajectory_file import write_trajectory
 from gcs.station.commands import (
     CommandError,
     Reply,
@@ -221,7 +221,7 @@ class GroundStation:
         self.plans.publish(plan)
         self.plan = plan
         # the plan in force, for a live view of the report folder (swarm view)
-        _write_trajectory(plan.trajectory, self._o.report_dir / "trajectory.json")
+        write_trajectory(plan.trajectory, self._o.report_dir / "trajectory.json")
         self.events.record(
             self.now_s, "plan_published", seq=plan.seq, command=plan.command.name, reason=why
         )
@@ -332,9 +332,10 @@ class GroundStation:
                 statuses = decode_statuses(self._statuses.popleft(), self._o.swarm_id)
             except WireError:
                 continue
-            for status in statuses:
+            kinds = self.watch.on_statuses(statuses, self.telemetry.vehicles)
+            for status, kind in zip(statuses, kinds, strict=True):
                 self._t_status_s = max(self._t_status_s, status.t_s)
-                if kind := self.watch.on_status(status, self.telemetry.vehicles):
+                if kind:
                     self.events.record(status.t_s, kind, drone=status.drone)
                 self.telemetry.log_agent_status(status)
         while self._liveliness:

@@ -7,7 +7,7 @@ log; the ground station does the I/O.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -55,36 +55,38 @@ class SwarmWatch:
     def on_status(
         self, status: AgentStatus, vehicles: Mapping[int, VehicleState] | None = None
     ) -> str | None:
-        """Take an agent's status; updates its link quality: messages received since its last
-        status over those the drones in its radio range should have sent, one per drone per round
-        (:meth:`senders`). Returns the event to log when its separation layer starts or stops
-        changing its command (``separation``, ``separation_end``), else None."""
-        before = self.latest.get(status.drone)
-        self.latest[status.drone] = status
-        was = before is not None and Health.SEPARATING in before.health
-        now = Health.SEPARATING in status.health
-        event = None if was == now else "separation" if now else "separation_end"
-        self._update_link(status, before, vehicles)
-        return event
+        """Take an agent's status (:meth:`on_statuses` with one)."""
+        return self.on_statuses([status], vehicles)[0]
 
-    def _update_link(
-        self,
-        status: AgentStatus,
-        before: AgentStatus | None,
-        vehicles: Mapping[int, VehicleState] | None,
-    ) -> None:
-        if before is None or status.round <= before.round:
-            return
-        senders = self.senders(status, vehicles)
-        if not senders:
-            return
-        expected = (status.round - before.round) * senders
-        # clipped only for showing: a message counted just after one status instead of just
-        # before makes one share low and the next high, and clipping those would bias it low
-        share = max(0.0, (status.counters.rx - before.counters.rx) / expected)
-        old = self._smoothed_share.get(status.drone, share)
-        new = self._smoothed_share[status.drone] = old + _LINK_SMOOTHING * (share - old)
-        self.link_quality[status.drone] = min(1.0, new)
+    def on_statuses(
+        self, statuses: Sequence[AgentStatus], vehicles: Mapping[int, VehicleState] | None = None
+    ) -> list[str | None]:
+        """Take agents' statuses, in order; updates each one's link quality: messages received
+        since its last status over those the drones in its radio range should have sent, one per
+        drone per round (:meth:`senders`, counted for the whole batch at once). Returns, for each,
+        the event to log when its separation layer starts or stops changing its command
+        (``separation``, ``separation_end``), else None."""
+        counts = self._sender_counts([s.drone for s in statuses], vehicles)
+        events: list[str | None] = []
+        for status in statuses:
+            before = self.latest.get(status.drone)
+            self.latest[status.drone] = status
+            was = before is not None and Health.SEPARATING in before.health
+            now = Health.SEPARATING in status.health
+            events.append(None if was == now else "separation" if now else "separation_end")
+            if before is None or status.round <= before.round:
+                continue
+            senders = counts.get(status.drone, len(status.neighbours))
+            if not senders:
+                continue
+            expected = (status.round - before.round) * senders
+            # clipped only for showing: a message counted just after one status instead of just
+            # before makes one share low and the next high, and clipping those would bias it low
+            share = max(0.0, (status.counters.rx - before.counters.rx) / expected)
+            old = self._smoothed_share.get(status.drone, share)
+            new = self._smoothed_share[status.drone] = old + _LINK_SMOOTHING * (share - old)
+            self.link_quality[status.drone] = min(1.0, new)
+        return events
 
     def senders(
         self, status: AgentStatus, vehicles: Mapping[int, VehicleState] | None = None
@@ -93,18 +95,32 @@ class SwarmWatch:
         vehicles are within :attr:`range_m` of its vehicle. Without the range or the positions,
         the neighbours the agent integrated this round (which also fall when messages are lost,
         so the share then hides loss)."""
-        me = None if vehicles is None else vehicles.get(status.drone)
-        if self.range_m is None or vehicles is None or me is None or me.position_ned_m is None:
-            return len(status.neighbours)
-        here = me.position_ned_m
-        return sum(
-            1
+        counts = self._sender_counts([status.drone], vehicles)
+        return counts.get(status.drone, len(status.neighbours))
+
+    def _sender_counts(
+        self, drones: Sequence[int], vehicles: Mapping[int, VehicleState] | None
+    ) -> dict[int, int]:
+        """:meth:`senders` of each of ``drones`` whose vehicle's position is known, all pairs at
+        once (one numpy pass for a process's batch of statuses, not a Python loop over every
+        vehicle for each status)."""
+        if self.range_m is None or vehicles is None:
+            return {}
+        known = [
+            (j, v.position_ned_m)
             for j, v in vehicles.items()
-            if j != status.drone
-            and v.position_ned_m is not None
-            and (j in self.alive or not self.alive)
-            and math.dist(here, v.position_ned_m) < self.range_m
-        )
+            if v.position_ned_m is not None and (j in self.alive or not self.alive)
+        ]
+        asked = [(d, vehicles[d].position_ned_m) for d in set(drones) if d in vehicles]
+        mine = [(d, p) for d, p in asked if p is not None]
+        if not mine:
+            return {}
+        ids = np.array([j for j, _ in known], dtype=np.int64)
+        here = np.array([p for _, p in mine], dtype=np.float64).reshape(-1, 3)
+        there = np.array([p for _, p in known], dtype=np.float64).reshape(-1, 3)
+        near = np.linalg.norm(here[:, None, :] - there[None, :, :], axis=2) < self.range_m
+        near &= ids[None, :] != np.array([d for d, _ in mine], dtype=np.int64)[:, None]
+        return dict(zip((d for d, _ in mine), near.sum(axis=1).tolist(), strict=True))
 
     def on_liveliness(self, drone: int, alive: bool, t_s: float = math.nan) -> str | None:
         """A liveliness change at simulated time ``t_s``; the event to log (``agent_joined``,

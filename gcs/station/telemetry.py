@@ -19,6 +19,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common
 
 from gcs.report.tlog import TlogWriter
+from protocols.mavlink_fast import fast_receive_ok, parse
 from protocols.mavlink_signing import setup_signing
 from protocols.wire_status import AgentStatus
 
@@ -108,11 +109,13 @@ class TelemetryReceiver:
                 return texts
             except OSError:
                 return texts
-            try:
-                messages = self._codec.parse_buffer(data) or []
-            except common.MAVError:
-                self.malformed += 1
-                continue
+            messages = parse(data) if fast_receive_ok(self._codec) else None
+            if messages is None:  # not only whole, valid, unsigned MAVLink 2 frames: pymavlink
+                try:
+                    messages = self._codec.parse_buffer(data) or []
+                except common.MAVError:
+                    self.malformed += 1
+                    continue
             for msg in messages:
                 if msg.get_type() != "BAD_DATA" and 1 <= msg.get_srcSystem() <= 254:
                     self.sim_address = (str(address[0]), int(address[1]))
