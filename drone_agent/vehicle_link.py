@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 import socket
-import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -21,8 +20,8 @@ import numpy as np
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import common
-from pymavlink.dialects.v20.common import mcrf4xx
 
+from protocols import mavlink_fast
 from protocols.frames import FloatArray
 from protocols.mavlink_conventions import (
     AGENT_COMPID,
@@ -38,27 +37,6 @@ from protocols.mavlink_signing import setup_signing
 _MAX_DATAGRAM = 65535
 #: SET_ATTITUDE_TARGET type_mask: ignore body rates, use attitude and thrust.
 IGNORE_BODY_RATES = 0b0000_0111
-
-# The fast path (unsigned links): the two telemetry messages of every tick are read, and the
-# setpoint of every tick is packed, with struct and the CRC pymavlink uses, to the same values
-# and bytes as pymavlink's generic codec (which handles everything else); checked against it in
-# tests/test_vehicle_fast_path.py.
-_MAVLINK2 = 0xFD
-_HEADER2 = struct.Struct("<BBBBBBBHB")
-_ATTITUDE = common.MAVLink_attitude_message
-_POSITION = common.MAVLink_local_position_ned_message
-_SETPOINT = common.MAVLink_set_attitude_target_message
-#: time_boot_ms and six float32s: both telemetry messages' layout (asserted below)
-_TELEMETRY = struct.Struct("<Iffffff")
-#: msgid -> (crc extra byte, whether it is the attitude)
-_FAST_IN = {
-    _ATTITUDE.id: (bytes((_ATTITUDE.crc_extra,)), True),
-    _POSITION.id: (bytes((_POSITION.crc_extra,)), False),
-}
-_SETPOINT_CRC_EXTRA = bytes((_SETPOINT.crc_extra,))
-assert _ATTITUDE.unpacker.format == _POSITION.unpacker.format == _TELEMETRY.format
-assert _ATTITUDE.fieldnames[:4] == ["time_boot_ms", "roll", "pitch", "yaw"]
-assert _POSITION.fieldnames == ["time_boot_ms", "x", "y", "z", "vx", "vy", "vz"]
 
 
 @dataclass(frozen=True)
@@ -120,11 +98,11 @@ class VehicleLink:
         self._sock.connect(self.address)
         self.status = VehicleStatus()
         self.counters = LinkCounters()
-        #: half pairs by time_boot_ms: (x, y, z, vx, vy, vz) and (roll, pitch, yaw)
-        self._pos: dict[int, tuple[float, ...]] = {}
-        self._att: dict[int, tuple[float, ...]] = {}
-        #: the fast path's codec: unsigned links only (pymavlink checks and makes signatures)
-        self._fast = signing_key is None and mcrf4xx is not None
+        self._pos: dict[int, Any] = {}
+        self._att: dict[int, Any] = {}
+        #: unsigned links read their datagrams with protocols/mavlink_fast.py (pymavlink's codec
+        #: for anything it does not take, and for signed links: their signature policy)
+        self._fast = mavlink_fast.fast_receive_ok(self._mav)
 
     def fileno(self) -> int:
         return self._sock.fileno()
@@ -163,53 +141,17 @@ class VehicleLink:
             except ConnectionRefusedError:  # the vehicle is not (yet) listening
                 break
             self.counters.rx_datagrams += 1
-            if self._fast and self._fast_telemetry(data, samples):
-                continue
-            try:
-                messages = self._mav.parse_buffer(data) or []
-            except Exception:  # pymavlink raises MAVError and struct errors alike
-                self.counters.rx_bad += 1
-                continue
+            fast = self._fast and not self._mav.buf_len()  # (pymavlink holds no half frame)
+            messages = mavlink_fast.parse(data) if fast else None
+            if messages is None:
+                try:
+                    messages = self._mav.parse_buffer(data) or []
+                except Exception:  # pymavlink raises MAVError and struct errors alike
+                    self.counters.rx_bad += 1
+                    continue
             for msg in messages:
                 samples += self._handle(msg)
         return samples
-
-    def _fast_telemetry(self, data: bytes, samples: list[VehicleSample]) -> bool:
-        """Take in a datagram made only of unsigned, well-formed MAVLink 2 ATTITUDE and
-        LOCAL_POSITION_NED frames of this vehicle's autopilot, as :meth:`_handle` would after
-        pymavlink; False (nothing taken in) for any other datagram, which pymavlink then
-        parses (and counts, if it is bad)."""
-        if self._mav.buf_len():  # pymavlink holds part of a frame: it goes on parsing
-            return False
-        frames = []
-        off, n = 0, len(data)
-        while off < n:
-            if n - off < 12 or data[off] != _MAVLINK2 or data[off + 2] or data[off + 3]:
-                return False  # not MAVLink 2, or flagged (signed, ...)
-            plen = data[off + 1]
-            end = off + 12 + plen
-            fast = _FAST_IN.get(data[off + 7] | data[off + 8] << 8 | data[off + 9] << 16)
-            if fast is None or plen > _TELEMETRY.size or end > n:
-                return False
-            if data[off + 5] != self.sysid or data[off + 6] != AUTOPILOT_COMPID:
-                return False
-            crc = mcrf4xx(data[off + 1 : end - 2] + fast[0], 0xFFFF)
-            if crc != data[end - 2] | data[end - 1] << 8:
-                return False
-            body = data[off + 10 : end - 2]
-            if plen < _TELEMETRY.size:  # MAVLink 2 drops trailing zero bytes
-                body += bytes(_TELEMETRY.size - plen)
-            frames.append((fast[1], _TELEMETRY.unpack(body)))
-            off = end
-        for attitude, fields in frames:
-            self.counters.rx_messages += 1
-            ms = fields[0]
-            if attitude:
-                self._att[ms] = fields[1:4]
-            else:
-                self._pos[ms] = fields[1:7]
-            samples += self._pair(ms)
-        return True
 
     def _handle(self, msg: Any) -> list[VehicleSample]:
         if msg.get_type() == "BAD_DATA":
@@ -233,10 +175,10 @@ class VehicleLink:
             if int(msg.severity) == common.MAV_SEVERITY_EMERGENCY:
                 self.status.emergency = True  # e.g. motors failed: the vehicle is going down
         elif kind == "LOCAL_POSITION_NED":
-            self._pos[int(msg.time_boot_ms)] = (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
+            self._pos[int(msg.time_boot_ms)] = msg
             return self._pair(int(msg.time_boot_ms))
         elif kind == "ATTITUDE":
-            self._att[int(msg.time_boot_ms)] = (msg.roll, msg.pitch, msg.yaw)
+            self._att[int(msg.time_boot_ms)] = msg
             return self._pair(int(msg.time_boot_ms))
         return []
 
@@ -250,9 +192,9 @@ class VehicleLink:
         return [
             VehicleSample(
                 ms,
-                np.array(pos[:3], dtype=float),
-                np.array(pos[3:], dtype=float),
-                np.array(att, dtype=float),
+                np.array([pos.x, pos.y, pos.z], dtype=float),
+                np.array([pos.vx, pos.vy, pos.vz], dtype=float),
+                np.array([att.roll, att.pitch, att.yaw], dtype=float),
             )
         ]
 
@@ -264,11 +206,8 @@ class VehicleLink:
 
     # -- send ----------------------------------------------------------------------------------
     def _send(self, msg: Any) -> None:
-        self._send_packed(msg.pack(self._mav))
-
-    def _send_packed(self, frame: bytes) -> None:
         try:
-            self._sock.send(frame)
+            self._sock.send(mavlink_fast.pack(msg, self._mav))  # msg.pack's bytes
             self.counters.tx_messages += 1
         except OSError:
             self.counters.tx_errors += 1
@@ -277,34 +216,19 @@ class VehicleLink:
         """SET_ATTITUDE_TARGET: attitude quaternion (w, x, y, z) body -> NED and normalised
         thrust 0..1; ``time_boot_ms`` echoes the tick it answers (lockstep handshake)."""
         q = [float(v) for v in quat_wxyz]
-        ms = int(time_boot_ms) & 0xFFFFFFFF
-        if self._fast and len(q) == 4:
-            self._send_packed(self._pack_setpoint(ms, q, float(thrust)))
-            return
         self._send(
             self._mav.set_attitude_target_encode(
-                ms, self.sysid, AUTOPILOT_COMPID, IGNORE_BODY_RATES, q, 0.0, 0.0, 0.0, float(thrust)
+                int(time_boot_ms) & 0xFFFFFFFF,
+                self.sysid,
+                AUTOPILOT_COMPID,
+                IGNORE_BODY_RATES,
+                q,
+                0.0,
+                0.0,
+                0.0,
+                float(thrust),
             )
         )
-
-    def _pack_setpoint(self, ms: int, q: list[float], thrust: float) -> bytes:
-        """The frame pymavlink packs for this SET_ATTITUDE_TARGET (unsigned: the fast path)."""
-        payload = _SETPOINT.unpacker.pack(
-            ms, *q, 0.0, 0.0, 0.0, thrust, self.sysid, AUTOPILOT_COMPID, IGNORE_BODY_RATES
-        )
-        plen = len(payload)
-        while plen > 1 and payload[plen - 1] == 0:  # MAVLink 2 drops trailing zero bytes
-            plen -= 1
-        mav = self._mav
-        frame = (
-            _HEADER2.pack(
-                _MAVLINK2, plen, 0, 0, mav.seq, mav.srcSystem, mav.srcComponent,
-                _SETPOINT.id & 0xFFFF, _SETPOINT.id >> 16,
-            )
-            + payload[:plen]
-        )  # fmt: skip
-        crc = mcrf4xx(frame[1:] + _SETPOINT_CRC_EXTRA, 0xFFFF)
-        return frame + struct.pack("<H", crc)
 
     def send_heartbeat(self) -> None:
         self._send(

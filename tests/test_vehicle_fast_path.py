@@ -1,7 +1,7 @@
-"""The vehicle link's fast path (drone_agent/vehicle_link.py): the telemetry of every tick read
-with struct, and the setpoint of every tick packed with struct, give the same samples, counters
-and bytes as pymavlink's generic codec; anything else (signed links, other messages, foreign
-senders, bad CRCs, partial frames) still goes through pymavlink."""
+"""The vehicle link's fast path (drone_agent/vehicle_link.py on protocols/mavlink_fast.py): its
+datagrams read and its messages packed without pymavlink's per-frame machinery give the same
+samples, counters, status and bytes as pymavlink's codec; what the fast parser does not take (bad
+CRCs, signed links) still goes through pymavlink."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import common
 
 from drone_agent.vehicle_link import VehicleLink, VehicleSample
-from protocols.mavlink_conventions import AUTOPILOT_COMPID, sysid_of
+from protocols.mavlink_conventions import AGENT_COMPID, AUTOPILOT_COMPID, sysid_of
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -115,25 +115,31 @@ def test_telemetry_fast_path_gives_what_pymavlink_gives() -> None:
             thing.close()
 
 
-def test_setpoint_fast_path_packs_pymavlink_bytes() -> None:
+def test_setpoints_and_commands_go_out_as_pymavlink_packs_them() -> None:
     rng = np.random.default_rng(5)
-    link = VehicleLink(3, "127.0.0.1", 9)
+    vehicle = _Vehicle(3)
+    vehicle.sock.settimeout(5.0)
+    link = VehicleLink(3, "127.0.0.1", vehicle.port)
+    reference = common.MAVLink(None, srcSystem=link.sysid, srcComponent=AGENT_COMPID)
     try:
-        assert link._fast
-        for k in range(500):
+        for k in range(200):
             q = rng.normal(size=4)
             if k % 7 == 0:
-                q[1:] = 0.0  # trailing zero bytes dropped
+                q[1:] = 0.0
             thrust = 0.0 if k % 11 == 0 else float(rng.random())
             ms = int(rng.integers(0, 2**32))
-            link._mav.seq = int(rng.integers(0, 256))
-            want = link._mav.set_attitude_target_encode(
+            link.send_setpoint(ms, q, thrust)
+            want = reference.set_attitude_target_encode(
                 ms, link.sysid, AUTOPILOT_COMPID, 0b0000_0111, [float(v) for v in q],
                 0.0, 0.0, 0.0, thrust,
-            ).pack(link._mav)  # fmt: skip
-            assert link._pack_setpoint(ms, [float(v) for v in q], thrust) == want
+            ).pack(reference)  # fmt: skip
+            assert vehicle.sock.recv(1024) == want
+        link.arm(True)
+        want = reference.command_long_encode(link.sysid, AUTOPILOT_COMPID, 400, 0, 1.0, *[0.0] * 6)
+        assert vehicle.sock.recv(1024) == want.pack(reference)
     finally:
         link.close()
+        vehicle.close()
 
 
 def test_signed_link_never_takes_the_fast_path() -> None:
