@@ -121,6 +121,10 @@ def run_case(n: int, per_process: int, kind: str, seconds: float) -> dict[str, A
     if len(settled) >= 3:
         rtf = float(np.polyfit([s["wall"] for s in settled], [s["sim"] for s in settled], 1)[0])
     window = [s for s in samples if s[1] >= FROM_S]
+    # up to the first sample at the flight's last simulated time: after it the ground station
+    # writes the report (seconds of CPU that are not the flight's)
+    last = next((k for k, s in enumerate(window) if window and s[1] >= window[-1][1]), None)
+    window = window if last is None else window[: last + 1]
     agent_us = sim_share = gcs_share = None
     if len(window) >= 2 and window[-1][1] > window[0][1]:
         (w0, s0, a0, m0, g0), (w1, s1, a1, m1, g1) = window[0], window[-1]

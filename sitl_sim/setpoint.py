@@ -54,9 +54,10 @@ def validate_attitude_target(
         return Rejection.UNSUPPORTED_MASK
     if len(quat_wxyz) != 4:
         return Rejection.QUAT_NORM
-    w, x, y, z = (float(v) for v in quat_wxyz)
+    w, x, y, z = float(quat_wxyz[0]), float(quat_wxyz[1]), float(quat_wxyz[2]), float(quat_wxyz[3])
     thrust = float(thrust)
-    if not all(math.isfinite(v) for v in (w, x, y, z, thrust)):
+    isfinite = math.isfinite
+    if not (isfinite(w) and isfinite(x) and isfinite(y) and isfinite(z) and isfinite(thrust)):
         return Rejection.NOT_FINITE
     norm = math.sqrt(w * w + x * x + y * y + z * z)
     if abs(norm - 1.0) > QUAT_NORM_TOLERANCE:
