@@ -443,6 +443,8 @@ class _Drills:
         self._period_s = scenario.rates.dt_control_s
 
     def apply(self) -> None:
+        if not self._links and not self._dropouts:  # the timeline is over (or was empty)
+            return
         pending = self._host.pending_rounds()
         if not pending:
             return

@@ -216,19 +216,21 @@ class AgentHost:
                     if slot.agent is None:
                         slot.agent = self._join(slot, sample.position_ned_m)
                     slot.agent.on_sample(sample)
+            now = self._clock()
+            if self._rounds is not None and not fresh and now - last_full < IDLE_PASS_S:
+                # lockstep, waiting: nothing can have become due unless a marker or a
+                # liveliness change came in; a pass with nothing new ends here (the time-based
+                # checks, ``on_loop``, repeats and reports run at least every IDLE_PASS_S)
+                if not self._rounds.poll():
+                    continue
+            else:
+                last_full = now
             if on_loop is not None:
                 on_loop()
             if self._hub is not None:
                 self._hub.new_pass()
             due: dict[tuple[int, int], list[tuple[HostedAgent, DueTick]]] = {}
-            now = self._clock()
-            if self._rounds is not None and not fresh and now - last_full < IDLE_PASS_S:
-                # lockstep, waiting: nothing can have become due unless a marker or a
-                # liveliness change came in (the time-based checks run every IDLE_PASS_S)
-                fresh = self._rounds.poll()
-            else:
-                fresh, last_full = True, now
-            for slot in self._slots if fresh else ():
+            for slot in self._slots:
                 if slot.agent is None or slot.revive_at_ms is not None:
                     self._greet(slot)
                     continue

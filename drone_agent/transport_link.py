@@ -121,7 +121,10 @@ class LinkSettings:
 
 
 def _vec3(position_ned_m: Position) -> tuple[float, float, float]:
-    x, y, z = (float(p) for p in np.asarray(position_ned_m, dtype=np.float64).reshape(3))
+    if type(position_ned_m) is np.ndarray and position_ned_m.shape == (3,):
+        x, y, z = (float(p) for p in position_ned_m.tolist())  # the usual case, no new array
+    else:
+        x, y, z = (float(p) for p in np.asarray(position_ned_m, dtype=np.float64).reshape(3))
     if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
         raise ValueError(f"position must be finite, got {(x, y, z)}")
     return (x, y, z)
@@ -183,7 +186,8 @@ class ConsensusHub(ClosesOnExit):
         self._outbox: dict[Cell, list[tuple[int, bytes]]] = {}
         #: statuses staged in this pass: (drone, payload, the drone's status publisher)
         self._statuses: list[tuple[int, bytes, Publisher]] = []
-        self._publishers: dict[str, Publisher] = {}
+        #: by (cell, sender): the key of each, made once
+        self._publishers: dict[tuple[Cell, int], Publisher] = {}
         self._pass: int | None = None  # None: not paced by a host, drain on every pump
         self._pumped: tuple[int, int] | None = None
         self._closed = False
@@ -308,9 +312,9 @@ class ConsensusHub(ClosesOnExit):
             self._put(cell, staged[0][0], encode_batch(staged, sid))
 
     def _put(self, cell: Cell, sender: int, payload: bytes) -> None:
-        key = self._keys.consensus(cell, sender)
-        publisher = self._publishers.get(key)
+        publisher = self._publishers.get((cell, sender))
         if publisher is None:
+            key = self._keys.consensus(cell, sender)
             if self._bus.is_closed():
                 raise RuntimeError("cannot publish: the session is closed")
             if len(self._publishers) >= 64:  # cells left long ago
@@ -320,7 +324,7 @@ class ConsensusHub(ClosesOnExit):
             # QUEUED in lockstep: the pass's batches leave in one send batch behind the
             # round-done marker (drone_agent/transport.Congestion)
             publisher = self._bus.publisher(key, self._settings.consensus_congestion)
-            self._publishers[key] = publisher
+            self._publishers[(cell, sender)] = publisher
         publisher.put(payload)
 
     def close(self) -> None:

@@ -21,6 +21,7 @@ import numpy as np
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import common
 
+from protocols import mavlink_fast
 from protocols.frames import FloatArray
 from protocols.mavlink_conventions import (
     AGENT_COMPID,
@@ -99,6 +100,9 @@ class VehicleLink:
         self.counters = LinkCounters()
         self._pos: dict[int, Any] = {}
         self._att: dict[int, Any] = {}
+        #: unsigned links read their datagrams with protocols/mavlink_fast.py (pymavlink's codec
+        #: for anything it does not take, and for signed links: their signature policy)
+        self._fast = mavlink_fast.fast_receive_ok(self._mav)
 
     def fileno(self) -> int:
         return self._sock.fileno()
@@ -137,11 +141,14 @@ class VehicleLink:
             except ConnectionRefusedError:  # the vehicle is not (yet) listening
                 break
             self.counters.rx_datagrams += 1
-            try:
-                messages = self._mav.parse_buffer(data) or []
-            except Exception:  # pymavlink raises MAVError and struct errors alike
-                self.counters.rx_bad += 1
-                continue
+            fast = self._fast and not self._mav.buf_len()  # (pymavlink holds no half frame)
+            messages = mavlink_fast.parse(data) if fast else None
+            if messages is None:
+                try:
+                    messages = self._mav.parse_buffer(data) or []
+                except Exception:  # pymavlink raises MAVError and struct errors alike
+                    self.counters.rx_bad += 1
+                    continue
             for msg in messages:
                 samples += self._handle(msg)
         return samples
@@ -200,7 +207,7 @@ class VehicleLink:
     # -- send ----------------------------------------------------------------------------------
     def _send(self, msg: Any) -> None:
         try:
-            self._sock.send(msg.pack(self._mav))
+            self._sock.send(mavlink_fast.pack(msg, self._mav))  # msg.pack's bytes
             self.counters.tx_messages += 1
         except OSError:
             self.counters.tx_errors += 1

@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import operator
 import struct
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -87,6 +88,8 @@ _FIXED_V2 = struct.Struct("<IHHH3f3fHH")
 _FIXED_V3 = struct.Struct("<IHHHI3f3fHH")
 _FIXED = {1: _FIXED_V1, 2: _FIXED_V2, 3: _FIXED_V3}
 _FLOATS = N_GAMMA * 8  # bytes of one (18,) float64 block
+_NOT_SAID = struct.pack("<I", NO_INCARNATION)
+_VEC3_F32 = struct.Struct("<3f")
 
 
 class Kind(IntEnum):
@@ -300,38 +303,53 @@ def _edge_arrays(message: ConsensusMessage) -> tuple[list[int], bytes, bytes, by
     """For a message whose edge sums (and incarnations) are arrays over one id array
     (:class:`~protocols.consensus_message.EdgeSums`): the edge ids and the bytes of the ids,
     incarnations and floats blocks, as the general path makes them; None for any other message
-    (the general path then encodes it, or says what is wrong with it)."""
+    (the general path then encodes it, or says what is wrong with it). The ids and incarnations
+    (a handful of small ints) are checked and packed in Python: cheaper than numpy's calls."""
     sums = message.edge_sums
     if not isinstance(sums, EdgeSums):
         return None
     tags = message.edge_incarnations
     ids = np.asarray(sums.ids)
+    if ids.ndim != 1 or ids.dtype.kind not in "iu" or np.shape(message.gamma) != (N_GAMMA,):
+        return None
     n = ids.shape[0]
     if tags is not None and not (
         isinstance(tags, EdgeIncarnations)
         and (tags.ids is sums.ids or np.array_equal(np.asarray(tags.ids), ids))
     ):
         return None
-    if ids.ndim != 1 or np.shape(message.gamma) != (N_GAMMA,):
-        return None
     if np.shape(sums.sums) != (n, N_GAMMA) or (tags is not None and np.shape(tags.tags) != (n,)):
         return None
-    if n and not (ids[0] >= 0 and ids[-1] <= MAX_DRONE_ID and (ids[1:] > ids[:-1]).all()):
+    id_list = ids.tolist()
+    if n and not (
+        id_list[0] >= 0
+        and id_list[-1] <= MAX_DRONE_ID
+        and all(map(operator.lt, id_list, id_list[1:]))
+    ):
         return None
     floats = np.empty((n + 1, N_GAMMA), dtype="<f8")
     floats[0] = message.gamma
     if n:
         floats[1:] = sums.sums
-    if not np.isfinite(floats).all():
+    flat = floats.reshape(-1)
+    if np.count_nonzero(np.isfinite(flat)) != flat.shape[0]:
         return None  # the general path says why
     if tags is None:
-        incs = np.full(n, NO_INCARNATION, dtype="<u4")
+        incs = [NO_INCARNATION] * n
     else:
-        t = np.asarray(tags.tags, dtype=np.int64)
-        if n and t.max() > MAX_U32 - 1:
+        t = np.asarray(tags.tags)
+        if t.dtype.kind not in "iu":
             return None
-        incs = np.where(t < 0, NO_INCARNATION, t).astype("<u4")
-    return ids.tolist(), ids.astype("<u2").tobytes(), incs.tobytes(), floats.tobytes()
+        raw = t.tolist()
+        if n and max(raw) > MAX_U32 - 1:
+            return None
+        incs = [NO_INCARNATION if x < 0 else x for x in raw]
+    return (
+        id_list,
+        struct.pack(f"<{n}H", *id_list),
+        struct.pack(f"<{n}I", *incs),
+        floats.tobytes(),
+    )
 
 
 def _edge_incarnations(message: ConsensusMessage, neighbours: list[int]) -> list[int]:
@@ -347,6 +365,20 @@ def _edge_incarnations(message: ConsensusMessage, neighbours: list[int]) -> list
 
 
 def _vec3_f32(values: Sequence[float] | FloatArray, what: str) -> tuple[float, float, float]:
+    # the usual cases, in Python: rounded to float32 by struct as numpy rounds them (to
+    # nearest); a value out of float32's range is refused as below
+    xyz: Any = None
+    if type(values) is np.ndarray and values.shape == (3,) and values.dtype.kind == "f":
+        xyz = values.tolist()
+    elif type(values) is tuple and len(values) == 3 and all(type(v) is float for v in values):
+        xyz = values
+    if xyz is not None:
+        x, y, z = xyz
+        if math.isfinite(x + y + z):
+            try:
+                return _VEC3_F32.unpack(_VEC3_F32.pack(x, y, z))
+            except OverflowError:
+                pass
     vec = np.frombuffer(finite_block(values, (3,), what, "<f4"), "<f4")
     return (float(vec[0]), float(vec[1]), float(vec[2]))
 
@@ -406,38 +438,43 @@ def decode_consensus(
     n_heard, n_edges = fields[-2:]
     n_ids = n_heard + n_edges
     n_tags = n_edges if version >= 3 else 0
-    expect_length(data, off + 2 * n_ids + 4 * n_tags + _FLOATS * (1 + n_edges), "consensus")
-    ids = np.frombuffer(data, "<u2", n_ids, off).astype(np.intp)
-    tags = np.frombuffer(data, "<u4", n_tags, off + 2 * n_ids).astype(np.int64)
-    floats = np.frombuffer(
-        data, "<f8", N_GAMMA * (1 + n_edges), off + 2 * n_ids + 4 * n_tags
-    ).reshape(-1, N_GAMMA)
-    if not np.isfinite(floats).all():
+    off_tags = off + 2 * n_ids
+    off_floats = off_tags + 4 * n_tags
+    expect_length(data, off_floats + _FLOATS * (1 + n_edges), "consensus")
+    # a native, aligned, writable copy (made read-only below)
+    floats = np.frombuffer(data, "<f8", N_GAMMA * (1 + n_edges), off_floats).astype(np.float64)
+    flat = floats.reshape(-1)
+    if np.count_nonzero(np.isfinite(flat)) != flat.shape[0]:  # (cheaper than .all())
         raise WireError(Reason.NOT_FINITE, "consensus gamma or an edge sum is NaN or infinite")
-    heard, neighbours = ids[:n_heard], ids[n_heard:]
-    if n_heard > 1 and (heard[1:] <= heard[:-1]).any():
+    # the ids checked in Python (a handful of small ints: cheaper than numpy's reductions)
+    id_list = list(struct.unpack_from(f"<{n_ids}H", data, off))
+    heard_ids, edge_ids = id_list[:n_heard], id_list[n_heard:]
+    if n_heard > 1 and not all(map(operator.lt, heard_ids, heard_ids[1:])):
         raise WireError(Reason.BAD_VALUE, "heard ids must be strictly increasing")
-    if n_edges > 1 and (neighbours[1:] <= neighbours[:-1]).any():
+    if n_edges > 1 and not all(map(operator.lt, edge_ids, edge_ids[1:])):
         raise WireError(Reason.BAD_VALUE, "edge neighbour ids must be strictly increasing")
-    floats = floats.astype(np.float64)  # a native, aligned, writable copy ...
-    floats.setflags(write=False)  # ... made read-only
+    floats = floats.reshape(-1, N_GAMMA)
+    floats.setflags(write=False)
+    neighbours = np.array(edge_ids, dtype=np.intp)
     neighbours.setflags(write=False)
     motion = np.array(fields[5:-2])  # position (3), then velocity (3) from version 2
     motion.setflags(write=False)
     position = motion[:3]
     edge_tags: EdgeIncarnations | None = None
     if version >= 3:  # the ones said (a plain mapping of them, as the arrays it is made of)
-        said = tags != NO_INCARNATION
-        if said.all():
+        tags = np.frombuffer(data, "<u4", n_tags, off_tags).astype(np.int64)
+        # no 0xFFFFFFFF anywhere in the block: every one said (found: look at each)
+        if data.find(_NOT_SAID, off_tags, off_floats) < 0:
             edge_tags = EdgeIncarnations(neighbours, tags)
         else:
+            said = tags != NO_INCARNATION
             edge_tags = EdgeIncarnations(neighbours[said], tags[said])
     message = ConsensusMessage(
         sender=sender,
         round=round_,
         gamma=floats[0],
         edge_sums=EdgeSums(neighbours, floats[1:]),
-        heard=frozenset(heard.tolist()),
+        heard=frozenset(heard_ids),
         degree=degree,
         ready_hops=ready,
         position_ned_m=position,
