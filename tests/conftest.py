@@ -28,3 +28,17 @@ def demo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     process per drone; about 3 minutes), run once: its report folder and printed output. Read by
     tests/test_demo_paper.py and, for its first 20 s, by tests/test_lockstep_repeats.py."""
     return run_demo(tmp_path_factory.mktemp("demo"))
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Compile the simulator's and agents' compiled loops (numba), or load them from the cache,
+    once before any test: the processes the tests start then load them instead of each compiling
+    them at the same moment on a fresh checkout (seconds of CPU each, which timing-sensitive
+    realtime flights would feel)."""
+    from drone_agent.agent_core import warm_up
+    from drone_agent.config import agent_config
+    from protocols.scenario import load_scenario
+    from sitl_sim import physics_jit
+
+    physics_jit.ready()
+    warm_up(agent_config(load_scenario(Path(__file__).parents[1] / "scenarios" / "paper.toml")))
