@@ -148,6 +148,7 @@ def _up(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
+    from gcs.cli.compiled import warm_compiled
     from gcs.reference.simulate import simulate
     from gcs.report.summary import summary_lines
     from protocols.scenario import ScenarioError, load_scenario
@@ -167,6 +168,7 @@ def _simulate(args: argparse.Namespace) -> int:
             f"--tlog-hz must be between 10 and the control rate ({scenario.rates.control_hz} Hz)"
         )
     _check_writable(args.report)
+    warm_compiled("swarm simulate", True, True, Path(args.scenario))
     show = args.progress == "on" or (args.progress == "auto" and sys.stderr.isatty())
     bar: Any = None
     if show:

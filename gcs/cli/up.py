@@ -12,6 +12,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from gcs.cli.compiled import warm_compiled
 from gcs.cli.session import (
     SESSION_FILE,
     SessionRequest,
@@ -329,33 +330,6 @@ def _viewer_url(proc: subprocess.Popen[bytes], log: Path) -> str:
     raise SupervisorError(f"--view: the viewer did not start: {tail[0]}")
 
 
-def warm_compiled(sim: bool, agents: bool, scenario: Path) -> None:
-    """Load the compiled loops of the processes this host runs (the simulator, agents of
-    ``scenario``), or, on the first run after an install or an edit, compile them (numba, cached
-    beside the sources): once here, before the processes start, instead of in every one of them
-    at once."""
-    started = time.monotonic()
-    if sim:
-        from sitl_sim import physics_jit
-
-        physics_jit.ready()
-    if agents:
-        from drone_agent.agent_core import warm_up
-        from drone_agent.config import agent_config
-        from protocols.scenario import load_scenario
-
-        try:
-            config = agent_config(load_scenario(scenario))
-        except (OSError, ValueError):  # the agents will say what is wrong with it
-            config = None
-        if config is not None:
-            warm_up(config)
-    took = time.monotonic() - started
-    if took > 2.0:
-        print(f"swarm up: compiled the simulator's and agents' maths ({took:.0f} s, once)",
-              file=sys.stderr)  # fmt: skip
-
-
 def run(args: argparse.Namespace) -> int:
     """``swarm up`` / ``swarm demo``; exit 0 when the scenario was flown to its end."""
     session = session_request(args)
@@ -402,7 +376,7 @@ def run(args: argparse.Namespace) -> int:
             "and stops everything",
             file=sys.stderr,
         )
-    warm_compiled(plan.sim is not None, bool(plan.agents), Path(scenario))
+    warm_compiled("swarm up", plan.sim is not None, bool(plan.agents), Path(scenario))
     with interrupt_flag() as stop, live_view(args, scenario) as url:
         if url is not None:
             print(f"swarm up: live view (Rerun) at {url}", file=sys.stderr, flush=True)
