@@ -100,9 +100,6 @@ class VehicleLink:
         self.counters = LinkCounters()
         self._pos: dict[int, Any] = {}
         self._att: dict[int, Any] = {}
-        #: unsigned links read their datagrams with protocols/mavlink_fast.py (pymavlink's codec
-        #: for anything it does not take, and for signed links: their signature policy)
-        self._fast = mavlink_fast.fast_receive_ok(self._mav)
 
     def fileno(self) -> int:
         return self._sock.fileno()
@@ -141,7 +138,9 @@ class VehicleLink:
             except ConnectionRefusedError:  # the vehicle is not (yet) listening
                 break
             self.counters.rx_datagrams += 1
-            fast = self._fast and not self._mav.buf_len()  # (pymavlink holds no half frame)
+            # unsigned links: protocols/mavlink_fast.py; pymavlink's codec for anything it does
+            # not take, and for signed links (their signature policy)
+            fast = mavlink_fast.fast_receive_ok(self._mav)
             messages = mavlink_fast.parse(data) if fast else None
             if messages is None:
                 try:

@@ -45,9 +45,10 @@ _EXTRA = [bytes((b,)) for b in range(256)]  # a message's CRC_EXTRA byte
 
 
 def fast_receive_ok(codec: Any) -> bool:
-    """Whether frames for ``codec`` may be parsed by :func:`parse`: it has no signing key (an
-    unsigned frame to a signing codec is judged by pymavlink's signing policy)."""
-    return codec.signing.secret_key is None
+    """Whether the next datagram for ``codec`` may be parsed by :func:`parse`: it has no signing
+    key (an unsigned frame to a signing codec is judged by pymavlink's signing policy) and holds
+    no part of a frame from an earlier datagram (pymavlink goes on parsing that)."""
+    return codec.signing.secret_key is None and not codec.buf_len()
 
 
 # -- packing -----------------------------------------------------------------------------------

@@ -77,9 +77,11 @@ def _derivative_into(
 
 
 @numba.njit(cache=True, inline="always")
-def _room(base: float, share: float, f_min: float, f_max: float, tol: float) -> float:
+def _room(
+    base: float, share: float, f_min: float, f_max: float, tol: float
+) -> float:  # pragma: no cover - compiled
     """How much of its yaw ``share`` a rotor whose other shares add up to ``base`` can take
-    (mixer._yaw_scale): inf for a share within round-off of 0."""  # pragma: no cover
+    (mixer._yaw_scale): inf for a share within round-off of 0."""
     mag = abs(share)
     if not mag > tol:
         return math.inf

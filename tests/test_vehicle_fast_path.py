@@ -16,6 +16,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import common
 
 from drone_agent.vehicle_link import VehicleLink, VehicleSample
+from protocols import mavlink_fast
 from protocols.mavlink_conventions import AGENT_COMPID, AUTOPILOT_COMPID, sysid_of
 
 pytestmark = pytest.mark.timeout(60)
@@ -145,6 +146,6 @@ def test_setpoints_and_commands_go_out_as_pymavlink_packs_them() -> None:
 def test_signed_link_never_takes_the_fast_path() -> None:
     link = VehicleLink(1, "127.0.0.1", 9, signing_key=b"k" * 32)
     try:
-        assert not link._fast
+        assert not mavlink_fast.fast_receive_ok(link._mav)
     finally:
         link.close()
