@@ -11,14 +11,14 @@ so a late joiner gets the plan even when the ground station is gone).
 
 The consensus traffic of the agents of one process goes through one :class:`ConsensusHub`
 (issue 9, batched messaging): one subscription per cell any of its agents listens to, each sample
-split and its messages' heads read once (a message is fully decoded once, the first time an agent
+opened once (a batch in columns checked whole; a message is built once, the first time an agent
 in range takes it), and, with ``batch=True``, the messages its agents publish in one pass sent
-as one sample per cell (protocols/wire_batch.py; the host calls :meth:`ConsensusHub.flush` before
-its round-done markers), and their statuses of the pass as one status batch
-(protocols/wire_status.py, on the first drone's status key). Each agent still applies its own
-cells, radio range, early-round hold and counters exactly as when it had its own subscriptions.
-An agent made without a hub gets a private one that publishes each message (and status) at once,
-alone (the single-message schemas on the wire).
+as one sample per cell (protocols/wire_batch.py, in columns; the host calls
+:meth:`ConsensusHub.flush` before its round-done markers), and their statuses of the pass as
+one status batch (protocols/wire_status.py, on the first drone's status key). Each agent still
+applies its own cells, radio range, early-round hold and counters exactly as when it had its own
+subscriptions. An agent made without a hub gets a private one that publishes each message (and
+status) at once, alone (the single-message schemas on the wire).
 """
 
 from __future__ import annotations

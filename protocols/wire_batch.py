@@ -6,22 +6,43 @@ batch per cell its agents publish from, on ``swarm/<sid>/consensus/<cx>/<cy>/<cz
 sender>`` (the key of the batch's first message: receivers subscribe by cell as before). A batch
 of one message is sent as that message alone (Kind.CONSENSUS): a process hosting one agent
 speaks exactly the single-message schema, and every receiver takes both kinds on its cell keys.
-The batch does not change what is received: each inner message is a complete consensus payload
-(``protocols.wire``, any of its versions), and the receiving side still applies, per agent pair,
-the radio range (from the inner message's position), link faults, heard sets and incarnations as
-for a single message. It only saves the per-message publication, delivery and header parsing.
+The batch does not change what is received: each message in it is one consensus message, as
+``protocols.wire`` encodes it alone, and the receiving side still applies, per agent pair, the
+radio range (from the message's position), link faults, heard sets and incarnations as for a
+single message. It only saves the per-message publication, delivery and parsing.
 
-Body after the common header (``protocols.wire``, schema BATCH_VERSION), little-endian::
+Version 2 (BATCH_VERSION, sent): the messages in columns, so that a receiver checks the whole
+batch in a few array operations and builds each message it takes as views of the columns (its
+arrays are read-only slices of the batch's), instead of parsing each message. Body after the
+common header (``protocols.wire``), little-endian::
+
+    u16 n              number of messages (2..)
+    n x 42 bytes       each message's fixed fields, as consensus version 3 lays them out
+                       (round, sender, degree, ready_hops, incarnation, position, velocity,
+                       n_heard, n_edges), senders strictly increasing
+    sum(n_heard + n_edges) x u16
+                       per message in turn: its heard ids, then its edge neighbours (each run
+                       strictly increasing)
+    sum(n_edges) x u32 per message in turn: its edge incarnations (0xFFFFFFFF: not said)
+    sum(1 + n_edges) x 18 x f64
+                       per message in turn: gamma, then its edge sums in the order of its ids
+
+Each message is what consensus version 3 carries (a version-3 payload of the same fields decodes
+to the same message, bit for bit), and each must be within the receiver's consensus size limit
+as that payload. :func:`open_batch` checks everything :func:`protocols.wire.decode_consensus`
+checks of each message; a bad message rejects the whole batch (one process wrote it).
+
+Version 1 (still decoded: :func:`split_batch`, :func:`open_batch`)::
 
     u16 n              number of messages (2..)
     n x u32 length     byte length of each message
-    n x message        complete consensus payloads (header included), senders strictly
-                       increasing, each at most the receiver's consensus size limit
+    n x message        complete consensus payloads (header included, any consensus version),
+                       senders strictly increasing, each at most the receiver's size limit
 
-Decoding (:func:`split_batch`) checks the header, the counts and lengths and the senders' order,
-and reads each message's sender, round and position (``protocols.wire.consensus_head``) so a
-receiver can apply the radio range before fully decoding a message; WireError for anything
-malformed, with its reason (a bad inner message rejects the whole batch: one sender wrote it).
+:func:`split_batch` checks the header, the counts and lengths and the senders' order, and reads
+each message's sender, round and position (``protocols.wire.consensus_head``) so a receiver can
+apply the radio range before fully decoding a message; WireError for anything malformed, with
+its reason.
 """
 
 from __future__ import annotations
