@@ -455,6 +455,27 @@ class BatchConsensus:
         positions and velocities (len(rows), 3) NED, put on their messages for the neighbours'
         separation layer. Returns the estimates (len(rows), 18) and one output per row (whose
         estimate is its row of them)."""
+        gamma, messages, active, disagreement = self.step_messages(
+            rows, round_, zeta, inboxes, members, motion
+        )
+        return gamma, [
+            _new_output(message.gamma, message, neighbours, dis)
+            for message, neighbours, dis in zip(
+                messages, active, disagreement.tolist(), strict=True
+            )
+        ]
+
+    def step_messages(
+        self,
+        rows: Sequence[int],
+        round_: int,
+        zeta: FloatArray,
+        inboxes: Sequence[Iterable[ConsensusMessage]],
+        members: Sequence[frozenset[int] | None],
+        motion: tuple[FloatArray, FloatArray] | None = None,
+    ) -> tuple[FloatArray, list[ConsensusMessage], list[tuple[int, ...]], FloatArray]:
+        """:meth:`step` without the output objects: the estimates (len(rows), 18), and per row
+        its message, its active neighbours and its disagreement (len(rows),)."""
         rows_arr = np.asarray(rows, dtype=np.intp).reshape(-1)
         for row in rows_arr.tolist():
             last = self._last_round[row]
@@ -481,8 +502,8 @@ class BatchConsensus:
         self._hist_largest[rows_arr, slot] = np.abs(gamma).max(axis=1)
         self._hist_degree[rows_arr, slot] = degree
         self._hist_heard[rows_arr, slot] = heard
-        outputs = self._outputs(rows_arr, round_, gamma, heard, active, disagreement, motion)
-        return gamma, outputs
+        messages = self._outputs(rows_arr, round_, gamma, heard, active, disagreement, motion)
+        return gamma, messages, active, disagreement
 
     def _grow(self, m: int) -> None:
         """Make room for neighbour ids below ``m`` (at least doubling)."""
@@ -893,7 +914,8 @@ class BatchConsensus:
         active: list[tuple[int, ...]],
         disagreement: FloatArray,
         motion: tuple[FloatArray, FloatArray] | None = None,
-    ) -> list[ConsensusOutput]:
+    ) -> list[ConsensusMessage]:
+        """Each row's message of this step."""
         n_rows = rows.shape[0]
         moved: tuple[FloatArray, FloatArray] | None = None
         if motion is None:
@@ -933,25 +955,20 @@ class BatchConsensus:
         own_inc = self._own_inc[rows].tolist()
         agent_ids = self.agent_ids
         return [
-            _new_output(
+            _new_message(
+                agent_ids[row],  # sender
+                round_,
                 gamma_rows[p],
-                _new_message(
-                    agent_ids[row],  # sender
-                    round_,
-                    gamma_rows[p],
-                    edge_sums[p],
-                    heard_sets[p],
-                    len(heard_sets[p]),  # degree
-                    0,  # ready_hops (the adapter puts its settled level on it)
-                    positions[p],
-                    velocities[p],
-                    own_inc[p],  # incarnation
-                    edge_tags[p],
-                ),
-                active[p],
-                dis,
+                edge_sums[p],
+                heard_sets[p],
+                len(heard_sets[p]),  # degree
+                0,  # ready_hops (the adapter puts its settled level on it)
+                positions[p],
+                velocities[p],
+                own_inc[p],  # incarnation
+                edge_tags[p],
             )
-            for p, (row, dis) in enumerate(zip(rows.tolist(), disagreement.tolist(), strict=True))
+            for p, row in enumerate(rows.tolist())
         ]
 
 

@@ -338,6 +338,7 @@ class ReferenceFlight:
         committed = [phases[i].committed for i in live]
         ready_all = self._ready(live, outs, members, committed)
         levels = self.readiness.level[live].tolist() if live else []
+        armed_now, failsafe_now = self.armed.tolist(), self.in_failsafe.tolist()
         for i, out, level, ready, flies in zip(
             live, outs, levels, ready_all, committed, strict=True
         ):
@@ -347,7 +348,9 @@ class ReferenceFlight:
             messages.append(with_level(out.message, level))
             if crashed[i]:
                 continue
-            sp = self._decide(i, out, flies or ready, altitude[i], yaw[i])
+            sp = self._decide(
+                i, out, flies or ready, altitude[i], yaw[i], armed_now[i], failsafe_now[i]
+            )
             if sp is not None:
                 flying.append(i)
                 commands.append(sp)
@@ -391,15 +394,21 @@ class ReferenceFlight:
         return ready.tolist()
 
     def _decide(
-        self, i: int, out: AgentOutput, ready: bool, altitude_m: float, yaw_rad: float
+        self,
+        i: int,
+        out: AgentOutput,
+        ready: bool,
+        altitude_m: float,
+        yaw_rad: float,
+        armed: bool,
+        in_failsafe: bool,
     ) -> tuple[float, float, float, float] | None:
         """What the agent's flight phase decides for its vehicle (drone_agent/flight_phase.py,
         the same decision as every ``swarm agent``): arms it when asked, and returns the
         setpoint (roll, pitch, yaw, thrust) of an armed vehicle, None for a disarmed one. The
         scenario's plan always says FLY. The vehicle here has no flight modes: arming takes the
         offboard setpoints at once, and a hold (no valid setpoint in the air) flies the order's
-        level hover setpoint."""
-        armed, in_failsafe = bool(self.armed[i]), bool(self.in_failsafe[i])
+        level hover setpoint. ``armed``, ``in_failsafe``: the vehicle's state at the tick."""
         arming = not armed and not in_failsafe
         # VehicleView(armed, in_offboard, in_land, in_hold, altitude_m)
         vehicle = _new_vehicle_view(armed, armed, in_failsafe, False, altitude_m)
