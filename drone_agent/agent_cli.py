@@ -7,7 +7,7 @@ import os
 import signal
 import sys
 import time
-from collections.abc import Callable, MutableMapping
+from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
 
@@ -211,20 +211,6 @@ def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
         raise AgentCliError(str(exc)) from None
 
 
-def zenoh_runtime(
-    args: argparse.Namespace, environ: MutableMapping[str, str] = os.environ
-) -> str | None:
-    """Set up the process's Zenoh threads before its first session: a lockstep agent process
-    runs Zenoh on one thread (zenoh_config.AGENT_RUNTIME, unless ``environ`` has the user's
-    own); the setting in force, None for Zenoh's default."""
-    from drone_agent.zenoh_config import RUNTIME_ENV, use_agent_runtime
-
-    if not getattr(args, "lockstep", False):
-        return environ.get(RUNTIME_ENV)
-
-    return use_agent_runtime(environ)
-
-
 def _secured_settings(
     folder: Path, role: str, connect: list[str] | None, swarm_id: str
 ) -> ZenohSettings:
@@ -321,7 +307,6 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise AgentCliError(f"cannot open the vehicle link: {exc}") from None
     zsettings = zenoh_settings(args)
-    zenoh_runtime(args)  # before the session: Zenoh reads it when its first thread starts
     try:
         bus: Bus = ZenohBus.open(zsettings)
     except Exception as exc:  # zenoh raises ZError with the reason

@@ -15,9 +15,7 @@ tells a refused credential (the router's TCP port answers) from an unreachable r
 from __future__ import annotations
 
 import json
-import os
 import socket
-from collections.abc import MutableMapping
 from typing import Any
 
 from protocols.swarm_secrets import RoleSecrets, SecretsError, load_role
@@ -30,26 +28,6 @@ ROUTER_WAIT_MS = 120_000
 #: client's liveliness tokens vanish. Longer than a peer's on loopback (1 s): links cross hosts,
 #: and a starved process must not drop half the swarm (a killed one's still vanish at once).
 ROUTER_LEASE_MS = 3000
-#: The environment variable Zenoh reads its thread pools' settings from (RON), once per process,
-#: when its first pool starts (the first session): zenoh_runtime's ZENOH_RUNTIME_ENV.
-RUNTIME_ENV = "ZENOH_RUNTIME"
-#: A lockstep agent process's Zenoh: every pool (receive, send, accept, housekeeping) handed over
-#: to one worker thread. Zenoh 1.x's default runs about eight (rx 2, acc 2, net 2, tx 1, app 1);
-#: an agent process moves a few samples a tick, and on a 2-core machine hosting ten processes
-#: their wakeups cost more than the work (one agent process per drone at N = 9: Zenoh's threads'
-#: CPU per agent-tick went from about 1 ms to 0.7 ms). Handing over changes only which thread runs
-#: a task: a link's samples are still received, and sent, in order by one task each.
-AGENT_RUNTIME = (
-    "(app: (worker_threads: 1), rx: (handover: app), tx: (handover: app), "
-    "acc: (handover: app), net: (handover: app))"
-)
-
-
-def use_agent_runtime(environ: MutableMapping[str, str] = os.environ) -> str:
-    """Give this process's Zenoh :data:`AGENT_RUNTIME` unless ``environ`` already says (a user's
-    own ZENOH_RUNTIME wins); call it before the process's first Zenoh session. Returns the
-    setting in force."""
-    return environ.setdefault(RUNTIME_ENV, AGENT_RUNTIME)
 
 
 def secure(conf: Any, secrets: RoleSecrets, mode: str) -> None:
