@@ -141,6 +141,7 @@ _PARTS = (
     ("agents (core)", "drone_agent.agent_core", "BatchAgentCore", "tick"),
     ("agents (core)", "drone_agent.agent_core", "AgentCore", "tick"),
     ("  consensus step", "drone_agent.consensus_batch", "BatchConsensus", "step"),
+    ("  consensus step", "drone_agent.consensus_batch", "BatchConsensus", "step_messages"),
     ("  consensus step", "drone_agent.consensus", "ConsensusEstimator", "step"),
     ("  descriptor frame (eigh, axes)", "protocols.descriptors", None, "align_axes_batch"),
     ("  descriptor frame (eigh, axes)", "protocols.descriptors", None, "align_axes"),

@@ -204,17 +204,19 @@ class BatchAgentCore:
             euler_rate_matrix_batch(a_d[:, I_ROLL], a_d[:, I_PITCH]) @ ad_dot[:, ORIENTATION, None]
         )[:, :, 0]
         zeta = channels_batch(x, v, a_d[:, CENTRE], ad_dot[:, CENTRE], (r_d, omega_d))
-        gamma, outs = self.consensus.step(rows, round_, zeta, inboxes, members, (x, v))
+        gamma, messages, active, disagreement = self.consensus.step_messages(
+            rows, round_, zeta, inboxes, members, (x, v)
+        )
         moments = moments_from_averages_batch(
             gamma, a_d[:, CENTRE], ad_dot[:, CENTRE], (r_d, omega_d)
         )
         axes, s = align_axes_batch(moments.sigma_m2, r_d)
         estimate = frame_vector_batch(moments.centre_ned_m, axes, s)
-        ready = np.zeros(len(outs), dtype=bool)
+        ready = np.zeros(len(messages), dtype=bool)
         if t_s >= self.config.warmup_s:
             ready[:] = np.isfinite(gamma).all(axis=1)
-        setpoints: list[Setpoint | None] = [None] * len(outs)
-        separating = [False] * len(outs)
+        setpoints: list[Setpoint | None] = [None] * len(messages)
+        separating = [False] * len(messages)
         if ready.any():
             setpoints, separating = self._setpoints(
                 rows,
@@ -232,17 +234,19 @@ class BatchAgentCore:
         estimates, desired = list(estimate), list(a_d)
         return [
             _new_output(
-                out.message,
+                message,
                 estimates[k],
                 _new_moments(centre[k], rate[k], sigma[k], sigma_rate[k]),
                 setpoints[k],
-                out.active_neighbours,
+                neighbours,
                 flies,
-                out.disagreement,
+                dis,
                 desired[k],
                 separating[k],
             )
-            for k, (out, flies) in enumerate(zip(outs, ready.tolist(), strict=True))
+            for k, (message, neighbours, dis, flies) in enumerate(
+                zip(messages, active, disagreement.tolist(), ready.tolist(), strict=True)
+            )
         ]
 
     def _references(self, plans: Sequence[DescriptorTrajectory], t_s: float) -> StateTriple:

@@ -79,6 +79,7 @@ class _Mail:
     which: npt.NDArray[np.intp]
     counts: list[int]
     carried: list[int]
+    packed: tuple[_Pack, npt.NDArray[np.intp]] | None = None
 
 
 @dataclass
@@ -93,6 +94,155 @@ class _Due:
     round: npt.NDArray[np.int64]
     msg: npt.NDArray[np.intp]
     messages: list[ConsensusMessage]
+    packed: tuple[_Pack, npt.NDArray[np.intp]] | None = None
+
+
+class _Pack:
+    """What one :meth:`BatchConsensus.step` put on its messages, as the arrays it made them from:
+    ``keys`` (E,) ``position * span + neighbour`` of every edge sum, ascending (``span`` above
+    every neighbour id), ``sums`` (E, 18) and ``tags`` (E,) theirs, ``gamma`` (P, 18) and
+    ``heard`` (P, span) per position, ``ids`` (E,) the neighbour of each edge sum and ``bounds``
+    (P + 1,) where each position's edge sums start, the objects each position's message was
+    made with (``gammas``, ``heard_sets``; ``where``, ``how_fast`` the rows of ``positions`` and
+    ``velocities``). A receiver of these messages in the same process reads them from the arrays
+    instead of message by message (:func:`_packed`, :func:`packed_motion`). It refers to no
+    message nor mapping of them (no reference cycle: freed as soon as its messages are)."""
+
+    __slots__ = (
+        "bounds",
+        "gamma",
+        "gammas",
+        "heard",
+        "heard_sets",
+        "how_fast",
+        "ids",
+        "keys",
+        "positions",
+        "span",
+        "sums",
+        "tags",
+        "velocities",
+        "where",
+    )  # fmt: skip
+
+    def __init__(
+        self,
+        keys: npt.NDArray[np.intp],
+        ids: npt.NDArray[np.intp],
+        bounds: list[int],
+        span: int,
+        sums: FloatArray,
+        tags: npt.NDArray[np.int64],
+        gamma: FloatArray,
+        heard: npt.NDArray[np.bool_],
+    ) -> None:
+        self.ids, self.bounds, self.span, self.sums, self.tags = ids, bounds, span, sums, tags
+        self.gamma, self.heard = gamma, heard
+        self.keys = keys
+        self.gammas: list[FloatArray] = list(gamma)
+        self.heard_sets: list[frozenset[int]] = []
+        #: the senders' positions and velocities (P, 3) and the rows put on the messages (None:
+        #: the messages carry none)
+        self.positions: FloatArray | None = None
+        self.velocities: FloatArray | None = None
+        self.where: list[FloatArray | None] = []
+        self.how_fast: list[FloatArray | None] = []
+
+
+class _PackedSums(EdgeSums):
+    """The :class:`EdgeSums` of position ``at`` of a :class:`_Pack`: the same mapping, its
+    ``ids`` and ``sums`` the pack's rows of that position, sliced when first read."""
+
+    __slots__ = ("at", "pack")
+
+    def __init__(self, pack: _Pack, at: int) -> None:  # pylint: disable=super-init-not-called
+        self.pack = pack
+        self.at = at
+        self._index = None
+
+    @property
+    def ids(self) -> npt.NDArray[np.intp]:  # type: ignore[override]
+        b = self.pack.bounds
+        return self.pack.ids[b[self.at] : b[self.at + 1]]
+
+    @property
+    def sums(self) -> FloatArray:  # type: ignore[override]
+        b = self.pack.bounds
+        return self.pack.sums[b[self.at] : b[self.at + 1]]
+
+
+class _PackedIncarnations(EdgeIncarnations):
+    """The :class:`EdgeIncarnations` of position ``at`` of a :class:`_Pack` (as
+    :class:`_PackedSums`)."""
+
+    __slots__ = ("at", "pack")
+
+    def __init__(self, pack: _Pack, at: int) -> None:  # pylint: disable=super-init-not-called
+        self.pack = pack
+        self.at = at
+
+    @property
+    def ids(self) -> npt.NDArray[np.intp]:  # type: ignore[override]
+        b = self.pack.bounds
+        return self.pack.ids[b[self.at] : b[self.at + 1]]
+
+    @property
+    def tags(self) -> npt.NDArray[np.int64]:  # type: ignore[override]
+        b = self.pack.bounds
+        return self.pack.tags[b[self.at] : b[self.at + 1]]
+
+
+def _packed(messages: list[ConsensusMessage]) -> tuple[_Pack, npt.NDArray[np.intp]] | None:
+    """The pack of ``messages`` and each one's position in it, if all come from one step of a
+    :class:`BatchConsensus` with the gamma, heard-set and incarnations it made them with (a
+    message rebuilt with other values of those is read message by message); else None."""
+    first = messages[0].edge_sums
+    if type(first) is not _PackedSums:
+        return None
+    pack = first.pack
+    gammas, heard_sets = pack.gammas, pack.heard_sets
+    at: list[int] = []
+    for m in messages:
+        e, tags = m.edge_sums, m.edge_incarnations
+        if type(e) is not _PackedSums or e.pack is not pack:
+            return None
+        k = e.at
+        if (
+            m.gamma is not gammas[k]
+            or m.heard is not heard_sets[k]
+            or type(tags) is not _PackedIncarnations
+            or tags.pack is not pack
+            or tags.at != k
+        ):
+            return None
+        at.append(k)
+    return pack, np.array(at, dtype=np.intp)
+
+
+def packed_motion(messages: list[ConsensusMessage]) -> tuple[FloatArray, FloatArray] | None:
+    """The positions and velocities (len(messages), 3) ``messages`` carry, read from the arrays
+    their :class:`BatchConsensus` step made them from, if all come from one step with the
+    position and velocity rows it put on them (each message then has both); else None (read
+    them message by message)."""
+    if not messages:
+        return None
+    first = messages[0].edge_sums
+    if type(first) is not _PackedSums or first.pack.positions is None:
+        return None
+    pack = first.pack
+    where, how_fast = pack.where, pack.how_fast
+    at: list[int] = []
+    for m in messages:
+        e = m.edge_sums
+        if type(e) is not _PackedSums or e.pack is not pack:
+            return None
+        k = e.at
+        if m.position_ned_m is not where[k] or m.velocity_ned_m_s is not how_fast[k]:
+            return None
+        at.append(k)
+    assert pack.positions is not None and pack.velocities is not None
+    picked = np.array(at, dtype=np.intp)
+    return pack.positions[picked], pack.velocities[picked]
 
 
 def _flat(a: npt.NDArray[Any]) -> npt.NDArray[Any]:
@@ -132,12 +282,25 @@ def _tags(message: ConsensusMessage, n_edges: int) -> npt.NDArray[np.int64]:
 
 
 def _sums_for(
-    receivers: npt.NDArray[np.intp], which: npt.NDArray[np.intp], messages: list[ConsensusMessage]
+    receivers: npt.NDArray[np.intp],
+    which: npt.NDArray[np.intp],
+    messages: list[ConsensusMessage],
+    packed: tuple[_Pack, npt.NDArray[np.intp]] | None = None,
 ) -> tuple[npt.NDArray[np.bool_], FloatArray, npt.NDArray[np.int64]]:
     """``messages[which[k]].edge_sums.get(receivers[k])`` for every k: whether it is there
     (n,), the ones that are (n_found, 18) and the receiver incarnation each was made with
     (n_found,; -1 where the message does not say). :class:`EdgeSums` are looked up all at once
-    (one sorted key per (message, neighbour)), other mappings one by one."""
+    (one sorted key per (message, neighbour)), other mappings one by one; ``packed``: the
+    messages' :class:`_Pack` and their positions in it (:func:`_packed`), read as its arrays."""
+    if packed is not None and int(receivers.max(initial=0)) < packed[0].span:
+        pack, at = packed
+        keys = pack.keys
+        wanted = at[which] * pack.span + receivers
+        where = np.searchsorted(keys, wanted)
+        has = where < keys.shape[0]
+        has[has] = keys[where[has]] == wanted[has]
+        found = where[has]
+        return has, pack.sums[found], pack.tags[found]
     tables = [m.edge_sums for m in messages]
     arrays = [t for t in tables if isinstance(t, EdgeSums)]
     if len(arrays) < len(tables):  # some plain mappings (decoded from the wire): one by one
@@ -228,6 +391,9 @@ class BatchConsensus:
         self.dropped_messages = [0] * k
         self.stale_messages = [0] * k
         self._masks: dict[int, tuple[frozenset[int], npt.NDArray[np.bool_]]] = {}
+        #: per row, the ids it heard at its last step (K, M) and their set (_heard_sets)
+        self._heard_prev = np.zeros((k, 0), dtype=bool)
+        self._heard_set: list[frozenset[int]] = [frozenset()] * k
         self._scales = np.ascontiguousarray(params.channel_scales, dtype=np.float64)
         self._grow(max(self.agent_ids, default=0) + 1)
 
@@ -289,6 +455,27 @@ class BatchConsensus:
         positions and velocities (len(rows), 3) NED, put on their messages for the neighbours'
         separation layer. Returns the estimates (len(rows), 18) and one output per row (whose
         estimate is its row of them)."""
+        gamma, messages, active, disagreement = self.step_messages(
+            rows, round_, zeta, inboxes, members, motion
+        )
+        return gamma, [
+            _new_output(message.gamma, message, neighbours, dis)
+            for message, neighbours, dis in zip(
+                messages, active, disagreement.tolist(), strict=True
+            )
+        ]
+
+    def step_messages(
+        self,
+        rows: Sequence[int],
+        round_: int,
+        zeta: FloatArray,
+        inboxes: Sequence[Iterable[ConsensusMessage]],
+        members: Sequence[frozenset[int] | None],
+        motion: tuple[FloatArray, FloatArray] | None = None,
+    ) -> tuple[FloatArray, list[ConsensusMessage], list[tuple[int, ...]], FloatArray]:
+        """:meth:`step` without the output objects: the estimates (len(rows), 18), and per row
+        its message, its active neighbours and its disagreement (len(rows),)."""
         rows_arr = np.asarray(rows, dtype=np.intp).reshape(-1)
         for row in rows_arr.tolist():
             last = self._last_round[row]
@@ -315,8 +502,8 @@ class BatchConsensus:
         self._hist_largest[rows_arr, slot] = np.abs(gamma).max(axis=1)
         self._hist_degree[rows_arr, slot] = degree
         self._hist_heard[rows_arr, slot] = heard
-        outputs = self._outputs(rows_arr, round_, gamma, heard, active, disagreement, motion)
-        return gamma, outputs
+        messages = self._outputs(rows_arr, round_, gamma, heard, active, disagreement, motion)
+        return gamma, messages, active, disagreement
 
     def _grow(self, m: int) -> None:
         """Make room for neighbour ids below ``m`` (at least doubling)."""
@@ -393,7 +580,7 @@ class BatchConsensus:
         which[order] = np.cumsum(first) - 1
         messages = [msgs[k] for k in order[first].tolist()]
         senders = np.array([m.sender for m in messages], dtype=np.intp)
-        return _Mail(messages, senders, which, counts, carried)
+        return _Mail(messages, senders, which, counts, carried, _packed(messages))
 
     def _receive(
         self,
@@ -448,7 +635,7 @@ class BatchConsensus:
         else:
             newest = ends
         newer = newest[q[newest] > _flat(self._latest).take(pair[newest])]
-        self._note_newest(row[newer], j[newer], q[newer], which[newer], messages)
+        self._note_newest(row[newer], j[newer], q[newer], which[newer], messages, mail.packed)
         if duplicates:  # the last copy of a (sender, round) is the one paired
             last_copy = np.flatnonzero(_before_true(~same_value))
             pos, j, q, which, row = (
@@ -463,7 +650,7 @@ class BatchConsensus:
             for k in np.flatnonzero(~is_due).tolist():
                 self._later[int(row[k])][(int(j[k]), int(q[k]))] = messages[which[k]]
             pos, j, q, which = pos[is_due], j[is_due], q[is_due], which[is_due]
-        return _Due(pos, j, q, which, messages)
+        return _Due(pos, j, q, which, messages, mail.packed)
 
     def _incarnations(
         self,
@@ -544,12 +731,13 @@ class BatchConsensus:
         rounds: npt.NDArray[np.int64],
         which: npt.NDArray[np.intp],
         messages: list[ConsensusMessage],
+        packed: tuple[_Pack, npt.NDArray[np.intp]] | None = None,
     ) -> None:
         """Peer ``ids[k]``'s newest message to row ``rows[k]`` is ``messages[which[k]]`` of
         round ``rounds[k]``: the round it was last heard in, and the ``Q_ji`` it carries."""
         pair = rows * self._m + ids
         _flat(self._latest)[pair] = rounds
-        has, values, tags = _sums_for(self._ids[rows], which, messages)
+        has, values, tags = _sums_for(self._ids[rows], which, messages, packed)
         mine = (tags < 0) | (tags == self._own_inc[rows[has]])  # made with this incarnation
         if not mine.all():
             has[np.flatnonzero(has)[~mine]] = False
@@ -631,7 +819,11 @@ class BatchConsensus:
             self._edge,
             self._edge_round,
             self._heard_by(due),
-            np.array([m.gamma for m in due.messages], dtype=np.float64),
+            (
+                np.array([m.gamma for m in due.messages], dtype=np.float64)
+                if due.packed is None
+                else due.packed[0].gamma[due.packed[1]]
+            ),
             np.array([m.degree for m in due.messages], dtype=np.int64),
             (float(p.rho), float(p.rho_cap), float(p.dt_s), float(p.c), bool(p.degree_normalised)),
             self._scales,
@@ -669,6 +861,11 @@ class BatchConsensus:
     def _heard_by(self, due: _Due) -> npt.NDArray[np.bool_]:
         """(messages, M) True where the message's heard-set lists the id."""
         heard = np.zeros((len(due.messages), self._m), dtype=bool)
+        if due.packed is not None:
+            pack, at = due.packed
+            width = min(pack.span, self._m)
+            heard[:, :width] = pack.heard[at, :width]
+            return heard
         sizes = [len(m.heard) for m in due.messages]
         total = sum(sizes)
         if total:
@@ -687,6 +884,27 @@ class BatchConsensus:
         )
         return total
 
+    def _heard_sets(
+        self, rows: npt.NDArray[np.intp], heard: npt.NDArray[np.bool_]
+    ) -> list[frozenset[int]]:
+        """The ids each row hears (``heard`` (len(rows), M)) as sets; a row's set object of its
+        last step again when it hears the same ids (a heard-set changes seldom)."""
+        prev = self._heard_prev
+        if prev.shape[1] != heard.shape[1]:
+            prev = self._heard_prev = np.zeros((len(self.agent_ids), heard.shape[1]), dtype=bool)
+            self._heard_set = [frozenset()] * len(self.agent_ids)
+        known = self._heard_set
+        changed = np.flatnonzero((prev[rows] != heard).any(axis=1))
+        if changed.shape[0]:
+            now = heard[changed]
+            prev[rows[changed]] = now
+            at, ids = np.nonzero(now)
+            bounds = np.searchsorted(at, np.arange(changed.shape[0] + 1)).tolist()
+            listed = ids.tolist()
+            for row, (lo, hi) in zip(rows[changed].tolist(), pairwise(bounds), strict=True):
+                known[row] = frozenset(listed[lo:hi])
+        return [known[row] for row in rows.tolist()]
+
     def _outputs(
         self,
         rows: npt.NDArray[np.intp],
@@ -696,20 +914,26 @@ class BatchConsensus:
         active: list[tuple[int, ...]],
         disagreement: FloatArray,
         motion: tuple[FloatArray, FloatArray] | None = None,
-    ) -> list[ConsensusOutput]:
+    ) -> list[ConsensusMessage]:
+        """Each row's message of this step."""
         n_rows = rows.shape[0]
+        moved: tuple[FloatArray, FloatArray] | None = None
         if motion is None:
             positions: list[FloatArray | None] = [None] * n_rows
             velocities: list[FloatArray | None] = [None] * n_rows
         else:
-            positions = list(np.array(motion[0], dtype=float).reshape(-1, 3))
-            velocities = list(np.array(motion[1], dtype=float).reshape(-1, 3))
+            moved = (
+                np.array(motion[0], dtype=float).reshape(-1, 3),
+                np.array(motion[1], dtype=float).reshape(-1, 3),
+            )
+            positions, velocities = list(moved[0]), list(moved[1])
         listening = self.observing[rows]
         edges = self._edge[rows]
         if listening.any():  # a listening row says it hears nobody, sends no sums
             heard = heard & ~listening[:, None]
             edges = edges & ~listening[:, None]
         pos, ids = np.nonzero(edges)
+        span = edges.shape[1]
         pair = rows[pos] * self._m + ids
         sums = _flat(self._q_own).take(pair, axis=0)
         tags = _flat(self._inc).take(pair)
@@ -717,39 +941,34 @@ class BatchConsensus:
         tags.flags.writeable = False
         ids.flags.writeable = False
         bounds = np.searchsorted(pos, np.arange(rows.shape[0] + 1)).tolist()
-        heard_pos, heard_ids_all = np.nonzero(heard)
-        heard_bounds = np.searchsorted(heard_pos, np.arange(rows.shape[0] + 1)).tolist()
-        heard_list = heard_ids_all.tolist()
-        gamma_rows = list(gamma)
-        heard_sets = [frozenset(heard_list[lo:hi]) for lo, hi in pairwise(heard_bounds)]
-        spans = list(pairwise(bounds))
-        ids_of = [ids[lo:hi] for lo, hi in spans]
-        edge_sums = [EdgeSums(i, sums[lo:hi]) for i, (lo, hi) in zip(ids_of, spans, strict=True)]
-        edge_tags = [
-            EdgeIncarnations(i, tags[lo:hi]) for i, (lo, hi) in zip(ids_of, spans, strict=True)
-        ]
+        heard_sets = self._heard_sets(rows, heard)
+        heard.flags.writeable = False
+        pack = _Pack(pos * span + ids, ids, bounds, span, sums, tags, gamma, heard)
+        gamma_rows = pack.gammas
+        pack.heard_sets = heard_sets
+        if moved is not None:
+            pack.positions, pack.velocities = moved
+            pack.where, pack.how_fast = positions, velocities
+        places = range(n_rows)
+        edge_sums = [_PackedSums(pack, p) for p in places]
+        edge_tags = [_PackedIncarnations(pack, p) for p in places]
         own_inc = self._own_inc[rows].tolist()
         agent_ids = self.agent_ids
         return [
-            _new_output(
+            _new_message(
+                agent_ids[row],  # sender
+                round_,
                 gamma_rows[p],
-                _new_message(
-                    agent_ids[row],  # sender
-                    round_,
-                    gamma_rows[p],
-                    edge_sums[p],
-                    heard_sets[p],
-                    len(heard_sets[p]),  # degree
-                    0,  # ready_hops (the adapter puts its settled level on it)
-                    positions[p],
-                    velocities[p],
-                    own_inc[p],  # incarnation
-                    edge_tags[p],
-                ),
-                active[p],
-                dis,
+                edge_sums[p],
+                heard_sets[p],
+                len(heard_sets[p]),  # degree
+                0,  # ready_hops (the adapter puts its settled level on it)
+                positions[p],
+                velocities[p],
+                own_inc[p],  # incarnation
+                edge_tags[p],
             )
-            for p, (row, dis) in enumerate(zip(rows.tolist(), disagreement.tolist(), strict=True))
+            for p, row in enumerate(rows.tolist())
         ]
 
 

@@ -35,6 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drone_agent.agent_core import AgentConfig, AgentOutput, Setpoint
+from drone_agent.consensus_batch import frozen_factory
 from drone_agent.jit_math import jit
 from drone_agent.thrust_attitude import ThrustLimits
 from protocols.consensus_message import ConsensusMessage
@@ -81,6 +82,11 @@ class Order:
     mode: AgentMode
     setpoint: Setpoint
     request: Request = Request.NONE
+
+
+#: ``Order(mode, setpoint, request)``, made without the frozen ``__init__`` (every agent makes
+#: one a tick)
+_new_order = frozen_factory(Order)
 
 
 def idle_setpoint(yaw_rad: float) -> Setpoint:
@@ -387,17 +393,19 @@ class FlightPhase:
                 self.committed, self.landed = True, False
                 if vehicle.armed and vehicle.in_offboard:
                     self.handed_over = False
-                    return Order(AgentMode.FLYING, setpoint)
+                    return _new_order(AgentMode.FLYING, setpoint, Request.NONE)
                 # arming, or taking the vehicle back from a failsafe or from LAND
                 mode = AgentMode.FLYING if vehicle.armed else AgentMode.READY
-                return Order(mode, setpoint, Request.ARM_OFFBOARD)
+                return _new_order(mode, setpoint, Request.ARM_OFFBOARD)
             if vehicle.airborne:  # nothing valid to fly: the autopilot holds its altitude
                 request = Request.NONE if vehicle.in_hold else Request.HOLD_MODE
-                return Order(AgentMode.HOLDING, hover_setpoint(self.limits, yaw_rad), request)
+                return _new_order(AgentMode.HOLDING, hover_setpoint(self.limits, yaw_rad), request)
         elif vehicle.airborne:  # LAND or GROUND
             if vehicle.in_land:  # handed over (or its own failsafe): it lands and disarms
                 self.handed_over = True
-                return Order(AgentMode.LANDING, hover_setpoint(self.limits, yaw_rad))
+                return _new_order(
+                    AgentMode.LANDING, hover_setpoint(self.limits, yaw_rad), Request.NONE
+                )
             handover = (
                 command == FlightCommand.GROUND
                 or commanded_altitude_m <= LAND_HANDOVER_ALTITUDE_M
@@ -406,21 +414,23 @@ class FlightPhase:
             if handover or setpoint is None:
                 self.handed_over = True
                 landing = setpoint or hover_setpoint(self.limits, yaw_rad)
-                return Order(AgentMode.LANDING, landing, Request.LAND_MODE)
-            return Order(AgentMode.LANDING, setpoint)
+                return _new_order(AgentMode.LANDING, landing, Request.LAND_MODE)
+            return _new_order(AgentMode.LANDING, setpoint, Request.NONE)
         # disarmed on the ground
         self.handed_over = False
         if self.committed:
             self.committed, self.landed = False, True
         if self.landed:
-            return Order(AgentMode.LANDED, idle_setpoint(yaw_rad))
-        return Order(AgentMode.READY if converged else AgentMode.WARMUP, idle_setpoint(yaw_rad))
+            return _new_order(AgentMode.LANDED, idle_setpoint(yaw_rad), Request.NONE)
+        return _new_order(
+            AgentMode.READY if converged else AgentMode.WARMUP, idle_setpoint(yaw_rad), Request.NONE
+        )
 
     def _safe(self, order: Order, vehicle: VehicleView, yaw_rad: float) -> Order:
         """The invariant, enforced: an airborne vehicle gets at least the minimum thrust."""
         sp = order.setpoint
         if vehicle.airborne and not sp.thrust_normalised >= self.min_thrust_normalised:
-            return Order(order.mode, hover_setpoint(self.limits, yaw_rad), order.request)
+            return _new_order(order.mode, hover_setpoint(self.limits, yaw_rad), order.request)
         return order
 
 

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from drone_agent.consensus_batch import packed_motion
 from drone_agent.jit_math import jit
 from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
@@ -173,23 +174,32 @@ class NeighbourTable:
         which = np.empty(len(msgs), dtype=np.intp)
         which[order] = np.cumsum(first) - 1
         distinct = [msgs[k] for k in order[first].tolist()]
-        nowhere = (0.0, 0.0, 0.0)
         future = np.zeros(len(msgs), dtype=bool)
+        motion = packed_motion(distinct)
+        if motion is not None:  # from one batched step, as its arrays
+            positions, velocities = motion
+            has_position = known = np.ones(len(distinct), dtype=bool)
+        else:
+            nowhere = (0.0, 0.0, 0.0)
+            has_position = np.array([m.position_ned_m is not None for m in distinct], dtype=bool)
+            positions = np.array(
+                [nowhere if m.position_ned_m is None else m.position_ned_m for m in distinct],
+                dtype=np.float64,
+            )
+            velocities = np.array(
+                [nowhere if m.velocity_ned_m_s is None else m.velocity_ned_m_s for m in distinct],
+                dtype=np.float64,
+            )
+            known = np.array([m.velocity_ned_m_s is not None for m in distinct], dtype=bool)
         self._width = _file(
             np.array(owner, dtype=np.intp),
             which,
             np.array([m.sender for m in distinct], dtype=np.int64),
             np.array([m.round for m in distinct], dtype=np.int64),
-            np.array([m.position_ned_m is not None for m in distinct], dtype=bool),
-            np.array(
-                [nowhere if m.position_ned_m is None else m.position_ned_m for m in distinct],
-                dtype=np.float64,
-            ),
-            np.array(
-                [nowhere if m.velocity_ned_m_s is None else m.velocity_ned_m_s for m in distinct],
-                dtype=np.float64,
-            ),
-            np.array([m.velocity_ned_m_s is not None for m in distinct], dtype=bool),
+            has_position,
+            positions,
+            velocities,
+            known,
             self._agent_ids,
             int(round_now),
             self._round,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 
 import pytest
 
@@ -13,7 +14,8 @@ from drone_agent.agent_cli import (
     LOCKSTEP_TX_QUEUE_BATCHES,
     zenoh_settings,
 )
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
+from drone_agent.transport import Congestion
+from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
 
 
 def _args(lockstep: bool) -> argparse.Namespace:
@@ -44,3 +46,27 @@ def test_lockstep_sessions_queue_deeper_and_wait_longer() -> None:
 def test_a_queue_depth_out_of_range_is_refused(batches: int) -> None:
     with pytest.raises(ValueError, match="tx_queue_batches"):
         ZenohSettings(tx_queue_batches=batches)
+
+
+
+def test_a_sessions_queued_and_express_samples_arrive_in_send_order() -> None:
+    """The round gate's premise (drone_agent/round_gate.py): a process's consensus messages
+    (QUEUED) reach another session before the round-done marker (express) put after them."""
+    endpoint = free_loopback_endpoint()
+    with ZenohBus.open(ZenohSettings(listen=(endpoint,))) as a, ZenohBus.open(
+        ZenohSettings(connect=(endpoint,))
+    ) as b:
+        inbox = b.subscribe("t/**", 1024)
+        queued = a.publisher("t/q", Congestion.QUEUED)
+        express = a.publisher("t/e", Congestion.DROP)
+        deadline = time.monotonic() + 20
+        while not inbox.drain() and time.monotonic() < deadline:  # b's subscription known to a
+            express.put(b"-")
+            time.sleep(0.05)
+        for i in range(300):
+            (queued if i % 3 else express).put(str(i).encode())
+        got: list[bytes] = []
+        while len(got) < 300 and time.monotonic() < deadline:
+            got += [p for _, p in inbox.drain() if p != b"-"]
+            time.sleep(0.01)
+    assert got == [str(i).encode() for i in range(300)]

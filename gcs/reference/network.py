@@ -196,7 +196,7 @@ class InProcessNetwork:
         receivers, which = receivers[order], which[order]
         self.delivered += int(receivers.shape[0])
         bounds = np.searchsorted(receivers, np.arange(self.n + 1)).tolist()
-        flat = [msgs[k] for k in which.tolist()]
+        flat = list(map(msgs.__getitem__, which.tolist()))
         inboxes = [flat[lo:hi] for lo, hi in pairwise(bounds)]
         self.arrivals = Arrivals(receivers, meta[0, which], meta[1, which], meta[2, which])
         return inboxes
