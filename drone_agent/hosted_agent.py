@@ -175,13 +175,17 @@ class HostedAgent:
         return round(sample.time_boot_ms / self.options.control_period_ms)
 
     def _collect(self) -> None:
-        for packet in self.transport.receive():
-            msg = packet.message
-            self._inbox.append(msg)
+        messages = [packet.message for packet in self.transport.receive()]
+        if not messages:
+            return
+        self._inbox += messages
+        # the messages come by sender, then round: each sender's last one is its newest
+        alt, last_round = self._neighbour_alt, self._last_round_of
+        for sender, msg in {m.sender: m for m in messages}.items():
             if msg.position_ned_m is not None:
-                self._neighbour_alt[msg.sender] = (msg.round, -float(msg.position_ned_m[2]))
-            if msg.round > self._last_round_of.get(msg.sender, -1):
-                self._last_round_of[msg.sender] = msg.round
+                alt[sender] = (msg.round, -float(msg.position_ned_m[2]))
+            if msg.round > last_round.get(sender, -1):
+                last_round[sender] = msg.round
 
     def _neighbours_ready(self, tick: int) -> bool:
         """Every drone heard in the last few rounds has sent its round ``tick - 1``."""

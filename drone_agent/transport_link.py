@@ -11,23 +11,24 @@ so a late joiner gets the plan even when the ground station is gone).
 
 The consensus traffic of the agents of one process goes through one :class:`ConsensusHub`
 (issue 9, batched messaging): one subscription per cell any of its agents listens to, each sample
-split and its messages' heads read once (a message is fully decoded once, the first time an agent
+opened once (a batch in columns checked whole; a message is built once, the first time an agent
 in range takes it), and, with ``batch=True``, the messages its agents publish in one pass sent
-as one sample per cell (protocols/wire_batch.py; the host calls :meth:`ConsensusHub.flush` before
-its round-done markers), and their statuses of the pass as one status batch
-(protocols/wire_status.py, on the first drone's status key). Each agent still applies its own
-cells, radio range, early-round hold and counters exactly as when it had its own subscriptions.
-An agent made without a hub gets a private one that publishes each message (and status) at once,
-alone (the single-message schemas on the wire).
+as one sample per cell (protocols/wire_batch.py, in columns; the host calls
+:meth:`ConsensusHub.flush` before its round-done markers), and their statuses of the pass as
+one status batch (protocols/wire_status.py, on the first drone's status key). Each agent still
+applies its own cells, radio range, early-round hold and counters exactly as when it had its own
+subscriptions. An agent made without a hub gets a private one that publishes each message (and
+status) at once, alone (the single-message schemas on the wire).
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
+import operator
 import threading
 from collections import Counter, deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,17 +48,20 @@ from protocols.keys import Cell, SwarmKeys, cell_size_for, neighbourhood, track_
 from protocols.wire import (
     MAX_CONSENSUS_BYTES,
     ConsensusPacket,
+    ConsensusParts,
     Kind,
     Reason,
     WireError,
     consensus_head,
+    consensus_parts,
     decode_consensus,
-    encode_consensus,
+    encode_parts,
 )
-from protocols.wire_batch import encode_batch, split_batch
+from protocols.wire_batch import ConsensusBatch, encode_columns, open_batch
 from protocols.wire_plan import MAX_PLAN_BYTES, PlanMessage, decode_plan, encode_plan
 from protocols.wire_status import AgentStatus, encode_status, encode_status_batch
 
+_BY_SENDER_ROUND = operator.attrgetter("message.sender", "message.round")
 _COUNTER_OF = {Reason.WRONG_SWARM: "wrong_swarm", Reason.BAD_VERSION: "wrong_version"}
 #: Rounds of own positions kept for the range check of late messages.
 _HISTORY = 64
@@ -131,27 +135,34 @@ def _vec3(position_ned_m: Position) -> tuple[float, float, float]:
 
 
 class _Entry:
-    """One consensus message as received: its sender, round and radio origin, the cell it came
-    from, and its payload, decoded at most once (by the first agent that takes it)."""
+    """One consensus message as received: its sender, round and radio origin, and its payload
+    (a single message's bytes, or message ``index`` of a checked batch), decoded at most once
+    (by the first agent that takes it)."""
 
-    __slots__ = ("_packet", "error", "origin", "payload", "round", "sender")
+    __slots__ = ("_packet", "batch", "error", "index", "origin", "payload", "round", "sender")
 
     def __init__(
         self,
         sender: int,
         round_: int,
-        origin: tuple[float, float, float],
+        origin: Sequence[float],
         payload: bytes,
         error: str | None = None,
+        batch: ConsensusBatch | None = None,
+        index: int = 0,
     ) -> None:
         self.sender, self.round, self.origin, self.payload = sender, round_, origin, payload
         self.error = error  # the counter to bump for a payload that did not decode
+        self.batch, self.index = batch, index
         self._packet: ConsensusPacket | None = None
 
     def packet(self, swarm_id: str, max_bytes: int) -> ConsensusPacket:
         """The decoded message (WireError if it does not decode, each time asked)."""
         if self._packet is None:
-            self._packet = decode_consensus(self.payload, swarm_id, max_bytes=max_bytes)
+            if self.batch is not None:
+                self._packet = self.batch.packet(self.index, swarm_id, max_bytes)
+            else:
+                self._packet = decode_consensus(self.payload, swarm_id, max_bytes=max_bytes)
         return self._packet
 
 
@@ -183,7 +194,7 @@ class ConsensusHub(ClosesOnExit):
         self._subs: dict[Cell, Inbox] = {}
         self._readers: dict[Cell, list[AgentLink]] = {}
         self._cell_of_key: dict[str, tuple[Cell, int | None] | None] = {}
-        self._outbox: dict[Cell, list[tuple[int, bytes]]] = {}
+        self._outbox: dict[Cell, list[tuple[int, ConsensusParts]]] = {}
         #: statuses staged in this pass: (drone, payload, the drone's status publisher)
         self._statuses: list[tuple[int, bytes, Publisher]] = []
         #: by (cell, sender): the key of each, made once
@@ -264,10 +275,15 @@ class ConsensusHub(ClosesOnExit):
         """The messages of one sample (a single message or a batch), heads read."""
         try:
             if len(payload) > 2 and payload[2] == Kind.CONSENSUS_BATCH:
-                batch = split_batch(payload, sid, max_consensus_bytes=limit)
-                if batch[0].sender != key_sender:
+                batch = open_batch(payload, sid, max_consensus_bytes=limit)
+                if batch.senders[0] != key_sender:
                     raise WireError(Reason.BAD_VALUE, f"batch of {key_sender} from another")
-                return [_Entry(b.sender, b.round, b.origin, b.payload) for b in batch]
+                return [
+                    _Entry(s, r, o, b"", None, batch, k)
+                    for k, (s, r, o) in enumerate(
+                        zip(batch.senders, batch.rounds, batch.origins, strict=True)
+                    )
+                ]
             sender, round_, origin = consensus_head(payload, sid, max_bytes=limit)
             if sender != key_sender:
                 raise WireError(Reason.BAD_VALUE, f"key of {key_sender} carries sender {sender}")
@@ -275,12 +291,13 @@ class ConsensusHub(ClosesOnExit):
         except WireError as exc:
             return [_rejected(key_sender, exc)]
 
-    def send(self, cell: Cell, sender: int, payload: bytes) -> None:
-        """Publish ``sender``'s consensus payload from ``cell``: now, or at :meth:`flush`."""
+    def send(self, cell: Cell, sender: int, parts: ConsensusParts) -> None:
+        """Publish ``sender``'s consensus message (laid out: protocols.wire.consensus_parts)
+        from ``cell``: now, or at :meth:`flush`."""
         if self._batch:
-            self._outbox.setdefault(cell, []).append((sender, payload))
+            self._outbox.setdefault(cell, []).append((sender, parts))
         else:
-            self._put(cell, sender, payload)
+            self._put(cell, sender, encode_parts(parts, self._keys.swarm_id))
 
     def send_status(self, drone: int, payload: bytes, publisher: Publisher) -> None:
         """Publish ``drone``'s status payload on its own ``publisher``: now, or at :meth:`flush`
@@ -306,10 +323,10 @@ class ConsensusHub(ClosesOnExit):
         sid = self._keys.swarm_id
         for cell, staged in outbox.items():
             if len(staged) == 1:
-                self._put(cell, *staged[0])
+                self._put(cell, staged[0][0], encode_parts(staged[0][1], sid))
                 continue
             staged.sort(key=lambda sp: sp[0])
-            self._put(cell, staged[0][0], encode_batch(staged, sid))
+            self._put(cell, staged[0][0], encode_columns([p for _, p in staged], sid))
 
     def _put(self, cell: Cell, sender: int, payload: bytes) -> None:
         publisher = self._publishers.get((cell, sender))
@@ -450,8 +467,8 @@ class AgentLink(ClosesOnExit):
         if self._cell is None:  # only if _move failed half-way
             raise RuntimeError(f"drone {self._drone} has no consensus cell")
         limit = self._settings.max_consensus_bytes
-        payload = encode_consensus(message, self._position, self._keys.swarm_id, max_bytes=limit)
-        self._hub.send(self._cell, self._drone, payload)
+        parts = consensus_parts(message, self._position, self._keys.swarm_id, max_bytes=limit)
+        self._hub.send(self._cell, self._drone, parts)
         self._counts["tx"] += 1
         self._last_sent = max(self._last_sent, message.round)
         self._sent_at[message.round] = self._position
@@ -487,7 +504,7 @@ class AgentLink(ClosesOnExit):
                     out.append(p)
         counts["rx"] += rx
         counts["out_of_range"] += out_of_range
-        out.sort(key=lambda p: (p.message.sender, p.message.round))
+        out.sort(key=_BY_SENDER_ROUND)
         counts["delivered"] += len(out)
         return out
 

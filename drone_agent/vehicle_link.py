@@ -35,6 +35,8 @@ from protocols.mavlink_conventions import (
 from protocols.mavlink_signing import setup_signing
 
 _MAX_DATAGRAM = 65535
+_POSITION = common.MAVLink_local_position_ned_message
+_ATTITUDE = common.MAVLink_attitude_message
 #: SET_ATTITUDE_TARGET type_mask: ignore body rates, use attitude and thrust.
 IGNORE_BODY_RATES = 0b0000_0111
 
@@ -98,8 +100,10 @@ class VehicleLink:
         self._sock.connect(self.address)
         self.status = VehicleStatus()
         self.counters = LinkCounters()
-        self._pos: dict[int, Any] = {}
-        self._att: dict[int, Any] = {}
+        #: half samples by time_boot_ms: (time_boot_ms, x, y, z, vx, vy, vz) and
+        #: (time_boot_ms, roll, pitch, yaw, ...)
+        self._pos: dict[int, tuple[Any, ...]] = {}
+        self._att: dict[int, tuple[Any, ...]] = {}
 
     def fileno(self) -> int:
         return self._sock.fileno()
@@ -141,7 +145,7 @@ class VehicleLink:
             # unsigned links: protocols/mavlink_fast.py; pymavlink's codec for anything it does
             # not take, and for signed links (their signature policy)
             fast = mavlink_fast.fast_receive_ok(self._mav)
-            messages = mavlink_fast.parse(data) if fast else None
+            messages = self._fast_parse(data) if fast else None
             if messages is None:
                 try:
                     messages = self._mav.parse_buffer(data) or []
@@ -149,8 +153,39 @@ class VehicleLink:
                     self.counters.rx_bad += 1
                     continue
             for msg in messages:
-                samples += self._handle(msg)
+                if type(msg) is tuple:  # a state half of our vehicle (see _fast_parse)
+                    self.counters.rx_messages += 1
+                    store = self._pos if msg[0] else self._att
+                    store[msg[1]] = msg[1:]
+                    samples += self._pair(msg[1])
+                else:
+                    samples += self._handle(msg)
         return samples
+
+    def _fast_parse(self, data: bytes) -> list[Any] | None:
+        """:func:`protocols.mavlink_fast.parse` of ``data``, except that our vehicle's
+        LOCAL_POSITION_NED and ATTITUDE (every tick's traffic) come as the tuples
+        ``(is_position, time_boot_ms, 6 floats)`` of their fields in wire order, without
+        pymavlink's message objects; None where parse gives None."""
+        found = mavlink_fast.frames(data)
+        if found is None:
+            return None
+        out: list[Any] = []
+        sysid = self.sysid
+        for frame in found:
+            cls = frame.cls
+            if (
+                (cls is _POSITION or cls is _ATTITUDE)
+                and frame.sysid == sysid
+                and frame.compid == AUTOPILOT_COMPID
+            ):
+                out.append((cls is _POSITION, *cls.unpacker.unpack(frame.body)))
+                continue
+            msg = mavlink_fast.message_of(frame, data)
+            if msg is None:
+                return None
+            out.append(msg)
+        return out
 
     def _handle(self, msg: Any) -> list[VehicleSample]:
         if msg.get_type() == "BAD_DATA":
@@ -174,11 +209,13 @@ class VehicleLink:
             if int(msg.severity) == common.MAV_SEVERITY_EMERGENCY:
                 self.status.emergency = True  # e.g. motors failed: the vehicle is going down
         elif kind == "LOCAL_POSITION_NED":
-            self._pos[int(msg.time_boot_ms)] = msg
-            return self._pair(int(msg.time_boot_ms))
+            ms = int(msg.time_boot_ms)
+            self._pos[ms] = (ms, msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
+            return self._pair(ms)
         elif kind == "ATTITUDE":
-            self._att[int(msg.time_boot_ms)] = msg
-            return self._pair(int(msg.time_boot_ms))
+            ms = int(msg.time_boot_ms)
+            self._att[ms] = (ms, msg.roll, msg.pitch, msg.yaw)
+            return self._pair(ms)
         return []
 
     def _pair(self, ms: int) -> list[VehicleSample]:
@@ -191,9 +228,9 @@ class VehicleLink:
         return [
             VehicleSample(
                 ms,
-                np.array([pos.x, pos.y, pos.z], dtype=float),
-                np.array([pos.vx, pos.vy, pos.vz], dtype=float),
-                np.array([att.roll, att.pitch, att.yaw], dtype=float),
+                np.array(pos[1:4], dtype=float),
+                np.array(pos[4:7], dtype=float),
+                np.array(att[1:4], dtype=float),
             )
         ]
 

@@ -171,14 +171,14 @@ def parse(data: bytes) -> list[Any] | None:
         return None
     out: list[Any] = []
     for frame in found:
-        msg = _message(frame, data)
+        msg = message_of(frame, data)
         if msg is None:
             return None
         out.append(msg)
     return out
 
 
-def _message(f: Frame, data: bytes) -> Any:
+def message_of(f: Frame, data: bytes) -> Any:
     """The message object of frame ``f`` of ``data`` (pymavlink's MAVLink.decode, unsigned)."""
     cls = f.cls
     try:

@@ -62,7 +62,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum, StrEnum
 from functools import lru_cache
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -241,6 +241,24 @@ def check_ids(ids: Sequence[int], what: str) -> None:
         raise WireError(Reason.BAD_VALUE, f"{what} ids must be strictly increasing")
 
 
+class ConsensusParts(NamedTuple):
+    """A consensus message checked and laid out for the wire, not yet joined into bytes: what
+    :func:`encode_consensus` sends alone and ``protocols.wire_batch.encode_columns`` sends in
+    columns with other messages of one cell and tick.
+
+    ``fixed``: the fixed fields' values (_FIXED_V3's layout: round, sender, degree, ready_hops,
+    incarnation, position (3, float32 values), velocity (3, float32 values), n_heard, n_edges);
+    ``ids``: the heard ids then the edge neighbours; ``tags``: the edge incarnations (u32);
+    ``floats``: gamma then the edge sums (1 + n_edges, 18), float64, finite, a copy of its own;
+    ``size``: the bytes of the single payload, header included."""
+
+    fixed: tuple[Any, ...]
+    ids: list[int]
+    tags: list[int]
+    floats: FloatArray
+    size: int
+
+
 def encode_consensus(
     message: ConsensusMessage,
     position_ned_m: Sequence[float] | FloatArray,
@@ -256,6 +274,33 @@ def encode_consensus(
     ValueError if a field is out of range (ids and degree uint16, round uint32), not finite, or
     the payload would be larger than ``max_bytes``.
     """
+    parts = consensus_parts(message, position_ned_m, swarm_id, max_bytes=max_bytes)
+    return encode_parts(parts, swarm_id)
+
+
+def encode_parts(parts: ConsensusParts, swarm_id: str) -> bytes:
+    """The single payload of a message laid out by :func:`consensus_parts`."""
+    ids, tags = parts.ids, parts.tags
+    return b"".join(
+        (
+            encode_header(Kind.CONSENSUS, swarm_id, CONSENSUS_VERSION),
+            _FIXED_V3.pack(*parts.fixed),
+            struct.pack(f"<{len(ids)}H", *ids),
+            struct.pack(f"<{len(tags)}I", *tags),
+            parts.floats.tobytes(),
+        )
+    )
+
+
+def consensus_parts(
+    message: ConsensusMessage,
+    position_ned_m: Sequence[float] | FloatArray,
+    swarm_id: str,
+    *,
+    max_bytes: int = MAX_CONSENSUS_BYTES,
+) -> ConsensusParts:
+    """``message`` from ``position_ned_m`` checked and laid out (:class:`ConsensusParts`), with
+    the ValueErrors of :func:`encode_consensus`."""
     sender = _uint(message.sender, MAX_DRONE_ID, "sender")
     round_ = _uint(message.round, MAX_U32, "round")
     degree = _uint(message.degree, MAX_DRONE_ID, "degree")
@@ -264,58 +309,65 @@ def encode_consensus(
     heard = uint_ids(message.heard, "heard id")
     fast = _edge_arrays(message)
     if fast is not None:  # the batched core's messages: the same bytes, from arrays
-        neighbours, ids_block, incs_block, floats_block = fast
-        ids_block = struct.pack(f"<{len(heard)}H", *heard) + ids_block
+        neighbours, edge_incs, floats = fast
     else:
         neighbours = uint_ids(message.edge_sums, "edge neighbour")
-        floats = [message.gamma, *(message.edge_sums[j] for j in neighbours)]
-        ids = heard + neighbours
         edge_incs = _edge_incarnations(message, neighbours)
-        ids_block = struct.pack(f"<{len(ids)}H", *ids)
-        incs_block = struct.pack(f"<{len(edge_incs)}I", *edge_incs)
-        floats_block = finite_block(floats, (len(floats), N_GAMMA), "gamma and edge sums")
+        rows = [message.gamma, *(message.edge_sums[j] for j in neighbours)]
+        floats = _finite_array(rows, (len(rows), N_GAMMA), "gamma and edge sums")
     velocity = message.velocity_ned_m_s
-    payload = b"".join(
-        (
-            encode_header(Kind.CONSENSUS, swarm_id, CONSENSUS_VERSION),
-            _FIXED_V3.pack(
-                round_,
-                sender,
-                degree,
-                ready,
-                incarnation,
-                *_vec3_f32(position_ned_m, "position_ned_m"),
-                *_vec3_f32((0.0, 0.0, 0.0) if velocity is None else velocity, "velocity_ned_m_s"),
-                len(heard),
-                len(neighbours),
-            ),
-            ids_block,
-            incs_block,
-            floats_block,
-        )
+    fixed = (
+        round_,
+        sender,
+        degree,
+        ready,
+        incarnation,
+        *_vec3_f32(position_ned_m, "position_ned_m"),
+        *_vec3_f32((0.0, 0.0, 0.0) if velocity is None else velocity, "velocity_ned_m_s"),
+        len(heard),
+        len(neighbours),
     )
-    if len(payload) > max_bytes:
-        raise ValueError(f"consensus payload of {len(payload)} bytes exceeds {max_bytes}")
-    return payload
+    n_ids = len(heard) + len(neighbours)
+    size = len(encode_header(Kind.CONSENSUS, swarm_id, CONSENSUS_VERSION))
+    size += _FIXED_V3.size + 2 * n_ids + 4 * len(edge_incs) + floats.nbytes
+    if size > max_bytes:
+        raise ValueError(f"consensus payload of {size} bytes exceeds {max_bytes}")
+    return ConsensusParts(fixed, heard + neighbours, edge_incs, floats, size)
 
 
-def _edge_arrays(message: ConsensusMessage) -> tuple[list[int], bytes, bytes, bytes] | None:
+def _finite_array(values: object, shape: tuple[int, ...], what: str) -> FloatArray:
+    """``values`` as a new finite float64 array of ``shape``; ValueError otherwise."""
+    arr = np.array(values, dtype="<f8")
+    if arr.shape != shape:
+        raise ValueError(f"{what} must have shape {shape}, got {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{what} must be finite (and in range of float64)")
+    return arr
+
+
+def _edge_arrays(message: ConsensusMessage) -> tuple[list[int], list[int], FloatArray] | None:
     """For a message whose edge sums (and incarnations) are arrays over one id array
-    (:class:`~protocols.consensus_message.EdgeSums`): the edge ids and the bytes of the ids,
-    incarnations and floats blocks, as the general path makes them; None for any other message
-    (the general path then encodes it, or says what is wrong with it). The ids and incarnations
-    (a handful of small ints) are checked and packed in Python: cheaper than numpy's calls."""
+    (:class:`~protocols.consensus_message.EdgeSums`): the edge ids, their incarnations (u32,
+    NO_INCARNATION where not said) and the floats (gamma, then the sums), as the general path
+    makes them; None for any other message (the general path then encodes it, or says what is
+    wrong with it). The ids and incarnations (a handful of small ints) are checked in Python:
+    cheaper than numpy's calls."""
     sums = message.edge_sums
     if not isinstance(sums, EdgeSums):
         return None
     tags = message.edge_incarnations
-    ids = np.asarray(sums.ids)
-    if ids.ndim != 1 or ids.dtype.kind not in "iu" or np.shape(message.gamma) != (N_GAMMA,):
+    ids = sums.ids
+    if (
+        type(ids) is not np.ndarray
+        or ids.ndim != 1
+        or ids.dtype.kind not in "iu"
+        or np.shape(message.gamma) != (N_GAMMA,)
+    ):
         return None
     n = ids.shape[0]
     if tags is not None and not (
         isinstance(tags, EdgeIncarnations)
-        and (tags.ids is sums.ids or np.array_equal(np.asarray(tags.ids), ids))
+        and (tags.ids is ids or np.array_equal(np.asarray(tags.ids), ids))
     ):
         return None
     if np.shape(sums.sums) != (n, N_GAMMA) or (tags is not None and np.shape(tags.tags) != (n,)):
@@ -344,12 +396,7 @@ def _edge_arrays(message: ConsensusMessage) -> tuple[list[int], bytes, bytes, by
         if n and max(raw) > MAX_U32 - 1:
             return None
         incs = [NO_INCARNATION if x < 0 else x for x in raw]
-    return (
-        id_list,
-        struct.pack(f"<{n}H", *id_list),
-        struct.pack(f"<{n}I", *incs),
-        floats.tobytes(),
-    )
+    return id_list, incs, floats
 
 
 def _edge_incarnations(message: ConsensusMessage, neighbours: list[int]) -> list[int]:

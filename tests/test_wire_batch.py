@@ -18,9 +18,22 @@ from hypothesis import strategies as st
 from drone_agent.memory_bus import MemoryBus
 from drone_agent.transport import Congestion
 from drone_agent.transport_link import AgentLink, ConsensusHub, LinkSettings
-from protocols.consensus_message import ConsensusMessage
-from protocols.wire import Kind, Reason, WireError, decode_consensus, encode_consensus
-from protocols.wire_batch import BATCH_VERSION, encode_batch, split_batch
+from protocols.consensus_message import ConsensusMessage, EdgeIncarnations, EdgeSums
+from protocols.wire import (
+    Kind,
+    Reason,
+    WireError,
+    consensus_parts,
+    decode_consensus,
+    encode_consensus,
+)
+from protocols.wire_batch import (
+    BATCH_VERSION,
+    encode_batch,
+    encode_columns,
+    open_batch,
+    split_batch,
+)
 from protocols.wire_status import (
     STATUS_BATCH_VERSION,
     AgentMode,
@@ -65,7 +78,6 @@ def test_batch_golden_bytes() -> None:
     a = encode_consensus(_message(3), (1.0, 2.0, -3.0), SID)
     b = encode_consensus(_message(4), (0.5, 0.0, -1.0), SID)
     assert a.hex() == INNER_3 and b.hex() == INNER_4
-    assert BATCH_VERSION == 1
     assert encode_batch([(3, a), (4, b)], SID).hex() == BATCH_HEX
     entries = split_batch(bytes.fromhex(BATCH_HEX), SID)
     assert [(e.sender, e.round, e.origin) for e in entries] == [
@@ -110,6 +122,224 @@ def test_random_bytes_raise_only_wire_errors(data: bytes) -> None:
     for blob in (data, bytes.fromhex(BATCH_HEX)[:16] + data):
         with contextlib.suppress(WireError):
             split_batch(blob, SID)
+
+
+# -- version 2: the messages in columns (what hosting processes send) ---------------------------
+
+#: drone 3's (one edge, to 4, made with its incarnation 2) and drone 4's (no edge, moving)
+#: round-7 messages
+COLUMNS_HEX = (
+    "5102060464656d6f"  # magic, batch schema 2, kind 6, swarm "demo"
+    "0200"  # 2 messages
+    # drone 3: round 7, sender 3, degree 1, ready 2, incarnation 1, position (1, 2, -3),
+    # velocity 0, 1 heard, 1 edge
+    "07000000"
+    "0300"
+    "0100"
+    "0200"
+    "01000000"
+    "0000803f"
+    "00000040"
+    "000040c0"
+    "00000000"
+    "00000000"
+    "00000000"
+    "0100"
+    "0100"
+    # drone 4: round 7, sender 4, degree 2, ready 0, incarnation 9, position (0.5, 0, -1),
+    # velocity (0.5, 0, 0), 2 heard, no edge
+    "07000000"
+    "0400"
+    "0200"
+    "0000"
+    "09000000"
+    "0000003f"
+    "00000000"
+    "000080bf"
+    "0000003f"
+    "00000000"
+    "00000000"
+    "0200"
+    "0000"
+    "0400"
+    "0400"
+    "0300"
+    "0500"  # ids: 3 heard {4}, its edge 4; 4 heard {3, 5}
+    "02000000"  # the edge incarnations: 3's edge to 4 made with 4's incarnation 2
+    + "000000000000f83f" * 18  # 3's gamma
+    + "000000000000d03f" * 18  # 3's edge sum to 4
+    + "0000000000000040" * 18  # 4's gamma
+)
+
+
+def _pair() -> tuple[ConsensusMessage, ConsensusMessage]:
+    a = ConsensusMessage(
+        sender=3,
+        round=7,
+        gamma=np.full(18, 1.5),
+        edge_sums={4: np.full(18, 0.25)},
+        heard=frozenset({4}),
+        degree=1,
+        ready_hops=2,
+        incarnation=1,
+        edge_incarnations={4: 2},
+    )
+    b = ConsensusMessage(
+        sender=4,
+        round=7,
+        gamma=np.full(18, 2.0),
+        edge_sums={},
+        heard=frozenset({3, 5}),
+        degree=2,
+        velocity_ned_m_s=np.array([0.5, 0.0, 0.0]),
+        incarnation=9,
+    )
+    return a, b
+
+
+def _same(got: ConsensusMessage, want: ConsensusMessage) -> None:
+    """Field by field (arrays bit for bit; mappings as dicts)."""
+    assert (got.sender, got.round, got.degree, got.ready_hops, got.incarnation, got.heard) == (
+        want.sender,
+        want.round,
+        want.degree,
+        want.ready_hops,
+        want.incarnation,
+        want.heard,
+    )
+    for name in ("gamma", "position_ned_m", "velocity_ned_m_s"):
+        g, w = getattr(got, name), getattr(want, name)
+        assert g.dtype == w.dtype and g.tobytes() == w.tobytes() and not g.flags.writeable
+    assert list(got.edge_sums) == list(want.edge_sums)
+    for j in want.edge_sums:
+        assert got.edge_sums[j].tobytes() == want.edge_sums[j].tobytes()
+    assert isinstance(got.edge_sums, EdgeSums) and not got.edge_sums.sums.flags.writeable
+    want_tags = None if want.edge_incarnations is None else dict(want.edge_incarnations)
+    got_tags = None if got.edge_incarnations is None else dict(got.edge_incarnations)
+    assert got_tags == want_tags
+
+
+def test_columns_golden_bytes() -> None:
+    a, b = _pair()
+    parts = [consensus_parts(a, (1.0, 2.0, -3.0), SID), consensus_parts(b, (0.5, 0.0, -1.0), SID)]
+    assert BATCH_VERSION == 2
+    assert encode_columns(parts, SID).hex() == COLUMNS_HEX
+    batch = open_batch(bytes.fromhex(COLUMNS_HEX), SID)
+    assert (batch.senders, batch.rounds) == ([3, 4], [7, 7])
+    assert batch.origins == [(1.0, 2.0, -3.0), (0.5, 0.0, -1.0)]
+    for k, (m, pos) in enumerate(((a, (1.0, 2.0, -3.0)), (b, (0.5, 0.0, -1.0)))):
+        packet = batch.packet(k, SID, 16 * 1024)
+        want = decode_consensus(encode_consensus(m, pos, SID), SID)
+        _same(packet.message, want.message)
+        assert packet.position_ned_m.tobytes() == want.position_ned_m.tobytes()
+
+
+def test_a_version_1_batch_still_opens() -> None:
+    batch = open_batch(bytes.fromhex(BATCH_HEX), SID)
+    assert batch.senders == [3, 4] and batch.origins[1] == (0.5, 0.0, -1.0)
+    assert batch.packet(1, SID, 16 * 1024).message.gamma.tolist() == [2.0] * 18
+
+
+def _columns(edit: Callable[[str], str]) -> bytes:
+    return bytes.fromhex(edit(COLUMNS_HEX))
+
+
+NAN_F64 = "000000000000f87f"
+
+
+@pytest.mark.parametrize(
+    ("data", "reason"),
+    [
+        (_columns(lambda h: h[:-2]), Reason.TRUNCATED),
+        (_columns(lambda h: h + "00"), Reason.TRAILING),
+        (_columns(lambda h: h[:40]), Reason.TRUNCATED),
+        (_columns(lambda h: h[:20]), Reason.TRUNCATED),
+        (_columns(lambda h: "5103" + h[4:]), Reason.BAD_VERSION),
+        (_columns(lambda h: h[:8] + "65" + h[10:]), Reason.WRONG_SWARM),
+        (_columns(lambda h: h[:16] + "0100" + h[20:]), Reason.BAD_VALUE),  # a batch of one
+        # drone 4's message first: senders out of order
+        (_columns(lambda h: h[:20] + h[104:188] + h[20:104] + h[188:]), Reason.BAD_VALUE),
+        # 4's heard ids {5, 3}: not increasing
+        (_columns(lambda h: h.replace("0400040003000500", "0400040005000300")), Reason.BAD_VALUE),
+        # NaN in 4's gamma, in 3's edge sum, in 3's position
+        (_columns(lambda h: h[:-16] + NAN_F64), Reason.NOT_FINITE),
+        (_columns(lambda h: h.replace("000000000000d03f", NAN_F64, 1)), Reason.NOT_FINITE),
+        (_columns(lambda h: h.replace("0000803f", "0000c07f", 1)), Reason.NOT_FINITE),
+    ],
+)
+def test_malformed_columns_are_rejected_with_their_reason(data: bytes, reason: Reason) -> None:
+    with pytest.raises(WireError) as err:
+        open_batch(data, SID)
+    assert err.value.reason == reason
+
+
+def test_a_batched_message_over_the_receivers_limit_rejects_the_batch() -> None:
+    data = bytes.fromhex(COLUMNS_HEX)
+    # drone 3's message alone would be 8 + 42 + 4 + 4 + 2 x 144 = 346 bytes
+    open_batch(data, SID, max_consensus_bytes=346)
+    with pytest.raises(WireError) as err:
+        open_batch(data, SID, max_consensus_bytes=345)
+    assert err.value.reason == Reason.OVERSIZED
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=600))
+def test_random_bytes_raise_only_wire_errors_from_either_version(data: bytes) -> None:
+    heads = (b"", bytes.fromhex(COLUMNS_HEX)[:10], bytes.fromhex(BATCH_HEX)[:10])
+    for blob in (head + data for head in heads):
+        with contextlib.suppress(WireError):
+            open_batch(blob, SID)
+
+
+def _random_message(rng: np.random.Generator, sender: int) -> ConsensusMessage:
+    n = int(rng.integers(0, 12))
+    ids = np.sort(rng.choice(300, n, replace=False)).astype(np.intp)
+    tags = rng.integers(-1, 50, n).astype(np.int64)
+    mode = int(rng.integers(0, 3))  # tags as arrays, as a dict, or none
+    return ConsensusMessage(
+        sender=sender,
+        round=int(rng.integers(0, 2**32 - 1)),
+        gamma=rng.normal(size=18),
+        edge_sums=(
+            EdgeSums(ids, rng.normal(size=(n, 18)))
+            if mode != 1
+            else {int(j): rng.normal(size=18) for j in ids}
+        ),
+        heard=frozenset(rng.choice(300, int(rng.integers(0, 8)), replace=False).tolist()),
+        degree=int(rng.integers(0, 300)),
+        ready_hops=int(rng.integers(0, 9)),
+        velocity_ned_m_s=None if rng.random() < 0.3 else rng.normal(size=3),
+        incarnation=int(rng.integers(0, 10**6)),
+        edge_incarnations=(
+            EdgeIncarnations(ids, tags)
+            if mode == 0
+            else ({int(j): int(t) for j, t in zip(ids, tags, strict=True)} if mode == 1 else None)
+        ),
+    )
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_columns_decode_to_what_the_single_messages_decode_to(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    senders = np.sort(rng.choice(250, int(rng.integers(2, 9)), replace=False)).tolist()
+    messages = [_random_message(rng, s) for s in senders]
+    origins = [tuple(rng.normal(size=3) * 100) for _ in messages]
+    parts = [consensus_parts(m, o, SID) for m, o in zip(messages, origins, strict=True)]
+    batch = open_batch(encode_columns(parts, SID), SID)
+    assert batch.senders == senders and batch.rounds == [m.round for m in messages]
+    for k, (m, o) in enumerate(zip(messages, origins, strict=True)):
+        want = decode_consensus(encode_consensus(m, o, SID), SID)
+        assert batch.origins[k] == tuple(want.position_ned_m.tolist())
+        _same(batch.packet(k, SID, 16 * 1024).message, want.message)
+
+
+def test_column_encoder_refuses_what_is_not_a_batch() -> None:
+    a, b = _pair()
+    pa, pb = consensus_parts(a, (0, 0, 0), SID), consensus_parts(b, (0, 0, 0), SID)
+    with pytest.raises(ValueError, match=r"2\.\."):
+        encode_columns([pa], SID)
+    with pytest.raises(ValueError, match="increasing"):
+        encode_columns([pb, pa], SID)
 
 
 SETTINGS = LinkSettings(SID, comm_range_m=10.0)
