@@ -30,6 +30,7 @@ from protocols.mavlink_conventions import MAX_VEHICLES
 _NO_ROUND = -(2**62)
 
 _T = TypeVar("_T")
+_A = TypeVar("_A", bound=np.generic)
 _FACTORIES: dict[type, Callable[..., Any]] = {}
 
 
@@ -148,6 +149,11 @@ class _Pack:
         self.where: list[FloatArray | None] = []
         self.how_fast: list[FloatArray | None] = []
 
+    def rows_of(self, per_edge: npt.NDArray[_A], at: int) -> npt.NDArray[_A]:
+        """The rows of ``per_edge`` (E, ...) (``ids``, ``sums`` or ``tags``) of position ``at``."""
+        b = self.bounds
+        return per_edge[b[at] : b[at + 1]]
+
 
 class _PackedSums(EdgeSums):
     """The :class:`EdgeSums` of position ``at`` of a :class:`_Pack`: the same mapping, its
@@ -162,13 +168,11 @@ class _PackedSums(EdgeSums):
 
     @property
     def ids(self) -> npt.NDArray[np.intp]:  # type: ignore[override]
-        b = self.pack.bounds
-        return self.pack.ids[b[self.at] : b[self.at + 1]]
+        return self.pack.rows_of(self.pack.ids, self.at)
 
     @property
     def sums(self) -> FloatArray:  # type: ignore[override]
-        b = self.pack.bounds
-        return self.pack.sums[b[self.at] : b[self.at + 1]]
+        return self.pack.rows_of(self.pack.sums, self.at)
 
 
 class _PackedIncarnations(EdgeIncarnations):
@@ -183,13 +187,11 @@ class _PackedIncarnations(EdgeIncarnations):
 
     @property
     def ids(self) -> npt.NDArray[np.intp]:  # type: ignore[override]
-        b = self.pack.bounds
-        return self.pack.ids[b[self.at] : b[self.at + 1]]
+        return self.pack.rows_of(self.pack.ids, self.at)
 
     @property
     def tags(self) -> npt.NDArray[np.int64]:  # type: ignore[override]
-        b = self.pack.bounds
-        return self.pack.tags[b[self.at] : b[self.at + 1]]
+        return self.pack.rows_of(self.pack.tags, self.at)
 
 
 def _packed(messages: list[ConsensusMessage]) -> tuple[_Pack, npt.NDArray[np.intp]] | None:

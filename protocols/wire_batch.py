@@ -122,6 +122,17 @@ def encode_batch(payloads: Sequence[tuple[int, bytes]], swarm_id: str) -> bytes:
     )
 
 
+def _message_count(data: bytes, off: int) -> tuple[int, int]:
+    """The number of messages of a consensus batch (either version) whose count is at ``off``
+    (2..MAX_BATCH_MESSAGES), and the offset after it; WireError otherwise."""
+    if len(data) < off + _COUNT.size:
+        raise WireError(Reason.TRUNCATED, f"consensus batch: {len(data)} bytes")
+    (n,) = _COUNT.unpack_from(data, off)
+    if not 2 <= n <= MAX_BATCH_MESSAGES:
+        raise WireError(Reason.BAD_VALUE, f"consensus batch of {n} messages")
+    return n, off + _COUNT.size
+
+
 def split_batch(
     data: bytes, swarm_id: str, *, max_consensus_bytes: int = MAX_CONSENSUS_BYTES
 ) -> list[BatchEntry]:
@@ -130,12 +141,7 @@ def split_batch(
     off, _ = open_versioned(
         data, Kind.CONSENSUS_BATCH, swarm_id, max_batch_bytes(max_consensus_bytes), (1,)
     )
-    if len(data) < off + _COUNT.size:
-        raise WireError(Reason.TRUNCATED, f"consensus batch: {len(data)} bytes")
-    (n,) = _COUNT.unpack_from(data, off)
-    off += _COUNT.size
-    if not 2 <= n <= MAX_BATCH_MESSAGES:
-        raise WireError(Reason.BAD_VALUE, f"consensus batch of {n} messages")
+    n, off = _message_count(data, off)
     if len(data) < off + 4 * n:
         raise WireError(Reason.TRUNCATED, f"consensus batch: {len(data)} bytes, {n} lengths")
     lengths = struct.unpack_from(f"<{n}I", data, off)
@@ -318,12 +324,7 @@ def open_batch(
     off, _ = open_versioned(
         data, Kind.CONSENSUS_BATCH, swarm_id, max_batch_bytes(max_consensus_bytes), BATCH_VERSIONS
     )
-    if len(data) < off + _COUNT.size:
-        raise WireError(Reason.TRUNCATED, f"consensus batch: {len(data)} bytes")
-    (n,) = _COUNT.unpack_from(data, off)
-    off += _COUNT.size
-    if not 2 <= n <= MAX_BATCH_MESSAGES:
-        raise WireError(Reason.BAD_VALUE, f"consensus batch of {n} messages")
+    n, off = _message_count(data, off)
     if len(data) < off + _RECORD.itemsize * n:
         raise WireError(Reason.TRUNCATED, f"consensus batch: {len(data)} bytes, {n} messages")
     rec = np.frombuffer(data, _RECORD, n, off)
