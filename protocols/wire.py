@@ -222,17 +222,24 @@ def uint_ids(ids: Iterable[int], what: str) -> list[int]:
     return out
 
 
-def finite_block(values: object, shape: tuple[int, ...], what: str, dtype: str = "<f8") -> bytes:
-    """``values`` as the bytes of a finite array of ``shape`` and ``dtype``; ValueError otherwise
-    (also when a float64 overflows the float32 range)."""
+def finite_array(
+    values: object, shape: tuple[int, ...], what: str, dtype: str = "<f8"
+) -> FloatArray:
+    """``values`` as a new finite array of ``shape`` and ``dtype`` (a copy of its own);
+    ValueError otherwise (also when a float64 overflows the float32 range)."""
     arr = np.asarray(values, dtype=np.float64)
     if arr.shape != shape:
         raise ValueError(f"{what} must have shape {shape}, got {arr.shape}")
     with np.errstate(over="ignore"):  # a float32 overflow becomes inf, refused below
-        out = arr.astype(dtype)
+        out: FloatArray = arr.astype(dtype)
     if not np.isfinite(out).all():
         raise ValueError(f"{what} must be finite (and in range of {np.dtype(dtype).name})")
-    return out.tobytes()
+    return out
+
+
+def finite_block(values: object, shape: tuple[int, ...], what: str, dtype: str = "<f8") -> bytes:
+    """The bytes of :func:`finite_array`."""
+    return finite_array(values, shape, what, dtype).tobytes()
 
 
 def check_ids(ids: Sequence[int], what: str) -> None:
@@ -314,7 +321,7 @@ def consensus_parts(
         neighbours = uint_ids(message.edge_sums, "edge neighbour")
         edge_incs = _edge_incarnations(message, neighbours)
         rows = [message.gamma, *(message.edge_sums[j] for j in neighbours)]
-        floats = _finite_array(rows, (len(rows), N_GAMMA), "gamma and edge sums")
+        floats = finite_array(rows, (len(rows), N_GAMMA), "gamma and edge sums")
     velocity = message.velocity_ned_m_s
     fixed = (
         round_,
@@ -333,16 +340,6 @@ def consensus_parts(
     if size > max_bytes:
         raise ValueError(f"consensus payload of {size} bytes exceeds {max_bytes}")
     return ConsensusParts(fixed, heard + neighbours, edge_incs, floats, size)
-
-
-def _finite_array(values: object, shape: tuple[int, ...], what: str) -> FloatArray:
-    """``values`` as a new finite float64 array of ``shape``; ValueError otherwise."""
-    arr = np.array(values, dtype="<f8")
-    if arr.shape != shape:
-        raise ValueError(f"{what} must have shape {shape}, got {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{what} must be finite (and in range of float64)")
-    return arr
 
 
 def _edge_arrays(message: ConsensusMessage) -> tuple[list[int], list[int], FloatArray] | None:
@@ -426,7 +423,7 @@ def _vec3_f32(values: Sequence[float] | FloatArray, what: str) -> tuple[float, f
                 return _VEC3_F32.unpack(_VEC3_F32.pack(x, y, z))
             except OverflowError:
                 pass
-    vec = np.frombuffer(finite_block(values, (3,), what, "<f4"), "<f4")
+    vec = finite_array(values, (3,), what, "<f4")
     return (float(vec[0]), float(vec[1]), float(vec[2]))
 
 

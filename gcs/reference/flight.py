@@ -19,13 +19,12 @@ import numpy as np
 
 from drone_agent.agent_core import AgentCore, AgentOutput, BatchAgentCore
 from drone_agent.config import agent_config
-from drone_agent.consensus_batch import frozen_factory
+from drone_agent.consensus_batch import frozen_factory, frozen_replace
 from drone_agent.fault_timeline import TimedAction, timeline
 from drone_agent.flight_phase import BatchReadiness, FlightPhase, Request, VehicleView
 from drone_agent.link_faults import LinkFaults, PairRandom
 from gcs.reference.network import InProcessNetwork
 from gcs.report.flight_record import FlightRecord, scenario_link_cuts
-from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray, quat_from_zyx
 from protocols.scenario import Scenario
 from protocols.wire_plan import FlightCommand
@@ -49,16 +48,6 @@ HARD_LANDING_M_S = 2.0
 #: distributed agent does on its vehicle's EMERGENCY STATUSTEXT (drone_agent/hosted_agent.py).
 CRASH_NOTICE_S = 0.0
 _new_vehicle_view = frozen_factory(VehicleView)
-
-
-def with_level(message: ConsensusMessage, level: int) -> ConsensusMessage:
-    """``dataclasses.replace(message, ready_hops=level)`` for a message made by its ``__init__``
-    or :func:`~drone_agent.consensus_batch.frozen_factory` (its fields copied as they are)."""
-    new = object.__new__(ConsensusMessage)
-    fields = new.__dict__
-    fields.update(message.__dict__)
-    fields["ready_hops"] = level
-    return new
 
 
 #: Allocations between two young-generation passes of the garbage collector during a flight
@@ -345,7 +334,7 @@ class ReferenceFlight:
             if out.separating != separating[i]:
                 separating[i] = out.separating
                 self._event("separation" if out.separating else "separation_end", drone=i)
-            messages.append(with_level(out.message, level))
+            messages.append(frozen_replace(out.message, ready_hops=level))
             if crashed[i]:
                 continue
             sp = self._decide(
