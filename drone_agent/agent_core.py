@@ -89,6 +89,54 @@ class AgentOutput:
     separating: bool = False
 
 
+@dataclass(frozen=True)
+class BatchOutputs:
+    """One :meth:`BatchAgentCore.tick_columns` call's outputs, row ``k`` of every field the
+    ``k``-th row's :class:`AgentOutput` (:meth:`outputs`): ``messages``, ``setpoints``,
+    ``active_neighbours`` and ``separating`` per row; ``estimate`` (K, 9), ``moments`` (leading
+    K axis), ``ready_to_fly`` (K,), ``disagreement`` (K,) and ``desired`` (K, 9) arrays."""
+
+    messages: list[ConsensusMessage]
+    estimate: FloatArray
+    moments: SwarmMoments
+    setpoints: list[Setpoint | None]
+    active_neighbours: list[tuple[int, ...]]
+    ready_to_fly: npt.NDArray[np.bool_]
+    disagreement: FloatArray
+    desired: FloatArray
+    separating: list[bool]
+
+    def outputs(self) -> list[AgentOutput]:
+        """One :class:`AgentOutput` per row, in order (their arrays views of these)."""
+        m = self.moments
+        centre, rate = list(m.centre_ned_m), list(m.centre_rate_ned_m_s)
+        sigma, sigma_rate = list(m.sigma_m2), list(m.sigma_rate_m2_s)
+        estimates, desired = list(self.estimate), list(self.desired)
+        setpoints, separating = self.setpoints, self.separating
+        return [
+            _new_output(
+                message,
+                estimates[k],
+                _new_moments(centre[k], rate[k], sigma[k], sigma_rate[k]),
+                setpoints[k],
+                neighbours,
+                flies,
+                dis,
+                desired[k],
+                separating[k],
+            )
+            for k, (message, neighbours, dis, flies) in enumerate(
+                zip(
+                    self.messages,
+                    self.active_neighbours,
+                    self.disagreement.tolist(),
+                    self.ready_to_fly.tolist(),
+                    strict=True,
+                )
+            )
+        ]
+
+
 #: The rejoin climb (:meth:`BatchAgentCore.tick` ``climb_to``): vertical PD gains (1/s^2, 1/s),
 #: horizontal velocity damping (1/s) and the acceleration limits (m/s^2, vertical and horizontal).
 CLIMB_KP, CLIMB_KD, CLIMB_DAMP = 1.0, 1.8, 1.0
@@ -192,9 +240,28 @@ class BatchAgentCore:
         its plan, its inbox and its membership view. ``climb_to``: per row None (fly the
         formation) or the NED z a returning drone climbs to or holds (:func:`climb_acceleration`
         instead of the cooperative field, through the same separation layer and limits). One
-        output per row, in order."""
+        output per row, in order (:meth:`tick_columns`' rows)."""
         if len(rows) == 0:
             return []
+        return self.tick_columns(
+            rows, round_, t_s, positions_ned_m, velocities_ned_m_s, plans, inboxes, members,
+            climb_to,
+        ).outputs()  # fmt: skip
+
+    def tick_columns(
+        self,
+        rows: Sequence[int],
+        round_: int,
+        t_s: float,
+        positions_ned_m: FloatArray,
+        velocities_ned_m_s: FloatArray,
+        plans: Sequence[DescriptorTrajectory],
+        inboxes: Sequence[Iterable[ConsensusMessage]],
+        members: Sequence[frozenset[int] | None],
+        climb_to: Sequence[float | None] | None = None,
+    ) -> BatchOutputs:
+        """:meth:`tick`'s outputs as columns, one row per row of ``rows`` (at least one), without
+        an :class:`AgentOutput` per row (what ``swarm simulate`` reads of a hundred agents)."""
         x = np.asarray(positions_ned_m, dtype=float).reshape(-1, 3)
         v = np.asarray(velocities_ned_m_s, dtype=float).reshape(-1, 3)
         a_d, ad_dot, ad_ddot = self._references(plans, t_s)
@@ -229,25 +296,17 @@ class BatchAgentCore:
                 (round_, inboxes),
                 climb_to,
             )
-        centre, rate = list(moments.centre_ned_m), list(moments.centre_rate_ned_m_s)
-        sigma, sigma_rate = list(moments.sigma_m2), list(moments.sigma_rate_m2_s)
-        estimates, desired = list(estimate), list(a_d)
-        return [
-            _new_output(
-                message,
-                estimates[k],
-                _new_moments(centre[k], rate[k], sigma[k], sigma_rate[k]),
-                setpoints[k],
-                neighbours,
-                flies,
-                dis,
-                desired[k],
-                separating[k],
-            )
-            for k, (message, neighbours, dis, flies) in enumerate(
-                zip(messages, active, disagreement.tolist(), ready.tolist(), strict=True)
-            )
-        ]
+        return BatchOutputs(
+            messages,
+            estimate,
+            moments,
+            setpoints,
+            active,
+            ready,
+            disagreement,
+            a_d,
+            separating,
+        )
 
     def _references(self, plans: Sequence[DescriptorTrajectory], t_s: float) -> StateTriple:
         """Each row's plan value, rate and acceleration (len(plans), 9), every distinct plan

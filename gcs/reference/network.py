@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drone_agent.flight_phase import Arrivals
+from drone_agent.jit_math import jit
 from drone_agent.link_faults import LinkFaults, PairRandom
 from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
@@ -53,10 +54,11 @@ class InProcessNetwork:
         self._next = np.zeros(0, dtype=np.intp)
 
     def in_range(self, positions_ned_m: FloatArray) -> FloatArray:
-        """Boolean matrix (N, N): pairs within radio range (no self-links)."""
-        d = np.linalg.norm(positions_ned_m[:, None, :] - positions_ned_m[None, :, :], axis=-1)
-        ok: FloatArray = d < self.range_m
-        np.fill_diagonal(ok, False)
+        """Boolean matrix (N, N): pairs within radio range (no self-links): the distance
+        ``sqrt(dx^2 + dy^2 + dz^2)`` (``np.linalg.norm``'s, term by term) below the range."""
+        p = np.ascontiguousarray(positions_ned_m, dtype=np.float64).reshape(-1, 3)
+        ok = np.zeros((p.shape[0], p.shape[0]), dtype=bool)
+        _within(p, float(self.range_m), ok)
         return ok
 
     def send(self, round_: int, messages: Sequence[ConsensusMessage], in_range: FloatArray) -> None:
@@ -77,6 +79,8 @@ class InProcessNetwork:
         reach = np.array(in_range, dtype=bool)[senders]
         reach[np.arange(senders.shape[0]), senders] = False
         which, receivers = np.nonzero(reach)
+        # each link once unless a sender has two messages on the air (its receivers distinct)
+        one_each = bool(senders.min() >= 0) and int(np.bincount(senders).max()) <= 1
         self.sent += int(receivers.shape[0])
         blocked, loss, delay = self._link_matrices()
         i = senders[which]
@@ -88,7 +92,7 @@ class InProcessNetwork:
             draw = keep & (p > 0.0)
             if isinstance(self.rng, PairRandom):
                 at = np.flatnonzero(draw)
-                keep[at] = self._link_draws(i[at], receivers[at]) >= p[at]
+                keep[at] = self._link_draws(i[at], receivers[at], one_each) >= p[at]
             else:
                 keep[draw] = self.rng.random(int(draw.sum())) >= p[draw]
         self.lost += int(receivers.shape[0] - keep.sum())
@@ -107,18 +111,23 @@ class InProcessNetwork:
             self._in_flight[round_ + d].append((receivers[on], which[on], msgs, meta))
 
     def _link_draws(
-        self, senders: npt.NDArray[np.intp], receivers: npt.NDArray[np.intp]
+        self,
+        senders: npt.NDArray[np.intp],
+        receivers: npt.NDArray[np.intp],
+        distinct: bool = False,
     ) -> FloatArray:
         """The next draw of each link (senders[k], receivers[k]), in order, from its own
         generator of the :class:`PairRandom`: the values one ``random()`` call per message
         would give (a generator's ``random(size)`` is its next ``size`` single draws), taken
         from blocks of :data:`DRAW_BLOCK` drawn ahead per link; so the network must be its
-        generators' only user (as in :class:`gcs.reference.flight.ReferenceFlight`)."""
+        generators' only user (as in :class:`gcs.reference.flight.ReferenceFlight`).
+        ``distinct``: the caller knows every link is there once (not checked again)."""
         assert isinstance(self.rng, PairRandom)
         if self._link_row is None:
             self._link_row = np.full((self.n, self.n), -1, dtype=np.intp)
         links = senders * self.n + receivers
-        if np.unique(links).shape[0] < links.shape[0]:  # a link twice (two messages of a sender)
+        # a link twice (two messages of a sender): one at a time
+        if not distinct and np.unique(links).shape[0] < links.shape[0]:
             return np.array([self._link_draws(senders[k : k + 1], receivers[k : k + 1])[0]
                              for k in range(links.shape[0])])  # fmt: skip
         rows = self._link_row[senders, receivers]
@@ -200,6 +209,22 @@ class InProcessNetwork:
         inboxes = [flat[lo:hi] for lo, hi in pairwise(bounds)]
         self.arrivals = Arrivals(receivers, meta[0, which], meta[1, which], meta[2, which])
         return inboxes
+
+
+@jit
+def _within(positions, range_m, out):  # type: ignore[no-untyped-def]
+    """:meth:`InProcessNetwork.in_range` into ``out`` (N, N) False: each pair's distance,
+    ``sqrt`` of the squared differences summed in axis order, as ``np.linalg.norm`` sums them
+    (the same pairs in range to the last bit); symmetric, the diagonal left False."""
+    n = positions.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            dx = positions[i, 0] - positions[j, 0]
+            dy = positions[i, 1] - positions[j, 1]
+            dz = positions[i, 2] - positions[j, 2]
+            near = np.sqrt(dx * dx + dy * dy + dz * dz) < range_m
+            out[i, j] = near
+            out[j, i] = near
 
 
 _Batch = tuple[
