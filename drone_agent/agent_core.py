@@ -26,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drone_agent.consensus import ConsensusParams
-from drone_agent.consensus_batch import BatchConsensus, frozen_factory
+from drone_agent.consensus_batch import BatchConsensus, Outgoing, frozen_factory
 from drone_agent.cooperative import (
     CooperativeGains,
     euler_rate_matrix_batch,
@@ -92,11 +92,12 @@ class AgentOutput:
 @dataclass(frozen=True)
 class BatchOutputs:
     """One :meth:`BatchAgentCore.tick_columns` call's outputs, row ``k`` of every field the
-    ``k``-th row's :class:`AgentOutput` (:meth:`outputs`): ``messages``, ``setpoints``,
+    ``k``-th row's :class:`AgentOutput` (:meth:`outputs`): the messages still to be made
+    (``outgoing``: with the settled levels, when the caller has them), ``setpoints``,
     ``active_neighbours`` and ``separating`` per row; ``estimate`` (K, 9), ``moments`` (leading
     K axis), ``ready_to_fly`` (K,), ``disagreement`` (K,) and ``desired`` (K, 9) arrays."""
 
-    messages: list[ConsensusMessage]
+    outgoing: Outgoing
     estimate: FloatArray
     moments: SwarmMoments
     setpoints: list[Setpoint | None]
@@ -107,7 +108,8 @@ class BatchOutputs:
     separating: list[bool]
 
     def outputs(self) -> list[AgentOutput]:
-        """One :class:`AgentOutput` per row, in order (their arrays views of these)."""
+        """One :class:`AgentOutput` per row, in order (their arrays views of these; the messages'
+        settled level 0, for the adapter to put its own on)."""
         m = self.moments
         centre, rate = list(m.centre_ned_m), list(m.centre_rate_ned_m_s)
         sigma, sigma_rate = list(m.sigma_m2), list(m.sigma_rate_m2_s)
@@ -127,7 +129,7 @@ class BatchOutputs:
             )
             for k, (message, neighbours, dis, flies) in enumerate(
                 zip(
-                    self.messages,
+                    self.outgoing.messages(),
                     self.active_neighbours,
                     self.disagreement.tolist(),
                     self.ready_to_fly.tolist(),
@@ -271,7 +273,7 @@ class BatchAgentCore:
             euler_rate_matrix_batch(a_d[:, I_ROLL], a_d[:, I_PITCH]) @ ad_dot[:, ORIENTATION, None]
         )[:, :, 0]
         zeta = channels_batch(x, v, a_d[:, CENTRE], ad_dot[:, CENTRE], (r_d, omega_d))
-        gamma, messages, active, disagreement = self.consensus.step_messages(
+        gamma, outgoing, active, disagreement = self.consensus.step_outgoing(
             rows, round_, zeta, inboxes, members, (x, v)
         )
         moments = moments_from_averages_batch(
@@ -279,11 +281,12 @@ class BatchAgentCore:
         )
         axes, s = align_axes_batch(moments.sigma_m2, r_d)
         estimate = frame_vector_batch(moments.centre_ned_m, axes, s)
-        ready = np.zeros(len(messages), dtype=bool)
+        n_rows = gamma.shape[0]
+        ready = np.zeros(n_rows, dtype=bool)
         if t_s >= self.config.warmup_s:
             ready[:] = np.isfinite(gamma).all(axis=1)
-        setpoints: list[Setpoint | None] = [None] * len(messages)
-        separating = [False] * len(messages)
+        setpoints: list[Setpoint | None] = [None] * n_rows
+        separating = [False] * n_rows
         if ready.any():
             setpoints, separating = self._setpoints(
                 rows,
@@ -297,7 +300,7 @@ class BatchAgentCore:
                 climb_to,
             )
         return BatchOutputs(
-            messages,
+            outgoing,
             estimate,
             moments,
             setpoints,

@@ -53,38 +53,6 @@ def frozen_factory(cls: type[_T]) -> Callable[..., _T]:
     return maker
 
 
-def frozen_replace(obj: _T, **changes: Any) -> _T:
-    """``dataclasses.replace(obj, **changes)`` for a frozen dataclass made by its ``__init__`` or
-    :func:`frozen_factory` (no ``__post_init__``, no init-only fields, no slots): the same object,
-    made as :func:`frozen_factory` makes one."""
-    _check_fields(obj, changes.keys())
-    return _copied(obj, changes)
-
-
-def replaced_each(objs: Sequence[_T], name: str, values: Sequence[Any]) -> list[_T]:
-    """``[frozen_replace(o, **{name: v}) for o, v in zip(objs, values)]`` for objects of one
-    class, its fields checked once (``swarm simulate`` puts each of a hundred agents' settled
-    level on its message so)."""
-    if objs:
-        _check_fields(objs[0], (name,))
-    return [_copied(obj, {name: value}) for obj, value in zip(objs, values, strict=True)]
-
-
-def _check_fields(obj: object, names: Iterable[str]) -> None:
-    fields_of = obj.__dict__
-    missing = sorted(set(names) - fields_of.keys())
-    if missing:
-        raise TypeError(f"{type(obj).__name__} has no field {missing}")
-
-
-def _copied(obj: _T, changes: dict[str, Any]) -> _T:
-    new = object.__new__(type(obj))
-    values = new.__dict__
-    values.update(obj.__dict__)
-    values.update(changes)
-    return new
-
-
 @dataclass
 class _Mail:
     """The messages of one step: ``messages`` the distinct message objects and ``senders`` (U,)
@@ -356,6 +324,64 @@ _new_output = frozen_factory(ConsensusOutput)
 _new_message = frozen_factory(ConsensusMessage)
 
 
+class Outgoing:
+    """The messages of one :meth:`BatchConsensus.step_outgoing`, one per row, before they are
+    made: the senders, the round, the step's :class:`_Pack` and each row's mappings, motion
+    rows (None: none) and incarnation. :meth:`messages` makes them."""
+
+    __slots__ = (
+        "edge_sums",
+        "edge_tags",
+        "incarnations",
+        "pack",
+        "positions",
+        "round",
+        "senders",
+        "velocities",
+    )  # fmt: skip
+
+    def __init__(
+        self,
+        senders: list[int],
+        round_: int,
+        pack: _Pack,
+        edge_sums: list[_PackedSums],
+        edge_tags: list[_PackedIncarnations],
+        positions: Sequence[FloatArray | None],
+        velocities: Sequence[FloatArray | None],
+        incarnations: list[int],
+    ) -> None:
+        self.senders, self.round, self.pack = senders, round_, pack
+        self.edge_sums, self.edge_tags = edge_sums, edge_tags
+        self.positions, self.velocities = positions, velocities
+        self.incarnations = incarnations
+
+    def messages(self, ready_hops: Sequence[int] | None = None) -> list[ConsensusMessage]:
+        """Each row's message, with its settled level ``ready_hops[k]`` (None: 0 each, for the
+        adapter to put its own on)."""
+        pack = self.pack
+        gammas, heard_sets = pack.gammas, pack.heard_sets
+        levels = [0] * len(self.senders) if ready_hops is None else ready_hops
+        edge_sums, edge_tags = self.edge_sums, self.edge_tags
+        positions, velocities, own_inc = self.positions, self.velocities, self.incarnations
+        return [
+            _new_message(
+                sender,
+                self.round,
+                gammas[p],
+                edge_sums[p],
+                heard_sets[p],
+                len(heard_sets[p]),  # degree
+                level,  # ready_hops
+                positions[p],
+                velocities[p],
+                own_inc[p],  # incarnation
+                edge_tags[p],
+            )
+            for p, (sender, level) in enumerate(zip(self.senders, levels, strict=True))
+        ]
+
+
 class BatchConsensus:
     """The consensus state of K agents, one row each (ids ``agent_ids``), advanced together.
 
@@ -494,6 +520,22 @@ class BatchConsensus:
     ) -> tuple[FloatArray, list[ConsensusMessage], list[tuple[int, ...]], FloatArray]:
         """:meth:`step` without the output objects: the estimates (len(rows), 18), and per row
         its message, its active neighbours and its disagreement (len(rows),)."""
+        gamma, outgoing, active, disagreement = self.step_outgoing(
+            rows, round_, zeta, inboxes, members, motion
+        )
+        return gamma, outgoing.messages(), active, disagreement
+
+    def step_outgoing(
+        self,
+        rows: Sequence[int],
+        round_: int,
+        zeta: FloatArray,
+        inboxes: Sequence[Iterable[ConsensusMessage]],
+        members: Sequence[frozenset[int] | None],
+        motion: tuple[FloatArray, FloatArray] | None = None,
+    ) -> tuple[FloatArray, Outgoing, list[tuple[int, ...]], FloatArray]:
+        """:meth:`step_messages` with the rows' messages still to be made
+        (:meth:`Outgoing.messages`, with their settled levels when the caller knows them)."""
         rows_arr = np.asarray(rows, dtype=np.intp).reshape(-1)
         for row in rows_arr.tolist():
             last = self._last_round[row]
@@ -520,8 +562,8 @@ class BatchConsensus:
         self._hist_largest[rows_arr, slot] = np.abs(gamma).max(axis=1)
         self._hist_degree[rows_arr, slot] = degree
         self._hist_heard[rows_arr, slot] = heard
-        messages = self._outputs(rows_arr, round_, gamma, heard, active, disagreement, motion)
-        return gamma, messages, active, disagreement
+        outgoing = self._outputs(rows_arr, round_, gamma, heard, motion)
+        return gamma, outgoing, active, disagreement
 
     def _grow(self, m: int) -> None:
         """Make room for neighbour ids below ``m`` (at least doubling)."""
@@ -929,11 +971,9 @@ class BatchConsensus:
         round_: int,
         gamma: FloatArray,
         heard: npt.NDArray[np.bool_],
-        active: list[tuple[int, ...]],
-        disagreement: FloatArray,
         motion: tuple[FloatArray, FloatArray] | None = None,
-    ) -> list[ConsensusMessage]:
-        """Each row's message of this step."""
+    ) -> Outgoing:
+        """What makes each row's message of this step."""
         n_rows = rows.shape[0]
         moved: tuple[FloatArray, FloatArray] | None = None
         if motion is None:
@@ -962,32 +1002,21 @@ class BatchConsensus:
         heard_sets = self._heard_sets(rows, heard)
         heard.flags.writeable = False
         pack = _Pack(pos * span + ids, ids, bounds, span, sums, tags, gamma, heard)
-        gamma_rows = pack.gammas
         pack.heard_sets = heard_sets
         if moved is not None:
             pack.positions, pack.velocities = moved
             pack.where, pack.how_fast = positions, velocities
         places = range(n_rows)
-        edge_sums = [_PackedSums(pack, p) for p in places]
-        edge_tags = [_PackedIncarnations(pack, p) for p in places]
-        own_inc = self._own_inc[rows].tolist()
-        agent_ids = self.agent_ids
-        return [
-            _new_message(
-                agent_ids[row],  # sender
-                round_,
-                gamma_rows[p],
-                edge_sums[p],
-                heard_sets[p],
-                len(heard_sets[p]),  # degree
-                0,  # ready_hops (the adapter puts its settled level on it)
-                positions[p],
-                velocities[p],
-                own_inc[p],  # incarnation
-                edge_tags[p],
-            )
-            for p, row in enumerate(rows.tolist())
-        ]
+        return Outgoing(
+            [self.agent_ids[row] for row in rows.tolist()],
+            round_,
+            pack,
+            [_PackedSums(pack, p) for p in places],
+            [_PackedIncarnations(pack, p) for p in places],
+            positions,
+            velocities,
+            self._own_inc[rows].tolist(),
+        )
 
 
 @jit

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from drone_agent.agent_core import AgentOutput, Setpoint
-from drone_agent.consensus_batch import frozen_factory, frozen_replace
+from drone_agent.consensus import ConsensusParams
+from drone_agent.consensus_batch import BatchConsensus, frozen_factory
 from drone_agent.flight_phase import VehicleView
 from drone_agent.link_faults import PairRandom
 from drone_agent.moments import SwarmMoments
@@ -50,13 +51,50 @@ def test_frozen_factory_makes_the_dataclass_instance() -> None:
     assert out.moments is moments and out.setpoint == setpoint and out.separating is False
 
 
-def test_frozen_replace_is_dataclasses_replace() -> None:
-    msg = _message()
-    new = frozen_replace(msg, ready_hops=6)
-    assert new == dataclasses.replace(msg, ready_hops=6)
-    assert msg.ready_hops == 0 and new.ready_hops == 6 and new.gamma is msg.gamma
-    with pytest.raises(TypeError):
-        frozen_replace(msg, no_such_field=1)
+def test_outgoing_messages_with_levels_are_the_step_messages_with_their_level() -> None:
+    """Made with their settled levels at once (``swarm simulate``), a step's messages are the
+    messages :meth:`BatchConsensus.step_messages` makes with that level put on each."""
+    ids = (0, 1, 2)
+    batches = [BatchConsensus(ids, ConsensusParams()) for _ in range(2)]
+    rng = np.random.default_rng(5)
+    inboxes: list[list[ConsensusMessage]] = [[], [], []]
+    for round_ in range(4):
+        zeta = rng.normal(size=(3, 18))
+        motion = (rng.normal(size=(3, 3)), rng.normal(size=(3, 3)))
+        _, plain, _, _ = batches[0].step_messages(ids, round_, zeta, inboxes, [None] * 3, motion)
+        _, outgoing, _, _ = batches[1].step_outgoing(ids, round_, zeta, inboxes, [None] * 3,
+                                                     motion)  # fmt: skip
+        levels = [round_, 2 * round_, 7]
+        made = outgoing.messages(levels)
+        assert outgoing.round == round_
+        for m, p, level in zip(made, plain, levels, strict=True):
+            assert m.ready_hops == level and p.ready_hops == 0
+            assert vars(m).keys() == vars(p).keys()
+            for name, value in vars(dataclasses.replace(p, ready_hops=level)).items():
+                mine = getattr(m, name)
+                if isinstance(value, np.ndarray):
+                    assert np.array_equal(mine, value)
+                elif name in ("edge_sums", "edge_incarnations"):
+                    assert np.array_equal(mine.ids, value.ids)
+                else:
+                    assert mine == value
+        inboxes = [[made[j] for j in ids if j != i] for i in ids]
+
+
+def test_radio_range_is_the_norm_below_the_range() -> None:
+    """The radio's compiled range test picks the pairs ``np.linalg.norm`` puts below the
+    range, also for pairs a rounding away from it."""
+    rng = np.random.default_rng(3)
+    net = InProcessNetwork(40, 6.0, PairRandom(1))
+    for scale in (1.0, 4.0, 20.0):
+        pos = rng.normal(scale=scale, size=(40, 3))
+        pos[1] = pos[0] + np.array([6.0, 0.0, 0.0])  # on the range
+        pos[2] = pos[0] + np.array([np.nextafter(6.0, 0.0), 0.0, 0.0])  # just inside
+        pos[3] = pos[0] + np.array([3.6, 4.8, 0.0])  # 6 m, rounded
+        d = np.linalg.norm(pos[:, None, :] - pos[None, :, :], axis=-1)
+        want = d < 6.0
+        np.fill_diagonal(want, False)
+        assert np.array_equal(net.in_range(pos), want)
 
 
 def test_radio_link_draws_are_the_links_own_draws_in_order() -> None:

@@ -19,7 +19,7 @@ import numpy as np
 
 from drone_agent.agent_core import AgentCore, BatchAgentCore, BatchOutputs, Setpoint
 from drone_agent.config import agent_config
-from drone_agent.consensus_batch import frozen_factory, replaced_each
+from drone_agent.consensus_batch import frozen_factory
 from drone_agent.fault_timeline import TimedAction, timeline
 from drone_agent.flight_phase import BatchReadiness, FlightPhase, Request, VehicleView
 from drone_agent.link_faults import LinkFaults, PairRandom
@@ -326,7 +326,7 @@ class ReferenceFlight:
         committed = [phases[i].committed for i in live]
         ready_all = self._ready(live, cols, members, committed)
         levels = self.readiness.level[live].tolist()
-        messages = replaced_each(cols.messages, "ready_hops", levels)
+        messages = cols.outgoing.messages(levels)
         armed_now, failsafe_now = self.armed.tolist(), self.in_failsafe.tolist()
         commanded_altitude = (-cols.desired[:, 2]).tolist()
         for i, now_separating, setpoint, up_m, ready, flies in zip(
@@ -387,7 +387,7 @@ class ReferenceFlight:
         tick's outputs and the messages that arrived (the network's arrivals)."""
         ready = self.readiness.update(
             live,
-            cols.messages[0].round,
+            cols.outgoing.round,
             cols.disagreement,
             cols.ready_to_fly,
             self.network.arrivals,
