@@ -40,7 +40,7 @@ from sitl_sim.dynamics import (
 )
 from sitl_sim.failsafe import FailsafeConfig, failsafe_command
 from sitl_sim.physics_kernel import PhysicsKernel
-from sitl_sim.setpoint import AttitudeSetpoint, validate_attitude_target
+from sitl_sim.setpoint import validate_attitude_targets
 
 AIRBORNE_ALTITUDE_M = 0.1
 HARD_LANDING_M_S = 2.0
@@ -98,18 +98,15 @@ def received(
     Returns the drones whose setpoint was valid (the others keep their last one, as the
     simulator's vehicles do), their attitudes (3, K) and thrusts (K,). A square grid's take-off
     turned on the last bit of a command: 1e-13 m of one vehicle's position flipped its agent's
-    estimated heading by 90 degrees at N = 100."""
+    estimated heading by 90 degrees at N = 100. The simulator's checks run over all the drones
+    at once (:func:`~sitl_sim.setpoint.validate_attitude_targets`: the same rule, compiled)."""
     values = np.array(commands).T
-    quats = quat_from_zyx(values[2], values[1], values[0]).astype(np.float32).T.tolist()
-    thrusts = values[3].astype(np.float32).tolist()
-    taken, attitude, thrust = [], [], []
-    for i, q, t in zip(drones, quats, thrusts, strict=True):
-        sp = validate_attitude_target(q, t)
-        if isinstance(sp, AttitudeSetpoint):
-            taken.append(i)
-            attitude.append(sp.euler_rad)
-            thrust.append(sp.thrust)
-    return taken, np.array(attitude, dtype=float).reshape(-1, 3).T, np.array(thrust, dtype=float)
+    quats = quat_from_zyx(values[2], values[1], values[0]).astype(np.float32).T
+    thrusts = values[3].astype(np.float32)
+    codes, _, euler = validate_attitude_targets(quats, thrusts)  # float32's values as float64
+    ok = codes == 0
+    taken = np.asarray(drones, dtype=np.intp)[ok].tolist()
+    return taken, euler[ok].T, thrusts[ok].astype(np.float64)
 
 
 @dataclass(frozen=True)
