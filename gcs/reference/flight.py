@@ -28,7 +28,7 @@ from gcs.report.flight_record import FlightRecord, scenario_link_cuts
 from protocols.frames import FloatArray, quat_from_zyx
 from protocols.scenario import Scenario
 from protocols.wire_plan import FlightCommand
-from sitl_sim.attitude_control import euler_from_quat_batch
+from sitl_sim.attitude_control import euler_from_quat_batch, yaw_from_quat_batch
 from sitl_sim.config import attitude_gains, vehicle_params
 from sitl_sim.dynamics import (
     POS,
@@ -314,7 +314,7 @@ class ReferenceFlight:
         rec.neighbours[k, live] = [len(ids) for ids in cols.active_neighbours]
         if rec.links_every and k % rec.links_every == 0:
             rec.neighbour_ids[k] = dict(zip(live, cols.active_neighbours, strict=True))
-        yaw = reported(euler_from_quat_batch(self.state[QUAT])[2]).tolist()
+        yaw = reported(yaw_from_quat_batch(self.state[QUAT])).tolist()
         altitude = (-pos[:, 2]).tolist()
         flying: list[int] = []
         commands: list[tuple[float, float, float, float]] = []
@@ -475,7 +475,7 @@ class ReferenceFlight:
                     f"{self.failsafe.offboard_timeout_s:g} s: level, descend, disarm",
                 )
             since = t_s - self.last_setpoint_s[stale] - self.failsafe.offboard_timeout_s
-            yaw = euler_from_quat_batch(self.state[QUAT][:, stale])[2]
+            yaw = yaw_from_quat_batch(self.state[QUAT][:, stale])
             att, thr = failsafe_command(
                 self.state[5, stale],
                 yaw,

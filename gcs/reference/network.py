@@ -20,7 +20,7 @@ from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
 
 #: Loss draws made ahead per link at a time (one ``random(size)`` call instead of one call each).
-DRAW_BLOCK = 64
+DRAW_BLOCK = 256
 
 
 class InProcessNetwork:
@@ -50,8 +50,9 @@ class InProcessNetwork:
         self.lost = 0
         # per link drawing from a PairRandom: its row of draws made ahead, and the next one
         self._link_row: npt.NDArray[np.intp] | None = None  # (N, N) [sender, receiver], -1
-        self._drawn = np.empty((0, DRAW_BLOCK))
+        self._drawn = np.empty((0, DRAW_BLOCK))  # a row per link (some spare)
         self._next = np.zeros(0, dtype=np.intp)
+        self._n_links = 0  # the rows in use
 
     def in_range(self, positions_ned_m: FloatArray) -> FloatArray:
         """Boolean matrix (N, N): pairs within radio range (no self-links): the distance
@@ -133,14 +134,16 @@ class InProcessNetwork:
         rows = self._link_row[senders, receivers]
         new = np.flatnonzero(rows < 0)
         if new.shape[0]:
-            start = self._drawn.shape[0]
-            rows[new] = self._link_row[senders[new], receivers[new]] = start + np.arange(
-                new.shape[0]
-            )
-            grown = np.empty((start + new.shape[0], DRAW_BLOCK))
-            grown[:start] = self._drawn
-            self._drawn = grown
-            self._next = np.concatenate([self._next, np.full(new.shape[0], DRAW_BLOCK)])
+            start = self._n_links
+            self._n_links = end = start + new.shape[0]
+            rows[new] = self._link_row[senders[new], receivers[new]] = np.arange(start, end)
+            if end > self._drawn.shape[0]:  # room for twice as many links: grown seldom
+                grown = np.empty((max(end, 2 * self._drawn.shape[0]), DRAW_BLOCK))
+                grown[:start] = self._drawn[:start]
+                self._drawn = grown
+                after = np.full(grown.shape[0], DRAW_BLOCK, dtype=np.intp)  # none drawn yet
+                after[:start] = self._next[:start]
+                self._next = after
         used = self._next[rows] >= DRAW_BLOCK
         if used.any():
             pair = self.rng
