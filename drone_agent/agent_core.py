@@ -32,6 +32,7 @@ from drone_agent.cooperative import (
     euler_rate_matrix_batch,
     virtual_acceleration_batch,
 )
+from drone_agent.inboxes import as_inboxes
 from drone_agent.moments import SwarmMoments, channels_batch, moments_from_averages_batch
 from drone_agent.neighbours import NeighbourTable
 from drone_agent.separation import nobody_near
@@ -266,6 +267,7 @@ class BatchAgentCore:
         an :class:`AgentOutput` per row (what ``swarm simulate`` reads of a hundred agents)."""
         x = np.asarray(positions_ned_m, dtype=float).reshape(-1, 3)
         v = np.asarray(velocities_ned_m_s, dtype=float).reshape(-1, 3)
+        inboxes = as_inboxes(inboxes)  # read once for the consensus and the separation layer
         a_d, ad_dot, ad_ddot = self._references(plans, t_s)
         r_d = desired_axes_batch(a_d)
         # channels in the plan's turning frame (drone_agent/moments.py)
@@ -386,7 +388,7 @@ class BatchAgentCore:
                 x[idx],
                 v[idx],
                 accel,
-                [inboxes[k] for k in idx.tolist()],
+                inboxes if idx.shape[0] == len(inboxes) else [inboxes[k] for k in idx.tolist()],
                 common_accel_ned_m_s2=ref[2][:, CENTRE],
             )
             accel = filtered.accel_ned_m_s2

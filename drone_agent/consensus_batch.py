@@ -20,6 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drone_agent.consensus import ConsensusOutput, ConsensusParams
+from drone_agent.inboxes import Inboxes, distinct_messages
 from drone_agent.jit_math import jit, nmax, nmin
 from drone_agent.moments import N_CHANNELS
 from protocols.consensus_message import ConsensusMessage, EdgeIncarnations, EdgeSums
@@ -56,8 +57,9 @@ def frozen_factory(cls: type[_T]) -> Callable[..., _T]:
 @dataclass
 class _Mail:
     """The messages of one step: ``messages`` the distinct message objects and ``senders`` (U,)
-    theirs; ``which`` (n,) the message of each (row, message) value, rows in turn, ``counts``
-    values per row, ``carried`` positions of values filed again (waiting from earlier steps)."""
+    theirs (and ``rounds``, when known); ``which`` (n,) the message of each (row, message)
+    value, rows in turn, ``counts`` values per row, ``carried`` positions of values filed again
+    (waiting from earlier steps)."""
 
     messages: list[ConsensusMessage]
     senders: npt.NDArray[np.intp]
@@ -65,6 +67,7 @@ class _Mail:
     counts: list[int]
     carried: list[int]
     packed: tuple[_Pack, npt.NDArray[np.intp]] | None = None
+    rounds: npt.NDArray[np.int64] | None = None  # of ``messages``, if found already
 
 
 @dataclass
@@ -591,6 +594,21 @@ class BatchConsensus:
         """The step's messages, row by row, each row's waiting values first (filed again as if
         they had just arrived), as indices into the distinct message objects (one message
         reaches many rows in process)."""
+        later = self._later
+        if (
+            isinstance(inboxes, Inboxes)
+            and len(inboxes) == rows.shape[0]
+            and not any(later[row] for row in rows.tolist())
+        ):
+            # nothing waiting: the values are the inboxes' as found for the whole batch
+            if not inboxes.flat:
+                return None
+            messages, which = inboxes.distinct()
+            senders, rounds = inboxes.senders_rounds()
+            if senders.min() >= 0 and senders.max() < MAX_VEHICLES:
+                found = _Mail(messages, senders.astype(np.intp, copy=False), which,
+                              inboxes.counts, [], _packed(messages), rounds)  # fmt: skip
+                return found
         segments: list[tuple[list[ConsensusMessage], list[ConsensusMessage]]] = []
         for row, inbox in zip(rows.tolist(), inboxes, strict=True):
             waiting = self._later[row]
@@ -632,13 +650,7 @@ class BatchConsensus:
             counts.append(len(msgs) - n)
         if not msgs:
             return None
-        # distinct objects by identity (their order is irrelevant: only indexed)
-        ids = np.fromiter(map(id, msgs), np.int64, len(msgs))
-        order = np.argsort(ids)
-        first = _after_true(ids[order[1:]] != ids[order[:-1]])
-        which = np.empty(len(msgs), dtype=np.intp)
-        which[order] = np.cumsum(first) - 1
-        messages = [msgs[k] for k in order[first].tolist()]
+        messages, which = distinct_messages(msgs)
         senders = np.array([m.sender for m in messages], dtype=np.intp)
         return _Mail(messages, senders, which, counts, carried, _packed(messages))
 
@@ -656,7 +668,10 @@ class BatchConsensus:
         the later rounds waiting."""
         messages, which, carried = mail.messages, mail.which, mail.carried
         j = mail.senders[which]
-        q = np.array([m.round for m in messages], dtype=np.int64)[which]
+        rounds = mail.rounds
+        if rounds is None:
+            rounds = np.array([m.round for m in messages], dtype=np.int64)
+        q = rounds[which]
         pos = np.repeat(np.arange(rows.shape[0]), mail.counts)
         me = self._ids[rows][pos]
         valid = (j != me) & (q >= round_ - self.params.history_ticks) & (j >= 0)

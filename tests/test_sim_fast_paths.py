@@ -11,10 +11,13 @@ from drone_agent.agent_core import AgentOutput, Setpoint
 from drone_agent.consensus import ConsensusParams
 from drone_agent.consensus_batch import BatchConsensus, frozen_factory
 from drone_agent.flight_phase import VehicleView
+from drone_agent.inboxes import Inboxes
 from drone_agent.link_faults import PairRandom
 from drone_agent.moments import SwarmMoments
+from drone_agent.neighbours import NeighbourTable
 from gcs.reference.network import DRAW_BLOCK, InProcessNetwork
 from protocols.consensus_message import ConsensusMessage
+from protocols.mavlink_conventions import MAX_VEHICLES
 
 
 def _message() -> ConsensusMessage:
@@ -110,3 +113,44 @@ def test_radio_link_draws_are_the_links_own_draws_in_order() -> None:
         got = net._link_draws(senders, receivers)
         want = [reference(int(a), int(b)).random() for a, b in zip(senders, receivers, strict=True)]
         assert np.array_equal(got, want)
+
+
+def test_inboxes_read_once_file_what_the_lists_file() -> None:
+    """Read once for the whole batch (:class:`Inboxes`), a tick's inboxes give the consensus
+    step and the neighbour table the same state and outputs as the same lists read by each:
+    shared messages, a duplicate, a message from a later round (it waits: the next tick reads
+    the lists again), own messages and a sender beyond any swarm (counted, dropped)."""
+    ids = (0, 1, 2, 3)
+    params = ConsensusParams()
+    plain, shared = BatchConsensus(ids, params), BatchConsensus(ids, params)
+    tables = NeighbourTable(0.02), NeighbourTable(0.02)
+    rng = np.random.default_rng(9)
+    sent: list[ConsensusMessage] = []
+    for round_ in range(6):
+        boxes = [[m for m in sent if m.sender != i and rng.random() < 0.8] for i in ids]
+        if round_ == 2:
+            boxes[1].append(boxes[1][0])  # a duplicate
+            ahead = dataclasses.replace(sent[2], round=round_ + 1)  # from a later round
+            boxes[0].append(ahead)
+            boxes[3].append(ahead)
+            boxes[2].append(sent[2])  # its own
+        if round_ == 4:
+            boxes[0].append(dataclasses.replace(sent[1], sender=MAX_VEHICLES + 5))
+        zeta = rng.normal(size=(4, 18))
+        motion = (rng.normal(size=(4, 3)), rng.normal(size=(4, 3)))
+        got = [
+            batch.step_messages(ids, round_, zeta, inboxes, [None] * 4, motion)
+            for batch, inboxes in ((plain, [list(b) for b in boxes]), (shared, Inboxes(boxes)))
+        ]
+        assert np.array_equal(got[0][0], got[1][0])  # the estimates
+        assert got[0][2] == got[1][2] and np.array_equal(got[0][3], got[1][3])
+        for table, inboxes in zip(tables, ([list(b) for b in boxes], Inboxes(boxes)), strict=True):
+            table.hear(ids, round_, inboxes)
+        a, b = (table.query(ids, round_) for table in tables)
+        assert np.array_equal(a.ids, b.ids) and np.array_equal(a.owner, b.owner)
+        assert np.array_equal(a.position_ned_m, b.position_ned_m)
+        sent = got[1][1]
+    assert plain.dropped_messages == shared.dropped_messages
+    assert sum(plain.dropped_messages) > 0
+    for name in ("_q_own", "_edge", "_latest", "_q_for_me", "_hist_gamma"):
+        assert np.array_equal(getattr(plain, name), getattr(shared, name))
