@@ -225,13 +225,13 @@ def test_agents_get_what_a_swarm_agent_gets() -> None:
     scenario = _scenario([{"t_s": dropout_k * DT_S, "kind": "dropout", "drone": 4}], 7.5)
     flight = ReferenceFlight(scenario)
     seen: dict[int, tuple[float, Any, Any, frozenset[int]]] = {}
-    tick = flight.core.tick
+    tick = flight.core.tick_columns
 
     def spy(rows: Any, k: int, t_s: float, x: Any, v: Any, *rest: Any) -> Any:
         seen[k] = (t_s, np.array(x), np.array(v), rest[2][0])
         return tick(rows, k, t_s, x, v, *rest)
 
-    flight.core.tick = spy  # type: ignore[method-assign, assignment]
+    flight.core.tick_columns = spy  # type: ignore[method-assign]
     record = flight.run()
     # k * 0.02 is 6.0200000000000005 at k = 301: the agents' clock says 6.02
     assert [k for k in seen if seen[k][0] != round(k * 20) / 1000] == []
