@@ -38,13 +38,19 @@ def distinct_messages(values: list[_T]) -> tuple[list[_T], npt.NDArray[np.intp]]
 class Inboxes(Sequence[list[ConsensusMessage]]):
     """The inboxes of a batch's rows (one list each, in row order; a sequence of them), with
     their values as one list (``flat``, row after row; ``counts`` per row) and, found when
-    first asked (:meth:`distinct`), each distinct message with the senders and rounds of them."""
+    first asked (:meth:`distinct`), each distinct message with the senders and rounds of them.
+    ``distinct``: those already known to whoever filled the inboxes (as :meth:`distinct` gives
+    them, in any order: every message of ``flat`` once, and the index of each value's)."""
 
-    def __init__(self, inboxes: Iterable[Iterable[ConsensusMessage]]) -> None:
+    def __init__(
+        self,
+        inboxes: Iterable[Iterable[ConsensusMessage]],
+        distinct: tuple[list[ConsensusMessage], npt.NDArray[np.intp]] | None = None,
+    ) -> None:
         self.lists = [box if isinstance(box, list) else list(box) for box in inboxes]
         self.flat: list[ConsensusMessage] = list(chain.from_iterable(self.lists))
         self.counts = [len(box) for box in self.lists]
-        self._distinct: tuple[list[ConsensusMessage], npt.NDArray[np.intp]] | None = None
+        self._distinct = distinct
         self._senders_rounds: tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]] | None = None
 
     def distinct(self) -> tuple[list[ConsensusMessage], npt.NDArray[np.intp]]:

@@ -154,3 +154,35 @@ def test_inboxes_read_once_file_what_the_lists_file() -> None:
     assert sum(plain.dropped_messages) > 0
     for name in ("_q_own", "_edge", "_latest", "_q_for_me", "_hist_gamma"):
         assert np.array_equal(getattr(plain, name), getattr(shared, name))
+
+
+def test_radio_inboxes_know_their_distinct_messages() -> None:
+    """The radio's inboxes of some drones are its plain inboxes of them, and the distinct
+    messages it hands with them are each delivered message object once, the index of every
+    value its own; with two delays in flight (one send's messages arrive in two batches) and a
+    message object sent twice, as well as with one send at one delay."""
+    n = 6
+    nets = [InProcessNetwork(n, 100.0, PairRandom(4), 1) for _ in range(2)]
+    for net in nets:
+        net.conditions.loss = 0.3
+        net.conditions.link_delay_ticks[(2, 4)] = 1
+    rng = np.random.default_rng(1)
+    pos = rng.normal(size=(n, 3))
+    checked = 0
+    for round_ in range(12):
+        sent = [dataclasses.replace(_message(), sender=i, round=round_) for i in range(n)]
+        if round_ == 5:
+            sent.append(sent[0])  # one object twice
+        for net in nets:
+            net.send(round_, sent, net.in_range(pos))
+        drones = [0, 2, 3, 5] if round_ % 2 else list(range(n))
+        plain = nets[0].receive(round_ + 1)
+        boxes = nets[1].receive_inboxes(round_ + 1, drones)
+        assert boxes.lists == [plain[i] for i in drones]
+        assert np.array_equal(nets[0].arrivals.receiver, nets[1].arrivals.receiver)
+        messages, which = boxes.distinct()
+        assert len({id(m) for m in messages}) == len(messages)
+        assert all(messages[w] is m for w, m in zip(which.tolist(), boxes.flat, strict=True))
+        assert set(which.tolist()) == set(range(len(messages)))
+        checked += len(boxes.flat)
+    assert checked > 100

@@ -293,7 +293,7 @@ class ReferenceFlight:
         # before its tick k - 1 is known dead only when its round k - 1 does not come)
         members = now_live if self._finished is None else self._finished
         self._finished = now_live
-        inboxes = self.network.receive(k)
+        inboxes = self.network.receive_inboxes(k, live)
         # the tick's time as the agents read it: the vehicle's time_boot_ms (sitl_sim/world.py),
         # not k * dt (6.0200000000000005 s at k = 301, where the plan's climb starts)
         t_s = round(k * 1000 / self.scenario.rates.control_hz) / 1000.0
@@ -307,7 +307,7 @@ class ReferenceFlight:
             pos[live],
             vel[live],
             [self.plan] * len(live),
-            [inboxes[i] for i in live],
+            inboxes,
             [members] * len(live),
         )
         rec.estimate[k, live] = cols.estimate

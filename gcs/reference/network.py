@@ -8,12 +8,12 @@ from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Sequence
-from itertools import pairwise
 
 import numpy as np
 import numpy.typing as npt
 
 from drone_agent.flight_phase import Arrivals
+from drone_agent.inboxes import Inboxes
 from drone_agent.jit_math import jit
 from drone_agent.link_faults import LinkFaults, PairRandom
 from protocols.consensus_message import ConsensusMessage
@@ -190,10 +190,17 @@ class InProcessNetwork:
     def receive(self, round_: int) -> list[list[ConsensusMessage]]:
         """The inboxes (one list per drone) of messages that arrive at round ``round_``, each in
         send order (batch by batch, messages in order); the same as :attr:`arrivals`."""
+        return self.receive_inboxes(round_, range(self.n)).lists
+
+    def receive_inboxes(self, round_: int, drones: Sequence[int]) -> Inboxes:
+        """:meth:`receive` of round ``round_``, the inboxes of drones ``drones`` (ascending) as
+        :class:`~drone_agent.inboxes.Inboxes`, each distinct message among them known from the
+        lists they were sent in (when no message object was sent twice) instead of found again
+        by the agents. :attr:`arrivals` are every drone's."""
         batches = self._in_flight.pop(round_, [])
         if not batches:
             self.arrivals = _NO_ARRIVALS
-            return [[] for _ in range(self.n)]
+            return Inboxes([[] for _ in drones], ([], _EMPTY))
         if len(batches) == 1:
             receivers, which, msgs, meta = batches[0]
         else:
@@ -209,9 +216,18 @@ class InProcessNetwork:
         self.delivered += int(receivers.shape[0])
         bounds = np.searchsorted(receivers, np.arange(self.n + 1)).tolist()
         flat = list(map(msgs.__getitem__, which.tolist()))
-        inboxes = [flat[lo:hi] for lo, hi in pairwise(bounds)]
+        lists = [flat[bounds[i] : bounds[i + 1]] for i in drones]
         self.arrivals = Arrivals(receivers, meta[0, which], meta[1, which], meta[2, which])
-        return inboxes
+        if len(set(map(id, msgs))) < len(msgs):  # one object sent twice: the agents find them
+            return Inboxes(lists)
+        if len(drones) < self.n:  # the values of these drones' inboxes, in turn
+            wanted = np.zeros(self.n, dtype=bool)
+            wanted[np.asarray(drones, dtype=np.intp)] = True
+            which = which[wanted[receivers]]
+        sent = np.zeros(len(msgs), dtype=bool)
+        sent[which] = True  # the messages delivered to them, in send order
+        index = np.cumsum(sent) - 1
+        return Inboxes(lists, ([msgs[k] for k in np.flatnonzero(sent).tolist()], index[which]))
 
 
 @jit
