@@ -32,8 +32,12 @@ RENDEZVOUS_PORT = 7447
 #: timeout (LOCKSTEP_VEHICLE_TIMEOUT_S, 15 s): a hung process's drones leave its peers' rosters
 #: first, so they echo the tick again before the barrier gives up on anyone.
 LOCKSTEP_LEASE_MS = 5000
-#: How long (µs) a lockstep agent's DROP publishers wait for room in a full send queue.
-LOCKSTEP_DROP_WAIT_US = 100_000
+#: How long (µs) a lockstep agent's DROP publishers wait for room in a full send queue before a
+#: consensus message is lost (and the round marker behind it then vouches for it: the flight no
+#: longer repeats). A queue stays full that long only when the machine cannot run Zenoh's threads
+#: (100 ms was exceeded at load 18-38) or a peer stopped reading; the latter's link closes at the
+#: lease (5 s) anyway, so waiting up to 1 s costs a frozen peer's neighbours nothing more.
+LOCKSTEP_DROP_WAIT_US = 1_000_000
 #: A directory: the agent process runs under cProfile and dumps its profile there on exit
 #: (``agent-<first drone>-<pid>.prof``, in the main thread's CPU time;
 #: bench/agent_process_profile.txt).

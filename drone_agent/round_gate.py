@@ -6,7 +6,7 @@ still be on its way. Each agent process therefore publishes a round-done marker 
 finish a round (protocols/wire_round.py; it follows their consensus messages on the same Zenoh
 session, in the same send batch as far as it goes (Congestion.QUEUED), so whoever has the marker
 has those messages, unless Zenoh's DROP congestion control lost one because every batch of the
-send queue was still waiting for the wire for 100 ms (a machine too loaded to run Zenoh's threads:
+send queue was still waiting for the wire for 1 s (a machine too loaded to run Zenoh's threads:
 lockstep sessions queue 16 batches, not 2)), and an agent starts tick ``k`` once it
 holds the round ``k - 1`` marker of every drone of its roster (:class:`RoundGate`). Liveliness
 says who will never send it: a drone whose token is gone is dropped from the roster at once (after

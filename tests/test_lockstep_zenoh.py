@@ -50,11 +50,17 @@ def test_a_queue_depth_out_of_range_is_refused(batches: int) -> None:
 
 
 def test_a_sessions_queued_and_express_samples_arrive_in_send_order() -> None:
-    """The round gate's premise (drone_agent/round_gate.py): a process's consensus messages
-    (QUEUED) reach another session before the round-done marker (express) put after them."""
+    """The round gate's premise (drone_agent/round_gate.py): a lockstep session's consensus
+    messages (QUEUED) reach another session before the round-done marker (express) put after
+    them. Lockstep sessions as the agents open them (a deep queue, a long wait before a drop):
+    with Zenoh's defaults (2 batches, 1 ms before a drop) this test failed once at load 18."""
     endpoint = free_loopback_endpoint()
-    with ZenohBus.open(ZenohSettings(listen=(endpoint,))) as a, ZenohBus.open(
-        ZenohSettings(connect=(endpoint,))
+    lockstep = {
+        "tx_queue_batches": LOCKSTEP_TX_QUEUE_BATCHES,
+        "drop_wait_us": LOCKSTEP_DROP_WAIT_US,
+    }
+    with ZenohBus.open(ZenohSettings(listen=(endpoint,), **lockstep)) as a, ZenohBus.open(
+        ZenohSettings(connect=(endpoint,), **lockstep)
     ) as b:
         inbox = b.subscribe("t/**", 1024)
         queued = a.publisher("t/q", Congestion.QUEUED)
@@ -69,4 +75,7 @@ def test_a_sessions_queued_and_express_samples_arrive_in_send_order() -> None:
         while len(got) < 300 and time.monotonic() < deadline:
             got += [p for _, p in inbox.drain() if p != b"-"]
             time.sleep(0.01)
-    assert got == [str(i).encode() for i in range(300)]
+    sent = [str(i).encode() for i in range(300)]
+    assert got == sent, f"{len(got)} of 300 arrived; first out of order: " + str(
+        next(((i, g) for i, (g, s) in enumerate(zip(got, sent, strict=False)) if g != s), None)
+    )

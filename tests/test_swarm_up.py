@@ -152,3 +152,49 @@ def _cmdline(pid: int) -> str:
         return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
     except OSError:
         return ""
+
+
+def test_a_rendezvous_port_taken_as_the_run_starts_moves_the_run(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``swarm up`` picks the rendezvous port (7447) when it is free, and the ground station binds
+    it a moment later: a swarm started at the same moment can take it in between (it did, to the
+    demo in a loaded test run: "Address already in use", the run died). The run now starts
+    again on a free port and flies. Here the port the plan picked is held by a listener of the
+    test's own before the ground station starts: the same moment, made certain."""
+    from gcs.cli.main import _parser
+    from gcs.cli.supervisor import supervise
+    from gcs.cli.up import build_plan
+
+    for key in ("MAVLINK20", "MPLBACKEND", "PYTHONUNBUFFERED"):
+        monkeypatch.setenv(key, ENV[key])
+    scenario = write_scenario(
+        tmp_path / "hover.toml", SQUARE, centre=(2.0, 1.5, -2.0), spread=(2.0, 1.5, 0.0),
+        duration_s=30.0, settle_s=8.0,
+    )  # fmt: skip
+    base, gcs_port = free_port_block(4), free_udp_port()
+    report = tmp_path / "report"
+    args = _parser().parse_args(
+        ["up", str(scenario), "--report", str(report), "--base-port", str(base),
+         "--gcs-port", str(gcs_port), "--clock", "lockstep", "--agents-per-process", "4",
+         "--duration-s", "8"]
+    )  # fmt: skip
+    plan = build_plan(args, scenario)[0]
+    assert plan.rendezvous_picked
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as taken:
+        taken.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        plan.move_rendezvous(f"tcp/127.0.0.1:{port}")  # picked while free, then taken
+        said: list[str] = []
+        reason = supervise(plan, said.append)
+    assert reason == "finished", (reason, said)
+    assert any("was taken by another process" in line for line in said), said
+    run = json.loads((report / "logs" / "run.json").read_text())
+    assert run["zenoh"] == plan.zenoh_endpoint != f"tcp/127.0.0.1:{port}"
+    assert "Address already in use" in (report / "logs" / "gcs.log").read_text()
+    track = read_tlog(report / "flight.tlog")
+    assert set(track.vehicles) == {1, 2, 3, 4}
+    assert all(-v.position_ned_m[-1, 2] > 1.5 for v in track.vehicles.values())
+    _assert_nothing_left(report, base, gcs_port)

@@ -101,12 +101,23 @@ class RunPlan:
     session: bool = False
     #: session: how long (wall s) to wait for the ground station to end the run after a Ctrl-C
     shutdown_wait_s: float = 180.0
+    #: the ground station listens on ``zenoh_endpoint``, a port picked here because it was free
+    #: (:func:`rendezvous_port`): if another process binds it before the ground station does,
+    #: the run starts again on another free port (:meth:`move_rendezvous`)
+    rendezvous_picked: bool = False
 
     @property
     def children(self) -> list[Child]:
         """Every child, in start order: router, ground station, simulator, agents (a partial
         start on one host of several has only some of them)."""
         return [c for c in (self.router, self.gcs, self.sim) if c is not None] + self.agents
+
+    def move_rendezvous(self, endpoint: str) -> None:
+        """Every child's Zenoh flags name ``endpoint`` instead of the run's endpoint now."""
+        old = self.zenoh_endpoint
+        for child in self.children:
+            child.argv = [endpoint if arg == old else arg for arg in child.argv]
+        self.zenoh_endpoint = endpoint
 
     def write_run_file(self) -> None:
         """``{"zenoh": endpoint, "agents": {"<drone>": pid}}``: the run's Zenoh endpoint and the
@@ -137,6 +148,23 @@ def rendezvous_port() -> int:
     from drone_agent.zenoh_transport import tcp_listen_free
 
     return RENDEZVOUS_PORT if tcp_listen_free(RENDEZVOUS_PORT) else free_tcp_port()
+
+
+#: How many times a run moves to another rendezvous port taken between the check and the bind.
+RENDEZVOUS_MOVES = 3
+#: What the ground station says when its Zenoh listener's port is taken (Zenoh's bind error).
+PORT_TAKEN = "Address already in use"
+
+
+def _rendezvous_taken(plan: RunPlan) -> bool:
+    """Whether the ground station ended because another process took the rendezvous port this
+    run picked while it was free (check, then bind: a swarm started at the same moment)."""
+    return (
+        plan.rendezvous_picked
+        and plan.gcs is not None
+        and PORT_TAKEN in _last_line(plan.gcs.log)
+        and str(plan.zenoh_endpoint).rpartition(":")[2] in _last_line(plan.gcs.log)
+    )
 
 
 def check_udp_ports(ports: list[int], what: str, host: str = "127.0.0.1") -> None:
@@ -188,13 +216,9 @@ def supervise(
     on another host ended), or on Ctrl-C; a router alone runs until Ctrl-C."""
     reason = "stopped"
     shutdown_deadline: float | None = None
+    moves = 0
     try:
-        for child in plan.children:
-            child.start()
-            if child is plan.router:
-                _wait_listening(plan.zenoh_endpoint, child)
-            time.sleep(0.3 if child.role == "gcs" else 0.05)
-        plan.write_run_file()
+        _start(plan)
         while True:
             asked = should_stop()
             if asked and not (plan.session and asked < 2):
@@ -239,6 +263,10 @@ def supervise(
                 code = plan.gcs.proc.returncode if plan.gcs.proc else None
                 if code == 0:  # it ended the run: swarm shutdown, or a session's Ctrl-C
                     reason = SHUT_DOWN
+                elif moves < RENDEZVOUS_MOVES and _rendezvous_taken(plan):
+                    moves += 1
+                    _move_rendezvous(plan, progress)
+                    continue
                 else:
                     reason = f"the ground station exited with code {code} (log: {plan.gcs.log})"
                 break
@@ -253,6 +281,33 @@ def supervise(
             if last is not None:
                 last.stop()
     return reason
+
+
+def _start(plan: RunPlan) -> None:
+    """Start the children in order (a router: once it listens) and write the run file."""
+    for child in plan.children:
+        child.start()
+        if child is plan.router:
+            _wait_listening(plan.zenoh_endpoint, child)
+        time.sleep(0.3 if child.role == "gcs" else 0.05)
+    plan.write_run_file()
+
+
+def _move_rendezvous(plan: RunPlan, progress: Callable[[str], None] | None) -> None:
+    """The rendezvous port was taken before the ground station bound it: stop what started (no
+    vehicle has flown: the ground station ends within its first second) and start everything
+    again on a free port."""
+    taken = plan.zenoh_endpoint
+    for child in [plan.gcs, *plan.agents, plan.sim]:
+        if child is not None:
+            child.stop()
+    plan.move_rendezvous(f"tcp/127.0.0.1:{free_tcp_port()}")
+    if progress is not None:
+        progress(
+            f"{taken} was taken by another process as the run started: Zenoh moves to "
+            f"{plan.zenoh_endpoint} (operator commands: --zenoh-connect {plan.zenoh_endpoint})"
+        )
+    _start(plan)
 
 
 def _signal(child: Child | None, sig: int) -> None:

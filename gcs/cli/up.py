@@ -272,6 +272,7 @@ def build_plan(
     ]
     drones = agent_ranges(n, args.agents_per_process)
     plan = RunPlan(gcs, sim, agents, drones, logs / RUN_FILE, endpoint)
+    plan.rendezvous_picked = not args.zenoh_connect
     if session is not None:
         plan.session = True
         plan.shutdown_wait_s = session.shutdown_timeout_s + REPORT_WAIT_S
