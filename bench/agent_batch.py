@@ -140,8 +140,10 @@ def simulate_worker(scenario: str, duration_s: float | None) -> dict[str, Any]:
 _PARTS = (
     ("agents (core)", "drone_agent.agent_core", "BatchAgentCore", "tick"),
     ("agents (core)", "drone_agent.agent_core", "AgentCore", "tick"),
+    ("agents (core)", "drone_agent.agent_core", "BatchAgentCore", "tick_columns"),
     ("  consensus step", "drone_agent.consensus_batch", "BatchConsensus", "step"),
     ("  consensus step", "drone_agent.consensus_batch", "BatchConsensus", "step_messages"),
+    ("  consensus step", "drone_agent.consensus_batch", "BatchConsensus", "step_outgoing"),
     ("  consensus step", "drone_agent.consensus", "ConsensusEstimator", "step"),
     ("  descriptor frame (eigh, axes)", "protocols.descriptors", None, "align_axes_batch"),
     ("  descriptor frame (eigh, axes)", "protocols.descriptors", None, "align_axes"),

@@ -26,12 +26,13 @@ import numpy as np
 import numpy.typing as npt
 
 from drone_agent.consensus import ConsensusParams
-from drone_agent.consensus_batch import BatchConsensus, frozen_factory
+from drone_agent.consensus_batch import BatchConsensus, Outgoing, frozen_factory
 from drone_agent.cooperative import (
     CooperativeGains,
     euler_rate_matrix_batch,
     virtual_acceleration_batch,
 )
+from drone_agent.inboxes import as_inboxes
 from drone_agent.moments import SwarmMoments, channels_batch, moments_from_averages_batch
 from drone_agent.neighbours import NeighbourTable
 from drone_agent.separation import nobody_near
@@ -87,6 +88,56 @@ class AgentOutput:
     disagreement: float = 0.0
     desired: FloatArray | None = None
     separating: bool = False
+
+
+@dataclass(frozen=True)
+class BatchOutputs:
+    """One :meth:`BatchAgentCore.tick_columns` call's outputs, row ``k`` of every field the
+    ``k``-th row's :class:`AgentOutput` (:meth:`outputs`): the messages still to be made
+    (``outgoing``: with the settled levels, when the caller has them), ``setpoints``,
+    ``active_neighbours`` and ``separating`` per row; ``estimate`` (K, 9), ``moments`` (leading
+    K axis), ``ready_to_fly`` (K,), ``disagreement`` (K,) and ``desired`` (K, 9) arrays."""
+
+    outgoing: Outgoing
+    estimate: FloatArray
+    moments: SwarmMoments
+    setpoints: list[Setpoint | None]
+    active_neighbours: list[tuple[int, ...]]
+    ready_to_fly: npt.NDArray[np.bool_]
+    disagreement: FloatArray
+    desired: FloatArray
+    separating: list[bool]
+
+    def outputs(self) -> list[AgentOutput]:
+        """One :class:`AgentOutput` per row, in order (their arrays views of these; the messages'
+        settled level 0, for the adapter to put its own on)."""
+        m = self.moments
+        centre, rate = list(m.centre_ned_m), list(m.centre_rate_ned_m_s)
+        sigma, sigma_rate = list(m.sigma_m2), list(m.sigma_rate_m2_s)
+        estimates, desired = list(self.estimate), list(self.desired)
+        setpoints, separating = self.setpoints, self.separating
+        return [
+            _new_output(
+                message,
+                estimates[k],
+                _new_moments(centre[k], rate[k], sigma[k], sigma_rate[k]),
+                setpoints[k],
+                neighbours,
+                flies,
+                dis,
+                desired[k],
+                separating[k],
+            )
+            for k, (message, neighbours, dis, flies) in enumerate(
+                zip(
+                    self.outgoing.messages(),
+                    self.active_neighbours,
+                    self.disagreement.tolist(),
+                    self.ready_to_fly.tolist(),
+                    strict=True,
+                )
+            )
+        ]
 
 
 #: The rejoin climb (:meth:`BatchAgentCore.tick` ``climb_to``): vertical PD gains (1/s^2, 1/s),
@@ -192,11 +243,31 @@ class BatchAgentCore:
         its plan, its inbox and its membership view. ``climb_to``: per row None (fly the
         formation) or the NED z a returning drone climbs to or holds (:func:`climb_acceleration`
         instead of the cooperative field, through the same separation layer and limits). One
-        output per row, in order."""
+        output per row, in order (:meth:`tick_columns`' rows)."""
         if len(rows) == 0:
             return []
+        return self.tick_columns(
+            rows, round_, t_s, positions_ned_m, velocities_ned_m_s, plans, inboxes, members,
+            climb_to,
+        ).outputs()  # fmt: skip
+
+    def tick_columns(
+        self,
+        rows: Sequence[int],
+        round_: int,
+        t_s: float,
+        positions_ned_m: FloatArray,
+        velocities_ned_m_s: FloatArray,
+        plans: Sequence[DescriptorTrajectory],
+        inboxes: Sequence[Iterable[ConsensusMessage]],
+        members: Sequence[frozenset[int] | None],
+        climb_to: Sequence[float | None] | None = None,
+    ) -> BatchOutputs:
+        """:meth:`tick`'s outputs as columns, one row per row of ``rows`` (at least one), without
+        an :class:`AgentOutput` per row (what ``swarm simulate`` reads of a hundred agents)."""
         x = np.asarray(positions_ned_m, dtype=float).reshape(-1, 3)
         v = np.asarray(velocities_ned_m_s, dtype=float).reshape(-1, 3)
+        inboxes = as_inboxes(inboxes)  # read once for the consensus and the separation layer
         a_d, ad_dot, ad_ddot = self._references(plans, t_s)
         r_d = desired_axes_batch(a_d)
         # channels in the plan's turning frame (drone_agent/moments.py)
@@ -204,7 +275,7 @@ class BatchAgentCore:
             euler_rate_matrix_batch(a_d[:, I_ROLL], a_d[:, I_PITCH]) @ ad_dot[:, ORIENTATION, None]
         )[:, :, 0]
         zeta = channels_batch(x, v, a_d[:, CENTRE], ad_dot[:, CENTRE], (r_d, omega_d))
-        gamma, messages, active, disagreement = self.consensus.step_messages(
+        gamma, outgoing, active, disagreement = self.consensus.step_outgoing(
             rows, round_, zeta, inboxes, members, (x, v)
         )
         moments = moments_from_averages_batch(
@@ -212,11 +283,12 @@ class BatchAgentCore:
         )
         axes, s = align_axes_batch(moments.sigma_m2, r_d)
         estimate = frame_vector_batch(moments.centre_ned_m, axes, s)
-        ready = np.zeros(len(messages), dtype=bool)
+        n_rows = gamma.shape[0]
+        ready = np.zeros(n_rows, dtype=bool)
         if t_s >= self.config.warmup_s:
             ready[:] = np.isfinite(gamma).all(axis=1)
-        setpoints: list[Setpoint | None] = [None] * len(messages)
-        separating = [False] * len(messages)
+        setpoints: list[Setpoint | None] = [None] * n_rows
+        separating = [False] * n_rows
         if ready.any():
             setpoints, separating = self._setpoints(
                 rows,
@@ -229,25 +301,17 @@ class BatchAgentCore:
                 (round_, inboxes),
                 climb_to,
             )
-        centre, rate = list(moments.centre_ned_m), list(moments.centre_rate_ned_m_s)
-        sigma, sigma_rate = list(moments.sigma_m2), list(moments.sigma_rate_m2_s)
-        estimates, desired = list(estimate), list(a_d)
-        return [
-            _new_output(
-                message,
-                estimates[k],
-                _new_moments(centre[k], rate[k], sigma[k], sigma_rate[k]),
-                setpoints[k],
-                neighbours,
-                flies,
-                dis,
-                desired[k],
-                separating[k],
-            )
-            for k, (message, neighbours, dis, flies) in enumerate(
-                zip(messages, active, disagreement.tolist(), ready.tolist(), strict=True)
-            )
-        ]
+        return BatchOutputs(
+            outgoing,
+            estimate,
+            moments,
+            setpoints,
+            active,
+            ready,
+            disagreement,
+            a_d,
+            separating,
+        )
 
     def _references(self, plans: Sequence[DescriptorTrajectory], t_s: float) -> StateTriple:
         """Each row's plan value, rate and acceleration (len(plans), 9), every distinct plan
@@ -324,7 +388,7 @@ class BatchAgentCore:
                 x[idx],
                 v[idx],
                 accel,
-                [inboxes[k] for k in idx.tolist()],
+                inboxes if idx.shape[0] == len(inboxes) else [inboxes[k] for k in idx.tolist()],
                 common_accel_ned_m_s2=ref[2][:, CENTRE],
             )
             accel = filtered.accel_ned_m_s2

@@ -20,6 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drone_agent.consensus import ConsensusOutput, ConsensusParams
+from drone_agent.inboxes import Inboxes, distinct_messages
 from drone_agent.jit_math import jit, nmax, nmin
 from drone_agent.moments import N_CHANNELS
 from protocols.consensus_message import ConsensusMessage, EdgeIncarnations, EdgeSums
@@ -53,27 +54,12 @@ def frozen_factory(cls: type[_T]) -> Callable[..., _T]:
     return maker
 
 
-def frozen_replace(obj: _T, **changes: Any) -> _T:
-    """``dataclasses.replace(obj, **changes)`` for a frozen dataclass made by its ``__init__`` or
-    :func:`frozen_factory` (no ``__post_init__``, no init-only fields, no slots): the same object,
-    made as :func:`frozen_factory` makes one."""
-    fields_of = obj.__dict__
-    if not changes.keys() <= fields_of.keys():
-        raise TypeError(
-            f"{type(obj).__name__} has no field {sorted(changes.keys() - fields_of.keys())}"
-        )
-    new = object.__new__(type(obj))
-    values = new.__dict__
-    values.update(fields_of)
-    values.update(changes)
-    return new
-
-
 @dataclass
 class _Mail:
     """The messages of one step: ``messages`` the distinct message objects and ``senders`` (U,)
-    theirs; ``which`` (n,) the message of each (row, message) value, rows in turn, ``counts``
-    values per row, ``carried`` positions of values filed again (waiting from earlier steps)."""
+    theirs (and ``rounds``, when known); ``which`` (n,) the message of each (row, message)
+    value, rows in turn, ``counts`` values per row, ``carried`` positions of values filed again
+    (waiting from earlier steps)."""
 
     messages: list[ConsensusMessage]
     senders: npt.NDArray[np.intp]
@@ -81,6 +67,7 @@ class _Mail:
     counts: list[int]
     carried: list[int]
     packed: tuple[_Pack, npt.NDArray[np.intp]] | None = None
+    rounds: npt.NDArray[np.int64] | None = None  # of ``messages``, if found already
 
 
 @dataclass
@@ -340,6 +327,64 @@ _new_output = frozen_factory(ConsensusOutput)
 _new_message = frozen_factory(ConsensusMessage)
 
 
+class Outgoing:
+    """The messages of one :meth:`BatchConsensus.step_outgoing`, one per row, before they are
+    made: the senders, the round, the step's :class:`_Pack` and each row's mappings, motion
+    rows (None: none) and incarnation. :meth:`messages` makes them."""
+
+    __slots__ = (
+        "edge_sums",
+        "edge_tags",
+        "incarnations",
+        "pack",
+        "positions",
+        "round",
+        "senders",
+        "velocities",
+    )  # fmt: skip
+
+    def __init__(
+        self,
+        senders: list[int],
+        round_: int,
+        pack: _Pack,
+        edge_sums: list[_PackedSums],
+        edge_tags: list[_PackedIncarnations],
+        positions: Sequence[FloatArray | None],
+        velocities: Sequence[FloatArray | None],
+        incarnations: list[int],
+    ) -> None:
+        self.senders, self.round, self.pack = senders, round_, pack
+        self.edge_sums, self.edge_tags = edge_sums, edge_tags
+        self.positions, self.velocities = positions, velocities
+        self.incarnations = incarnations
+
+    def messages(self, ready_hops: Sequence[int] | None = None) -> list[ConsensusMessage]:
+        """Each row's message, with its settled level ``ready_hops[k]`` (None: 0 each, for the
+        adapter to put its own on)."""
+        pack = self.pack
+        gammas, heard_sets = pack.gammas, pack.heard_sets
+        levels = [0] * len(self.senders) if ready_hops is None else ready_hops
+        edge_sums, edge_tags = self.edge_sums, self.edge_tags
+        positions, velocities, own_inc = self.positions, self.velocities, self.incarnations
+        return [
+            _new_message(
+                sender,
+                self.round,
+                gammas[p],
+                edge_sums[p],
+                heard_sets[p],
+                len(heard_sets[p]),  # degree
+                level,  # ready_hops
+                positions[p],
+                velocities[p],
+                own_inc[p],  # incarnation
+                edge_tags[p],
+            )
+            for p, (sender, level) in enumerate(zip(self.senders, levels, strict=True))
+        ]
+
+
 class BatchConsensus:
     """The consensus state of K agents, one row each (ids ``agent_ids``), advanced together.
 
@@ -478,6 +523,22 @@ class BatchConsensus:
     ) -> tuple[FloatArray, list[ConsensusMessage], list[tuple[int, ...]], FloatArray]:
         """:meth:`step` without the output objects: the estimates (len(rows), 18), and per row
         its message, its active neighbours and its disagreement (len(rows),)."""
+        gamma, outgoing, active, disagreement = self.step_outgoing(
+            rows, round_, zeta, inboxes, members, motion
+        )
+        return gamma, outgoing.messages(), active, disagreement
+
+    def step_outgoing(
+        self,
+        rows: Sequence[int],
+        round_: int,
+        zeta: FloatArray,
+        inboxes: Sequence[Iterable[ConsensusMessage]],
+        members: Sequence[frozenset[int] | None],
+        motion: tuple[FloatArray, FloatArray] | None = None,
+    ) -> tuple[FloatArray, Outgoing, list[tuple[int, ...]], FloatArray]:
+        """:meth:`step_messages` with the rows' messages still to be made
+        (:meth:`Outgoing.messages`, with their settled levels when the caller knows them)."""
         rows_arr = np.asarray(rows, dtype=np.intp).reshape(-1)
         for row in rows_arr.tolist():
             last = self._last_round[row]
@@ -504,8 +565,8 @@ class BatchConsensus:
         self._hist_largest[rows_arr, slot] = np.abs(gamma).max(axis=1)
         self._hist_degree[rows_arr, slot] = degree
         self._hist_heard[rows_arr, slot] = heard
-        messages = self._outputs(rows_arr, round_, gamma, heard, active, disagreement, motion)
-        return gamma, messages, active, disagreement
+        outgoing = self._outputs(rows_arr, round_, gamma, heard, motion)
+        return gamma, outgoing, active, disagreement
 
     def _grow(self, m: int) -> None:
         """Make room for neighbour ids below ``m`` (at least doubling)."""
@@ -533,6 +594,21 @@ class BatchConsensus:
         """The step's messages, row by row, each row's waiting values first (filed again as if
         they had just arrived), as indices into the distinct message objects (one message
         reaches many rows in process)."""
+        later = self._later
+        if (
+            isinstance(inboxes, Inboxes)
+            and len(inboxes) == rows.shape[0]
+            and not any(later[row] for row in rows.tolist())
+        ):
+            # nothing waiting: the values are the inboxes' as found for the whole batch
+            if not inboxes.flat:
+                return None
+            messages, which = inboxes.distinct()
+            senders, rounds = inboxes.senders_rounds()
+            if senders.min() >= 0 and senders.max() < MAX_VEHICLES:
+                found = _Mail(messages, senders.astype(np.intp, copy=False), which,
+                              inboxes.counts, [], _packed(messages), rounds)  # fmt: skip
+                return found
         segments: list[tuple[list[ConsensusMessage], list[ConsensusMessage]]] = []
         for row, inbox in zip(rows.tolist(), inboxes, strict=True):
             waiting = self._later[row]
@@ -574,13 +650,7 @@ class BatchConsensus:
             counts.append(len(msgs) - n)
         if not msgs:
             return None
-        # distinct objects by identity (their order is irrelevant: only indexed)
-        ids = np.fromiter(map(id, msgs), np.int64, len(msgs))
-        order = np.argsort(ids)
-        first = _after_true(ids[order[1:]] != ids[order[:-1]])
-        which = np.empty(len(msgs), dtype=np.intp)
-        which[order] = np.cumsum(first) - 1
-        messages = [msgs[k] for k in order[first].tolist()]
+        messages, which = distinct_messages(msgs)
         senders = np.array([m.sender for m in messages], dtype=np.intp)
         return _Mail(messages, senders, which, counts, carried, _packed(messages))
 
@@ -598,7 +668,10 @@ class BatchConsensus:
         the later rounds waiting."""
         messages, which, carried = mail.messages, mail.which, mail.carried
         j = mail.senders[which]
-        q = np.array([m.round for m in messages], dtype=np.int64)[which]
+        rounds = mail.rounds
+        if rounds is None:
+            rounds = np.array([m.round for m in messages], dtype=np.int64)
+        q = rounds[which]
         pos = np.repeat(np.arange(rows.shape[0]), mail.counts)
         me = self._ids[rows][pos]
         valid = (j != me) & (q >= round_ - self.params.history_ticks) & (j >= 0)
@@ -913,11 +986,9 @@ class BatchConsensus:
         round_: int,
         gamma: FloatArray,
         heard: npt.NDArray[np.bool_],
-        active: list[tuple[int, ...]],
-        disagreement: FloatArray,
         motion: tuple[FloatArray, FloatArray] | None = None,
-    ) -> list[ConsensusMessage]:
-        """Each row's message of this step."""
+    ) -> Outgoing:
+        """What makes each row's message of this step."""
         n_rows = rows.shape[0]
         moved: tuple[FloatArray, FloatArray] | None = None
         if motion is None:
@@ -946,32 +1017,21 @@ class BatchConsensus:
         heard_sets = self._heard_sets(rows, heard)
         heard.flags.writeable = False
         pack = _Pack(pos * span + ids, ids, bounds, span, sums, tags, gamma, heard)
-        gamma_rows = pack.gammas
         pack.heard_sets = heard_sets
         if moved is not None:
             pack.positions, pack.velocities = moved
             pack.where, pack.how_fast = positions, velocities
         places = range(n_rows)
-        edge_sums = [_PackedSums(pack, p) for p in places]
-        edge_tags = [_PackedIncarnations(pack, p) for p in places]
-        own_inc = self._own_inc[rows].tolist()
-        agent_ids = self.agent_ids
-        return [
-            _new_message(
-                agent_ids[row],  # sender
-                round_,
-                gamma_rows[p],
-                edge_sums[p],
-                heard_sets[p],
-                len(heard_sets[p]),  # degree
-                0,  # ready_hops (the adapter puts its settled level on it)
-                positions[p],
-                velocities[p],
-                own_inc[p],  # incarnation
-                edge_tags[p],
-            )
-            for p, row in enumerate(rows.tolist())
-        ]
+        return Outgoing(
+            [self.agent_ids[row] for row in rows.tolist()],
+            round_,
+            pack,
+            [_PackedSums(pack, p) for p in places],
+            [_PackedIncarnations(pack, p) for p in places],
+            positions,
+            velocities,
+            self._own_inc[rows].tolist(),
+        )
 
 
 @jit

@@ -29,6 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drone_agent.consensus_batch import packed_motion
+from drone_agent.inboxes import Inboxes, distinct_messages
 from drone_agent.jit_math import jit
 from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
@@ -153,27 +154,35 @@ class NeighbourTable:
         """File what agents ``agents`` (distinct) heard up to round ``round_now``:
         ``inboxes[k]`` the messages agent ``agents[k]`` received since its last call."""
         rows = self.rows_of(agents)
-        msgs: list[ConsensusMessage] = []
-        owner: list[int] = []
-        for row, inbox in zip(rows, inboxes, strict=True):
-            n = len(msgs)
-            later = self._later[row]
-            if later:
-                msgs += later
-                self._later[row] = []
-            msgs += inbox
-            owner += [row] * (len(msgs) - n)
-        if not msgs:
-            return
-        # each distinct message object once (one message reaches many agents in process)
-        ids = np.fromiter(map(id, msgs), np.int64, len(msgs))
-        order = np.argsort(ids, kind="stable")
-        first = np.empty(len(msgs), dtype=bool)
-        first[0] = True
-        first[1:] = ids[order[1:]] != ids[order[:-1]]
-        which = np.empty(len(msgs), dtype=np.intp)
-        which[order] = np.cumsum(first) - 1
-        distinct = [msgs[k] for k in order[first].tolist()]
+        later = self._later
+        senders: npt.NDArray[np.int64] | None = None
+        msgs: list[ConsensusMessage]
+        if (
+            isinstance(inboxes, Inboxes)
+            and len(inboxes) == len(rows)
+            and not any(later[row] for row in rows)
+        ):  # nothing waiting: the values are the inboxes' as found for the whole batch
+            msgs = inboxes.flat
+            if not msgs:
+                return
+            owner = np.repeat(np.asarray(rows, dtype=np.intp), inboxes.counts)
+            distinct, which = inboxes.distinct()
+            senders, rounds = inboxes.senders_rounds()
+        else:
+            msgs = []
+            owned: list[int] = []
+            for row, inbox in zip(rows, inboxes, strict=True):
+                n = len(msgs)
+                if later[row]:
+                    msgs += later[row]
+                    later[row] = []
+                msgs += inbox
+                owned += [row] * (len(msgs) - n)
+            if not msgs:
+                return
+            owner = np.array(owned, dtype=np.intp)
+            # each distinct message object once (one message reaches many agents in process)
+            distinct, which = distinct_messages(msgs)
         future = np.zeros(len(msgs), dtype=bool)
         motion = packed_motion(distinct)
         if motion is not None:  # from one batched step, as its arrays
@@ -191,11 +200,14 @@ class NeighbourTable:
                 dtype=np.float64,
             )
             known = np.array([m.velocity_ned_m_s is not None for m in distinct], dtype=bool)
+        if senders is None:
+            senders = np.array([m.sender for m in distinct], dtype=np.int64)
+            rounds = np.array([m.round for m in distinct], dtype=np.int64)
         self._width = _file(
-            np.array(owner, dtype=np.intp),
+            owner,
             which,
-            np.array([m.sender for m in distinct], dtype=np.int64),
-            np.array([m.round for m in distinct], dtype=np.int64),
+            senders,
+            rounds,
             has_position,
             positions,
             velocities,
@@ -210,7 +222,7 @@ class NeighbourTable:
             future,
         )
         for k in np.flatnonzero(future).tolist():
-            self._later[owner[k]].append(msgs[k])
+            later[int(owner[k])].append(msgs[k])
 
     def query(self, agents: Sequence[int], round_now: int) -> HeardPairs:
         """The neighbours of agents ``agents`` at round ``round_now`` (module docstring), flat."""

@@ -58,7 +58,14 @@ def euler_from_quat_batch(quat: FloatArray) -> FloatArray:
     out = np.empty((3, quat.shape[1]))
     out[0] = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
     out[1] = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
-    out[2] = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    out[2] = yaw_from_quat_batch(quat)
+    return out
+
+
+def yaw_from_quat_batch(quat: FloatArray) -> FloatArray:
+    """The yaw (N,) rad of :func:`euler_from_quat_batch`, alone."""
+    w, x, y, z = quat[0], quat[1], quat[2], quat[3]
+    out: FloatArray = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
     return out
 
 

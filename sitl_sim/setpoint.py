@@ -18,6 +18,9 @@ import math
 from dataclasses import dataclass
 from enum import Enum
 
+import numpy as np
+import numpy.typing as npt
+
 #: Largest accepted deviation of the quaternion norm from 1 (sender round-off, float32 on the wire).
 QUAT_NORM_TOLERANCE = 0.05
 #: SET_ATTITUDE_TARGET type_mask bits (MAVLink ATTITUDE_TARGET_TYPEMASK).
@@ -56,22 +59,67 @@ def validate_attitude_target(
         return Rejection.QUAT_NORM
     w, x, y, z = float(quat_wxyz[0]), float(quat_wxyz[1]), float(quat_wxyz[2]), float(quat_wxyz[3])
     thrust = float(thrust)
-    isfinite = math.isfinite
-    if not (isfinite(w) and isfinite(x) and isfinite(y) and isfinite(z) and isfinite(thrust)):
-        return Rejection.NOT_FINITE
+    code, qw, qx, qy, qz, roll, pitch, yaw = checked_setpoint(w, x, y, z, thrust)
+    if code:
+        return REJECTIONS[code]
+    return AttitudeSetpoint((qw, qx, qy, qz), (roll, pitch, yaw), thrust)
+
+
+def validate_attitude_targets(
+    quats_wxyz: npt.ArrayLike, thrusts: npt.ArrayLike
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """:func:`validate_attitude_target` (type mask 0) of K setpoints at once, quaternions
+    (K, 4) and thrusts (K,): each one's code (K,; 0 valid, else the index of its
+    :data:`REJECTIONS`), normalised quaternion (K, 4) and ZYX angles (K, 3) rad (zeros where
+    rejected). The same rule (:func:`checked_setpoint`), compiled (sitl_sim/setpoint_jit.py:
+    numba is imported on the first call)."""
+    from sitl_sim import setpoint_jit
+
+    q = np.ascontiguousarray(quats_wxyz, dtype=np.float64).reshape(-1, 4)
+    t = np.ascontiguousarray(thrusts, dtype=np.float64).reshape(-1)
+    codes = np.zeros(t.shape[0], dtype=np.int64)
+    unit, euler = np.zeros((t.shape[0], 4)), np.zeros((t.shape[0], 3))
+    setpoint_jit.check_all(q, t, codes, unit, euler)
+    return codes, unit, euler
+
+
+#: The rejections of :func:`checked_setpoint` by code (0: none, the setpoint may be flown).
+REJECTIONS = {1: Rejection.NOT_FINITE, 2: Rejection.QUAT_NORM, 3: Rejection.THRUST_RANGE}
+
+
+def checked_setpoint(
+    w: float, x: float, y: float, z: float, thrust: float
+) -> tuple[int, float, float, float, float, float, float, float]:
+    """The checks of a setpoint's quaternion ``(w, x, y, z)`` and thrust (floats): ``(0, the
+    unit quaternion, roll, pitch, yaw)`` if it may be flown, else ``(code, 0.0, ...)``
+    (:data:`REJECTIONS`). Plain arithmetic that numba compiles as it is (setpoint_jit.py)."""
+    if not (
+        math.isfinite(w)
+        and math.isfinite(x)
+        and math.isfinite(y)
+        and math.isfinite(z)
+        and math.isfinite(thrust)
+    ):
+        return 1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     norm = math.sqrt(w * w + x * x + y * y + z * z)
     if abs(norm - 1.0) > QUAT_NORM_TOLERANCE:
-        return Rejection.QUAT_NORM
+        return 2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     if not 0.0 <= thrust <= 1.0:
-        return Rejection.THRUST_RANGE
-    q = (w / norm, x / norm, y / norm, z / norm)
-    return AttitudeSetpoint(q, euler_from_quat(q), thrust)
+        return 3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    qw, qx, qy, qz = w / norm, x / norm, y / norm, z / norm
+    roll, pitch, yaw = euler_zyx(qw, qx, qy, qz)
+    return 0, qw, qx, qy, qz, roll, pitch, yaw
 
 
 def euler_from_quat(q: tuple[float, float, float, float]) -> tuple[float, float, float]:
     """ZYX angles ``(roll, pitch, yaw)`` rad of a unit quaternion ``(w, x, y, z)``; plain floats
     (one vehicle: cheaper than the numpy batch version)."""
     w, x, y, z = q
+    return euler_zyx(w, x, y, z)
+
+
+def euler_zyx(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """:func:`euler_from_quat` of the quaternion's four floats (numba compiles it too)."""
     roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
     pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
     yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))

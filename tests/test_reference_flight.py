@@ -5,10 +5,12 @@ groups' estimates splitting) before the flight is shown to shrug it off."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
+from drone_agent.inboxes import Inboxes
 from gcs.reference.flight import ReferenceFlight
 from gcs.report.metrics import true_descriptors
 from protocols.scenario import parse_scenario
@@ -71,15 +73,15 @@ def _arrivals(flight: ReferenceFlight) -> list[tuple[int, int, int, int]]:
     """Spy on the in-process radio: the list filled, as the flight runs, with (round, receiver,
     sender, age in rounds) of every message delivered."""
     log: list[tuple[int, int, int, int]] = []
-    receive = flight.network.receive
+    receive = flight.network.receive_inboxes
 
-    def spy(round_: int) -> list[list[Any]]:
-        inboxes = receive(round_)
-        for j, box in enumerate(inboxes):
+    def spy(round_: int, drones: Sequence[int]) -> Inboxes:
+        inboxes = receive(round_, drones)
+        for j, box in zip(drones, inboxes, strict=True):
             log.extend((round_, j, m.sender, round_ - m.round) for m in box)
         return inboxes
 
-    flight.network.receive = spy  # type: ignore[method-assign]
+    flight.network.receive_inboxes = spy  # type: ignore[method-assign]
     return log
 
 
@@ -225,13 +227,13 @@ def test_agents_get_what_a_swarm_agent_gets() -> None:
     scenario = _scenario([{"t_s": dropout_k * DT_S, "kind": "dropout", "drone": 4}], 7.5)
     flight = ReferenceFlight(scenario)
     seen: dict[int, tuple[float, Any, Any, frozenset[int]]] = {}
-    tick = flight.core.tick
+    tick = flight.core.tick_columns
 
     def spy(rows: Any, k: int, t_s: float, x: Any, v: Any, *rest: Any) -> Any:
         seen[k] = (t_s, np.array(x), np.array(v), rest[2][0])
         return tick(rows, k, t_s, x, v, *rest)
 
-    flight.core.tick = spy  # type: ignore[method-assign, assignment]
+    flight.core.tick_columns = spy  # type: ignore[method-assign]
     record = flight.run()
     # k * 0.02 is 6.0200000000000005 at k = 301: the agents' clock says 6.02
     assert [k for k in seen if seen[k][0] != round(k * 20) / 1000] == []

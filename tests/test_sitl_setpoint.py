@@ -11,11 +11,14 @@ from hypothesis import strategies as st
 
 from sitl_sim.attitude_control import euler_from_quat_batch, quat_from_euler_batch
 from sitl_sim.setpoint import (
+    QUAT_NORM_TOLERANCE,
+    REJECTIONS,
     AttitudeSetpoint,
     Rejection,
     euler_from_quat,
     quat_from_euler,
     validate_attitude_target,
+    validate_attitude_targets,
 )
 
 NAN, INF = float("nan"), float("inf")
@@ -78,3 +81,35 @@ def test_scalar_conversions_match_the_vectorised_ones(euler: tuple[float, float,
     back = euler_from_quat(q)
     assert back == pytest.approx(tuple(euler_from_quat_batch(batch_q[:, None])[:, 0]), abs=1e-9)
     assert back == pytest.approx(euler, abs=1e-9)
+
+
+def test_setpoints_checked_at_once_are_checked_one_by_one() -> None:
+    """The compiled check of many setpoints (``swarm simulate``'s vehicles) gives each the
+    verdict, unit quaternion and angles of :func:`validate_attitude_target`, to the last bit,
+    rejections included (not finite, norm off, thrust out of range, the edges of each)."""
+    rng = np.random.default_rng(7)
+    n = 3000
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1)[:, None]
+    q *= rng.uniform(0.9, 1.1, (n, 1))
+    q = q.astype(np.float32).astype(np.float64)
+    thrust = rng.uniform(-0.2, 1.2, n)
+    thrust[:4] = (0.0, 1.0, np.nextafter(1.0, 2.0), -0.0)
+    q[4] = (1.0 + QUAT_NORM_TOLERANCE, 0.0, 0.0, 0.0)
+    q[5] = (np.nextafter(1.0 + QUAT_NORM_TOLERANCE, 2.0), 0.0, 0.0, 0.0)
+    q[6] = (np.sqrt(0.5), 0.0, np.sqrt(0.5), 0.0)  # pitch at the clamp
+    q[7::101, 1] = np.nan
+    q[8::103, 3] = -np.inf
+    thrust[9::107] = np.inf
+    codes, unit, euler = validate_attitude_targets(q, thrust)
+    verdicts = set()
+    for k in range(n):
+        sp = validate_attitude_target(q[k].tolist(), float(thrust[k]))
+        verdicts.add(sp if isinstance(sp, Rejection) else None)
+        if isinstance(sp, AttitudeSetpoint):
+            assert codes[k] == 0
+            assert tuple(unit[k].tolist()) == sp.quat_wxyz
+            assert tuple(euler[k].tolist()) == sp.euler_rad
+        else:
+            assert REJECTIONS[int(codes[k])] is sp
+    assert verdicts == {None, Rejection.NOT_FINITE, Rejection.QUAT_NORM, Rejection.THRUST_RANGE}

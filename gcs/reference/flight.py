@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from drone_agent.agent_core import AgentCore, AgentOutput, BatchAgentCore
+from drone_agent.agent_core import AgentCore, BatchAgentCore, BatchOutputs, Setpoint
 from drone_agent.config import agent_config
-from drone_agent.consensus_batch import frozen_factory, frozen_replace
+from drone_agent.consensus_batch import frozen_factory
 from drone_agent.fault_timeline import TimedAction, timeline
 from drone_agent.flight_phase import BatchReadiness, FlightPhase, Request, VehicleView
 from drone_agent.link_faults import LinkFaults, PairRandom
@@ -28,7 +28,7 @@ from gcs.report.flight_record import FlightRecord, scenario_link_cuts
 from protocols.frames import FloatArray, quat_from_zyx
 from protocols.scenario import Scenario
 from protocols.wire_plan import FlightCommand
-from sitl_sim.attitude_control import euler_from_quat_batch
+from sitl_sim.attitude_control import euler_from_quat_batch, yaw_from_quat_batch
 from sitl_sim.config import attitude_gains, vehicle_params
 from sitl_sim.dynamics import (
     POS,
@@ -40,7 +40,7 @@ from sitl_sim.dynamics import (
 )
 from sitl_sim.failsafe import FailsafeConfig, failsafe_command
 from sitl_sim.physics_kernel import PhysicsKernel
-from sitl_sim.setpoint import AttitudeSetpoint, validate_attitude_target
+from sitl_sim.setpoint import validate_attitude_targets
 
 AIRBORNE_ALTITUDE_M = 0.1
 HARD_LANDING_M_S = 2.0
@@ -98,18 +98,15 @@ def received(
     Returns the drones whose setpoint was valid (the others keep their last one, as the
     simulator's vehicles do), their attitudes (3, K) and thrusts (K,). A square grid's take-off
     turned on the last bit of a command: 1e-13 m of one vehicle's position flipped its agent's
-    estimated heading by 90 degrees at N = 100."""
+    estimated heading by 90 degrees at N = 100. The simulator's checks run over all the drones
+    at once (:func:`~sitl_sim.setpoint.validate_attitude_targets`: the same rule, compiled)."""
     values = np.array(commands).T
-    quats = quat_from_zyx(values[2], values[1], values[0]).astype(np.float32).T.tolist()
-    thrusts = values[3].astype(np.float32).tolist()
-    taken, attitude, thrust = [], [], []
-    for i, q, t in zip(drones, quats, thrusts, strict=True):
-        sp = validate_attitude_target(q, t)
-        if isinstance(sp, AttitudeSetpoint):
-            taken.append(i)
-            attitude.append(sp.euler_rad)
-            thrust.append(sp.thrust)
-    return taken, np.array(attitude, dtype=float).reshape(-1, 3).T, np.array(thrust, dtype=float)
+    quats = quat_from_zyx(values[2], values[1], values[0]).astype(np.float32).T
+    thrusts = values[3].astype(np.float32)
+    codes, _, euler = validate_attitude_targets(quats, thrusts)  # float32's values as float64
+    ok = codes == 0
+    taken = np.asarray(drones, dtype=np.intp)[ok].tolist()
+    return taken, euler[ok].T, thrusts[ok].astype(np.float64)
 
 
 @dataclass(frozen=True)
@@ -296,50 +293,57 @@ class ReferenceFlight:
         # before its tick k - 1 is known dead only when its round k - 1 does not come)
         members = now_live if self._finished is None else self._finished
         self._finished = now_live
-        inboxes = self.network.receive(k)
+        inboxes = self.network.receive_inboxes(k, live)
         # the tick's time as the agents read it: the vehicle's time_boot_ms (sitl_sim/world.py),
         # not k * dt (6.0200000000000005 s at k = 301, where the plan's climb starts)
         t_s = round(k * 1000 / self.scenario.rates.control_hz) / 1000.0
-        outs = self.core.tick(
+        if not live:
+            self._fly_none(k, rec)
+            return
+        cols = self.core.tick_columns(
             rows,
             k,
             t_s,
             pos[live],
             vel[live],
             [self.plan] * len(live),
-            [inboxes[i] for i in live],
+            inboxes,
             [members] * len(live),
         )
-        if outs:
-            rec.estimate[k, live] = [out.estimate for out in outs]
-            rec.neighbours[k, live] = [len(out.active_neighbours) for out in outs]
-            if rec.links_every and k % rec.links_every == 0:
-                rec.neighbour_ids[k] = {
-                    i: out.active_neighbours for i, out in zip(live, outs, strict=True)
-                }
-        yaw = reported(euler_from_quat_batch(self.state[QUAT])[2]).tolist()
+        rec.estimate[k, live] = cols.estimate
+        rec.neighbours[k, live] = [len(ids) for ids in cols.active_neighbours]
+        if rec.links_every and k % rec.links_every == 0:
+            rec.neighbour_ids[k] = dict(zip(live, cols.active_neighbours, strict=True))
+        yaw = reported(yaw_from_quat_batch(self.state[QUAT])).tolist()
         altitude = (-pos[:, 2]).tolist()
-        messages = []
         flying: list[int] = []
         commands: list[tuple[float, float, float, float]] = []
         separating, crashed = self.separating, self.crashed.tolist()
         phases = self.phases
         committed = [phases[i].committed for i in live]
-        ready_all = self._ready(live, outs, members, committed)
-        levels = self.readiness.level[live].tolist() if live else []
+        ready_all = self._ready(live, cols, members, committed)
+        levels = self.readiness.level[live].tolist()
+        messages = cols.outgoing.messages(levels)
         armed_now, failsafe_now = self.armed.tolist(), self.in_failsafe.tolist()
-        for i, out, level, ready, flies in zip(
-            live, outs, levels, ready_all, committed, strict=True
+        commanded_altitude = (-cols.desired[:, 2]).tolist()
+        for i, now_separating, setpoint, up_m, ready, flies in zip(
+            live,
+            cols.separating,
+            cols.setpoints,
+            commanded_altitude,
+            ready_all,
+            committed,
+            strict=True,
         ):
-            if out.separating != separating[i]:
-                separating[i] = out.separating
-                self._event("separation" if out.separating else "separation_end", drone=i)
-            messages.append(frozen_replace(out.message, ready_hops=level))
+            if now_separating != separating[i]:
+                separating[i] = now_separating
+                self._event("separation" if now_separating else "separation_end", drone=i)
             if crashed[i]:
                 continue
             sp = self._decide(
-                i, out, flies or ready, altitude[i], yaw[i], armed_now[i], failsafe_now[i]
-            )
+                i, setpoint, up_m, flies or ready, altitude[i], yaw[i], armed_now[i],
+                failsafe_now[i],
+            )  # fmt: skip
             if sp is not None:
                 flying.append(i)
                 commands.append(sp)
@@ -349,33 +353,40 @@ class ReferenceFlight:
             self.thrust_sp[flown] = thrust
             self.last_setpoint_s[flown] = self.t_s
         self.network.send(k, messages, self.network.in_range(pos))
+        rec.desired[k] = cols.desired[0]
+        self._record_vehicles(k, rec)
+
+    def _fly_none(self, k: int, rec: _Recorder) -> None:
+        """Control tick ``k`` with no live agent: no message, no setpoint, only the record."""
+        rec.desired[k] = self.plan.evaluate(self.t_s)[0]
+        self._record_vehicles(k, rec)
+
+    def _record_vehicles(self, k: int, rec: _Recorder) -> None:
+        """The vehicles' samples of control tick ``k``."""
         rec.t[k] = self.t_s
-        rec.pos[k], rec.vel[k] = true_pos, self.state[VEL].T
+        rec.pos[k], rec.vel[k] = self.state[POS].T, self.state[VEL].T
         rec.quat[k] = self.state[QUAT]
         rec.rates[k] = self.state[RATES].T
         rec.rotor_speed[k] = self.rotor_speed
-        rec.desired[k] = outs[0].desired if outs else self.plan.evaluate(self.t_s)[0]
         rec.member[k] = self.member
-        rec.airborne[k] = -true_pos[:, 2] > AIRBORNE_ALTITUDE_M
+        rec.airborne[k] = -self.state[POS][2] > AIRBORNE_ALTITUDE_M
         rec.armed[k] = self.armed
 
     def _ready(
         self,
         live: list[int],
-        outs: list[AgentOutput],
+        cols: BatchOutputs,
         members: frozenset[int],
         committed: list[bool],
     ) -> list[bool]:
         """Whether each live agent's swarm is ready to leave the ground (the one rule of
         drone_agent/flight_phase.py, :class:`BatchReadiness`: all agents in one call), from the
         tick's outputs and the messages that arrived (the network's arrivals)."""
-        if not live:
-            return []
         ready = self.readiness.update(
             live,
-            outs[0].message.round,
-            [out.disagreement for out in outs],
-            [out.ready_to_fly for out in outs],
+            cols.outgoing.round,
+            cols.disagreement,
+            cols.ready_to_fly,
             self.network.arrivals,
             members,
             committed,
@@ -385,7 +396,8 @@ class ReferenceFlight:
     def _decide(
         self,
         i: int,
-        out: AgentOutput,
+        setpoint: Setpoint | None,
+        commanded_altitude_m: float,
         ready: bool,
         altitude_m: float,
         yaw_rad: float,
@@ -397,13 +409,14 @@ class ReferenceFlight:
         setpoint (roll, pitch, yaw, thrust) of an armed vehicle, None for a disarmed one. The
         scenario's plan always says FLY. The vehicle here has no flight modes: arming takes the
         offboard setpoints at once, and a hold (no valid setpoint in the air) flies the order's
-        level hover setpoint. ``armed``, ``in_failsafe``: the vehicle's state at the tick."""
+        level hover setpoint. ``setpoint``: the agent's checked setpoint (None: none);
+        ``commanded_altitude_m``: the plan's centre altitude (m, up); ``armed``,
+        ``in_failsafe``: the vehicle's state at the tick."""
         arming = not armed and not in_failsafe
         # VehicleView(armed, in_offboard, in_land, in_hold, altitude_m)
         vehicle = _new_vehicle_view(armed, armed, in_failsafe, False, altitude_m)
-        assert out.desired is not None
         order = self.phases[i].decide(
-            FlightCommand.FLY, True, ready, out.setpoint, -float(out.desired[2]), vehicle, yaw_rad
+            FlightCommand.FLY, True, ready, setpoint, commanded_altitude_m, vehicle, yaw_rad
         )
         if order.request == Request.ARM_OFFBOARD and arming:
             self.armed[i] = armed = True
@@ -462,7 +475,7 @@ class ReferenceFlight:
                     f"{self.failsafe.offboard_timeout_s:g} s: level, descend, disarm",
                 )
             since = t_s - self.last_setpoint_s[stale] - self.failsafe.offboard_timeout_s
-            yaw = euler_from_quat_batch(self.state[QUAT][:, stale])[2]
+            yaw = yaw_from_quat_batch(self.state[QUAT][:, stale])
             att, thr = failsafe_command(
                 self.state[5, stale],
                 yaw,

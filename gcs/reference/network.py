@@ -8,18 +8,19 @@ from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Sequence
-from itertools import pairwise
 
 import numpy as np
 import numpy.typing as npt
 
 from drone_agent.flight_phase import Arrivals
+from drone_agent.inboxes import Inboxes
+from drone_agent.jit_math import jit
 from drone_agent.link_faults import LinkFaults, PairRandom
 from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
 
 #: Loss draws made ahead per link at a time (one ``random(size)`` call instead of one call each).
-DRAW_BLOCK = 64
+DRAW_BLOCK = 256
 
 
 class InProcessNetwork:
@@ -49,14 +50,16 @@ class InProcessNetwork:
         self.lost = 0
         # per link drawing from a PairRandom: its row of draws made ahead, and the next one
         self._link_row: npt.NDArray[np.intp] | None = None  # (N, N) [sender, receiver], -1
-        self._drawn = np.empty((0, DRAW_BLOCK))
+        self._drawn = np.empty((0, DRAW_BLOCK))  # a row per link (some spare)
         self._next = np.zeros(0, dtype=np.intp)
+        self._n_links = 0  # the rows in use
 
     def in_range(self, positions_ned_m: FloatArray) -> FloatArray:
-        """Boolean matrix (N, N): pairs within radio range (no self-links)."""
-        d = np.linalg.norm(positions_ned_m[:, None, :] - positions_ned_m[None, :, :], axis=-1)
-        ok: FloatArray = d < self.range_m
-        np.fill_diagonal(ok, False)
+        """Boolean matrix (N, N): pairs within radio range (no self-links): the distance
+        ``sqrt(dx^2 + dy^2 + dz^2)`` (``np.linalg.norm``'s, term by term) below the range."""
+        p = np.ascontiguousarray(positions_ned_m, dtype=np.float64).reshape(-1, 3)
+        ok = np.zeros((p.shape[0], p.shape[0]), dtype=bool)
+        _within(p, float(self.range_m), ok)
         return ok
 
     def send(self, round_: int, messages: Sequence[ConsensusMessage], in_range: FloatArray) -> None:
@@ -77,6 +80,8 @@ class InProcessNetwork:
         reach = np.array(in_range, dtype=bool)[senders]
         reach[np.arange(senders.shape[0]), senders] = False
         which, receivers = np.nonzero(reach)
+        # each link once unless a sender has two messages on the air (its receivers distinct)
+        one_each = bool(senders.min() >= 0) and int(np.bincount(senders).max()) <= 1
         self.sent += int(receivers.shape[0])
         blocked, loss, delay = self._link_matrices()
         i = senders[which]
@@ -88,7 +93,7 @@ class InProcessNetwork:
             draw = keep & (p > 0.0)
             if isinstance(self.rng, PairRandom):
                 at = np.flatnonzero(draw)
-                keep[at] = self._link_draws(i[at], receivers[at]) >= p[at]
+                keep[at] = self._link_draws(i[at], receivers[at], one_each) >= p[at]
             else:
                 keep[draw] = self.rng.random(int(draw.sum())) >= p[draw]
         self.lost += int(receivers.shape[0] - keep.sum())
@@ -107,31 +112,38 @@ class InProcessNetwork:
             self._in_flight[round_ + d].append((receivers[on], which[on], msgs, meta))
 
     def _link_draws(
-        self, senders: npt.NDArray[np.intp], receivers: npt.NDArray[np.intp]
+        self,
+        senders: npt.NDArray[np.intp],
+        receivers: npt.NDArray[np.intp],
+        distinct: bool = False,
     ) -> FloatArray:
         """The next draw of each link (senders[k], receivers[k]), in order, from its own
         generator of the :class:`PairRandom`: the values one ``random()`` call per message
         would give (a generator's ``random(size)`` is its next ``size`` single draws), taken
         from blocks of :data:`DRAW_BLOCK` drawn ahead per link; so the network must be its
-        generators' only user (as in :class:`gcs.reference.flight.ReferenceFlight`)."""
+        generators' only user (as in :class:`gcs.reference.flight.ReferenceFlight`).
+        ``distinct``: the caller knows every link is there once (not checked again)."""
         assert isinstance(self.rng, PairRandom)
         if self._link_row is None:
             self._link_row = np.full((self.n, self.n), -1, dtype=np.intp)
         links = senders * self.n + receivers
-        if np.unique(links).shape[0] < links.shape[0]:  # a link twice (two messages of a sender)
+        # a link twice (two messages of a sender): one at a time
+        if not distinct and np.unique(links).shape[0] < links.shape[0]:
             return np.array([self._link_draws(senders[k : k + 1], receivers[k : k + 1])[0]
                              for k in range(links.shape[0])])  # fmt: skip
         rows = self._link_row[senders, receivers]
         new = np.flatnonzero(rows < 0)
         if new.shape[0]:
-            start = self._drawn.shape[0]
-            rows[new] = self._link_row[senders[new], receivers[new]] = start + np.arange(
-                new.shape[0]
-            )
-            grown = np.empty((start + new.shape[0], DRAW_BLOCK))
-            grown[:start] = self._drawn
-            self._drawn = grown
-            self._next = np.concatenate([self._next, np.full(new.shape[0], DRAW_BLOCK)])
+            start = self._n_links
+            self._n_links = end = start + new.shape[0]
+            rows[new] = self._link_row[senders[new], receivers[new]] = np.arange(start, end)
+            if end > self._drawn.shape[0]:  # room for twice as many links: grown seldom
+                grown = np.empty((max(end, 2 * self._drawn.shape[0]), DRAW_BLOCK))
+                grown[:start] = self._drawn[:start]
+                self._drawn = grown
+                after = np.full(grown.shape[0], DRAW_BLOCK, dtype=np.intp)  # none drawn yet
+                after[:start] = self._next[:start]
+                self._next = after
         used = self._next[rows] >= DRAW_BLOCK
         if used.any():
             pair = self.rng
@@ -178,10 +190,17 @@ class InProcessNetwork:
     def receive(self, round_: int) -> list[list[ConsensusMessage]]:
         """The inboxes (one list per drone) of messages that arrive at round ``round_``, each in
         send order (batch by batch, messages in order); the same as :attr:`arrivals`."""
+        return self.receive_inboxes(round_, range(self.n)).lists
+
+    def receive_inboxes(self, round_: int, drones: Sequence[int]) -> Inboxes:
+        """:meth:`receive` of round ``round_``, the inboxes of drones ``drones`` (ascending) as
+        :class:`~drone_agent.inboxes.Inboxes`, each distinct message among them known from the
+        lists they were sent in (when no message object was sent twice) instead of found again
+        by the agents. :attr:`arrivals` are every drone's."""
         batches = self._in_flight.pop(round_, [])
         if not batches:
             self.arrivals = _NO_ARRIVALS
-            return [[] for _ in range(self.n)]
+            return Inboxes([[] for _ in drones], ([], _EMPTY))
         if len(batches) == 1:
             receivers, which, msgs, meta = batches[0]
         else:
@@ -197,9 +216,34 @@ class InProcessNetwork:
         self.delivered += int(receivers.shape[0])
         bounds = np.searchsorted(receivers, np.arange(self.n + 1)).tolist()
         flat = list(map(msgs.__getitem__, which.tolist()))
-        inboxes = [flat[lo:hi] for lo, hi in pairwise(bounds)]
+        lists = [flat[bounds[i] : bounds[i + 1]] for i in drones]
         self.arrivals = Arrivals(receivers, meta[0, which], meta[1, which], meta[2, which])
-        return inboxes
+        if len(set(map(id, msgs))) < len(msgs):  # one object sent twice: the agents find them
+            return Inboxes(lists)
+        if len(drones) < self.n:  # the values of these drones' inboxes, in turn
+            wanted = np.zeros(self.n, dtype=bool)
+            wanted[np.asarray(drones, dtype=np.intp)] = True
+            which = which[wanted[receivers]]
+        sent = np.zeros(len(msgs), dtype=bool)
+        sent[which] = True  # the messages delivered to them, in send order
+        index = np.cumsum(sent) - 1
+        return Inboxes(lists, ([msgs[k] for k in np.flatnonzero(sent).tolist()], index[which]))
+
+
+@jit
+def _within(positions, range_m, out):  # type: ignore[no-untyped-def]
+    """:meth:`InProcessNetwork.in_range` into ``out`` (N, N) False: each pair's distance,
+    ``sqrt`` of the squared differences summed in axis order, as ``np.linalg.norm`` sums them
+    (the same pairs in range to the last bit); symmetric, the diagonal left False."""
+    n = positions.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            dx = positions[i, 0] - positions[j, 0]
+            dy = positions[i, 1] - positions[j, 1]
+            dz = positions[i, 2] - positions[j, 2]
+            near = np.sqrt(dx * dx + dy * dy + dz * dz) < range_m
+            out[i, j] = near
+            out[j, i] = near
 
 
 _Batch = tuple[
