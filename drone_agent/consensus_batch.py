@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drone_agent.consensus import ConsensusOutput, ConsensusParams
-from drone_agent.inboxes import Inboxes, distinct_messages
+from drone_agent.inboxes import alone, distinct_messages
 from drone_agent.jit_math import jit, nmax, nmin
 from drone_agent.moments import N_CHANNELS
 from protocols.consensus_message import ConsensusMessage, EdgeIncarnations, EdgeSums
@@ -594,21 +594,15 @@ class BatchConsensus:
         """The step's messages, row by row, each row's waiting values first (filed again as if
         they had just arrived), as indices into the distinct message objects (one message
         reaches many rows in process)."""
-        later = self._later
-        if (
-            isinstance(inboxes, Inboxes)
-            and len(inboxes) == rows.shape[0]
-            and not any(later[row] for row in rows.tolist())
-        ):
-            # nothing waiting: the values are the inboxes' as found for the whole batch
-            if not inboxes.flat:
+        whole = alone(inboxes, rows.tolist(), self._later)
+        if whole is not None:  # nothing waiting: the values are the inboxes' as found for all
+            if not whole.flat:
                 return None
-            messages, which = inboxes.distinct()
-            senders, rounds = inboxes.senders_rounds()
+            messages, which = whole.distinct()
+            senders, rounds = whole.senders_rounds()
             if senders.min() >= 0 and senders.max() < MAX_VEHICLES:
-                found = _Mail(messages, senders.astype(np.intp, copy=False), which,
-                              inboxes.counts, [], _packed(messages), rounds)  # fmt: skip
-                return found
+                return _Mail(messages, senders.astype(np.intp, copy=False), which,
+                             whole.counts, [], _packed(messages), rounds)  # fmt: skip
         segments: list[tuple[list[ConsensusMessage], list[ConsensusMessage]]] = []
         for row, inbox in zip(rows.tolist(), inboxes, strict=True):
             waiting = self._later[row]

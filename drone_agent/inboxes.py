@@ -8,7 +8,7 @@ finds them once a tick for both (:func:`distinct_messages`, the one way of findi
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence, Sized
 from itertools import chain
 from typing import TypeVar, overload
 
@@ -85,6 +85,23 @@ class Inboxes(Sequence[list[ConsensusMessage]]):
 
     def __iter__(self) -> Iterator[list[ConsensusMessage]]:
         return iter(self.lists)
+
+
+def alone(
+    inboxes: Sequence[Iterable[ConsensusMessage]],
+    rows: Sequence[int],
+    later: Sequence[Sized],
+) -> Inboxes | None:
+    """``inboxes`` when they are all there is to file for ``rows`` (an :class:`Inboxes` of one
+    list per row, and no row has values ``later[row]`` waiting from an earlier call), else
+    None: the caller files the lists with the waiting values itself."""
+    if (
+        isinstance(inboxes, Inboxes)
+        and len(inboxes) == len(rows)
+        and not any(later[row] for row in rows)
+    ):
+        return inboxes
+    return None
 
 
 def as_inboxes(inboxes: Sequence[Iterable[ConsensusMessage]]) -> Inboxes:

@@ -29,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drone_agent.consensus_batch import packed_motion
-from drone_agent.inboxes import Inboxes, distinct_messages
+from drone_agent.inboxes import alone, distinct_messages
 from drone_agent.jit_math import jit
 from protocols.consensus_message import ConsensusMessage
 from protocols.frames import FloatArray
@@ -157,17 +157,14 @@ class NeighbourTable:
         later = self._later
         senders: npt.NDArray[np.int64] | None = None
         msgs: list[ConsensusMessage]
-        if (
-            isinstance(inboxes, Inboxes)
-            and len(inboxes) == len(rows)
-            and not any(later[row] for row in rows)
-        ):  # nothing waiting: the values are the inboxes' as found for the whole batch
-            msgs = inboxes.flat
+        whole = alone(inboxes, rows, later)
+        if whole is not None:  # nothing waiting: the values are the inboxes' as found for all
+            msgs = whole.flat
             if not msgs:
                 return
-            owner = np.repeat(np.asarray(rows, dtype=np.intp), inboxes.counts)
-            distinct, which = inboxes.distinct()
-            senders, rounds = inboxes.senders_rounds()
+            owner = np.repeat(np.asarray(rows, dtype=np.intp), whole.counts)
+            distinct, which = whole.distinct()
+            senders, rounds = whole.senders_rounds()
         else:
             msgs = []
             owned: list[int] = []

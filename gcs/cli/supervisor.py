@@ -159,12 +159,10 @@ PORT_TAKEN = "Address already in use"
 def _rendezvous_taken(plan: RunPlan) -> bool:
     """Whether the ground station ended because another process took the rendezvous port this
     run picked while it was free (check, then bind: a swarm started at the same moment)."""
-    return (
-        plan.rendezvous_picked
-        and plan.gcs is not None
-        and PORT_TAKEN in _last_line(plan.gcs.log)
-        and str(plan.zenoh_endpoint).rpartition(":")[2] in _last_line(plan.gcs.log)
-    )
+    if not plan.rendezvous_picked or plan.gcs is None:
+        return False
+    said = _last_line(plan.gcs.log)
+    return PORT_TAKEN in said and f":{str(plan.zenoh_endpoint).rpartition(':')[2]}:" in said
 
 
 def check_udp_ports(ports: list[int], what: str, host: str = "127.0.0.1") -> None:
