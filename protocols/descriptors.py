@@ -80,7 +80,6 @@ def align_axes_batch(sigma: FloatArray, desired_axes: FloatArray) -> tuple[Float
     return axes, s
 
 
-
 def _assign_axes(
     overlap: FloatArray, evecs: FloatArray, desired_axes: FloatArray, axes: FloatArray
 ) -> None:
@@ -138,6 +137,7 @@ def _compiled() -> Callable[..., None]:
 
         _assign_jit = numba.njit(cache=True, error_model="numpy")(_assign_axes)
     return _assign_jit
+
 
 def frame_from_moments(
     centre_ned_m: FloatArray, sigma: FloatArray, desired_axes: FloatArray
