@@ -31,8 +31,14 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
+# Two parts (tests/conftest.py): the tests that do not depend on the machine's load on two
+# workers at once (a module's tests stay together), then the serial ones (realtime clock, default
+# ports) one at a time. Both parts run; the target fails if either failed.
 test: lint typecheck
-	$(BIN)/python -m pytest -q --durations=15
+	@status=0; \
+	$(BIN)/python -m pytest -q -n 2 --dist loadgroup -m "not serial" --durations=15 || status=$$?; \
+	$(BIN)/python -m pytest -q -m serial --durations=10 || status=$$?; \
+	exit $$status
 
 # regenerate scenarios/ (the library of `swarm scenario new` files; paper.toml has its own script)
 scenarios: $(STAMP)

@@ -397,7 +397,7 @@ class BatchAgentCore:
         yaw = ref[0][:, I_YAW]
         limits = self.config.limits
         roll, pitch, thrust_n, limited = attitude_thrust_batch(accel, yaw, limits)
-        command = np.stack([roll, pitch, yaw, thrust_n / limits.max_thrust_n])  # (4, K)
+        command = np.array([roll, pitch, yaw, thrust_n / limits.max_thrust_n])  # (4, K)
         ok = np.isfinite(command).all(axis=0) & (command[3] >= 0.0) & (command[3] <= 1.0)
         out: list[Setpoint | None] = [None] * len(ready)
         for k, (r, p, y, t), lim, good in zip(

@@ -108,11 +108,11 @@ class SeparationLayer:
         v = np.asarray(velocities_ned_m_s, dtype=float).reshape(-1, 3)
         accel = np.asarray(accel_ned_m_s2, dtype=float).reshape(-1, 3)
         k = accel.shape[0]
-        common = (
-            None
-            if common_accel_ned_m_s2 is None
-            else np.broadcast_to(np.asarray(common_accel_ned_m_s2, dtype=float), (k, 3))
-        )
+        common: FloatArray | None = None
+        if common_accel_ned_m_s2 is not None:
+            common = np.asarray(common_accel_ned_m_s2, dtype=float)
+            if common.shape != (k, 3):  # (the usual (K, 3) as it is: broadcast_to is slow)
+                common = np.broadcast_to(common, (k, 3))
         sure, closest = nobody_near(
             x, v, accel, pairs.owner, pairs.position_ned_m, pairs.velocity_ned_m_s, self.params,
             common,

@@ -9,6 +9,7 @@ them. Orientation is the ZYX angles of ``R``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,8 +17,6 @@ import numpy as np
 from protocols.descriptor_vector import CENTRE, I_PITCH, I_ROLL, I_YAW, SHAPE
 from protocols.frames import FloatArray, rot_zyx, rot_zyx_batch, zyx_from_rot, zyx_from_rot_batch
 
-#: Index rotations for the cross product: ``(a x b)_i = a_(i+1) b_(i+2) - a_(i+2) b_(i+1)``.
-_NEXT, _AFTER = np.array([1, 2, 0]), np.array([2, 0, 1])
 #: Heading is reported undefined while |s1 - s2| / (s1 + s2) is below this (ALGORITHM.md §2).
 HEADING_TIE_RATIO = 0.05
 
@@ -75,22 +74,69 @@ def align_axes_batch(sigma: FloatArray, desired_axes: FloatArray) -> tuple[Float
         if finite.any():
             evecs[finite] = np.linalg.eigh(sym[finite])[1]
     overlap = np.abs(np.swapaxes(desired_axes, 1, 2) @ evecs)  # [K, desired k, eigen j]
-    rows = np.arange(k_n)
-    first = np.argmax(overlap[:, :2, :].reshape(k_n, 6), axis=1)
-    k1, j1 = first // 3, first % 3
-    rest = overlap[rows, 1 - k1, :]
-    rest[rows, j1] = -np.inf
-    j2 = np.argmax(rest, axis=1)
-    chosen = np.where((k1 == 0)[:, None], np.stack([j1, j2], axis=1), np.stack([j2, j1], axis=1))
-    e = evecs[rows[:, None], :, chosen]  # (K, 2, 3): the eigenvectors for desired axes 0 and 1
-    along = (np.swapaxes(desired_axes[:, :, :2], 1, 2) * e).sum(axis=2)
-    r12 = e * np.where(along < 0.0, -1.0, 1.0)[:, :, None]  # signed along the desired axis
-    r1, r2 = r12[:, 0], r12[:, 1]
     axes = np.empty((k_n, 3, 3))
-    axes[:, :, :2] = np.swapaxes(r12, 1, 2)
-    axes[:, :, 2] = r1[:, _NEXT] * r2[:, _AFTER] - r1[:, _AFTER] * r2[:, _NEXT]  # r1 x r2
+    _compiled()(overlap, evecs, np.ascontiguousarray(desired_axes, dtype=np.float64), axes)
     s = (axes * (sym @ axes)).sum(axis=1)
     return axes, s
+
+
+def _assign_axes(
+    overlap: FloatArray, evecs: FloatArray, desired_axes: FloatArray, axes: FloatArray
+) -> None:
+    """:func:`align_axes_batch`'s assignment (its doc), a loop over the K rows compiled by
+    numba (:func:`_compiled`): from the overlaps ``|d_k . e_j|`` (K, 3, 3) of the desired axes
+    with the eigenvectors (the columns of ``evecs`` (K, 3, 3)), the axes into ``axes`` (K, 3, 3):
+    the two chosen eigenvectors signed along their desired axes, then their cross product. The
+    choices are ``np.argmax``'s (the first largest; the first NaN, if any)."""
+    for k in range(overlap.shape[0]):
+        first, top = 0, overlap[k, 0, 0]
+        if top == top:
+            for i in range(1, 6):
+                v = overlap[k, i // 3, i % 3]
+                if v != v:
+                    first = i
+                    break
+                if v > top:
+                    first, top = i, v
+        k1, j1 = first // 3, first % 3
+        j2 = -1
+        top = -np.inf
+        for j in range(3):
+            if j == j1:
+                continue
+            v = overlap[k, 1 - k1, j]
+            if v != v:
+                j2 = j
+                break
+            if j2 < 0 or v > top:
+                j2, top = j, v
+        for col in range(2):
+            c = j1 if (col == 0) == (k1 == 0) else j2
+            along = 0.0
+            for m in range(3):
+                along += desired_axes[k, m, col] * evecs[k, m, c]
+            sign = -1.0 if along < 0.0 else 1.0
+            for m in range(3):
+                axes[k, m, col] = evecs[k, m, c] * sign
+        # r1 x r2
+        axes[k, 0, 2] = axes[k, 1, 0] * axes[k, 2, 1] - axes[k, 2, 0] * axes[k, 1, 1]
+        axes[k, 1, 2] = axes[k, 2, 0] * axes[k, 0, 1] - axes[k, 0, 0] * axes[k, 2, 1]
+        axes[k, 2, 2] = axes[k, 0, 0] * axes[k, 1, 1] - axes[k, 1, 0] * axes[k, 0, 1]
+
+
+_assign_jit: Callable[..., None] | None = None
+
+
+def _compiled() -> Callable[..., None]:
+    """:func:`_assign_axes` compiled by numba on first use (``cache=True``: once per install),
+    its arithmetic IEEE's term by term as written (no ``fastmath``), so the axes are those of
+    the plain function to the last bit; the plain function stays callable (the tests' reference)."""
+    global _assign_jit
+    if _assign_jit is None:
+        import numba
+
+        _assign_jit = numba.njit(cache=True, error_model="numpy")(_assign_axes)
+    return _assign_jit
 
 
 def frame_from_moments(

@@ -14,8 +14,10 @@ it holds the last value at rest. Angles are interpolated as plain numbers: no wr
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -144,15 +146,22 @@ class DescriptorTrajectory:
         end of the last segment. After it: the last value, zero rate and acceleration.
         """
         t = float(t_s)
-        knots = self.t_knots_s
-        k = min(max(int(np.searchsorted(knots, t, side="right")) - 1, 0), self.n_segments - 1)
-        tau = min(max(t - float(knots[k]), 0.0), float(knots[k + 1] - knots[k]))
-        c = self.coeffs[k]  # (9, 6)
+        knots, rate, accel = self._tables
+        k = min(max(bisect_right(knots, t) - 1, 0), len(knots) - 2)
+        tau = min(max(t - knots[k], 0.0), knots[k + 1] - knots[k])
         tau_pow = tau**_POWERS
-        a = c @ tau_pow
+        a = self.coeffs[k] @ tau_pow  # (9, 6) @ (6,)
         if t < knots[0] or t > knots[-1]:
             return a, np.zeros(N_DESCRIPTORS), np.zeros(N_DESCRIPTORS)
-        return a, (c[:, 1:] * _D1) @ tau_pow[:-1], (c[:, 2:] * _D2) @ tau_pow[:-2]
+        return a, rate[k] @ tau_pow[:-1], accel[k] @ tau_pow[:-2]
+
+    @cached_property
+    def _tables(self) -> tuple[list[float], list[FloatArray], list[FloatArray]]:
+        """What :meth:`evaluate` reads, made once per plan: the knots as floats, and per segment
+        the coefficients of the rate (9, 5) and of the acceleration (9, 4)."""
+        coeffs = list(self.coeffs)
+        rate = [c[:, 1:] * _D1 for c in coeffs]
+        return self.t_knots_s.tolist(), rate, [c[:, 2:] * _D2 for c in coeffs]
 
     def evaluate_many(self, t_s: FloatArray) -> StateTriple:
         """Vectorised :meth:`evaluate`: times (T,) s -> ``(a, a_dot, a_ddot)``, each (T, 9)."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -42,3 +43,75 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 
     physics_jit.ready()
     warm_up(agent_config(load_scenario(Path(__file__).parents[1] / "scenarios" / "paper.toml")))
+
+
+# -- make test's two parts -------------------------------------------------------------------
+# ``make test`` runs the suite in two parts (Makefile): first every test not marked ``serial`` on
+# two pytest-xdist workers at once (lockstep and in-process flights give the same result however
+# loaded the machine is, and unit tests do not care), then the ``serial`` tests one at a time.
+# Serial: flights paced by the wall clock (a second flight beside them on two cores makes them
+# miss ticks: their verdicts depend on the machine's load), and flights on the default ports
+# (14540.., 14550, Zenoh 7447: only one run on the machine can have them).
+#: test modules whose flights run on the realtime clock
+REALTIME_MODULES = frozenset(
+    {
+        "test_agent_flight",
+        "test_agent_ground",
+        "test_agent_vehicle_silence",
+        "test_agent_without_scenario",
+        "test_drills",
+        "test_gcs_flight",
+        "test_lockstep_stall",  # a process frozen 4 s against a 5 s lease: wall-clock margins
+        "test_lockstep_zenoh",  # Zenoh's send queue under a load the test makes itself
+        "test_overload_flight",
+        "test_rejoin_flight",
+        "test_sim_shards",
+        "test_sitl_actuator_stream",
+        "test_sitl_agent_gone",
+        "test_sitl_cli",
+        "test_sitl_crash",
+        "test_sitl_lockstep",
+        "test_sitl_map",
+        "test_sitl_mavproxy",
+        "test_sitl_offboard",
+        "test_sitl_overload",
+        "test_sitl_robustness",
+        "test_sitl_signing",
+        "test_sitl_telemetry",
+        "test_swarm_secrets",
+    }
+)
+#: test modules that fly on the default ports, as a newcomer types the commands
+DEFAULT_PORT_MODULES = frozenset(
+    {
+        "test_drill_flight",
+        "test_drills_run",
+        "test_operator_flight",
+        "test_operator_session",
+        "test_ports",
+        "test_scenario_faults",
+    }
+)
+#: test modules that share a session fixture: on one worker, so that its flight runs once
+_SHARED_GROUPS = {
+    "test_demo_paper": "paper flights",  # demo_run, simulated_paper_report
+    "test_lockstep_repeats": "paper flights",  # demo_run
+    "test_simulate_paper": "paper flights",  # simulated_paper_report
+    "test_multihost": "paper flights",  # simulated_paper_report
+}
+
+
+@pytest.hookimpl(wrapper=True)  # before -m selects and xdist reads the groups
+def pytest_collection_modifyitems(
+    config: pytest.Config, items: list[pytest.Item]
+) -> Iterator[None]:
+    """Mark the serial modules' tests ``serial``; on xdist workers, group the tests by module
+    (a module's fixtures fly once) and the modules that share a session fixture together."""
+    worker = hasattr(config, "workerinput")
+    for item in items:
+        module = item.module.__name__.rsplit(".", 1)[-1] if item.module is not None else ""
+        if module in REALTIME_MODULES or module in DEFAULT_PORT_MODULES:
+            item.add_marker(pytest.mark.serial)
+        if worker:
+            item.add_marker(pytest.mark.xdist_group(_SHARED_GROUPS.get(module, module)))
+    yield

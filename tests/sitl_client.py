@@ -102,8 +102,30 @@ class SimProcess:
 
 
 def swarm_command(*args: str) -> list[str]:
-    """The command line of ``swarm ARGS`` with this interpreter."""
+    """The command line of ``swarm ARGS`` with this interpreter. On a pytest-xdist worker (the
+    first part of ``make test``, two tests at once) a flight on the realtime clock is refused:
+    its test belongs to the serial part (tests/conftest.py)."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        why = needs_the_machine_alone(args)
+        if why:
+            raise AssertionError(
+                f"swarm {' '.join(args[:2])}: {why}; add its module to REALTIME_MODULES or "
+                "DEFAULT_PORT_MODULES in tests/conftest.py so that make test runs it alone"
+            )
     return [sys.executable, "-m", "gcs.cli", *args]
+
+
+def needs_the_machine_alone(args: tuple[str, ...]) -> str | None:
+    """Why ``swarm ARGS`` must not fly beside another test's flight, or None: the simulator on
+    the realtime clock (``swarm sim``'s default; its agents keep its pace). Runs on the default
+    ports are listed by module in tests/conftest.py (DEFAULT_PORT_MODULES): a ``swarm up``
+    command line is often finished after this function returns."""
+    clock = next((v for f, v in itertools.pairwise(args) if f == "--clock"), None)
+    if args[:1] == ("sim",) and clock != "lockstep" and "--help" not in args:
+        return "the simulator on the realtime clock"
+    if args[:1] == ("up",) and clock == "realtime":
+        return "swarm up on the realtime clock"
+    return None
 
 
 @contextlib.contextmanager
