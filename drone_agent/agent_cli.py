@@ -10,21 +10,18 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
-from drone_agent.agent_core import AgentConfig
-from drone_agent.config import agent_config
-from drone_agent.fault_drills import FaultDrills
-from drone_agent.host import AgentHost, DroneIdError, parse_drone_ids
-from drone_agent.hosted_agent import HostedAgent, RunOptions
-from drone_agent.link_faults import FaultyTransport, LinkFaults, PairRandom
-from drone_agent.round_gate import RoundBook
-from drone_agent.transport import AgentTransport, Bus, Congestion, Position
-from drone_agent.transport_link import AgentLink, ConsensusHub, LinkSettings
-from drone_agent.vehicle_link import VehicleLink
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, tcp_listen_free
-from protocols.mavlink_conventions import vehicle_port
-from protocols.mavlink_signing import SigningKeyError, load_signing_key
-from protocols.scenario import Scenario, ScenarioError, load_scenario
+# the parser (add_parser, main.py) imports no more than this: the machinery (numpy, numba, Zenoh,
+# pymavlink) is imported when an agent runs (tests/test_cli.py checks it)
+if TYPE_CHECKING:
+    from drone_agent.agent_core import AgentConfig
+    from drone_agent.host import AgentHost
+    from drone_agent.hosted_agent import HostedAgent
+    from drone_agent.link_faults import LinkFaults
+    from drone_agent.transport import AgentTransport, Bus, Position
+    from drone_agent.zenoh_transport import ZenohSettings
+    from protocols.scenario import Scenario
 
 RENDEZVOUS_PORT = 7447
 #: Zenoh lease (ms) of a lockstep agent's session: how long a frozen agent looks alive. Lockstep's
@@ -183,6 +180,8 @@ def _endpoint(url: str) -> tuple[str, int]:
 def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
     """The session settings: the flags, or the embedded loopback rendezvous by default; with
     ``--secrets`` a TLS client of the router at ``--zenoh-connect``."""
+    from drone_agent.zenoh_transport import ZenohSettings, tcp_listen_free
+
     listen, connect = args.zenoh_listen, args.zenoh_connect
     if getattr(args, "secrets", None) is not None:
         return _secured_settings(args.secrets, "agent", connect, args.swarm_id)
@@ -224,6 +223,7 @@ def _secured_settings(
         role_secrets,
         secured_endpoint,
     )
+    from drone_agent.zenoh_transport import ZenohSettings
 
     if not connect:
         raise AgentCliError("--secrets needs --zenoh-connect: the swarm router's endpoint")
@@ -241,6 +241,7 @@ def _secured_settings(
 
 
 def _default_config(control_hz: int = 50) -> AgentConfig:
+    from drone_agent.config import agent_config
     from protocols.scenario import parse_scenario
 
     stub = parse_scenario(
@@ -260,6 +261,20 @@ def _default_config(control_hz: int = 50) -> AgentConfig:
 
 def run(args: argparse.Namespace) -> int:
     """Run the agents until Ctrl-C / SIGTERM or until every one has left."""
+    from drone_agent.config import agent_config
+    from drone_agent.fault_drills import FaultDrills
+    from drone_agent.host import AgentHost, DroneIdError, parse_drone_ids
+    from drone_agent.hosted_agent import RunOptions
+    from drone_agent.link_faults import FaultyTransport, LinkFaults, PairRandom
+    from drone_agent.round_gate import RoundBook
+    from drone_agent.transport import Congestion
+    from drone_agent.transport_link import AgentLink, ConsensusHub, LinkSettings
+    from drone_agent.vehicle_link import VehicleLink
+    from drone_agent.zenoh_transport import ZenohBus
+    from protocols.mavlink_conventions import vehicle_port
+    from protocols.mavlink_signing import SigningKeyError, load_signing_key
+    from protocols.scenario import ScenarioError, load_scenario
+
     try:
         drones = parse_drone_ids(args.drone_id)
     except DroneIdError as exc:

@@ -88,6 +88,10 @@ DEFAULT_SECOND_BASE_PORT = 14560
 PX4_PORT_BLOCK = 10
 MAX_VEHICLES = 250  # system ids 1..250; 251..255 stay free for ground stations
 
+#: Lockstep: the simulator's default wall-clock timeout (s) after which a silent agent leaves the
+#: barrier (``swarm sim --lockstep-timeout``, sitl_sim.sim_config.ClockConfig.drop_timeout_s).
+LOCKSTEP_DROP_TIMEOUT_S = 10.0
+
 #: MAVLink 2 signing: link id used by the simulator's outgoing telemetry.
 SIGNING_LINK_ID = 0
 

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from protocols.frames import FloatArray
+from protocols.layout_names import LAYOUTS
 
-LAYOUTS = ("grid", "line", "circle", "random")
 #: A line's drones alternate this share of the spacing to the east: a straight line has no width
 #: (two flat axes), and the swarm's roll about it is undefined: the controller cannot hold it.
 LINE_STAGGER = 0.5

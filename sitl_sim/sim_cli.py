@@ -15,8 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
-from protocols.mavlink_conventions import DEFAULT_GCS_PORT, MAX_VEHICLES
-from sitl_sim.sim_config import ClockConfig
+from protocols.mavlink_conventions import DEFAULT_GCS_PORT, LOCKSTEP_DROP_TIMEOUT_S, MAX_VEHICLES
 
 DESCRIPTION = (
     "Simulate N quadcopters behind real MAVLink 2 UDP endpoints, as PX4 SITL does: vehicle i "
@@ -148,7 +147,7 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument(
         "--lockstep-timeout",
         type=float,
-        default=ClockConfig.drop_timeout_s,
+        default=LOCKSTEP_DROP_TIMEOUT_S,
         metavar="S",
         help="an agent silent for S wall seconds leaves the barrier (default %(default)g: on a "
         "machine so loaded that a process waits seconds for the CPU, lockstep slows down, it does "

@@ -20,6 +20,7 @@ from protocols.frames import FloatArray
 from protocols.geodesy import GeoPoint
 from protocols.mavlink_conventions import (
     DEFAULT_GCS_PORT,
+    LOCKSTEP_DROP_TIMEOUT_S,
     MAX_VEHICLES,
     port_clash,
     vehicle_ports,
@@ -68,7 +69,7 @@ class ClockConfig:
 
     mode: str = "realtime"
     speedup: float = 1.0
-    drop_timeout_s: float = 10.0
+    drop_timeout_s: float = LOCKSTEP_DROP_TIMEOUT_S
     join_timeout_s: float = 10.0
     wait_agents: int = 1
     duration_s: float | None = None

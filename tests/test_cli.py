@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -85,3 +86,41 @@ def test_short_flight_writes_a_report(tmp_path: Path) -> None:
 def test_help_explains_units() -> None:
     proc = _swarm("simulate", "--help")
     assert proc.returncode == 0 and "report" in proc.stdout
+
+
+#: What a process of one subcommand imports only when that subcommand runs: every ``swarm``
+#: process builds every subcommand's parser, and a lockstep flight starts a dozen of them.
+MACHINERY = (
+    "numpy", "numba", "zenoh", "pymavlink", "matplotlib", "rerun", "drone_agent.agent_core",
+    "drone_agent.host", "drone_agent.hosted_agent", "drone_agent.vehicle_link",
+    "drone_agent.zenoh_transport", "gcs.station", "gcs.report", "gcs.reference", "gcs.cli.session",
+    "protocols.scenario", "protocols.scenario_gen", "protocols.scenario_layout", "sitl_sim.server",
+    "sitl_sim.sim_config", "sitl_sim.world",
+)  # fmt: skip
+
+
+def test_building_the_parsers_imports_no_machinery() -> None:
+    """Every help text of ``swarm`` (the parsers of all subcommands, as ``swarm X --help``
+    builds them) in a fresh process: none of the subcommands' machinery is imported."""
+    code = (
+        "import argparse, json, sys\n"
+        "from gcs.cli.main import _parser\n"
+        "def helps(p):\n"
+        "    yield p.format_help()\n"
+        "    for a in p._actions:\n"
+        "        if isinstance(a, argparse._SubParsersAction):\n"
+        "            for sub in a.choices.values():\n"
+        "                yield from helps(sub)\n"
+        "texts = list(helps(_parser()))\n"
+        f"machinery = {MACHINERY!r}\n"
+        "loaded = sorted(m for m in sys.modules\n"
+        "                if any(m == h or m.startswith(h + '.') for h in machinery))\n"
+        "print(json.dumps({'helps': len(texts), 'loaded': loaded}))\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=60
+    )
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["helps"] > 30  # every subcommand's, and the drills', keys' and scenario's own
+    assert out["loaded"] == []

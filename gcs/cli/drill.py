@@ -26,22 +26,14 @@ import argparse
 import dataclasses
 import json
 import time
+from typing import TYPE_CHECKING
 
 from gcs.cli.operator import add_operator_flags
 from gcs.cli.secured import refusal, secrets_of
-from gcs.station.commands import Request, encode_request
-from protocols.keys import SwarmKeys
-from protocols.swarm_secrets import RoleSecrets
-from protocols.wire_fault import (
-    Clear,
-    Delay,
-    FaultCommand,
-    LinkCut,
-    Loss,
-    Partition,
-    Restart,
-    encode_fault,
-)
+
+if TYPE_CHECKING:  # numpy, imported when a drill is sent, not by the parser
+    from protocols.swarm_secrets import RoleSecrets
+    from protocols.wire_fault import FaultCommand
 
 #: Drills carried out by the ground station (its command queryable) rather than the agents.
 GCS_DRILLS = ("crash", "dropout", "gcs-restart")
@@ -146,6 +138,8 @@ def _link(text: str | None) -> tuple[int, int] | None:
 
 def command_of(args: argparse.Namespace) -> FaultCommand:
     """The fault command of parsed ``args``; DrillError for a bad value."""
+    from protocols.wire_fault import Clear, Delay, LinkCut, Loss, Partition, Restart
+
     name = args.drill
     if name == "link-cut":
         return LinkCut(args.i, args.j, args.one_way, args.for_s)
@@ -170,6 +164,7 @@ def publish(
     """Publish ``payload`` once on the swarm's fault key (BLOCK congestion, reliable)."""
     from drone_agent.transport import Congestion
     from drone_agent.zenoh_transport import open_client
+    from protocols.keys import SwarmKeys
 
     try:
         key = SwarmKeys(swarm_id, 1.0).fault
@@ -194,6 +189,7 @@ def run(args: argparse.Namespace) -> int:
         raise DrillError(str(exc)) from None
     if args.drill in GCS_DRILLS:
         from gcs.cli.operator import OperatorError, send
+        from gcs.station.commands import Request, encode_request
 
         request = Request(args.drill, {"drone": args.drone} if "drone" in args else {})
         try:
@@ -209,6 +205,8 @@ def run(args: argparse.Namespace) -> int:
             verdict = "accepted" if reply.accepted else "refused"
             print(f"drill {args.drill}: {verdict}: {reply.reason}")
         return 0 if reply.accepted else 1
+    from protocols.wire_fault import encode_fault
+
     try:
         command = command_of(args)
         payload = encode_fault(command, args.swarm_id)

@@ -28,26 +28,11 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from gcs.report.drill_judge import (
-    HOLD_S,
-    DrillResult,
-    DrillSpec,
-    Step,
-    Window,
-    catalogue,
-    joins,
-    judge_window,
-    rejoin_facts,
-    series,
-    split_north,
-    table,
-    to_json,
-)
-from gcs.report.tlog import TlogReader
+if TYPE_CHECKING:  # numpy and pymavlink, imported when the drills run, not by the parser
+    from gcs.report.drill_judge import DrillResult, DrillSpec, Step, Window
+    from gcs.report.tlog import TlogReader
 
 #: Altitude of a session's steady formation (m).
 ALTITUDE_M = 3.0
@@ -118,6 +103,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 def specs_of(args: argparse.Namespace, n_drones: int) -> tuple[DrillSpec, ...]:
     """The drills ``args`` select; DrillsError naming an unknown one."""
+    from gcs.report.drill_judge import catalogue
+
     if not 0.0 <= args.loss <= 1.0:
         raise DrillsError(f"--loss must be within 0..1, got {args.loss:g}")
     try:
@@ -148,6 +135,8 @@ def list_lines(specs: Sequence[DrillSpec]) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """``swarm drills run``."""
+    from gcs.report.drill_judge import table, to_json
+
     n = _n_drones(args)
     specs = specs_of(args, n)
     if args.list:
@@ -208,6 +197,12 @@ def _n_drones(args: argparse.Namespace) -> int:
 
 
 # -- the swarm ---------------------------------------------------------------------------------
+def _tlog_reader() -> TlogReader:
+    from gcs.report.tlog import TlogReader
+
+    return TlogReader()
+
+
 @dataclass
 class Swarm:
     """A running ``swarm up`` and a Zenoh peer of it (statuses, liveliness, drills, commands)."""
@@ -219,7 +214,7 @@ class Swarm:
     bus: Any
     latest: dict[int, Any] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
-    tlog: TlogReader = field(default_factory=TlogReader)
+    tlog: TlogReader = field(default_factory=_tlog_reader)
     tlog_offset: int = 0
 
     # -- what the agents say -------------------------------------------------------------------
@@ -437,6 +432,8 @@ def _swarm(args: argparse.Namespace, n: int, folder: Path) -> Iterator[Swarm]:
 def _run_drill(swarm: Swarm, spec: DrillSpec, gone: set[int]) -> DrillResult:
     """Wait for steady flight, carry out the drill's steps, judge its window. ``gone``: the
     drones earlier drills took out; any other drone missing at the start is reported."""
+    from gcs.report.drill_judge import DrillResult, joins, judge_window, rejoin_facts
+
     steady = _wait_steady(swarm)
     t0 = swarm.now()
     counters0, procs0 = swarm.counters(), swarm.processes()
@@ -472,6 +469,10 @@ def _run_drill(swarm: Swarm, spec: DrillSpec, gone: set[int]) -> DrillResult:
 def _wait_steady(swarm: Swarm) -> bool:
     """Wait until the formation and the estimates are converged for HOLD_S; False if not within
     STEADY_WAIT_S simulated seconds."""
+    import numpy as np
+
+    from gcs.report.drill_judge import HOLD_S, series
+
     t_end = swarm.now() + STEADY_WAIT_S
     while swarm.now() < t_end:
         swarm.wait_until_sim(swarm.now() + 0.5)
@@ -492,6 +493,7 @@ def _do(swarm: Swarm, step: Step) -> dict[str, Any]:
     if step.kind == "fault":
         command = step.args["fault"]
         if step.args.get("split") == "north":
+            from gcs.report.drill_judge import split_north
             from protocols.wire_fault import Partition
 
             command = Partition(split_north(_positions(swarm)))
@@ -515,6 +517,8 @@ def _do(swarm: Swarm, step: Step) -> dict[str, Any]:
 
 def _garbage(swarm: Swarm, count: int, spread_s: float) -> dict[str, Any]:
     """``count`` bad payloads on the consensus keys the agents use, over ``spread_s`` wall s."""
+    import numpy as np
+
     from drone_agent.transport import Congestion
     from protocols.consensus_message import ConsensusMessage
     from protocols.wire import encode_consensus

@@ -11,11 +11,13 @@ import signal
 import sys
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from drone_agent.agent_cli import RENDEZVOUS_PORT
-from drone_agent.zenoh_transport import ZenohSettings
-from protocols.keys import validate_swarm_id
 from protocols.mavlink_conventions import DEFAULT_GCS_PORT
+
+if TYPE_CHECKING:  # Zenoh: imported when the ground station runs, not by the parser
+    from drone_agent.zenoh_transport import ZenohSettings
 
 #: Exit code of a ground station that ends for the gcs-restart drill (EX_TEMPFAIL).
 RESTART_EXIT_CODE = 75
@@ -133,6 +135,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 def _zenoh(args: argparse.Namespace) -> ZenohSettings:
+    from drone_agent.zenoh_transport import ZenohSettings
+
     if args.secrets is not None:
         from drone_agent.zenoh_config import (
             ROUTER_LEASE_MS,
@@ -176,6 +180,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the ground station; prints a status line per second on stderr unless --quiet."""
     from gcs.station.ground_station import GcsOptions, GroundStation
     from gcs.station.planner import envelope_of
+    from protocols.keys import validate_swarm_id
     from protocols.scenario import ScenarioError, load_scenario
 
     try:

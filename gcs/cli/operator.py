@@ -13,13 +13,14 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from drone_agent.agent_cli import RENDEZVOUS_PORT
 from gcs.cli.secured import add_secrets_flags, refusal, secrets_of
-from gcs.station.commands import CommandError, Reply, Request, decode_reply, encode_request
-from protocols.keys import SwarmKeys
-from protocols.swarm_secrets import RoleSecrets
+
+if TYPE_CHECKING:  # numpy (the planner), imported when a command is sent, not by the parser
+    from gcs.station.commands import Reply, Request
+    from protocols.swarm_secrets import RoleSecrets
 
 ANSWER_TIMEOUT_S = 2.0
 OPERATOR_COMMANDS = (
@@ -88,6 +89,8 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 
 def request_of(args: argparse.Namespace) -> Request:
     """The request for parsed ``args``; OperatorError for a malformed value."""
+    from gcs.station.commands import Request
+
     out: dict[str, Any] = {}
     keys = {
         "takeoff": ("altitude_m",),
@@ -140,6 +143,8 @@ def send_timed(
     With ``secrets``: TLS and the role's credential; a role without the right to send commands
     is refused here, in one line, before anything is sent."""
     from drone_agent.zenoh_transport import open_client
+    from gcs.station.commands import CommandError, decode_reply
+    from protocols.keys import SwarmKeys
 
     denied = refusal(secrets, "query", "command", "send operator commands and drills")
     if denied is not None:
@@ -204,6 +209,8 @@ def format_reply(name: str, reply: Reply, elapsed_s: float | None = None) -> lis
 
 def run(args: argparse.Namespace) -> int:
     """Send the command of ``args``, print the answer; 0 accepted, 1 refused."""
+    from gcs.station.commands import encode_request
+
     request = request_of(args)
     try:
         secrets = secrets_of(args)

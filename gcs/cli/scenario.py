@@ -8,7 +8,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from protocols.scenario_layout import LAYOUTS
+from protocols.layout_names import LAYOUTS
 
 TEMPLATE_HELP = (
     "hover: take off and hold; "

@@ -11,15 +11,9 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from gcs.cli.compiled import warm_compiled
-from gcs.cli.session import (
-    SESSION_FILE,
-    SessionRequest,
-    session_request,
-    session_scenario,
-    write_text,
-)
 from gcs.cli.supervisor import (
     SHUT_DOWN,
     Child,
@@ -35,12 +29,12 @@ from gcs.cli.supervisor import (
     swarm_argv,
 )
 from gcs.cli.up_hosts import add_multihost_flags, host_layout, multihost_plan
-from gcs.report.summary import summary_lines
-from gcs.station.drills import RUN_FILE
 from gcs.view.recording import INSTALL_HINT, rerun_available
+from protocols.layout_names import LAYOUTS
 from protocols.mavlink_conventions import DEFAULT_GCS_PORT, port_clash, vehicle_ports
-from protocols.scenario import ScenarioError, load_scenario
-from protocols.scenario_layout import LAYOUTS
+
+if TYPE_CHECKING:  # numpy and pymavlink: imported when a swarm comes up, not by the parser
+    from gcs.cli.session import SessionRequest
 
 #: The paper's flight, shipped with the project (so `swarm demo` works from any folder).
 PAPER = Path(__file__).resolve().parents[2] / "scenarios" / "paper.toml"
@@ -164,6 +158,10 @@ def build_plan(
 ) -> tuple[RunPlan, int]:
     """The children of the run and the number of drones. With ``session``, the session's
     scenario is generated and written to ``scenario_path`` (in the report's logs folder)."""
+    from gcs.cli.session import session_scenario, write_text
+    from gcs.station.drills import RUN_FILE
+    from protocols.scenario import ScenarioError, load_scenario
+
     if session is None:
         try:
             scenario = load_scenario(scenario_path)
@@ -333,6 +331,9 @@ def _viewer_url(proc: subprocess.Popen[bytes], log: Path) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """``swarm up`` / ``swarm demo``; exit 0 when the scenario was flown to its end."""
+    from gcs.cli.session import SESSION_FILE, session_request
+    from gcs.report.summary import summary_lines
+
     session = session_request(args)
     if session is not None:
         scenario = args.report / "logs" / SESSION_FILE

@@ -27,7 +27,6 @@ from pathlib import Path
 
 from drone_agent.zenoh_config import ROUTER_PORT, role_secrets, secured_endpoint
 from gcs.cli.supervisor import Child, RunPlan, SupervisorError, flags, free_tcp_port, swarm_argv
-from gcs.station.drills import RUN_FILE
 
 PARTS = ("router", "gcs", "sim", "agents")
 #: Telemetry rate of every vehicle to the ground station (Hz), as up_cli.TELEMETRY_HZ.
@@ -222,6 +221,8 @@ def multihost_plan(
     args: argparse.Namespace, scenario: Path, layout: HostLayout, n: int, duration_s: float
 ) -> RunPlan:
     """The children this host starts, all clients of ``layout.router``."""
+    from gcs.station.drills import RUN_FILE  # pymavlink: when a plan is made, not by the parser
+
     assert layout.router is not None
     report: Path = args.report
     logs = report / "logs"
