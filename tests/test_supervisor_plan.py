@@ -74,3 +74,23 @@ def test_by_default_the_ground_station_is_the_rendezvous(tmp_path: Path) -> None
     assert endpoint is not None and endpoint.startswith("tcp/127.0.0.1:")
     assert _flag(plan.gcs.argv, "--zenoh-listen") == endpoint
     assert all(_flag(a.argv, "--zenoh-connect") == endpoint for a in plan.agents)
+
+
+def test_a_report_folder_used_again_shows_this_runs_last_line_not_the_old_ones(
+    tmp_path: Path,
+) -> None:
+    """The logs of a report folder are appended to: the status line of a new run must not show
+    the last run's final status (``sim 199.96 s ... crashed 1``) before its own first line."""
+    log = tmp_path / "sim.log"
+    log.write_bytes(b"sim    199.96 s | wall 175.6 s | crashed 1\r")
+    quiet = Child("simulator", [sys.executable, "-c", "import time; time.sleep(30)"], log)
+    quiet.start()
+    try:
+        assert quiet.last_line() == ""
+    finally:
+        quiet.stop()
+    talker = Child("simulator", [sys.executable, "-c", "print('sim 0.02 s', flush=True)"], log)
+    talker.start()
+    assert talker.proc is not None and talker.proc.wait(30) == 0
+    assert talker.last_line() == "sim 0.02 s"
+    assert log.read_text().startswith("sim    199.96 s")  # the old run's log is kept

@@ -57,9 +57,12 @@ class Child:
     log: Path
     proc: subprocess.Popen[bytes] | None = None
     expected_exit: bool = False
+    #: where this start's output begins in ``log`` (a report folder used again keeps older runs)
+    log_start: int = 0
 
     def start(self) -> None:
         with self.log.open("ab") as out:
+            self.log_start = out.tell()
             self.proc = subprocess.Popen(
                 self.argv, stdout=out, stderr=subprocess.STDOUT, preexec_fn=_die_with_parent
             )
@@ -67,6 +70,10 @@ class Child:
     @property
     def running(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
+
+    def last_line(self) -> str:
+        """The last line this start of the process wrote ("" before its first)."""
+        return _last_line(self.log, self.log_start)
 
     def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> int | None:
         """SIGTERM, wait, then SIGKILL; the exit code (None if never started)."""
@@ -161,7 +168,7 @@ def _rendezvous_taken(plan: RunPlan) -> bool:
     run picked while it was free (check, then bind: a swarm started at the same moment)."""
     if not plan.rendezvous_picked or plan.gcs is None:
         return False
-    said = _last_line(plan.gcs.log)
+    said = plan.gcs.last_line()
     return PORT_TAKEN in said and f":{str(plan.zenoh_endpoint).rpartition(':')[2]}:" in said
 
 
@@ -244,7 +251,7 @@ def supervise(
                     break
                 _watch_agents(plan, progress)
                 if progress is not None and plan.sim is not None:
-                    progress(_last_line(plan.sim.log))
+                    progress(plan.sim.last_line())
                 time.sleep(poll_s)
                 continue
             gcs_proc = plan.gcs.proc
@@ -270,7 +277,7 @@ def supervise(
                 break
             _watch_agents(plan, progress)
             if progress is not None:
-                progress(_last_line((plan.sim or plan.gcs).log))
+                progress((plan.sim or plan.gcs).last_line())
             time.sleep(poll_s)
     finally:
         # the ground station first, so the report ends with the flight, not with the shutdown;
@@ -343,7 +350,7 @@ def _wait_listening(endpoint: str | None, child: Child, timeout_s: float = 15.0)
     while time.monotonic() < deadline:
         if not child.running:
             raise SupervisorError(
-                f"the Zenoh router did not start: {_last_line(child.log)} (log: {child.log})"
+                f"the Zenoh router did not start: {child.last_line()} (log: {child.log})"
             )
         with contextlib.suppress(OSError), socket.create_connection((host, int(port)), 0.5):
             return
@@ -358,9 +365,13 @@ def _restart_asked(child: Child) -> bool:
     return child.proc is not None and child.proc.returncode == RESTART_EXIT_CODE
 
 
-def _last_line(path: Path) -> str:
+def _last_line(path: Path, since: int = 0) -> str:
+    """The last non-empty line of ``path`` after byte ``since``."""
     try:
-        data = path.read_bytes()[-400:]
+        with path.open("rb") as f:
+            size = f.seek(0, 2)
+            f.seek(max(since, size - 400))
+            data = f.read()
     except OSError:
         return ""
     lines = [ln for ln in data.replace(b"\r", b"\n").split(b"\n") if ln.strip()]
