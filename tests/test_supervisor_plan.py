@@ -94,3 +94,36 @@ def test_a_report_folder_used_again_shows_this_runs_last_line_not_the_old_ones(
     assert talker.proc is not None and talker.proc.wait(30) == 0
     assert talker.last_line() == "sim 0.02 s"
     assert log.read_text().startswith("sim    199.96 s")  # the old run's log is kept
+
+
+def test_the_simulator_starts_once_the_ground_station_records(tmp_path: Path) -> None:
+    """On a loaded machine the ground station's start (imports, then binding the telemetry port)
+    took over a second; the simulator started 0.3 s after it, so flight.tlog missed the flight's
+    first second (seen in CI). The simulator now starts after the ground station's line saying it
+    records, also when a report folder used again already holds that line from an older run."""
+    import time
+
+    from gcs.cli.gcs import RECORDING
+    from gcs.cli.supervisor import _start
+
+    gcs_log = tmp_path / "gcs.log"
+    gcs_log.write_text(f"{RECORDING} udp:127.0.0.1:14550\n")  # the last run's
+    slow_gcs = (
+        f"import time; time.sleep(1.5); print({RECORDING!r} + ' udp:127.0.0.1:1', flush=True); "
+        "time.sleep(30)"
+    )
+    stamp = tmp_path / "sim-started"
+    sim = f"import pathlib, time; pathlib.Path({str(stamp)!r}).write_text(str(time.time()))"
+    plan = RunPlan(
+        gcs=Child("gcs", [sys.executable, "-c", slow_gcs], gcs_log),
+        sim=Child("simulator", [sys.executable, "-c", sim], tmp_path / "sim.log"),
+        run_file=tmp_path / "run.json",
+    )
+    began = time.time()
+    _start(plan)
+    try:
+        assert plan.sim is not None and plan.sim.proc is not None and plan.sim.proc.wait(30) == 0
+        assert float(stamp.read_text()) - began >= 1.5
+    finally:
+        for child in plan.children:
+            child.stop()

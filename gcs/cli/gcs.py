@@ -21,6 +21,9 @@ if TYPE_CHECKING:  # Zenoh: imported when the ground station runs, not by the pa
 
 #: Exit code of a ground station that ends for the gcs-restart drill (EX_TEMPFAIL).
 RESTART_EXIT_CODE = 75
+#: The line the ground station prints once its telemetry port is bound (even with --quiet):
+#: ``swarm up`` starts the simulator after it, so flight.tlog holds the flight from its start.
+RECORDING = "swarm gcs: recording telemetry from"
 
 
 class GcsCliError(Exception):
@@ -227,6 +230,9 @@ def run(args: argparse.Namespace) -> int:
         shutdown_timeout_s=args.shutdown_timeout_s,
         envelope=envelope_of(scenario.safety),
         on_line=None if args.quiet else lambda line: print(line, file=sys.stderr, flush=True),
+        on_recording=lambda: print(
+            f"{RECORDING} udp:{args.gcs_bind}:{args.gcs_port}", file=sys.stderr, flush=True
+        ),
     )
     try:
         station = GroundStation(options)

@@ -289,13 +289,29 @@ def supervise(
 
 
 def _start(plan: RunPlan) -> None:
-    """Start the children in order (a router: once it listens) and write the run file."""
+    """Start the children in order (a router: once it listens; the simulator: once the ground
+    station records) and write the run file."""
     for child in plan.children:
         child.start()
         if child is plan.router:
             _wait_listening(plan.zenoh_endpoint, child)
-        time.sleep(0.3 if child.role == "gcs" else 0.05)
+        elif child is plan.gcs:
+            _wait_recording(child)
+        time.sleep(0.05)
     plan.write_run_file()
+
+
+def _wait_recording(gcs: Child, timeout_s: float = 30.0) -> None:
+    """Wait until the ground station ``gcs`` says it records telemetry: a simulator started
+    before would fly its first seconds unrecorded on a loaded machine (the ground station's start
+    takes ~0.6 s of CPU). Returns early when it ends (the caller reads why) and at the timeout."""
+    from gcs.cli.gcs import RECORDING
+
+    deadline = time.monotonic() + timeout_s
+    while gcs.running and time.monotonic() < deadline:
+        if RECORDING.encode() in _read_from(gcs.log, gcs.log_start):
+            return
+        time.sleep(0.02)
 
 
 def _move_rendezvous(plan: RunPlan, progress: Callable[[str], None] | None) -> None:
@@ -363,6 +379,16 @@ def _restart_asked(child: Child) -> bool:
     from gcs.cli.gcs import RESTART_EXIT_CODE
 
     return child.proc is not None and child.proc.returncode == RESTART_EXIT_CODE
+
+
+def _read_from(path: Path, since: int) -> bytes:
+    """What ``path`` holds after byte ``since`` (b"" if unreadable)."""
+    try:
+        with path.open("rb") as f:
+            f.seek(since)
+            return f.read()
+    except OSError:
+        return b""
 
 
 def _last_line(path: Path, since: int = 0) -> str:

@@ -82,7 +82,9 @@ class GcsOptions:
     ``resume``: a restart: append to flight.tlog and events.jsonl instead of starting them;
     ``signing_key``: sign the MAVLink commands sent to the vehicles (crash drills); ``session``:
     an operator session: the first plan says GROUND and there is no end time;
-    ``shutdown_timeout_s``: how long (wall s) a shutdown waits for the swarm to land."""
+    ``shutdown_timeout_s``: how long (wall s) a shutdown waits for the swarm to land;
+    ``on_recording``: called once the telemetry port is bound (what the simulator sends from then
+    on reaches flight.tlog), before Zenoh opens."""
 
     scenario: Scenario
     report_dir: Path
@@ -101,6 +103,7 @@ class GcsOptions:
     signing_key: bytes | None = None
     session: bool = False
     shutdown_timeout_s: float = 120.0
+    on_recording: Callable[[], None] | None = None
 
 
 class GroundStation:
@@ -138,6 +141,8 @@ class GroundStation:
                 signing_key=options.signing_key,
             )
             self._closers.append(self.telemetry.close)
+            if options.on_recording is not None:
+                options.on_recording()
             self.bus = ZenohBus.open(options.zenoh)
             self._closers.append(self.bus.close)
             for sub in (
