@@ -1,13 +1,13 @@
 """``swarm up``: the simulator, the agents and the ground station as supervised child processes.
 
 Start order: the ground station (the Zenoh rendezvous; it publishes the plan and records the
-flight), the simulator (lockstep waits for every agent), then the agents, one process per drone or
-``--agents-per-process`` drones per process. The run ends when the simulator reaches the
-scenario's duration, on Ctrl-C / SIGTERM, when the ground station ends the run (``swarm
-shutdown``: it lands the swarm, writes the report and exits 0), or when the simulator or the
-ground station dies; an agent process that ends is a drone leaving the swarm, which flies on.
-Then every child is stopped (SIGTERM, then SIGKILL) so that no process of the run is left and its
-ports are free. The ground station writes the report when it is stopped.
+flight), the simulator once the ground station says it records telemetry (lockstep waits for every
+agent), then the agents, one process per drone or ``--agents-per-process`` drones per process. The
+run ends when the simulator reaches the scenario's duration, on Ctrl-C / SIGTERM, when the ground
+station ends the run (``swarm shutdown``: it lands the swarm, writes the report and exits 0), or
+when the simulator or the ground station dies; an agent process that ends is a drone leaving the
+swarm, which flies on. Then every child is stopped (SIGTERM, then SIGKILL) so that no process of
+the run is left and its ports are free. The ground station writes the report when it is stopped.
 
 In an operator session (``RunPlan.session``) the first Ctrl-C / SIGTERM is a shutdown: the ground
 station gets SIGINT, lands the swarm if it flies, writes the report and exits; the others are
