@@ -9,6 +9,7 @@ them. Orientation is the ZYX angles of ``R``.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -50,14 +51,24 @@ def align_axes(sigma: FloatArray, desired_axes: FloatArray) -> tuple[FloatArray,
     aligned with it, signed along it; the third axis is the cross product of the first two, so the
     result is a proper rotation. Returns ``(R (3, 3), s (3,))`` with ``sigma = R diag(s) R^T``.
     Equal eigenvalues give a valid (if arbitrary within the tie) frame, never NaN.
+
+    One matrix is the scenario checks', the ground station's and the report's case: unless this
+    process has loaded numba already (it flies: ``swarm simulate``, an agent), the plain
+    assignment, bit for bit the compiled one, so that those processes do not load numba (its
+    first use costs ~0.6 s of CPU, more than they would ever save).
     """
-    axes, s = align_axes_batch(np.asarray(sigma, dtype=float)[None], desired_axes[None])
+    axes, s = align_axes_batch(
+        np.asarray(sigma, dtype=float)[None], desired_axes[None], compiled="numba" in sys.modules
+    )
     return axes[0], s[0]
 
 
-def align_axes_batch(sigma: FloatArray, desired_axes: FloatArray) -> tuple[FloatArray, FloatArray]:
+def align_axes_batch(
+    sigma: FloatArray, desired_axes: FloatArray, *, compiled: bool = True
+) -> tuple[FloatArray, FloatArray]:
     """:func:`align_axes` of K matrices at once: ``sigma`` and ``desired_axes`` (K, 3, 3) ->
-    ``(R (K, 3, 3), s (K, 3))``, one stacked eigen-decomposition.
+    ``(R (K, 3, 3), s (K, 3))``, one stacked eigen-decomposition; ``compiled``: the assignment
+    compiled by numba (the agents' core) or the plain one (the same bits).
 
     The assignment is greedy, most confident first: of the overlaps ``|d_k . e_j|`` of the first
     two desired axes (k = 0, 1) with the three eigenvectors, the largest pair (k, j) is taken (the
@@ -75,7 +86,8 @@ def align_axes_batch(sigma: FloatArray, desired_axes: FloatArray) -> tuple[Float
             evecs[finite] = np.linalg.eigh(sym[finite])[1]
     overlap = np.abs(np.swapaxes(desired_axes, 1, 2) @ evecs)  # [K, desired k, eigen j]
     axes = np.empty((k_n, 3, 3))
-    _compiled()(overlap, evecs, np.ascontiguousarray(desired_axes, dtype=np.float64), axes)
+    assign = _compiled() if compiled else _assign_axes
+    assign(overlap, evecs, np.ascontiguousarray(desired_axes, dtype=np.float64), axes)
     s = (axes * (sym @ axes)).sum(axis=1)
     return axes, s
 

@@ -3,6 +3,10 @@ acceleration: against closed-form answers and invariances."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import example, given, settings
@@ -191,3 +195,25 @@ def test_compiled_axis_assignment_is_the_plain_one_to_the_bit() -> None:
         _assign_axes(overlap, evecs, desired, plain)
         _compiled()(overlap, evecs, desired, compiled)
         assert plain.tobytes() == compiled.tobytes()
+
+
+def test_loading_a_scenario_or_writing_a_report_does_not_load_numba() -> None:
+    """The scenario checks (every ``swarm`` command that reads a scenario: up, gcs, scenario
+    check) and the report's true descriptors take one matrix at a time with the plain assignment:
+    numba's first use costs ~0.6 s of CPU, which only the processes that fly should pay."""
+    root = Path(__file__).resolve().parents[1]
+    code = (
+        "import sys, numpy as np\n"
+        "from protocols.scenario import load_scenario\n"
+        "from gcs.report.metrics import descriptors_of\n"
+        "load_scenario('scenarios/paper.toml')\n"
+        "pos = np.random.default_rng(0).normal(size=(5, 4, 3))\n"
+        "a = descriptors_of(pos, np.ones((5, 4), bool), np.zeros((5, 9)))\n"
+        "assert np.isfinite(a).all()\n"
+        "print('numba' in sys.modules)\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=120
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == "False"
