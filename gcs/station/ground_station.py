@@ -272,8 +272,10 @@ class GroundStation:
             if pause > 0:
                 time.sleep(pause)
             last_pass = time.monotonic()
-            for text in self.telemetry.poll():
-                self._vehicle_text(text.t_s, text.drone, text.severity, text.text)
+            for text in self.telemetry.poll():  # a restarted station: a text that comes
+                # before any timed telemetry says t = 0; its events never go back in time
+                t_s = max(text.t_s, self._t_floor_s)
+                self._vehicle_text(t_s, text.drone, text.severity, text.text)
             self._drain_zenoh()
             self.drills.drain(self.now_s)
             self._scenario_faults()
