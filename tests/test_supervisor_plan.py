@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from agent_harness import GRID, write_scenario
@@ -101,8 +102,6 @@ def test_the_simulator_starts_once_the_ground_station_records(tmp_path: Path) ->
     took over a second; the simulator started 0.3 s after it, so flight.tlog missed the flight's
     first second (seen in CI). The simulator now starts after the ground station's line saying it
     records, also when a report folder used again already holds that line from an older run."""
-    import time
-
     from gcs.cli.gcs import RECORDING
     from gcs.cli.supervisor import _start
 

@@ -139,6 +139,9 @@ class GroundStation:
                 options.report_dir / "flight.tlog",
                 append=options.resume,
                 signing_key=options.signing_key,
+                # a restarted station's clock: what comes before any timed telemetry (a
+                # STATUSTEXT, a HEARTBEAT) is stamped there, not at 0, in the tlog and the events
+                sim_time_s=self._t_floor_s,
             )
             self._closers.append(self.telemetry.close)
             if options.on_recording is not None:
@@ -272,10 +275,8 @@ class GroundStation:
             if pause > 0:
                 time.sleep(pause)
             last_pass = time.monotonic()
-            for text in self.telemetry.poll():  # a restarted station: a text that comes
-                # before any timed telemetry says t = 0; its events never go back in time
-                t_s = max(text.t_s, self._t_floor_s)
-                self._vehicle_text(t_s, text.drone, text.severity, text.text)
+            for text in self.telemetry.poll():
+                self._vehicle_text(text.t_s, text.drone, text.severity, text.text)
             self._drain_zenoh()
             self.drills.drain(self.now_s)
             self._scenario_faults()
