@@ -50,6 +50,9 @@ IDLE_PASS_S = 0.02
 #: closed: longer than the simulator's re-send period (0.25 s), so that it has seen the old port
 #: closed (and stopped waiting for it) before a new address speaks for the vehicle.
 REGREET_DELAY_S = 0.6
+#: The longest (wall s) a pass waits for the rest of a tick's vehicle samples once the first
+#: came in (:meth:`AgentHost._gather`): the simulator sends them back to back.
+GATHER_S = 0.002
 
 
 class DroneIdError(ValueError):
@@ -133,6 +136,8 @@ class AgentHost:
         self._options = options
         self._clock = wall_clock
         self._stop = threading.Event()
+        #: the newest vehicle time (ms) the hosted vehicles had together at the last gather
+        self._pack_ms = -1
         self._selector = selectors.DefaultSelector()
         for slot in self._slots:
             self._selector.register(slot.link, selectors.EVENT_READ, slot)
@@ -203,19 +208,9 @@ class AgentHost:
         starts."""
         last_report = last_tick = last_full = self._clock()
         while not self._stop.is_set():
-            fresh = False
-            for key, _ in self._selector.select(timeout=0.002):
-                slot: _Slot = key.data
-                for sample in slot.link.poll():
-                    fresh = True
-                    slot.newest_ms = max(slot.newest_ms, sample.time_boot_ms)
-                    if slot.revive_at_ms is not None and slot.newest_ms >= slot.revive_at_ms:
-                        self._revive(slot)
-                        if on_return is not None:
-                            on_return(slot.drone, slot.newest_ms)
-                    if slot.agent is None:
-                        slot.agent = self._join(slot, sample.position_ned_m)
-                    slot.agent.on_sample(sample)
+            fresh = self._read(0.002, on_return)
+            if fresh and len(self._slots) > 1:
+                self._gather(on_return)
             now = self._clock()
             if self._rounds is not None and not fresh and now - last_full < IDLE_PASS_S:
                 # lockstep, waiting: nothing can have become due unless a marker or a
@@ -263,6 +258,46 @@ class AgentHost:
             if on_second is not None and now - last_report >= 1.0:
                 on_second(self)
                 last_report = now
+
+    def _read(self, timeout: float, on_return: Callable[[int, int], None] | None) -> bool:
+        """Wait up to ``timeout`` s for the vehicles' samples and hand them to their agents
+        (joining an agent on its vehicle's first sample); whether any came."""
+        fresh = False
+        for key, _ in self._selector.select(timeout=timeout):
+            slot: _Slot = key.data
+            for sample in slot.link.poll():
+                fresh = True
+                slot.newest_ms = max(slot.newest_ms, sample.time_boot_ms)
+                if slot.revive_at_ms is not None and slot.newest_ms >= slot.revive_at_ms:
+                    self._revive(slot)
+                    if on_return is not None:
+                        on_return(slot.drone, slot.newest_ms)
+                if slot.agent is None:
+                    slot.agent = self._join(slot, sample.position_ned_m)
+                slot.agent.on_sample(sample)
+        return fresh
+
+    def _gather(self, on_return: Callable[[int, int], None] | None) -> None:
+        """A new tick's first samples came in: wait (up to GATHER_S) for the rest of the tick's
+        samples of the hosted vehicles that were at the previous tick with the others, so that
+        the agents due at one tick run in one batched core call rather than two or three (the
+        simulator sends a tick's states back to back, but the first datagram wakes the process
+        before the last is in). A vehicle that falls silent (crashed, its agent leaving) lags
+        the pack once and is not waited for again."""
+        pack_ms = self._pack_ms
+        deadline = self._clock() + GATHER_S
+        while True:
+            newest = max(s.newest_ms for s in self._slots)
+            behind = any(
+                s.newest_ms < newest and s.newest_ms >= pack_ms and s.agent is not None
+                and not s.agent.left and s.revive_at_ms is None
+                for s in self._slots
+            )  # fmt: skip
+            remaining = deadline - self._clock()
+            if not behind or remaining <= 0:
+                self._pack_ms = newest
+                return
+            self._read(remaining, on_return)
 
     def pending_rounds(self) -> dict[int, int]:
         """For each hosted agent with a tick due (its vehicle's newest sample is of a tick it

@@ -61,6 +61,7 @@ REALTIME_MODULES = frozenset(
         "test_agent_without_scenario",
         "test_drills",
         "test_gcs_flight",
+        "test_host_batching",  # a tick's datagrams 0.4 ms apart against a 2 ms wait
         "test_lockstep_stall",  # a process frozen 4 s against a 5 s lease: wall-clock margins
         "test_lockstep_zenoh",  # Zenoh's send queue under a load the test makes itself
         "test_overload_flight",
