@@ -6,7 +6,8 @@ one process share one Zenoh session (issue 4, "Hosting for scale"). Their cores 
 :class:`~drone_agent.agent_core.BatchAgentCore`: on each pass the agents due at the same tick (same
 tick number and vehicle time: one simulator drives them, so their samples of a tick arrive
 together) run in one batched call, between each agent's own :meth:`HostedAgent.prepare` (messages,
-neighbour wait, plan) and :meth:`HostedAgent.finish` (publish, flight phase, setpoint). An agent
+neighbour wait, plan) and :meth:`HostedAgent.finish` (flight phase and setpoint for every agent
+of the pass first, then their messages). An agent
 joins the swarm (declares its transport and token) once its vehicle has answered, since its
 position names its spatial cell. In lockstep the process's
 :class:`~drone_agent.round_gate.RoundBook` publishes, after each pass, the round-done markers of
@@ -321,7 +322,8 @@ class AgentHost:
 
     def _run_cores(self, group: list[tuple[HostedAgent, DueTick]]) -> None:
         """The cores of the agents due at one tick (same tick, same vehicle time), in one
-        batched call; each agent then finishes its own tick."""
+        batched call; each agent then finishes its own tick: all answer their vehicles, then all
+        publish."""
         ticks = [t for _, t in group]
         first = ticks[0]
         outs = self._core.tick(
@@ -336,7 +338,9 @@ class AgentHost:
             [t.climb_to for t in ticks],
         )
         for (agent, tick), out in zip(group, outs, strict=True):
-            agent.finish(tick, out)
+            agent.act(tick, out)  # every vehicle answered first (HostedAgent.act)
+        for agent, tick in group:
+            agent.publish(tick)
 
     def _let_go(self, slot: _Slot) -> None:
         """An agent that left for good: close its vehicle link, so that the simulator sees its

@@ -322,17 +322,30 @@ class HostedAgent:
         return self._climb_z
 
     def finish(self, due: DueTick, out: AgentOutput) -> None:
-        """Everything after the core: update the readiness to fly (flight_phase.Readiness),
-        publish the consensus message with this agent's settled level, decide and send what the
-        vehicle does this tick, and the status."""
+        """Everything after the core: :meth:`act`, then :meth:`publish`."""
+        self.act(due, out)
+        self.publish(due)
+
+    def act(self, due: DueTick, out: AgentOutput) -> None:
+        """The vehicle's side of the tick, after the core: update the readiness to fly
+        (flight_phase.Readiness), decide and send what the vehicle does this tick (the setpoint
+        that answers the tick goes last). A host answers all its agents' vehicles before any
+        publishes (:meth:`publish`): in lockstep the simulator steps once every vehicle has its
+        answer, while the agents' messages are laid out and sent."""
         sample = due.sample
         self.last_output = out
         self.readiness.update(out, due.inbox, due.members, self.phase.committed)
-        message = replace(out.message, ready_hops=self.readiness.level)
-        self.transport.publish_consensus(message, sample.position_ned_m)
         assert out.desired is not None  # the core gives the plan's value of the tick
         commanded_altitude = -float(out.desired[CENTRE][2])
         self._carry_out(self._decide(due.command, out.setpoint, commanded_altitude, sample), sample)
+
+    def publish(self, due: DueTick) -> None:
+        """The swarm's side of the tick, after :meth:`act`: the consensus message with this
+        agent's settled level, the round done and the status."""
+        out = self.last_output
+        assert out is not None
+        message = replace(out.message, ready_hops=self.readiness.level)
+        self.transport.publish_consensus(message, due.sample.position_ned_m)
         self._after_tick(due.tick)
 
     def _after_tick(self, tick: int) -> None:
