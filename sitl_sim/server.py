@@ -382,6 +382,8 @@ class SimServer:
                     channel.send(build[msg_id](i))
                 if is_agent and LOCAL_POSITION_NED in due:
                     sent_to.append(i)
+            if is_agent:  # the agents' states leave first: in lockstep they wait for them
+                self.net.flush()
         self.net.flush()
         return sent_to
 
