@@ -204,20 +204,22 @@ def run_sim(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
     from sitl_sim.server import SimServer, Status
 
     config = build_config(args)
-    world, tunables = build_world(config)
 
     def show(status: Status) -> None:
         print(status_line(status), file=out, flush=True)
 
     shards = _shard_sync(args)
     try:
+        # the ports first, said at once (`swarm up` starts the agents once they are bound: an
+        # agent's own ephemeral port must not land on a vehicle's), then the world
         with Network(config.net, config.sysids) as network:
+            if not args.quiet:
+                print(start_line(config), file=out, flush=True)
+            world, tunables = build_world(config)
             on_status = None if args.quiet else show
             server = SimServer(
                 world, tunables, network, config.clock, on_status=on_status, shard_sync=shards
             )
-            if not args.quiet:
-                print(start_line(config), file=out, flush=True)
             with _stop_on_signals(server.stop):
                 server.run()
     finally:

@@ -97,6 +97,39 @@ def test_a_report_folder_used_again_shows_this_runs_last_line_not_the_old_ones(
     assert log.read_text().startswith("sim    199.96 s")  # the old run's log is kept
 
 
+def test_the_agents_start_once_the_simulator_has_bound_its_ports(tmp_path: Path) -> None:
+    """An agent binds an ephemeral UDP port for its vehicle link; started while the simulator
+    was still building its world, one of a hundred agents' ports landed on a vehicle's port of a
+    block picked in the ephemeral range (1 of 4 bench runs of 100 drones: "UDP port ... is in
+    use", nothing flew). The agents now start after the simulator's line saying where its
+    vehicles listen (printed once the ports are bound), also when the log holds an older run's."""
+    from gcs.cli.supervisor import SIM_BOUND, _start
+
+    sim_log = tmp_path / "sim.log"
+    sim_log.write_text(f"{SIM_BOUND}9 vehicles on UDP 127.0.0.1:14540-14548\n")  # the last run's
+    slow_sim = (
+        f"import time; time.sleep(1.5); print({SIM_BOUND!r} + '1 vehicle on UDP', flush=True); "
+        "time.sleep(30)"
+    )
+    stamp = tmp_path / "agent-started"
+    agent = f"import pathlib, time; pathlib.Path({str(stamp)!r}).write_text(str(time.time()))"
+    plan = RunPlan(
+        gcs=None,
+        sim=Child("simulator", [sys.executable, "-c", slow_sim], sim_log),
+        agents=[Child("agent 0", [sys.executable, "-c", agent], tmp_path / "agent-0.log")],
+        agent_drones=[range(1)],
+        run_file=tmp_path / "run.json",
+    )
+    began = time.time()
+    _start(plan)
+    try:
+        assert plan.agents[0].proc is not None and plan.agents[0].proc.wait(30) == 0
+        assert float(stamp.read_text()) - began >= 1.5
+    finally:
+        for child in plan.children:
+            child.stop()
+
+
 def test_the_simulator_starts_once_the_ground_station_records(tmp_path: Path) -> None:
     """On a loaded machine the ground station's start (imports, then binding the telemetry port)
     took over a second; the simulator started 0.3 s after it, so flight.tlog missed the flight's

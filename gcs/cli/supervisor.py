@@ -288,28 +288,38 @@ def supervise(
     return reason
 
 
+#: What the simulator prints once its vehicles' ports are bound (sitl_sim/launch.start_line).
+SIM_BOUND = "swarm sim: "
+
+
 def _start(plan: RunPlan) -> None:
     """Start the children in order (a router: once it listens; the simulator: once the ground
-    station records) and write the run file."""
+    station records; the agents: once the simulator's ports are bound) and write the run file."""
+    from gcs.cli.gcs import RECORDING
+
     for child in plan.children:
         child.start()
         if child is plan.router:
             _wait_listening(plan.zenoh_endpoint, child)
         elif child is plan.gcs:
-            _wait_recording(child)
+            # a simulator started before would fly its first seconds unrecorded on a loaded
+            # machine (the ground station's start takes ~0.6 s of CPU)
+            _wait_said(child, RECORDING)
+        elif child is plan.sim:
+            # an agent binds an ephemeral UDP port for its vehicle link: before the simulator
+            # has bound its block (free ports picked in the ephemeral range), one of a hundred
+            # agents' ports may land on a vehicle's ("UDP port ... is in use")
+            _wait_said(child, SIM_BOUND)
         time.sleep(0.05)
     plan.write_run_file()
 
 
-def _wait_recording(gcs: Child, timeout_s: float = 30.0) -> None:
-    """Wait until the ground station ``gcs`` says it records telemetry: a simulator started
-    before would fly its first seconds unrecorded on a loaded machine (the ground station's start
-    takes ~0.6 s of CPU). Returns early when it ends (the caller reads why) and at the timeout."""
-    from gcs.cli.gcs import RECORDING
-
+def _wait_said(child: Child, text: str, timeout_s: float = 30.0) -> None:
+    """Wait until ``child`` has printed ``text`` in this run's log. Returns early when it ends
+    (the caller reads why) and at the timeout."""
     deadline = time.monotonic() + timeout_s
-    while gcs.running and time.monotonic() < deadline:
-        if RECORDING.encode() in _read_from(gcs.log, gcs.log_start):
+    while child.running and time.monotonic() < deadline:
+        if text.encode() in _read_from(child.log, child.log_start):
             return
         time.sleep(0.02)
 
