@@ -213,8 +213,9 @@ SEQUENCE: list[tuple[float, tuple[str, ...]]] = [
     (36.0, ("move", "--north-m", "5")),
     (48.0, ("rotate", "--delta-deg", "-30")),
     (61.0, ("scale", "--factor", "1.2")),
-    # a slow 10 m move (16 s): the hold typed 2 s in gets in mid-move however long the typed
-    # command takes (in lockstep simulated time runs on while the command's process starts)
+    # a slow 10 m move (16 s): the hold, typed 2 s after the move got in (its reply says when it
+    # arrives), gets in mid-move however long the typed commands take (in lockstep simulated
+    # time runs on while a command's process starts)
     (72.0, ("move", "--north-m", "10", "--duration-s", "16")),
     (74.0, ("hold",)),
     (82.0, ("land",)),
@@ -261,12 +262,20 @@ def test_every_operator_command_flies_as_typed(tmp_path: Path) -> None:
                "--swarm-id", "ops", "--zenoh-connect", obs.endpoint]  # fmt: skip
         run = _start(cmd, ROOT, report, obs, "--swarm-id", "ops", "--zenoh-connect", obs.endpoint)
         rest_s = 0.0  # when the hold's plan is at rest, from its reply
+        hold_at = 0.0  # 2 s into the slow move, from its reply
         try:
             run.wait_modes(range(9), AgentMode.FLYING, 90.0)
             for t_s, words in SEQUENCE:
+                # the hold 2 s into the slow move however late the move got in (in lockstep at
+                # ~8x real time a typed command's second of wall time is seconds of flight);
                 # land once the hold has been at rest for a while, however late it got in
+                if words == ("hold",):
+                    t_s = max(t_s, hold_at)
                 run.wait_t(max(t_s, rest_s + HOLD_STILL_S + 0.5) if words == ("land",) else t_s)
                 reply = run.command(*words)
+                if "--duration-s" in words:
+                    arrives = float(reply.split("centre arrives at t = ", 1)[1].split(" s", 1)[0])
+                    hold_at = arrives - float(words[words.index("--duration-s") + 1]) + 2.0
                 if words == ("hold",):
                     rest_s = float(reply.split("at rest at t = ", 1)[1].split(" s", 1)[0])
                 if words[0] == "takeoff":  # a shape too tight for nine drones 1 m apart

@@ -97,37 +97,53 @@ def test_a_report_folder_used_again_shows_this_runs_last_line_not_the_old_ones(
     assert log.read_text().startswith("sim    199.96 s")  # the old run's log is kept
 
 
+def _slow_then_next(tmp_path: Path, line: str, slow: str, nxt: str) -> float:
+    """Start a plan of two fake children with :func:`_start`: ``slow`` (the ground station or
+    the simulator) prints ``line`` after 1.5 s, its log already holding that line from an older
+    run; ``nxt`` (the simulator or an agent) writes when it started. How long after the start
+    the second one started (s)."""
+    from gcs.cli.supervisor import _start
+
+    first_log = tmp_path / f"{slow}.log"
+    first_log.write_text(f"{line} (the last run's)\n")
+    first = Child(
+        slow,
+        [sys.executable, "-c",
+         f"import time; time.sleep(1.5); print({line!r}, flush=True); time.sleep(30)"],
+        first_log,
+    )  # fmt: skip
+    stamp = tmp_path / "started"
+    second = Child(
+        nxt,
+        [sys.executable, "-c",
+         f"import pathlib, time; pathlib.Path({str(stamp)!r}).write_text(str(time.time()))"],
+        tmp_path / f"{nxt}.log",
+    )  # fmt: skip
+    if slow == "gcs":
+        plan = RunPlan(gcs=first, sim=second, run_file=tmp_path / "run.json")
+    else:
+        plan = RunPlan(gcs=None, sim=first, agents=[second], agent_drones=[range(1)],
+                       run_file=tmp_path / "run.json")  # fmt: skip
+    began = time.time()
+    _start(plan)
+    try:
+        assert second.proc is not None and second.proc.wait(30) == 0
+        return float(stamp.read_text()) - began
+    finally:
+        for child in plan.children:
+            child.stop()
+
+
 def test_the_agents_start_once_the_simulator_has_bound_its_ports(tmp_path: Path) -> None:
     """An agent binds an ephemeral UDP port for its vehicle link; started while the simulator
     was still building its world, one of a hundred agents' ports landed on a vehicle's port of a
     block picked in the ephemeral range (1 of 4 bench runs of 100 drones: "UDP port ... is in
     use", nothing flew). The agents now start after the simulator's line saying where its
     vehicles listen (printed once the ports are bound), also when the log holds an older run's."""
-    from gcs.cli.supervisor import SIM_BOUND, _start
+    from gcs.cli.supervisor import SIM_BOUND
 
-    sim_log = tmp_path / "sim.log"
-    sim_log.write_text(f"{SIM_BOUND}9 vehicles on UDP 127.0.0.1:14540-14548\n")  # the last run's
-    slow_sim = (
-        f"import time; time.sleep(1.5); print({SIM_BOUND!r} + '1 vehicle on UDP', flush=True); "
-        "time.sleep(30)"
-    )
-    stamp = tmp_path / "agent-started"
-    agent = f"import pathlib, time; pathlib.Path({str(stamp)!r}).write_text(str(time.time()))"
-    plan = RunPlan(
-        gcs=None,
-        sim=Child("simulator", [sys.executable, "-c", slow_sim], sim_log),
-        agents=[Child("agent 0", [sys.executable, "-c", agent], tmp_path / "agent-0.log")],
-        agent_drones=[range(1)],
-        run_file=tmp_path / "run.json",
-    )
-    began = time.time()
-    _start(plan)
-    try:
-        assert plan.agents[0].proc is not None and plan.agents[0].proc.wait(30) == 0
-        assert float(stamp.read_text()) - began >= 1.5
-    finally:
-        for child in plan.children:
-            child.stop()
+    line = f"{SIM_BOUND}1 vehicle (system id 1) on UDP 127.0.0.1:14540"
+    assert _slow_then_next(tmp_path, line, "simulator", "agent 0") >= 1.5
 
 
 def test_the_simulator_starts_once_the_ground_station_records(tmp_path: Path) -> None:
@@ -136,26 +152,6 @@ def test_the_simulator_starts_once_the_ground_station_records(tmp_path: Path) ->
     first second (seen in CI). The simulator now starts after the ground station's line saying it
     records, also when a report folder used again already holds that line from an older run."""
     from gcs.cli.gcs import RECORDING
-    from gcs.cli.supervisor import _start
 
-    gcs_log = tmp_path / "gcs.log"
-    gcs_log.write_text(f"{RECORDING} udp:127.0.0.1:14550\n")  # the last run's
-    slow_gcs = (
-        f"import time; time.sleep(1.5); print({RECORDING!r} + ' udp:127.0.0.1:1', flush=True); "
-        "time.sleep(30)"
-    )
-    stamp = tmp_path / "sim-started"
-    sim = f"import pathlib, time; pathlib.Path({str(stamp)!r}).write_text(str(time.time()))"
-    plan = RunPlan(
-        gcs=Child("gcs", [sys.executable, "-c", slow_gcs], gcs_log),
-        sim=Child("simulator", [sys.executable, "-c", sim], tmp_path / "sim.log"),
-        run_file=tmp_path / "run.json",
-    )
-    began = time.time()
-    _start(plan)
-    try:
-        assert plan.sim is not None and plan.sim.proc is not None and plan.sim.proc.wait(30) == 0
-        assert float(stamp.read_text()) - began >= 1.5
-    finally:
-        for child in plan.children:
-            child.stop()
+    line = f"{RECORDING} udp:127.0.0.1:14550"
+    assert _slow_then_next(tmp_path, line, "gcs", "simulator") >= 1.5
