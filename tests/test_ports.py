@@ -101,3 +101,39 @@ def test_twelve_drones_with_every_default_fly(tmp_path: Path) -> None:
     assert set(track.vehicles) == set(range(1, 13))
     for sysid, v in track.vehicles.items():
         assert -v.position_ned_m[-1, 2] > 1.5, (sysid, v.position_ned_m[-1])
+
+
+def test_the_default_hosting_is_one_process_per_drone_then_one_per_core() -> None:
+    from gcs.cli.up import default_agents_per_process
+
+    assert [default_agents_per_process(n, cpus=2) for n in (1, 9, 16)] == [1, 1, 1]
+    assert default_agents_per_process(25, cpus=2) == 7  # 4 processes: 7, 7, 7, 4
+    assert default_agents_per_process(100, cpus=2) == 25
+    assert default_agents_per_process(100, cpus=8) == 13  # 8 processes
+    assert default_agents_per_process(250, cpus=2) == 63
+
+
+@pytest.mark.slow
+def test_a_large_swarm_with_every_default_is_hosted_and_flies(tmp_path: Path) -> None:
+    """``swarm up scenarios/large_grid25.toml`` as a newcomer types it: a hundred drones with
+    one process each took 16 GB and two minutes for 0.06 simulated seconds on two cores, so
+    beyond 16 drones the agents are hosted, about one process per core. The first 11 s (before
+    the scenario's drop-out): all 25 vehicles climb to the plan's 3 m."""
+    from gcs.cli.up import default_agents_per_process
+
+    k = default_agents_per_process(25)
+    scenario = ROOT / "scenarios" / "large_grid25.toml"
+    with _default_ports_lock():
+        out = subprocess.run(
+            swarm_command("up", str(scenario), "--duration-s", "11"),
+            capture_output=True, text=True, env=ENV, cwd=tmp_path, timeout=400,
+        )  # fmt: skip
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    processes = -(-25 // k)
+    assert f"25 drones, {processes} agent processes of up to {k} drones each" in out.stderr
+    run = json.loads((tmp_path / "report" / "logs" / "run.json").read_text())
+    assert len(set(run["agents"].values())) == processes and len(run["agents"]) == 25
+    track = read_tlog(tmp_path / "report" / "flight.tlog")
+    assert set(track.vehicles) == set(range(1, 26))
+    for sysid, v in track.vehicles.items():
+        assert -v.position_ned_m[-1, 2] > 2.5, (sysid, v.position_ned_m[-1])

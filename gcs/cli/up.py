@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
+import os
 import subprocess
 import sys
 import time
@@ -59,6 +61,24 @@ drone agents as supervised child processes; the report in --report):
                             swarm scenario new does; the session's scenario is written to
                             DIR/logs/session.toml.
 """
+
+
+#: ``swarm up`` runs one agent process per drone up to this many drones by default.
+PER_DRONE_UP_TO = 16
+#: Beyond, at least this many agent processes (about one per CPU core).
+MIN_HOSTED_PROCESSES = 4
+
+
+def default_agents_per_process(n: int, cpus: int | None = None) -> int:
+    """``--agents-per-process``'s default for ``n`` drones on a machine of ``cpus`` cores (None:
+    this one's). One process per drone, as each drone's companion computer would run it, up to
+    PER_DRONE_UP_TO drones; beyond, one agent process per core (at least MIN_HOSTED_PROCESSES):
+    a hundred processes took 16 GB and two minutes to fly 0.06 simulated seconds on two cores,
+    four of 25 fly at ~0.6x real time (bench/up_lockstep.py)."""
+    if n <= PER_DRONE_UP_TO:
+        return 1
+    processes = max(MIN_HOSTED_PROCESSES, cpus if cpus is not None else os.cpu_count() or 1)
+    return math.ceil(n / processes)
 
 
 def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -122,9 +142,12 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--agents-per-process",
         type=int,
-        default=1,
+        default=None,
         metavar="K",
-        help="drones hosted per agent process (default 1: one process per drone)",
+        help=f"drones hosted per agent process (default: one process per drone up to "
+        f"{PER_DRONE_UP_TO} drones; more are hosted in about one process per CPU core, at "
+        f"least {MIN_HOSTED_PROCESSES}: each agent process takes ~200 MB and its own share of "
+        "a core)",
     )
     p.add_argument("--signing-key", type=Path, metavar="FILE", help="MAVLink 2 signing key")
     p.add_argument(
@@ -172,6 +195,8 @@ def build_plan(
         generated = session_scenario(session, scenario_path)
         scenario, text = generated.scenario, generated.text
     n = scenario.n_drones
+    if args.agents_per_process is None:
+        args.agents_per_process = default_agents_per_process(n)
     if args.agents_per_process < 1:
         raise SupervisorError("--agents-per-process must be at least 1")
     duration = scenario.duration_s if args.duration_s is None else args.duration_s
@@ -358,8 +383,11 @@ def run(args: argparse.Namespace) -> int:
             shown[0] = time.monotonic()
 
     parts = [c.role.split()[0] for c in plan.children]
+    hosting = ""
+    if args.agents_per_process > 1 and len(plan.agents) > 1:
+        hosting = f" of up to {args.agents_per_process} drones each"
     print(
-        f"swarm up: {n} drones, {len(plan.agents)} agent processes, {args.clock} clock; "
+        f"swarm up: {n} drones, {len(plan.agents)} agent processes{hosting}, {args.clock} clock; "
         f"here: {', '.join(dict.fromkeys(parts))}; logs in {args.report / 'logs'}",
         file=sys.stderr,
     )
