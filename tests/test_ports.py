@@ -71,6 +71,17 @@ def test_a_clash_the_user_picked_stops_before_anything_starts(
     assert not (tmp_path / "r" / "logs" / "run.json").exists()  # nothing was started
 
 
+def _up_with_defaults(folder: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    """``swarm up ARGS`` in ``folder`` on the default ports and report folder; it must succeed."""
+    with _default_ports_lock():
+        out = subprocess.run(
+            swarm_command("up", *args),
+            capture_output=True, text=True, env=ENV, cwd=folder, timeout=400,
+        )  # fmt: skip
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    return out
+
+
 def _grid(n: int) -> list[tuple[float, float, float]]:
     return [(2.0 * (i // 4), 2.0 * (i % 4), 0.0) for i in range(n)]
 
@@ -88,12 +99,7 @@ def test_twelve_drones_with_every_default_fly(tmp_path: Path) -> None:
         duration_s=14.0,
         settle_s=8.0,
     )
-    with _default_ports_lock():
-        out = subprocess.run(
-            swarm_command("up", str(scenario), "--agents-per-process", "12"),
-            capture_output=True, text=True, env=ENV, cwd=tmp_path, timeout=240,
-        )  # fmt: skip
-    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    _up_with_defaults(tmp_path, str(scenario), "--agents-per-process", "12")
     sim_log = (tmp_path / "report" / "logs" / "sim.log").read_text()
     assert "UDP 127.0.0.1:14540-14549, 14560-14561, GCS udp:127.0.0.1:14550" in sim_log
     assert json.loads((tmp_path / "report" / "logs" / "run.json").read_text())["agents"]
@@ -123,12 +129,7 @@ def test_a_large_swarm_with_every_default_is_hosted_and_flies(tmp_path: Path) ->
 
     k = default_agents_per_process(25)
     scenario = ROOT / "scenarios" / "large_grid25.toml"
-    with _default_ports_lock():
-        out = subprocess.run(
-            swarm_command("up", str(scenario), "--duration-s", "11"),
-            capture_output=True, text=True, env=ENV, cwd=tmp_path, timeout=400,
-        )  # fmt: skip
-    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    out = _up_with_defaults(tmp_path, str(scenario), "--duration-s", "11")
     processes = -(-25 // k)
     assert f"25 drones, {processes} agent processes of up to {k} drones each" in out.stderr
     run = json.loads((tmp_path / "report" / "logs" / "run.json").read_text())
