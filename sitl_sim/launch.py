@@ -207,6 +207,11 @@ def build_world(config: SimConfig) -> tuple[World, Tunables]:
     return world, Tunables(world.autopilot, gains, list(config.sysids))
 
 
+#: How the start line begins: printed once the vehicles' ports are bound (`swarm up` starts the
+#: agents on it, gcs/cli/supervisor.py).
+START_LINE_PREFIX = "swarm sim: "
+
+
 def start_line(config: SimConfig) -> str:
     """What is listening where, printed once at start-up."""
     net, clock = config.net, config.clock
@@ -216,7 +221,7 @@ def start_line(config: SimConfig) -> str:
     ids = f"{config.sysids[0]}..{config.sysids[-1]}" if config.n > 1 else str(config.sysids[0])
     signed = ", signed" if net.signing_key is not None else ""
     return (
-        f"swarm sim: {config.n} vehicles (system ids {ids}) on UDP {ports_text}, GCS {gcs}"
+        f"{START_LINE_PREFIX}{config.n} vehicles (system ids {ids}) on UDP {ports_text}, GCS {gcs}"
         f"{signed}; "
         f"clock {clock.mode} x{clock.speedup:g}, physics {config.world.physics_hz} Hz, "
         f"control {config.world.control_hz} Hz"

@@ -140,9 +140,9 @@ def test_the_agents_start_once_the_simulator_has_bound_its_ports(tmp_path: Path)
     block picked in the ephemeral range (1 of 4 bench runs of 100 drones: "UDP port ... is in
     use", nothing flew). The agents now start after the simulator's line saying where its
     vehicles listen (printed once the ports are bound), also when the log holds an older run's."""
-    from gcs.cli.supervisor import SIM_BOUND
+    from sitl_sim.launch import START_LINE_PREFIX
 
-    line = f"{SIM_BOUND}1 vehicle (system id 1) on UDP 127.0.0.1:14540"
+    line = f"{START_LINE_PREFIX}1 vehicle (system id 1) on UDP 127.0.0.1:14540"
     assert _slow_then_next(tmp_path, line, "simulator", "agent 0") >= 1.5
 
 

@@ -288,14 +288,11 @@ def supervise(
     return reason
 
 
-#: What the simulator prints once its vehicles' ports are bound (sitl_sim/launch.start_line).
-SIM_BOUND = "swarm sim: "
-
-
 def _start(plan: RunPlan) -> None:
     """Start the children in order (a router: once it listens; the simulator: once the ground
     station records; the agents: once the simulator's ports are bound) and write the run file."""
     from gcs.cli.gcs import RECORDING
+    from sitl_sim.launch import START_LINE_PREFIX
 
     for child in plan.children:
         child.start()
@@ -309,7 +306,7 @@ def _start(plan: RunPlan) -> None:
             # an agent binds an ephemeral UDP port for its vehicle link: before the simulator
             # has bound its block (free ports picked in the ephemeral range), one of a hundred
             # agents' ports may land on a vehicle's ("UDP port ... is in use")
-            _wait_said(child, SIM_BOUND)
+            _wait_said(child, START_LINE_PREFIX)
         time.sleep(0.05)
     plan.write_run_file()
 
