@@ -53,3 +53,25 @@ def test_failsafes_are_blamed_on_an_overload_only_when_one_was_reported_near_the
         "  drone 3 failed safe at 10.0 s: its agent fell behind (Agent late: 40% of ticks in time)"
     )
     assert lines[1].endswith("its agent stopped or left the swarm")
+
+
+def test_a_failsafe_after_the_agent_left_is_blamed_on_the_leaving_not_on_lateness() -> None:
+    # large_grid25 in realtime: drone 19's agent is dropped by the scenario at 12.0 s, its
+    # vehicle fails safe at 12.5 s, and the interval report at 12.22 s still says it was late
+    # (its ticks before 12.0): the summary said "its agent fell behind"
+    events = [
+        {"t_s": 0.0, "kind": "agent_joined", "drone": 19},
+        {"t_s": 11.2, "kind": "overload", "drone": 19, "text": "Agent late: 71% of ticks"},
+        {"t_s": 12.0, "kind": "dropout_detected", "drone": 19},
+        {"t_s": 12.22, "kind": "overload", "drone": 19, "text": "Agent late: 73% of ticks"},
+        {"t_s": 12.5, "kind": "failsafe", "drone": 19, "text": "Failsafe: offboard lost (0.5 s)"},
+        # drone 4 left and came back (a restart drill): a later failsafe is judged afresh
+        {"t_s": 5.0, "kind": "dropout_detected", "drone": 4},
+        {"t_s": 8.0, "kind": "agent_joined", "drone": 4},
+        {"t_s": 20.0, "kind": "overload", "drone": 4, "text": "Agent late: 50% of ticks"},
+        {"t_s": 20.5, "kind": "failsafe", "drone": 4, "text": "Failsafe: offboard lost (0.5 s)"},
+    ]
+    explained = explain_failsafes(events)
+    assert [(f["drone"], f["cause"]) for f in explained] == [(19, "agent left"), (4, "overload")]
+    lines = summary_lines({"measured": False, "failsafes": explained})
+    assert lines[0] == "  drone 19 failed safe at 12.5 s: its agent had left the swarm at 12.0 s"

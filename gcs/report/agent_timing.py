@@ -5,7 +5,8 @@ answered in time and its worst lag (sitl_sim/tick_answers.py), sends both to the
 NAMED_VALUE_FLOAT (logged in flight.tlog), and an "Agent late" STATUSTEXT for an agent below 90 %
 (an ``overload`` event in events.jsonl). :func:`timing_metrics` turns them into the report's
 ``agent_timing`` block and explains each failsafe: a vehicle fails safe when its setpoints stop;
-if its agent was reported late just before, the machine could not keep up, else the agent stopped.
+if its agent had left the swarm (a drop-out, a drill), that is why; else if its agent was reported
+late just before, the machine could not keep up; else the agent stopped.
 Lockstep runs have no timing figures (time waits for the agents).
 """
 
@@ -55,22 +56,45 @@ def timing_metrics(track: TlogTrack, events: Sequence[Mapping[str, Any]]) -> dic
 
 
 def explain_failsafes(events: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """Each drone's first failsafe event with its cause: ``overload`` when its agent was reported
-    late within BLAME_WINDOW_S of it (the report comes at the end of the simulator's status
-    interval, so it may follow the failsafe), else ``no setpoints`` (its agent stopped or left)."""
+    """Each drone's first failsafe event with its cause: ``agent left`` when its agent had left
+    the swarm before it (a drop-out, a drill, a crash: ``dropout_detected`` with no
+    ``agent_joined`` since), whatever lateness was reported around it; else ``overload`` when
+    its agent was reported late within BLAME_WINDOW_S of it (the report comes at the end of the
+    simulator's status interval, so it may follow the failsafe); else ``no setpoints`` (its agent
+    stopped answering without leaving)."""
     late: dict[int, list[tuple[float, str]]] = {}
     failsafes: dict[int, Mapping[str, Any]] = {}
+    left: dict[int, float] = {}  # drone -> when its agent left, until it joins again
+    left_before: dict[int, float] = {}  # drone -> when its agent had left, at its failsafe
     for e in events:
         drone, kind = e.get("drone"), e.get("kind")
         if not isinstance(drone, int):
             continue
+        t_e = float(e.get("t_s", 0.0))
         if kind == "overload":
-            late.setdefault(drone, []).append((float(e.get("t_s", 0.0)), str(e.get("text", ""))))
-        elif kind == "failsafe":
-            failsafes.setdefault(drone, e)
+            late.setdefault(drone, []).append((t_e, str(e.get("text", ""))))
+        elif kind == "dropout_detected":
+            left.setdefault(drone, t_e)
+        elif kind == "agent_joined":
+            left.pop(drone, None)
+        elif kind == "failsafe" and drone not in failsafes:
+            failsafes[drone] = e
+            if drone in left and left[drone] <= t_e:
+                left_before[drone] = left[drone]
     out: list[dict[str, Any]] = []
     for drone, e in sorted(failsafes.items(), key=lambda item: float(item[1].get("t_s", 0.0))):
         t = float(e.get("t_s", 0.0))
+        if drone in left_before:
+            out.append(
+                {
+                    "drone": drone,
+                    "t_s": t,
+                    "text": e.get("text"),
+                    "cause": "agent left",
+                    "detail": f"its agent had left the swarm at {left_before[drone]:.1f} s",
+                }
+            )
+            continue
         # the report of the interval the failsafe fell in comes after it: prefer that one
         near = sorted(
             (t_late < t, abs(t_late - t), text)
