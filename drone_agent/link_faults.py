@@ -161,6 +161,8 @@ class FaultyTransport(ClosesOnExit):
         self._inner, self.faults, self._clock = inner, faults, round_clock
         self._pair_rng = rng if isinstance(rng, PairRandom) else (lambda _i, _j: rng)
         self._held: list[tuple[int, int, ConsensusPacket]] = []
+        #: per sender, the newest round dropped or held back since the last :meth:`withheld`
+        self._withheld: dict[int, int] = {}
         self._arrivals = 0
         self._dropped = 0
         self._delivered = 0
@@ -177,22 +179,33 @@ class FaultyTransport(ClosesOnExit):
         if not self._held and faults.idle() and all(p.message.round <= now for p in packets):
             self._delivered += len(packets)  # no fault, nothing held: as the loop below would
             return packets
+        withheld = self._withheld
         for packet in packets:
-            sender = packet.message.sender
+            sender, round_ = packet.message.sender, packet.message.round
             loss = faults.loss_for(sender, me)
             if faults.blocks(sender, me) or (
                 loss > 0.0 and self._pair_rng(sender, me).random() < loss
             ):
                 self._dropped += 1
+                if round_ > withheld.get(sender, -1):
+                    withheld[sender] = round_
                 continue
             self._arrivals += 1
-            release = packet.message.round + faults.delay_for(sender, me)
+            release = round_ + faults.delay_for(sender, me)
+            if release > now and round_ > withheld.get(sender, -1):
+                withheld[sender] = round_
             heapq.heappush(self._held, (release, self._arrivals, packet))
         out = []
         while self._held and self._held[0][0] <= now:
             out.append(heapq.heappop(self._held)[2])
         out.sort(key=lambda p: (p.message.sender, p.message.round))
         self._delivered += len(out)
+        return out
+
+    def withheld(self) -> dict[int, int]:
+        """Per sender, the newest round this wrapper dropped or held back since the last call
+        (see AgentTransport.withheld)."""
+        out, self._withheld = self._withheld, {}
         return out
 
     def counters(self) -> LinkCounters:

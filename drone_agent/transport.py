@@ -184,6 +184,13 @@ class AgentTransport(Protocol):
         call, decoded and sorted by (sender, round). Bad payloads are dropped and counted."""
         ...
 
+    def withheld(self) -> dict[int, int]:
+        """Per sender, the newest round of its messages that reached this agent's radio since
+        the last call but were not delivered (link faults dropped them, or hold them back for
+        a later round); empty without faults. Not for the estimator: for the realtime
+        neighbour wait, which need not wait for a message that came and was lost."""
+        ...
+
     def members(self) -> frozenset[int]:
         """The drones whose agents are alive (liveliness tokens), this one included."""
         ...

@@ -534,6 +534,10 @@ class AgentLink(ClosesOnExit):
             self._counts[_COUNTER_OF.get(exc.reason, "malformed")] += 1
             return None
 
+    def withheld(self) -> dict[int, int]:
+        """Nothing: this transport delivers what it receives in range (see AgentTransport)."""
+        return {}
+
     def members(self) -> frozenset[int]:
         """The drones whose liveliness tokens are alive, this one included."""
         with self._alive_lock:

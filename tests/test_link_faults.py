@@ -188,3 +188,22 @@ def test_estimator_over_the_faulty_bus_converges_without_bias() -> None:
         assert 0 not in out.active_neighbours or out.message.sender != 1
     assert 1 not in outs[0].active_neighbours
     s.close()
+
+
+def test_what_the_faults_drop_or_hold_back_is_reported_as_withheld_not_delivered(
+    swarm: Swarm,
+) -> None:
+    """The realtime neighbour wait must not wait for a message that came and was lost: the
+    wrapper says, per sender, the newest round it dropped or holds back (the estimator never
+    sees those messages)."""
+    swarm.faults.cut.add((1, 0))  # 1 -> 0 cut
+    swarm.faults.link_delay_ticks[(2, 0)] = 2  # 2 -> 0 two rounds late
+    swarm.round = 5
+    got = swarm.exchange()
+    assert got[0] == {3}
+    assert swarm.links[0].withheld() == {1: 5, 2: 5}
+    assert swarm.links[0].withheld() == {}  # since the last call
+    assert swarm.links[3].withheld() == {}  # nothing withheld from 3
+    swarm.round = 7
+    assert {p.message.sender for p in swarm.links[0].receive()} == {2}  # released: round 5 + 2
+    assert swarm.links[0].withheld() == {}

@@ -174,3 +174,35 @@ def test_a_restarted_agent_waits_for_nobody_at_its_first_tick(swarm: Swarm) -> N
     late = RoundGate(2, range(3), swarm.books[2], first_grace_s=60.0)
     swarm.join(2)
     assert late.ready(41, 0.0)
+
+
+def test_a_gate_held_up_by_a_live_drone_waits_for_it_and_still_drops_one_that_died() -> None:
+    """A host re-asks its waiting gates at every marker that comes in: a gate held up by a live
+    drone stays shut until that drone's marker is in, whatever else arrives; a drone that dies
+    meanwhile is dropped after its grace as when nobody was waited for."""
+    s = Swarm(4)
+    try:
+        for i in range(4):
+            s.join(i)
+        for i in range(4):
+            assert s.gates[i].ready(0, 0.0)
+            s.finish(i, 0)
+        gate = s.gates[0]
+        s.finish(1, 1)
+        assert not gate.ready(2, 10.0)  # drones 2 and 3 alive, round 1 not done
+        s.finish(3, 1)
+        assert not gate.ready(2, 10.01)  # drone 2 still holds it up
+        link = s.links[3]
+        assert link is not None
+        link.close()  # drone 3 dies (its round 1 was done)
+        s.finish(1, 2)
+        assert not gate.ready(2, 10.02)
+        s.finish(2, 1)
+        assert gate.ready(2, 10.03)
+        assert gate.members() == frozenset({0, 1, 2, 3})  # 3 finished round 1 before it died
+        s.finish(2, 2)
+        assert not gate.ready(3, 11.0)  # 3 is gone: its grace (a marker may be in flight)
+        assert gate.ready(3, 11.0 + gate.dead_grace_s)
+        assert gate.members() == frozenset({0, 1, 2})
+    finally:
+        s.close()
