@@ -271,6 +271,7 @@ def run(args: argparse.Namespace) -> int:
     from drone_agent.transport_link import AgentLink, ConsensusHub, LinkSettings
     from drone_agent.vehicle_link import VehicleLink
     from drone_agent.zenoh_transport import ZenohBus
+    from protocols.collector import flight_collector
     from protocols.mavlink_conventions import vehicle_port
     from protocols.mavlink_signing import SigningKeyError, load_signing_key
     from protocols.scenario import ScenarioError, load_scenario
@@ -409,12 +410,13 @@ def run(args: argparse.Namespace) -> int:
         profiler = cProfile.Profile(time.thread_time)
         profiler.enable()
     try:
-        host.run(
-            on_second=None if args.quiet else report,
-            on_loop=each_loop,
-            on_leave=left,
-            on_return=back,
-        )
+        with flight_collector():
+            host.run(
+                on_second=None if args.quiet else report,
+                on_loop=each_loop,
+                on_leave=left,
+                on_return=back,
+            )
     finally:
         if profiler is not None and profile_dir:
             profiler.disable()

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from protocols.collector import flight_collector
 from protocols.frames import FloatArray
 from sitl_sim import map_telemetry, messages
 from sitl_sim.autopilot import Severity, VehicleEvent
@@ -194,7 +195,8 @@ class SimServer:
             if self.shards is not None:
                 selector.register(self.shards.sock, selectors.EVENT_READ, _SHARDS)
             try:
-                self._loop()
+                with flight_collector():
+                    self._loop()
             finally:
                 self._selector = None
 

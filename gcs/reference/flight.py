@@ -9,9 +9,7 @@ system is measured against, and a fast tuning tool. Deterministic for a given se
 
 from __future__ import annotations
 
-import gc
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -25,6 +23,7 @@ from drone_agent.flight_phase import BatchReadiness, FlightPhase, Request, Vehic
 from drone_agent.link_faults import LinkFaults, PairRandom
 from gcs.reference.network import InProcessNetwork
 from gcs.report.flight_record import FlightRecord, scenario_link_cuts
+from protocols.collector import flight_collector
 from protocols.frames import FloatArray, quat_from_zyx
 from protocols.scenario import Scenario
 from protocols.wire_plan import FlightCommand
@@ -48,33 +47,6 @@ HARD_LANDING_M_S = 2.0
 #: distributed agent does on its vehicle's EMERGENCY STATUSTEXT (drone_agent/hosted_agent.py).
 CRASH_NOTICE_S = 0.0
 _new_vehicle_view = frozen_factory(VehicleView)
-
-
-#: Allocations between two young-generation passes of the garbage collector during a flight
-#: (CPython's default is 700; each pass has a fixed cost of its own, about a tenth of a ms).
-YOUNG_COLLECTION_EVERY = 5000
-
-
-@contextmanager
-def flight_collector() -> Iterator[None]:
-    """The garbage collector tuned for a flight, as it was again after the block: the objects
-    that exist now are left out of its passes (``gc.freeze``, unless some are frozen already:
-    each full pass would otherwise walk the scenario, the plan, the modules and everything else
-    that outlives the flight again), and its young-generation pass runs every
-    :data:`YOUNG_COLLECTION_EVERY` allocations instead of 700. A flight makes and drops
-    thousands of objects a tick; with CPython's defaults their collection took about a tenth of
-    the tick at N = 100. What is garbage is collected all the same, in larger batches."""
-    thresholds = gc.get_threshold()
-    freeze = gc.get_freeze_count() == 0
-    if freeze:
-        gc.freeze()
-    gc.set_threshold(max(thresholds[0], YOUNG_COLLECTION_EVERY), *thresholds[1:])
-    try:
-        yield
-    finally:
-        gc.set_threshold(*thresholds)
-        if freeze:
-            gc.unfreeze()
 
 
 def reported(values: FloatArray) -> FloatArray:
