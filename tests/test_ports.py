@@ -113,10 +113,11 @@ def test_the_default_hosting_is_one_process_per_drone_then_one_per_core() -> Non
     from gcs.cli.up import default_agents_per_process
 
     assert [default_agents_per_process(n, cpus=2) for n in (1, 9, 16)] == [1, 1, 1]
-    assert default_agents_per_process(25, cpus=2) == 7  # 4 processes: 7, 7, 7, 4
-    assert default_agents_per_process(100, cpus=2) == 25
+    assert default_agents_per_process(25, cpus=2) == 13  # 2 processes: 13, 12
+    assert default_agents_per_process(100, cpus=2) == 50
     assert default_agents_per_process(100, cpus=8) == 13  # 8 processes
-    assert default_agents_per_process(250, cpus=2) == 63
+    assert default_agents_per_process(100, cpus=1) == 50  # at least 2 processes
+    assert default_agents_per_process(250, cpus=2) == 125
 
 
 @pytest.mark.slow

@@ -65,16 +65,19 @@ drone agents as supervised child processes; the report in --report):
 
 #: ``swarm up`` runs one agent process per drone up to this many drones by default.
 PER_DRONE_UP_TO = 16
-#: Beyond, at least this many agent processes (about one per CPU core).
-MIN_HOSTED_PROCESSES = 4
+#: Beyond, one agent process per CPU core, at least this many.
+MIN_HOSTED_PROCESSES = 2
 
 
 def default_agents_per_process(n: int, cpus: int | None = None) -> int:
     """``--agents-per-process``'s default for ``n`` drones on a machine of ``cpus`` cores (None:
     this one's). One process per drone, as each drone's companion computer would run it, up to
     PER_DRONE_UP_TO drones; beyond, one agent process per core (at least MIN_HOSTED_PROCESSES):
-    a hundred processes took 16 GB and two minutes to fly 0.06 simulated seconds on two cores,
-    four of 25 fly at ~0.6x real time (bench/up_lockstep.py)."""
+    each process pays its own messaging (Zenoh, round markers, every other process's batches) on
+    top of its agents' work. On two cores, a hundred processes took 16 GB and two minutes to fly
+    0.06 simulated seconds; four of 25 fly at 0.70-0.77x real time (lockstep), two of 50 at
+    0.98-1.01x; 25 drones in four processes of 7 at 1.2-1.6x, in two of 13 at 2.1-2.2x
+    (bench/up_lockstep.py's run_case, interleaved)."""
     if n <= PER_DRONE_UP_TO:
         return 1
     processes = max(MIN_HOSTED_PROCESSES, cpus if cpus is not None else os.cpu_count() or 1)
@@ -145,9 +148,9 @@ def _common(p: argparse.ArgumentParser) -> None:
         default=None,
         metavar="K",
         help=f"drones hosted per agent process (default: one process per drone up to "
-        f"{PER_DRONE_UP_TO} drones; more are hosted in about one process per CPU core, at "
-        f"least {MIN_HOSTED_PROCESSES}: each agent process takes ~200 MB and its own share of "
-        "a core)",
+        f"{PER_DRONE_UP_TO} drones; more are hosted in one process per CPU core, at "
+        f"least {MIN_HOSTED_PROCESSES}: each agent process takes ~200 MB and pays its own "
+        "messaging)",
     )
     p.add_argument("--signing-key", type=Path, metavar="FILE", help="MAVLink 2 signing key")
     p.add_argument(
