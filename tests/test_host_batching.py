@@ -97,14 +97,24 @@ class StandInSimulator:
             s.close()
 
 
+class Rig:
+    """The paper's agent config, a stand-in simulator and the three drones' vehicle links, and
+    an in-memory bus with one consensus hub."""
+
+    def __init__(self, swarm_id: str) -> None:
+        self.scenario = load_scenario(ROOT / "scenarios" / "paper.toml")
+        self.config = agent_config(self.scenario)
+        self.sim = StandInSimulator()
+        self.links = [VehicleLink(d, "127.0.0.1", self.sim.port(i)) for i, d in enumerate(DRONES)]
+        self.session = MemoryBus().session()
+        self.settings = LinkSettings(swarm_id=swarm_id, comm_range_m=10.0)
+        self.hub = ConsensusHub(self.session, self.settings, batch=True)
+
+
 def test_the_agents_of_one_tick_run_in_one_core_call() -> None:
-    scenario = load_scenario(ROOT / "scenarios" / "paper.toml")
-    config = agent_config(scenario)
-    sim = StandInSimulator()
-    links = [VehicleLink(d, "127.0.0.1", sim.port(i)) for i, d in enumerate(DRONES)]
-    session = MemoryBus().session()
-    settings = LinkSettings(swarm_id="batching", comm_range_m=10.0)
-    hub = ConsensusHub(session, settings, batch=True)
+    rig = Rig("batching")
+    scenario, config, sim, links = rig.scenario, rig.config, rig.sim, rig.links
+    session, settings, hub = rig.session, rig.settings, rig.hub
 
     def transport(bus_: Bus, drone: int, position: Position) -> AgentTransport:
         return AgentLink(bus_, drone, position, settings, hub)
@@ -153,13 +163,9 @@ def test_a_realtime_agent_does_not_wait_for_a_neighbour_message_its_radio_lost()
     is not waited for. (Under a scenario's 20 % loss, 25 hosted drones waited the whole 8 ms at
     nearly every tick and fell behind realtime on two cores.) Here the wait is 30 s: an agent
     that waited for the lost messages would not answer its vehicle in the test's time."""
-    scenario = load_scenario(ROOT / "scenarios" / "paper.toml")
-    config = agent_config(scenario)
-    sim = StandInSimulator()
-    links = [VehicleLink(d, "127.0.0.1", sim.port(i)) for i, d in enumerate(DRONES)]
-    session = MemoryBus().session()
-    settings = LinkSettings(swarm_id="lossy", comm_range_m=10.0)
-    hub = ConsensusHub(session, settings, batch=True)
+    rig = Rig("lossy")
+    scenario, config, sim, links = rig.scenario, rig.config, rig.sim, rig.links
+    session, settings, hub = rig.session, rig.settings, rig.hub
     faults = LinkFaults()
     rng = PairRandom(0)
     host: AgentHost | None = None
