@@ -8,7 +8,7 @@ lets :class:`~drone_agent.flight_phase.FlightPhase` decide what to do with the v
 formation, land, hold, stay on the ground), and answers the vehicle with that SET_ATTITUDE_TARGET
 echoing the tick (also on the ground, for lockstep). Before a tick it waits for its neighbours'
 messages of the previous round: in realtime up to ``neighbour_wait_s`` of wall time, for every
-neighbour heard recently (a message its link faults dropped or hold back counts as come: it was
+neighbour heard recently (a message its link faults dropped or held back counts as come: it was
 lost, not late); in lockstep (``RunOptions.lockstep``, with a
 :class:`~drone_agent.round_gate.RoundGate`) for every live drone's round-done marker, however long
 it takes, so that its inbox, membership view and command timing depend on simulated time alone
@@ -178,7 +178,7 @@ class HostedAgent:
     def _collect(self) -> None:
         messages = [packet.message for packet in self.transport.receive()]
         alt, last_round = self._neighbour_alt, self._last_round_of
-        # a message the link faults dropped or hold back came as far as time goes: the
+        # a message the link faults dropped or held back came as far as time goes: the
         # realtime wait (_neighbours_ready) does not wait for it (it would, the whole
         # neighbour_wait_s, at nearly every tick of a lossy drill)
         for sender, round_ in self.transport.withheld().items():
