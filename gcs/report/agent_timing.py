@@ -93,17 +93,6 @@ def explain_failsafes(events: Sequence[Mapping[str, Any]]) -> list[dict[str, Any
     out: list[dict[str, Any]] = []
     for drone, e in sorted(failsafes.items(), key=lambda item: float(item[1].get("t_s", 0.0))):
         t = float(e.get("t_s", 0.0))
-        if drone in left_before:
-            out.append(
-                {
-                    "drone": drone,
-                    "t_s": t,
-                    "text": e.get("text"),
-                    "cause": "agent left",
-                    "detail": f"its agent had left the swarm at {left_before[drone]:.1f} s",
-                }
-            )
-            continue
         # the report of the interval the failsafe fell in comes after it: prefer that one
         near = sorted(
             (t_late < t, abs(t_late - t), text)
@@ -111,14 +100,17 @@ def explain_failsafes(events: Sequence[Mapping[str, Any]]) -> list[dict[str, Any
             if abs(t_late - t) <= BLAME_WINDOW_S
         )
         blamed = [text for _before, _gap, text in near]
+        if drone in left_before:
+            cause, detail = (
+                "agent left",
+                f"its agent had left the swarm at {left_before[drone]:.1f} s",
+            )
+        elif blamed:
+            cause, detail = "overload", blamed[0]
+        else:
+            cause, detail = "no setpoints", "its agent stopped or left the swarm"
         out.append(
-            {
-                "drone": drone,
-                "t_s": t,
-                "text": e.get("text"),
-                "cause": "overload" if blamed else "no setpoints",
-                "detail": blamed[0] if blamed else "its agent stopped or left the swarm",
-            }
+            {"drone": drone, "t_s": t, "text": e.get("text"), "cause": cause, "detail": detail}
         )
     return out
 
