@@ -26,6 +26,7 @@ from drone_agent.moments import N_CHANNELS
 from protocols.consensus_message import ConsensusMessage, EdgeIncarnations, EdgeSums
 from protocols.frames import FloatArray
 from protocols.mavlink_conventions import MAX_VEHICLES
+from protocols.wire import MessageColumns
 
 #: Round tag of an empty history slot (no real round is this old).
 _NO_ROUND = -(2**62)
@@ -232,6 +233,62 @@ def packed_motion(messages: list[ConsensusMessage]) -> tuple[FloatArray, FloatAr
     assert pack.positions is not None and pack.velocities is not None
     picked = np.array(at, dtype=np.intp)
     return pack.positions[picked], pack.velocities[picked]
+
+
+def from_step(message: ConsensusMessage) -> bool:
+    """Whether ``message`` was made by a :class:`BatchConsensus` step (its edge sums are the
+    step's arrays; :func:`message_columns` may read it from them)."""
+    return type(message.edge_sums) is _PackedSums
+
+
+def message_columns(
+    messages: list[ConsensusMessage], positions: Sequence[tuple[float, float, float]]
+) -> MessageColumns | None:
+    """``messages`` sent from ``positions`` as the columns of
+    :func:`protocols.wire.column_parts`, read from the arrays their step made them from, if all
+    come from one step with the values it made them with (:func:`_packed`); else None."""
+    got = _packed(messages)
+    if got is None:
+        return None
+    pack, at = got
+    round_ = messages[0].round
+    if any(m.round != round_ for m in messages):
+        return None
+    n = at.shape[0]
+    heard_at, heard_ids = np.nonzero(pack.heard[at])
+    bounds = np.array(pack.bounds, dtype=np.intp)
+    starts = bounds[at]
+    lens = bounds[at + 1] - starts
+    total = int(lens.sum())
+    edge_at = np.repeat(np.arange(n), lens)
+    # the edges of each message in turn: its run of the pack's edge rows
+    take = np.arange(total) + np.repeat(starts - (np.cumsum(lens) - lens), lens)
+    how_fast = pack.how_fast
+    if pack.velocities is not None and all(
+        m.velocity_ned_m_s is how_fast[k] for m, k in zip(messages, at.tolist(), strict=True)
+    ):
+        velocities = pack.velocities[at]
+    else:
+        velocities = np.array(
+            [np.zeros(3) if m.velocity_ned_m_s is None else m.velocity_ned_m_s for m in messages],
+            dtype=np.float64,
+        ).reshape(n, 3)
+    return MessageColumns(
+        round_,
+        [m.sender for m in messages],
+        [m.degree for m in messages],
+        [m.ready_hops for m in messages],
+        [m.incarnation for m in messages],
+        positions,
+        velocities,
+        pack.gamma[at],
+        heard_at,
+        heard_ids,
+        edge_at,
+        pack.ids[take],
+        pack.tags[take],
+        pack.sums[take],
+    )
 
 
 def _flat(a: npt.NDArray[Any]) -> npt.NDArray[Any]:

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drone_agent.consensus_batch import from_step, message_columns
 from drone_agent.transport import (
     Bus,
     Closeable,
@@ -52,6 +53,7 @@ from protocols.wire import (
     Kind,
     Reason,
     WireError,
+    column_parts,
     consensus_head,
     consensus_parts,
     decode_consensus,
@@ -170,6 +172,43 @@ def _rejected(sender: int, exc: WireError) -> _Entry:
     return _Entry(sender, -1, (0.0, 0.0, 0.0), b"", _COUNTER_OF.get(exc.reason, "malformed"))
 
 
+#: a message staged in a hub: (sender, its parts, or None and the message and its position)
+_Staged = tuple[
+    int, ConsensusParts | None, ConsensusMessage | None, tuple[float, float, float] | None
+]
+
+
+def wire_parts(
+    messages: Sequence[ConsensusMessage],
+    positions: Sequence[tuple[float, float, float]],
+    swarm_id: str,
+    max_bytes: int = MAX_CONSENSUS_BYTES,
+) -> list[ConsensusParts]:
+    """Each message laid out for the wire from its position (NED, m), the bytes of
+    protocols.wire.consensus_parts: the messages of one batched core step together, in a few
+    array operations (protocols.wire.column_parts on drone_agent.consensus_batch.message_columns),
+    any other one alone. ValueError as consensus_parts for one that cannot be sent."""
+    out: list[ConsensusParts | None] = [None] * len(messages)
+    steps: dict[int, list[int]] = {}
+    for i, m in enumerate(messages):
+        if from_step(m):
+            steps.setdefault(id(m.edge_sums.pack), []).append(i)  # type: ignore[attr-defined]
+    for picked in steps.values():
+        if len(picked) < 2:
+            continue
+        cols = message_columns([messages[i] for i in picked], [positions[i] for i in picked])
+        if cols is not None:
+            laid = column_parts(cols, swarm_id, max_bytes=max_bytes)
+            for i, parts in zip(picked, laid, strict=True):
+                out[i] = parts
+    return [
+        consensus_parts(messages[i], positions[i], swarm_id, max_bytes=max_bytes)
+        if parts is None
+        else parts
+        for i, parts in enumerate(out)
+    ]
+
+
 class ConsensusHub(ClosesOnExit):
     """The consensus subscriptions and publications of the agents of one process (module doc).
 
@@ -194,7 +233,9 @@ class ConsensusHub(ClosesOnExit):
         self._subs: dict[Cell, Inbox] = {}
         self._readers: dict[Cell, list[AgentLink]] = {}
         self._cell_of_key: dict[str, tuple[Cell, int | None] | None] = {}
-        self._outbox: dict[Cell, list[tuple[int, ConsensusParts]]] = {}
+        #: per cell, the messages staged in this pass: (sender, laid out, or the message and the
+        #: position it goes from, to be laid out at :meth:`flush` with the pass's others)
+        self._outbox: dict[Cell, list[_Staged]] = {}
         #: statuses staged in this pass: (drone, payload, the drone's status publisher)
         self._statuses: list[tuple[int, bytes, Publisher]] = []
         #: by (cell, sender): the key of each, made once
@@ -291,13 +332,33 @@ class ConsensusHub(ClosesOnExit):
         except WireError as exc:
             return [_rejected(key_sender, exc)]
 
+    @property
+    def batching(self) -> bool:
+        """Whether messages wait for :meth:`flush` (else each is sent at once)."""
+        return self._batch
+
     def send(self, cell: Cell, sender: int, parts: ConsensusParts) -> None:
         """Publish ``sender``'s consensus message (laid out: protocols.wire.consensus_parts)
         from ``cell``: now, or at :meth:`flush`."""
         if self._batch:
-            self._outbox.setdefault(cell, []).append((sender, parts))
+            self._outbox.setdefault(cell, []).append((sender, parts, None, None))
         else:
             self._put(cell, sender, encode_parts(parts, self._keys.swarm_id))
+
+    def stage(
+        self,
+        cell: Cell,
+        sender: int,
+        message: ConsensusMessage,
+        position: tuple[float, float, float],
+    ) -> None:
+        """A batching hub: publish ``sender``'s ``message`` from ``position`` (NED, m) in
+        ``cell`` at :meth:`flush`, laid out there with the pass's other messages
+        (:func:`wire_parts`; the ValueErrors of protocols.wire.consensus_parts come from
+        there)."""
+        if not self._batch:
+            raise RuntimeError("only a batching hub stages messages")
+        self._outbox.setdefault(cell, []).append((sender, None, message, position))
 
     def send_status(self, drone: int, payload: bytes, publisher: Publisher) -> None:
         """Publish ``drone``'s status payload on its own ``publisher``: now, or at :meth:`flush`
@@ -320,13 +381,22 @@ class ConsensusHub(ClosesOnExit):
         if not self._outbox:
             return
         outbox, self._outbox = self._outbox, {}
-        sid = self._keys.swarm_id
+        sid, limit = self._keys.swarm_id, self._settings.max_consensus_bytes
+        messages, positions = [], []
+        for staged in outbox.values():
+            for _, ready, message, position in staged:
+                if ready is None:
+                    assert message is not None and position is not None
+                    messages.append(message)
+                    positions.append(position)
+        laid = iter(wire_parts(messages, positions, sid, limit))
         for cell, staged in outbox.items():
-            if len(staged) == 1:
-                self._put(cell, staged[0][0], encode_parts(staged[0][1], sid))
+            cell_parts = [next(laid) if p is None else p for _, p, _, _ in staged]
+            if len(cell_parts) == 1:
+                self._put(cell, cell_parts[0].sender, encode_parts(cell_parts[0], sid))
                 continue
-            staged.sort(key=lambda sp: sp[0])
-            self._put(cell, staged[0][0], encode_columns([p for _, p in staged], sid))
+            cell_parts.sort(key=operator.attrgetter("sender"))
+            self._put(cell, cell_parts[0].sender, encode_columns(cell_parts, sid))
 
     def _put(self, cell: Cell, sender: int, payload: bytes) -> None:
         publisher = self._publishers.get((cell, sender))
@@ -466,9 +536,12 @@ class AgentLink(ClosesOnExit):
         self._move(self._position)
         if self._cell is None:  # only if _move failed half-way
             raise RuntimeError(f"drone {self._drone} has no consensus cell")
-        limit = self._settings.max_consensus_bytes
-        parts = consensus_parts(message, self._position, self._keys.swarm_id, max_bytes=limit)
-        self._hub.send(self._cell, self._drone, parts)
+        if self._hub.batching and from_step(message):  # laid out with the pass's others
+            self._hub.stage(self._cell, self._drone, message, self._position)
+        else:
+            limit = self._settings.max_consensus_bytes
+            parts = consensus_parts(message, self._position, self._keys.swarm_id, max_bytes=limit)
+            self._hub.send(self._cell, self._drone, parts)
         self._counts["tx"] += 1
         self._last_sent = max(self._last_sent, message.round)
         self._sent_at[message.round] = self._position

@@ -65,6 +65,7 @@ from functools import lru_cache
 from typing import Any, NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from protocols.consensus_message import ConsensusMessage, EdgeIncarnations, EdgeSums
 from protocols.frames import FloatArray
@@ -249,20 +250,21 @@ def check_ids(ids: Sequence[int], what: str) -> None:
 
 
 class ConsensusParts(NamedTuple):
-    """A consensus message checked and laid out for the wire, not yet joined into bytes: what
-    :func:`encode_consensus` sends alone and ``protocols.wire_batch.encode_columns`` sends in
-    columns with other messages of one cell and tick.
+    """A consensus message checked and laid out for the wire: the byte pieces that
+    :func:`encode_parts` sends alone and ``protocols.wire_batch.encode_columns`` sends in columns
+    with other messages of one cell and tick (one layout, two arrangements).
 
-    ``fixed``: the fixed fields' values (_FIXED_V3's layout: round, sender, degree, ready_hops,
-    incarnation, position (3, float32 values), velocity (3, float32 values), n_heard, n_edges);
-    ``ids``: the heard ids then the edge neighbours; ``tags``: the edge incarnations (u32);
-    ``floats``: gamma then the edge sums (1 + n_edges, 18), float64, finite, a copy of its own;
+    ``sender``: its sender; ``fixed``: the fixed fields (_FIXED_V3's layout: round, sender,
+    degree, ready_hops, incarnation, position and velocity as float32, n_heard, n_edges);
+    ``ids``: the heard ids then the edge neighbours (u16 each); ``tags``: the edge incarnations
+    (u32 each); ``floats``: gamma then the edge sums ((1 + n_edges) x 18 float64, finite);
     ``size``: the bytes of the single payload, header included."""
 
-    fixed: tuple[Any, ...]
-    ids: list[int]
-    tags: list[int]
-    floats: FloatArray
+    sender: int
+    fixed: bytes
+    ids: bytes
+    tags: bytes
+    floats: bytes
     size: int
 
 
@@ -287,14 +289,13 @@ def encode_consensus(
 
 def encode_parts(parts: ConsensusParts, swarm_id: str) -> bytes:
     """The single payload of a message laid out by :func:`consensus_parts`."""
-    ids, tags = parts.ids, parts.tags
     return b"".join(
         (
             encode_header(Kind.CONSENSUS, swarm_id, CONSENSUS_VERSION),
-            _FIXED_V3.pack(*parts.fixed),
-            struct.pack(f"<{len(ids)}H", *ids),
-            struct.pack(f"<{len(tags)}I", *tags),
-            parts.floats.tobytes(),
+            parts.fixed,
+            parts.ids,
+            parts.tags,
+            parts.floats,
         )
     )
 
@@ -334,12 +335,118 @@ def consensus_parts(
         len(heard),
         len(neighbours),
     )
-    n_ids = len(heard) + len(neighbours)
-    size = len(encode_header(Kind.CONSENSUS, swarm_id, CONSENSUS_VERSION))
-    size += _FIXED_V3.size + 2 * n_ids + 4 * len(edge_incs) + floats.nbytes
+    ids = heard + neighbours
+    size = _consensus_size(swarm_id, len(heard), len(neighbours))
     if size > max_bytes:
         raise ValueError(f"consensus payload of {size} bytes exceeds {max_bytes}")
-    return ConsensusParts(fixed, heard + neighbours, edge_incs, floats, size)
+    return ConsensusParts(
+        sender,
+        _FIXED_V3.pack(*fixed),
+        struct.pack(f"<{len(ids)}H", *ids),
+        struct.pack(f"<{len(edge_incs)}I", *edge_incs),
+        floats.tobytes(),
+        size,
+    )
+
+
+def _consensus_size(swarm_id: str, n_heard: int, n_edges: int) -> int:
+    """The bytes of a single consensus payload with these counts, header included."""
+    head = len(encode_header(Kind.CONSENSUS, swarm_id, CONSENSUS_VERSION))
+    return head + _FIXED_V3.size + 2 * (n_heard + n_edges) + 4 * n_edges + _FLOATS * (1 + n_edges)
+
+
+class MessageColumns(NamedTuple):
+    """P consensus messages of one round as columns (:func:`column_parts`): per message its
+    ``senders``, ``degrees``, ``ready_hops`` and ``incarnations`` (lists), the ``positions`` it is
+    sent from (tuples of 3 floats, NED, m), ``velocities`` (P, 3) and ``gamma`` (P, 18); its heard
+    ids (``heard_at`` the message of each, ``heard_ids``) and edges (``edge_at``, ``edge_ids``,
+    ``edge_tags`` (negative: not said), ``edge_sums`` (E, 18)), each ascending by (message, id)."""
+
+    round: int
+    senders: list[int]
+    degrees: list[int]
+    ready_hops: list[int]
+    incarnations: list[int]
+    positions: Sequence[tuple[float, float, float]]
+    velocities: FloatArray
+    gamma: FloatArray
+    heard_at: npt.NDArray[np.intp]
+    heard_ids: npt.NDArray[np.intp]
+    edge_at: npt.NDArray[np.intp]
+    edge_ids: npt.NDArray[np.intp]
+    edge_tags: npt.NDArray[np.int64]
+    edge_sums: FloatArray
+
+
+def column_parts(
+    cols: MessageColumns, swarm_id: str, *, max_bytes: int = MAX_CONSENSUS_BYTES
+) -> list[ConsensusParts | None]:
+    """Each message of ``cols`` laid out as :func:`consensus_parts` lays it out (the same bytes),
+    in a few array operations for all of them; None for a message that :func:`consensus_parts`
+    would refuse (a field out of range, not finite, too large) or when the columns are not as
+    :class:`MessageColumns` says (then every one): ask :func:`consensus_parts` for the reason."""
+    n = len(cols.senders)
+    if n == 0:
+        return []
+    h_at, e_at = cols.heard_at, cols.edge_at
+    all_ids = np.concatenate((cols.heard_ids, cols.edge_ids))
+    if all_ids.shape[0] and not (all_ids.min() >= 0 and all_ids.max() <= MAX_DRONE_ID):
+        return [None] * n
+    span = MAX_DRONE_ID + 1
+    for at, ids in ((h_at, cols.heard_ids), (e_at, cols.edge_ids)):
+        key = at * span + ids  # strictly increasing: by message, then id, no repeat
+        if key.shape[0] > 1 and not (key[1:] > key[:-1]).all():
+            return [None] * n
+    tags = cols.edge_tags
+    if tags.shape[0] and tags.max() > MAX_U32 - 1:
+        return [None] * n
+    # per message: its heard ids then its edge ids; gamma then its edge sums
+    id_order = np.argsort(np.concatenate((2 * h_at, 2 * e_at + 1)), kind="stable")
+    ids_blob = all_ids[id_order].astype("<u2").tobytes()
+    owner = np.concatenate((np.arange(n), e_at))
+    row_order = np.argsort(np.concatenate((2 * np.arange(n), 2 * e_at + 1)), kind="stable")
+    rows = np.concatenate((cols.gamma, cols.edge_sums))[row_order]
+    floats_blob = rows.astype("<f8").tobytes()
+    bad_rows = ~np.isfinite(rows).all(axis=1)
+    bad = set(owner[row_order][bad_rows].tolist()) if bad_rows.any() else set()
+    tags_blob = np.where(tags < 0, NO_INCARNATION, tags).astype("<u4").tobytes()
+    n_heard = np.bincount(h_at, minlength=n).tolist()
+    n_edges = np.bincount(e_at, minlength=n).tolist()
+    id_at = itertools.accumulate(map(operator.add, n_heard, n_edges), initial=0)
+    tag_at = list(itertools.accumulate(n_edges, initial=0))
+    row_at = list(map(operator.add, tag_at, range(n + 1)))
+    velocities = cols.velocities.tolist()
+    round_, pack, f = cols.round, _FIXED_V3.pack, _FLOATS
+    out: list[ConsensusParts | None] = []
+    for k, (i0, i1) in enumerate(itertools.pairwise(id_at)):
+        h, e = n_heard[k], n_edges[k]
+        size = _consensus_size(swarm_id, h, e)
+        if k in bad or size > max_bytes:
+            out.append(None)
+            continue
+        try:
+            fixed = pack(
+                round_, cols.senders[k], cols.degrees[k], cols.ready_hops[k],
+                cols.incarnations[k], *cols.positions[k], *velocities[k], h, e,
+            )  # fmt: skip
+        except (struct.error, OverflowError):  # out of range (float32 too)
+            out.append(None)
+            continue
+        if not math.isfinite(sum(_FIXED_V3.unpack(fixed)[5:11])):
+            out.append(None)
+            continue
+        t0, t1, r0, r1 = tag_at[k], tag_at[k + 1], row_at[k], row_at[k + 1]
+        out.append(
+            ConsensusParts(
+                cols.senders[k],
+                fixed,
+                ids_blob[2 * i0 : 2 * i1],
+                tags_blob[4 * t0 : 4 * t1],
+                floats_blob[f * r0 : f * r1],
+                size,
+            )
+        )
+    return out
 
 
 def _edge_arrays(message: ConsensusMessage) -> tuple[list[int], list[int], FloatArray] | None:

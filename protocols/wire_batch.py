@@ -182,26 +182,23 @@ assert _RECORD.itemsize == 42
 
 
 def encode_columns(parts: Sequence[ConsensusParts], swarm_id: str) -> bytes:
-    """The version-2 batch of ``parts`` (:func:`protocols.wire.consensus_parts`), senders
-    strictly increasing; ValueError for fewer than two, more than MAX_BATCH_MESSAGES, or
-    unsorted."""
+    """The version-2 batch of ``parts`` (:func:`protocols.wire.consensus_parts`,
+    :func:`protocols.wire.column_parts`), senders strictly increasing; ValueError for fewer
+    than two, more than MAX_BATCH_MESSAGES, or unsorted."""
     n = len(parts)
     if not 2 <= n <= MAX_BATCH_MESSAGES:
         raise ValueError(f"a batch holds 2..{MAX_BATCH_MESSAGES} messages, got {n}")
-    senders = [p.fixed[1] for p in parts]
+    senders = [p.sender for p in parts]
     if not all(map(operator.lt, senders, senders[1:])):
         raise ValueError("batch senders must be strictly increasing")
-    ids = list(itertools.chain.from_iterable(p.ids for p in parts))
-    tags = list(itertools.chain.from_iterable(p.tags for p in parts))
-    fixed = _FIXED_V3.pack
     return b"".join(
         (
             encode_header(Kind.CONSENSUS_BATCH, swarm_id, BATCH_VERSION),
             _COUNT.pack(n),
-            *(fixed(*p.fixed) for p in parts),
-            struct.pack(f"<{len(ids)}H", *ids),
-            struct.pack(f"<{len(tags)}I", *tags),
-            np.concatenate([p.floats for p in parts]).tobytes(),
+            *(p.fixed for p in parts),
+            *(p.ids for p in parts),
+            *(p.tags for p in parts),
+            *(p.floats for p in parts),
         )
     )
 

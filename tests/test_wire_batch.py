@@ -535,3 +535,70 @@ def test_hosted_agents_send_their_statuses_of_a_pass_in_one_sample() -> None:
     for link in (b, alone):
         link.close()
     hub.close()
+
+
+def test_a_steps_messages_are_laid_out_in_columns_as_one_by_one() -> None:
+    """The messages of a batched consensus step, laid out together from the step's arrays
+    (transport_link.wire_parts: protocols.wire.column_parts), are byte for byte what
+    consensus_parts makes of each: over rounds with partial hearing, a listening row, a restart
+    (edges with and without incarnations), messages without motion, two steps mixed, a message
+    rebuilt by hand; and one that cannot be sent still raises."""
+    from dataclasses import replace
+
+    from drone_agent.consensus import ConsensusParams
+    from drone_agent.consensus_batch import BatchConsensus, message_columns
+    from drone_agent.transport_link import wire_parts
+    from protocols.wire import column_parts
+
+    ids = (0, 3, 4, 9, 12)
+    rng = np.random.default_rng(11)
+    batches = [
+        BatchConsensus(ids[:3], ConsensusParams()),
+        BatchConsensus(ids[3:], ConsensusParams()),
+    ]
+    inboxes: list[list[ConsensusMessage]] = [[] for _ in ids]
+    checked = 0
+    for round_ in range(12):
+        if round_ == 5:
+            batches[0].set_observing(1, True)
+        if round_ == 8:
+            batches[1].restart(0)
+        made: list[ConsensusMessage] = []
+        for b, batch in enumerate(batches):
+            rows = list(range(len(batch.agent_ids)))
+            zeta = rng.normal(size=(len(rows), 18))
+            motion = None if round_ % 4 == 3 else (rng.normal(size=(len(rows), 3)),
+                                                   rng.normal(size=(len(rows), 3)))  # fmt: skip
+            first = 0 if b == 0 else 3
+            box = inboxes[first : first + len(rows)]
+            _, out, _, _ = batch.step_outgoing(rows, round_, zeta, box, [None] * len(rows), motion)
+            made += out.messages([round_ % 3] * len(rows))
+        levels = [replace(m, ready_hops=m.ready_hops + 1) for m in made]  # as a host publishes
+        hand = replace(levels[2], edge_sums=dict(levels[2].edge_sums))  # no longer a step's
+        sent = [*levels[:2], hand, *levels[3:]]
+        where = [tuple(rng.normal(size=3).tolist()) for _ in sent]
+        expected = [consensus_parts(m, p, SID) for m, p in zip(sent, where, strict=True)]
+        assert wire_parts(sent, where, SID) == expected
+        assert message_columns(sent[3:], where[3:]) is not None  # the columns path was taken
+        checked += sum(len(m.edge_sums) for m in sent)
+        # each drone hears a few of the others this round (lossy radio)
+        inboxes = [[m for m in made if m.sender != i and rng.random() < 0.7] for i in ids]
+    assert checked > 40  # edges were laid out, not only empty messages
+    bad = replace(levels[4], gamma=np.full(18, np.nan))
+    with pytest.raises(ValueError, match="finite"):
+        wire_parts([levels[3], bad], [(0.0, 0.0, 0.0)] * 2, SID)
+    with pytest.raises(ValueError, match="exceeds"):
+        wire_parts(levels[3:], [(0.0, 0.0, 0.0)] * 2, SID, max_bytes=200)
+    # the columns themselves: a message with a NaN, or a position beyond float32, is left to
+    # consensus_parts (None), the others laid out
+    cols = message_columns(levels[:3], [(0.0, 0.0, 0.0)] * 3)
+    assert cols is not None and cols.edge_sums.shape[0] > 0
+    gamma = cols.gamma.copy()
+    gamma[0, 4] = np.inf
+    sums = cols.edge_sums.copy()
+    sums[-1, 0] = np.nan  # the last message's last edge
+    far = [(0.0, 0.0, 0.0), (1e39, 0.0, 0.0), (0.0, 0.0, 0.0)]
+    laid = column_parts(cols._replace(gamma=gamma, edge_sums=sums, positions=far), SID)
+    assert laid == [None, None, None]
+    laid = column_parts(cols._replace(gamma=gamma), SID)
+    assert laid[0] is None and laid[1:] == [consensus_parts(m, (0, 0, 0), SID) for m in levels[1:3]]
