@@ -56,6 +56,10 @@ class RoundBook(ClosesOnExit):
         self._to_send: dict[int, list[int]] = {}
         self._newest: dict[int, int] = {}  # hosted drone -> newest round finished
         self.rejected = 0
+        #: one tuple per distinct roster of the process's gates (:meth:`roster_of`)
+        self._rosters: dict[tuple[int, ...], tuple[int, ...]] = {}
+        #: by roster (its tuple's id): the roster, version, round and :meth:`lows`' answer
+        self._lows: dict[int, tuple[tuple[int, ...], int, int, tuple[int, int, int, bool]]] = {}
         #: moves whenever :meth:`poll` took in a marker or a liveliness change
         self.version = 0
         self._declared: list[Closeable] = []
@@ -102,6 +106,34 @@ class RoundBook(ClosesOnExit):
         if news:
             self.version += 1
         return news
+
+    def roster_of(self, drones: Iterable[int]) -> tuple[int, ...]:
+        """``drones`` sorted, as the one tuple of the process for that roster (the gates of its
+        agents share :meth:`lows` through it)."""
+        key = tuple(sorted(drones))
+        if len(self._rosters) > 256:  # rosters of long ago (drop-outs, returns)
+            self._rosters.clear()
+            self._lows.clear()
+        return self._rosters.setdefault(key, key)
+
+    def lows(self, roster: tuple[int, ...], need: int) -> tuple[int, int, int, bool]:
+        """Over ``roster`` (a :meth:`roster_of` tuple), as of the last :meth:`poll`: the lowest
+        round finished (-1: none), the first drone with it, the lowest of the others, and
+        whether a drone outside the roster has finished round ``need`` and is alive (a
+        newcomer). Worked out once per roster and poll for all the gates of the process."""
+        got = self._lows.get(id(roster))
+        if got is not None and got[0] is roster and got[1] == self.version and got[2] == need:
+            return got[3]
+        done = self.done
+        values = list(map(done.get, roster, _NOT_YET))
+        low = min(values, default=need)
+        at = values.index(low) if values else -1
+        rest = min(itertools.chain(values[:at], values[at + 1 :]), default=need) if values else need
+        members = set(roster)
+        joining = any(done[j] >= need and j in self.alive for j in done.keys() - members)
+        answer = (low, roster[at] if values else -1, rest, joining)
+        self._lows[id(roster)] = (roster, self.version, need, answer)
+        return answer
 
     def finished(self, drone: int, round_: int) -> None:
         """Hosted ``drone`` has finished ``round_`` (its consensus message, if any, is sent)."""
@@ -159,8 +191,8 @@ class RoundGate:
         self._tick = -1
         self._tick_since = 0.0
         self._members = frozenset(self.roster)
-        #: the roster but this agent, sorted (None: to be made again after a change)
-        self._others: tuple[int, ...] | None = None
+        #: the roster, the book's tuple of it (None: to be made again after a change)
+        self._shared: tuple[int, ...] | None = None
 
     def ready(self, tick: int, now: float) -> bool:
         """Whether every drone of the roster has finished round ``tick - 1`` or is dead (dropped
@@ -180,21 +212,20 @@ class RoundGate:
             self._first_tick = tick
             self.roster = {j for j in self.roster if j in alive} | {self.me}
             self._members = frozenset(self.roster)
-            self._others = None
+            self._shared = None
         if tick > self._first_tick:
             book = self.book
             book.poll()
             need = tick - 1
             done, alive = book.done, book.alive
-            if self._others is None:
-                self._others = tuple(sorted(self.roster - {self.me}))
-            newcomers = done.keys() - self.roster
-            # the usual case, at C speed: every other drone of the roster has sent its round
-            # and nobody joins (the loops below would change nothing)
-            if min(map(done.get, self._others, _NOT_YET), default=need) >= need and not any(
-                done[j] >= need and j in alive for j in newcomers
-            ):
+            if self._shared is None:
+                self._shared = book.roster_of(self.roster)
+            # the usual case, worked out once for the process's gates: every other drone of
+            # the roster has sent its round and nobody joins (the loops below change nothing)
+            low, low_drone, rest, joining = book.lows(self._shared, need)
+            if (rest if low_drone == self.me else low) >= need and not joining:
                 return True
+            newcomers = done.keys() - self.roster
             changed = False
             for j in sorted(self.roster):
                 if j == self.me or done.get(j, -1) >= need:
@@ -216,7 +247,7 @@ class RoundGate:
                     changed = True
             if changed:
                 self._members = frozenset(self.roster)
-                self._others = None
+                self._shared = None
         return True
 
     def members(self) -> frozenset[int]:

@@ -206,3 +206,33 @@ def test_a_gate_held_up_by_a_live_drone_waits_for_it_and_still_drops_one_that_di
         assert gate.members() == frozenset({0, 1, 2})
     finally:
         s.close()
+
+
+def test_gates_of_one_process_share_the_book_and_skip_only_their_own_drone() -> None:
+    """Two agents hosted by one process (one book, two gates) and one elsewhere: each gate waits
+    for the others' rounds, never for its own drone's marker (which comes back later), although
+    the book works out the roster's lowest rounds once for both."""
+    bus = MemoryBus()
+    here, there = bus.session(), bus.session()
+    book, far = RoundBook(here, SETTINGS.keys(), [0, 1]), RoundBook(there, SETTINGS.keys(), [2])
+    gates = [RoundGate(i, range(3), book) for i in (0, 1)]
+    links = [AgentLink(s, i, (float(i), 0.0, 0.0), SETTINGS) for s, i in ((here, 0), (here, 1),
+                                                                          (there, 2))]  # fmt: skip
+    try:
+        assert all(g.ready(0, 0.0) for g in gates)
+        far.finished(2, 0)
+        far.flush()
+        book.finished(0, 0)
+        book.flush()  # drone 0 done; drone 1 not yet
+        assert not gates[0].ready(1, 0.1)  # waits for drone 1
+        assert gates[1].ready(1, 0.1)  # drone 1's own round is not waited for
+        assert gates[0]._shared is gates[1]._shared  # one roster tuple in the book
+        book.finished(1, 0)
+        book.flush()
+        assert gates[0].ready(1, 0.2)
+        assert not gates[1].ready(2, 0.3) and not gates[0].ready(2, 0.3)
+    finally:
+        for link in links:
+            link.close()
+        book.close()
+        far.close()
