@@ -38,12 +38,13 @@ altitude until its estimate has settled, then flies the formation.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
 
 from drone_agent.agent_core import AgentCore, AgentOutput, Setpoint
+from drone_agent.consensus_batch import with_level
 from drone_agent.flight_phase import FlightPhase, Order, Readiness, Request, VehicleView
 from drone_agent.round_gate import RoundGate
 from drone_agent.transport import AgentTransport
@@ -159,7 +160,8 @@ class HostedAgent:
         #: None until a neighbour's altitude is known; then whether they flew when first heard
         self.late_joiner: bool | None = None
         self._climb_z: float | None = None
-        self._neighbour_alt: dict[int, tuple[int, float]] = {}
+        #: each neighbour's newest message (its altitude read when needed: _rejoin_step)
+        self._neighbour_msg: dict[int, ConsensusMessage] = {}
 
     @property
     def drone(self) -> int:
@@ -176,23 +178,25 @@ class HostedAgent:
         return round(sample.time_boot_ms / self.options.control_period_ms)
 
     def _collect(self) -> None:
-        messages = [packet.message for packet in self.transport.receive()]
-        alt, last_round = self._neighbour_alt, self._last_round_of
+        packets = self.transport.receive()
+        last_round = self._last_round_of
         # a message the link faults dropped or held back came as far as time goes: the
         # realtime wait (_neighbours_ready) does not wait for it (it would, the whole
         # neighbour_wait_s, at nearly every tick of a lossy drill)
         for sender, round_ in self.transport.withheld().items():
             if round_ > last_round.get(sender, -1):
                 last_round[sender] = round_
-        if not messages:
+        if not packets:
             return
+        messages = [packet.message for packet in packets]
         self._inbox += messages
         # the messages come by sender, then round: each sender's last one is its newest
-        for sender, msg in {m.sender: m for m in messages}.items():
-            if msg.position_ned_m is not None:
-                alt[sender] = (msg.round, -float(msg.position_ned_m[2]))
-            if msg.round > last_round.get(sender, -1):
-                last_round[sender] = msg.round
+        newest = {m.sender: m for m in messages}
+        self._neighbour_msg.update(newest)
+        if self.gate is None:  # the realtime wait's record (lockstep waits on its gate)
+            for sender, msg in newest.items():
+                if msg.round > last_round.get(sender, -1):
+                    last_round[sender] = msg.round
 
     def _neighbours_ready(self, tick: int) -> bool:
         """Every drone heard in the last few rounds has sent its round ``tick - 1``."""
@@ -284,8 +288,11 @@ class HostedAgent:
         recent = tick - 1 - NEIGHBOUR_AGE_TICKS
         alts = [
             a
-            for j, (r, a) in self._neighbour_alt.items()
-            if j in members and r >= recent and a > NEIGHBOURS_AIRBORNE_M
+            for j, m in self._neighbour_msg.items()
+            if j in members
+            and m.round >= recent
+            and m.position_ned_m is not None  # a version-1 sender's says nothing
+            and (a := -float(m.position_ned_m[2])) > NEIGHBOURS_AIRBORNE_M
         ]
         return sum(alts) / len(alts) if alts else None
 
@@ -294,9 +301,8 @@ class HostedAgent:
     ) -> float | None:
         """Advance the late joiner's climb (module doc); the NED z to climb to or hold, None
         to fly the formation."""
-        if self.late_joiner is None and self._neighbour_alt:
+        if self.late_joiner is None and self._neighbour_msg:
             self.late_joiner = self._flying_neighbours_alt(tick, members) is not None
-        target = self._flying_neighbours_alt(tick, members)
         altitude = -float(sample.position_ned_m[2])
         consensus, row = self.core.batch.consensus, self.core.row
         if command != FlightCommand.FLY:
@@ -305,17 +311,15 @@ class HostedAgent:
             self.rejoin, self._climb_z = Rejoin.NONE, None
             return None
         if self.rejoin == Rejoin.NONE:
-            if (
-                not self.late_joiner
-                or self.phase.committed
-                or self.readiness.ready
-                or target is None
-                or altitude > target - CLIMB_BELOW_M
-            ):
+            if not self.late_joiner or self.phase.committed or self.readiness.ready:
+                return None  # (the usual case: the neighbours' altitude is not needed)
+            target = self._flying_neighbours_alt(tick, members)
+            if target is None or altitude > target - CLIMB_BELOW_M:
                 return None
             self.rejoin = Rejoin.CLIMB
             consensus.set_observing(row, True)
         if self.rejoin == Rejoin.CLIMB:
+            target = self._flying_neighbours_alt(tick, members)
             if target is not None:
                 self._climb_z = -target
             assert self._climb_z is not None
@@ -351,7 +355,7 @@ class HostedAgent:
         agent's settled level, the round done and the status."""
         out = self.last_output
         assert out is not None
-        message = replace(out.message, ready_hops=self.readiness.level)
+        message = with_level(out.message, self.readiness.level)
         self.transport.publish_consensus(message, due.sample.position_ned_m)
         self._after_tick(due.tick)
 

@@ -186,3 +186,23 @@ def test_radio_inboxes_know_their_distinct_messages() -> None:
         assert set(which.tolist()) == set(range(len(messages)))
         checked += len(boxes.flat)
     assert checked > 100
+
+
+def test_with_level_is_replace_of_the_ready_hops() -> None:
+    """An agent's settled level put on its message (consensus_batch.with_level) is
+    ``dataclasses.replace`` of ``ready_hops``: every other field the same object (also after a
+    field is added to ConsensusMessage, which with_level must then pass on)."""
+    from drone_agent.consensus_batch import with_level
+
+    ids = (0, 1, 2)
+    batch = BatchConsensus(ids, ConsensusParams())
+    motion = (np.ones((3, 3)), np.zeros((3, 3)))
+    _, out, _, _ = batch.step_outgoing(ids, 0, np.ones((3, 18)), [[], [], []], [None] * 3, motion)
+    message = out.messages()[1]
+    leveled = with_level(message, 4)
+    expected = dataclasses.replace(message, ready_hops=4)
+    assert leveled.ready_hops == 4 and type(leveled) is type(expected)
+    for f in dataclasses.fields(expected):
+        if f.name != "ready_hops":
+            assert getattr(leveled, f.name) is getattr(expected, f.name), f.name
+    assert with_level(message, message.ready_hops) is message
