@@ -344,7 +344,7 @@ def run(args: argparse.Namespace) -> int:
     # messages of a pass sent as one sample per cell (protocols/wire_batch.py)
     rounds = RoundBook(bus, settings.keys(), drones) if lockstep else None
     news = None if rounds is None else (lambda: rounds.version)
-    hub = ConsensusHub(bus, settings, batch=len(drones) > 1, news=news)
+    hub = ConsensusHub(bus, settings, batch=len(drones) > 1, news=news, sole=True)
 
     def transport(bus_: Bus, drone: int, position: Position) -> AgentTransport:
         # called once the host runs; ``host`` is bound by then

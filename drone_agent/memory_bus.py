@@ -76,14 +76,14 @@ class _Inbox(_Handle):
 
 
 class _Publisher(_Handle):
-    def __init__(self, bus: MemoryBus, key: str) -> None:
+    def __init__(self, bus: MemoryBus, key: str, not_to: object = None) -> None:
         super().__init__(lambda: None)
-        self._bus, self._key = bus, key
+        self._bus, self._key, self._not_to = bus, key, not_to
 
     def put(self, payload: bytes) -> None:
         if self.closed:
             raise RuntimeError(f"cannot publish: the publisher on {self._key} is closed")
-        self._bus.deliver(self._key, bytes(payload))
+        self._bus.deliver(self._key, bytes(payload), self._not_to)
 
 
 class _Registry(Generic[T]):
@@ -123,7 +123,8 @@ class MemoryBus:
 
     def __init__(self) -> None:
         self._lock = threading.RLock()
-        self._sinks: _Registry[Callable[[str, bytes], None]] = _Registry(self._lock)
+        #: subscriptions: (the session that made it, or None; its sink)
+        self._sinks: _Registry[tuple[object, Callable[[str, bytes], None]]] = _Registry(self._lock)
         self._watchers: _Registry[Callable[[str, bool], None]] = _Registry(self._lock)
         self._queryables: _Registry[Callable[[], bytes | None]] = _Registry(self._lock)
         self._tokens: Counter[str] = Counter()
@@ -132,14 +133,19 @@ class MemoryBus:
         """A new session on this medium (one per simulated process)."""
         return MemorySession(self)
 
-    def deliver(self, key: str, payload: bytes) -> None:
-        """Hand ``payload`` published on ``key`` to every matching subscription."""
-        for sink in self._sinks.matching(key):
-            sink(key, payload)
+    def deliver(self, key: str, payload: bytes, not_to: object = None) -> None:
+        """Hand ``payload`` published on ``key`` to every matching subscription (but those of
+        session ``not_to``: a remote-only publisher's own)."""
+        for owner, sink in self._sinks.matching(key):
+            if owner is None or owner is not not_to:
+                sink(key, payload)
 
-    def subscribe(self, key_expr: str, sink: Callable[[str, bytes], None]) -> Callable[[], None]:
-        """Register ``sink(key, payload)`` for ``key_expr``; returns its undo."""
-        return self._sinks.add(key_expr, sink)
+    def subscribe(
+        self, key_expr: str, sink: Callable[[str, bytes], None], owner: object = None
+    ) -> Callable[[], None]:
+        """Register ``sink(key, payload)`` for ``key_expr`` (of session ``owner``); returns its
+        undo."""
+        return self._sinks.add(key_expr, (owner, sink))
 
     def token(self, key: str) -> Callable[[], None]:
         """Declare a liveliness token on ``key``; returns its undo."""
@@ -202,21 +208,24 @@ class MemorySession(ClosesOnExit):
         self._handles.append(handle)
         return handle
 
-    def publisher(self, key: str, congestion: Congestion) -> Publisher:
-        """A publisher on ``key`` (congestion control has no effect in memory)."""
-        return self._keep(_Publisher(self._bus, key))
+    def publisher(
+        self, key: str, congestion: Congestion, *, remote_only: bool = False
+    ) -> Publisher:
+        """A publisher on ``key`` (congestion control has no effect in memory); ``remote_only``:
+        not delivered to this session's subscriptions."""
+        return self._keep(_Publisher(self._bus, key, self if remote_only else None))
 
     def subscribe(self, key_expr: str, capacity: int) -> Inbox:
         """A pulled subscription keeping at most ``capacity`` samples (oldest dropped)."""
         inbox = self._keep(_Inbox(capacity))
-        inbox._undo = self._bus.subscribe(key_expr, inbox.push)
+        inbox._undo = self._bus.subscribe(key_expr, inbox.push, self)
         return inbox
 
     def subscribe_callback(
         self, key_expr: str, on_sample: Callable[[str, bytes], None]
     ) -> Closeable:
         """``on_sample(key, payload)`` for each sample, on the publisher's thread."""
-        return self._keep(_Handle(self._bus.subscribe(key_expr, on_sample)))
+        return self._keep(_Handle(self._bus.subscribe(key_expr, on_sample, self)))
 
     def is_closed(self) -> bool:
         """Whether this session is closed."""

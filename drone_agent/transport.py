@@ -91,8 +91,11 @@ class Inbox(Closeable, Protocol):
 class Bus(Closeable, Protocol):
     """A byte-level publish/subscribe session on key expressions (``*`` one chunk, ``**`` any)."""
 
-    def publisher(self, key: str, congestion: Congestion) -> Publisher:
-        """Declare a publisher on the concrete key ``key``."""
+    def publisher(
+        self, key: str, congestion: Congestion, *, remote_only: bool = False
+    ) -> Publisher:
+        """Declare a publisher on the concrete key ``key``; ``remote_only``: its samples go to
+        other sessions only, never to this session's own subscriptions."""
         ...
 
     def subscribe(self, key_expr: str, capacity: int) -> Inbox:

@@ -152,11 +152,12 @@ class _Entry:
         error: str | None = None,
         batch: ConsensusBatch | None = None,
         index: int = 0,
+        packet: ConsensusPacket | None = None,
     ) -> None:
         self.sender, self.round, self.origin, self.payload = sender, round_, origin, payload
         self.error = error  # the counter to bump for a payload that did not decode
         self.batch, self.index = batch, index
-        self._packet: ConsensusPacket | None = None
+        self._packet = packet  # given: a sibling's message handed over in the process
 
     def packet(self, swarm_id: str, max_bytes: int) -> ConsensusPacket:
         """The decoded message (WireError if it does not decode, each time asked)."""
@@ -172,10 +173,8 @@ def _rejected(sender: int, exc: WireError) -> _Entry:
     return _Entry(sender, -1, (0.0, 0.0, 0.0), b"", _COUNTER_OF.get(exc.reason, "malformed"))
 
 
-#: a message staged in a hub: (sender, its parts, or None and the message and its position)
-_Staged = tuple[
-    int, ConsensusParts | None, ConsensusMessage | None, tuple[float, float, float] | None
-]
+#: a message staged in a hub: (sender, its parts (None: laid out at flush), message, position)
+_Staged = tuple[int, ConsensusParts | None, ConsensusMessage, tuple[float, float, float]]
 
 
 def wire_parts(
@@ -222,12 +221,17 @@ class ConsensusHub(ClosesOnExit):
         *,
         batch: bool = True,
         news: Callable[[], int] | None = None,
+        sole: bool = False,
     ) -> None:
         """``news``: a counter that moves whenever the process's lockstep round book took in a
         marker (:attr:`RoundBook.version`); with it and :meth:`new_pass`, :meth:`pump` drains
-        the subscriptions only when something may have come that an agent must see."""
+        the subscriptions only when something may have come that an agent must see. ``sole``:
+        this hub holds every consensus subscription of its session (the process's one hub):
+        its messages reach its own agents directly, as the decoded messages would, and go out
+        to other sessions only (:meth:`_hand_over`)."""
         self._bus, self._settings, self._keys = bus, settings, settings.keys()
         self._batch = batch
+        self._sole = sole
         self._news = news
         # pulled ring channels (no Python on Zenoh's threads), drained by :meth:`pump`
         self._subs: dict[Cell, Inbox] = {}
@@ -332,33 +336,52 @@ class ConsensusHub(ClosesOnExit):
         except WireError as exc:
             return [_rejected(key_sender, exc)]
 
-    @property
-    def batching(self) -> bool:
-        """Whether messages wait for :meth:`flush` (else each is sent at once)."""
-        return self._batch
-
-    def send(self, cell: Cell, sender: int, parts: ConsensusParts) -> None:
-        """Publish ``sender``'s consensus message (laid out: protocols.wire.consensus_parts)
-        from ``cell``: now, or at :meth:`flush`."""
-        if self._batch:
-            self._outbox.setdefault(cell, []).append((sender, parts, None, None))
-        else:
-            self._put(cell, sender, encode_parts(parts, self._keys.swarm_id))
-
-    def stage(
+    def publish(
         self,
         cell: Cell,
         sender: int,
         message: ConsensusMessage,
         position: tuple[float, float, float],
     ) -> None:
-        """A batching hub: publish ``sender``'s ``message`` from ``position`` (NED, m) in
-        ``cell`` at :meth:`flush`, laid out there with the pass's other messages
-        (:func:`wire_parts`; the ValueErrors of protocols.wire.consensus_parts come from
-        there)."""
-        if not self._batch:
-            raise RuntimeError("only a batching hub stages messages")
-        self._outbox.setdefault(cell, []).append((sender, None, message, position))
+        """Publish ``sender``'s ``message`` from ``position`` (NED, m) in ``cell``: now, or (a
+        batching hub) at :meth:`flush`, laid out there with the pass's other messages
+        (:func:`wire_parts`). ValueError as protocols.wire.consensus_parts for a message that
+        cannot be sent (a batched core's message: at :meth:`flush`)."""
+        sid, limit = self._keys.swarm_id, self._settings.max_consensus_bytes
+        if self._batch:
+            parts = None if from_step(message) else consensus_parts(message, position, sid,
+                                                                    max_bytes=limit)  # fmt: skip
+            self._outbox.setdefault(cell, []).append((sender, parts, message, position))
+            return
+        parts = consensus_parts(message, position, sid, max_bytes=limit)
+        self._put(cell, sender, encode_parts(parts, sid))
+        self._hand_over(cell, [(sender, parts, message, position)])
+
+    def _hand_over(self, cell: Cell, sent: list[_Staged]) -> None:
+        """A sole hub: the messages it just sent from ``cell`` (their publishers send to other
+        sessions only) to its own agents that listen to that cell, as :meth:`_drain` would hand
+        them over had they come back through the bus. A batched core's message with its motion
+        is handed over as it is (its position and velocity, a vehicle's telemetry, are float32
+        values: what the wire carries); any other as its single payload, decoded when taken."""
+        readers = self._readers.get(cell)
+        if not self._sole or not readers or (len(readers) == 1 and len(sent) == 1
+                                             and readers[0].drone == sent[0][0]):  # fmt: skip
+            return
+        sid = self._keys.swarm_id
+        entries = []
+        for sender, parts, message, position in sent:
+            if (
+                from_step(message)
+                and message.position_ned_m is not None
+                and message.velocity_ned_m_s is not None
+            ):
+                packet = ConsensusPacket(message, message.position_ned_m)
+                entries.append(_Entry(sender, message.round, position, b"", packet=packet))
+            else:
+                assert parts is not None
+                entries.append(_Entry(sender, message.round, position, encode_parts(parts, sid)))
+        for link in readers:
+            link._incoming.append(entries)
 
     def send_status(self, drone: int, payload: bytes, publisher: Publisher) -> None:
         """Publish ``drone``'s status payload on its own ``publisher``: now, or at :meth:`flush`
@@ -386,17 +409,18 @@ class ConsensusHub(ClosesOnExit):
         for staged in outbox.values():
             for _, ready, message, position in staged:
                 if ready is None:
-                    assert message is not None and position is not None
                     messages.append(message)
                     positions.append(position)
         laid = iter(wire_parts(messages, positions, sid, limit))
         for cell, staged in outbox.items():
             cell_parts = [next(laid) if p is None else p for _, p, _, _ in staged]
+            staged = [(s, p, m, o) for (s, _, m, o), p in zip(staged, cell_parts, strict=True)]
             if len(cell_parts) == 1:
                 self._put(cell, cell_parts[0].sender, encode_parts(cell_parts[0], sid))
-                continue
-            cell_parts.sort(key=operator.attrgetter("sender"))
-            self._put(cell, cell_parts[0].sender, encode_columns(cell_parts, sid))
+            else:
+                cell_parts.sort(key=operator.attrgetter("sender"))
+                self._put(cell, cell_parts[0].sender, encode_columns(cell_parts, sid))
+            self._hand_over(cell, staged)
 
     def _put(self, cell: Cell, sender: int, payload: bytes) -> None:
         publisher = self._publishers.get((cell, sender))
@@ -410,7 +434,9 @@ class ConsensusHub(ClosesOnExit):
                 self._publishers.clear()
             # QUEUED in lockstep: the pass's batches leave in one send batch behind the
             # round-done marker (drone_agent/transport.Congestion)
-            publisher = self._bus.publisher(key, self._settings.consensus_congestion)
+            publisher = self._bus.publisher(
+                key, self._settings.consensus_congestion, remote_only=self._sole
+            )
             self._publishers[(cell, sender)] = publisher
         publisher.put(payload)
 
@@ -536,12 +562,7 @@ class AgentLink(ClosesOnExit):
         self._move(self._position)
         if self._cell is None:  # only if _move failed half-way
             raise RuntimeError(f"drone {self._drone} has no consensus cell")
-        if self._hub.batching and from_step(message):  # laid out with the pass's others
-            self._hub.stage(self._cell, self._drone, message, self._position)
-        else:
-            limit = self._settings.max_consensus_bytes
-            parts = consensus_parts(message, self._position, self._keys.swarm_id, max_bytes=limit)
-            self._hub.send(self._cell, self._drone, parts)
+        self._hub.publish(self._cell, self._drone, message, self._position)
         self._counts["tx"] += 1
         self._last_sent = max(self._last_sent, message.round)
         self._sent_at[message.round] = self._position

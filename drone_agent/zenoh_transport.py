@@ -234,14 +234,20 @@ class ZenohBus(ClosesOnExit):
                 settings = dataclasses.replace(settings, connect_timeout_ms=0)
         return cls(zenoh.open(settings.config()))
 
-    def publisher(self, key: str, congestion: Congestion) -> Publisher:
+    def publisher(
+        self, key: str, congestion: Congestion, *, remote_only: bool = False
+    ) -> Publisher:
         """A declared publisher on ``key`` with the given congestion control; DROP publishers
         (periodic, latency-bound) are also *express*: sent at once, not batched (QUEUED is DROP
-        without express: see Congestion)."""
+        without express: see Congestion). ``remote_only``: not delivered to this session's own
+        subscribers (Zenoh's ``allowed_destination=Locality.REMOTE``)."""
         cc = _CONGESTION[congestion]
         express = congestion is Congestion.DROP
+        where = zenoh.Locality.REMOTE if remote_only else zenoh.Locality.ANY
         return _Publisher(
-            self.session.declare_publisher(key, congestion_control=cc, express=express)
+            self.session.declare_publisher(
+                key, congestion_control=cc, express=express, allowed_destination=where
+            )
         )
 
     def subscribe(self, key_expr: str, capacity: int) -> Inbox:

@@ -418,3 +418,33 @@ def test_peer_process_killed_or_frozen_leaves_the_members(
         peer.kill()
         peer.wait(timeout=5)
         net.close()
+
+
+def test_a_remote_only_publisher_reaches_other_sessions_only(net: Network) -> None:
+    """``remote_only`` (a process's sole consensus hub): another session gets the sample, the
+    publishing session's own subscribers do not (Zenoh's allowed_destination REMOTE)."""
+    here, there = net.session(), net.session()
+    own = here.subscribe("rt/**", 16)
+    theirs = there.subscribe("rt/**", 16)
+    plain = here.publisher("rt/plain", Congestion.DROP)
+    remote = here.publisher("rt/remote", Congestion.DROP, remote_only=True)
+    got_own: list[str] = []
+    got_theirs: list[str] = []
+
+    def both_heard() -> bool:
+        got_own.extend(k for k, _ in own.drain())
+        got_theirs.extend(k for k, _ in theirs.drain())
+        return "rt/plain" in got_theirs and "rt/remote" in got_theirs
+
+    for _ in range(3 if net.kind == "memory" else 100):
+        plain.put(b"x")
+        remote.put(b"y")
+        if both_heard():
+            break
+        time.sleep(0.01)
+    net.quiet()
+    both_heard()
+    assert "rt/remote" in got_theirs and "rt/plain" in got_own
+    assert "rt/remote" not in got_own
+    for thing in (own, theirs, plain, remote):
+        thing.close()

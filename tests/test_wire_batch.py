@@ -602,3 +602,50 @@ def test_a_steps_messages_are_laid_out_in_columns_as_one_by_one() -> None:
     assert laid == [None, None, None]
     laid = column_parts(cols._replace(gamma=gamma), SID)
     assert laid[0] is None and laid[1:] == [consensus_parts(m, (0, 0, 0), SID) for m in levels[1:3]]
+
+
+def test_a_sole_hub_hands_its_agents_messages_over_and_sends_them_to_other_sessions_only() -> None:
+    """The process's one hub (``sole``, as ``swarm agent`` makes it) gives its agents their
+    siblings' messages directly and publishes remote-only: the bus carries its batch to the
+    other processes only, and each agent takes what it took when the batch came back through
+    the bus (same senders, same messages: a batched core's message as it is, any other decoded
+    from its bytes), range and counters applied as before."""
+    from dataclasses import replace
+
+    from drone_agent.consensus import ConsensusParams
+    from drone_agent.consensus_batch import BatchConsensus
+
+    where = [(1.0, 1.0, -1.0), (9.0, 1.0, -1.0), (2.0, 2.0, -1.0)]
+    batch = BatchConsensus((0, 1), ConsensusParams())
+    motion = (np.array(where[:2], dtype=np.float32).astype(float), np.full((2, 3), 0.25))
+    _, out, _, _ = batch.step_outgoing([0, 1], 3, np.ones((2, 18)), [[], []], [None] * 2, motion)
+    made = [*out.messages([1, 2]), replace(_message(2, 3), edge_sums={0: np.full(18, 0.5)})]
+
+    def taken(sole: bool) -> tuple[list[list[bytes]], list[tuple[str, int]], list[str], list[int]]:
+        memory = MemoryBus()
+        seen = _kinds(memory)
+        host_bus, other_bus = memory.session(), memory.session()
+        own: list[str] = []
+        host_bus.subscribe_callback(KEYS.consensus_all(), lambda k, _p: own.append(k))
+        hub = ConsensusHub(host_bus, SETTINGS, batch=True, sole=sole)
+        links = [AgentLink(host_bus, i, where[i], SETTINGS, hub) for i in range(3)]
+        far = AgentLink(other_bus, 5, (1.0, 10.0, -1.0), SETTINGS)
+        for link, message in zip(links, made, strict=True):
+            link.publish_consensus(message, where[link.drone])
+        hub.flush()
+        got = [
+            [encode_consensus(p.message, p.position_ned_m, SID) for p in link.receive()]
+            for link in (*links, far)
+        ]
+        counts = [link.counters().rx for link in (*links, far)]
+        for link in (*links, far):
+            link.close()
+        hub.close()
+        return got, seen, own, counts
+
+    through_bus, seen_before, own_before, counts_before = taken(sole=False)
+    handed, seen_now, own_now, counts_now = taken(sole=True)
+    assert handed == through_bus and counts_now == counts_before
+    assert [len(g) for g in handed] == [2, 2, 2, 2]  # drone 1 is 12 m from drone 5: out
+    assert seen_now == seen_before and [kind for _, kind in seen_now] == [Kind.CONSENSUS_BATCH]
+    assert own_before and not own_now  # nothing came back to the host's own session
