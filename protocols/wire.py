@@ -407,8 +407,13 @@ def column_parts(
     row_order = np.argsort(np.concatenate((2 * np.arange(n), 2 * e_at + 1)), kind="stable")
     rows = np.concatenate((cols.gamma, cols.edge_sums))[row_order]
     floats_blob = rows.astype("<f8").tobytes()
+    # a message is fine if its floats, position and velocity are all finite
+    motion = np.hstack((np.asarray(cols.positions, dtype=np.float64), cols.velocities))
+    fine: list[bool] = np.all(np.isfinite(motion), axis=1).tolist()
     bad_rows = ~np.isfinite(rows).all(axis=1)
-    bad = set(owner[row_order][bad_rows].tolist()) if bad_rows.any() else set()
+    if bad_rows.any():
+        clean = np.bincount(owner[row_order][bad_rows], minlength=n) == 0
+        fine = [a and b for a, b in zip(fine, clean.tolist(), strict=True)]
     tags_blob = np.where(tags < 0, NO_INCARNATION, tags).astype("<u4").tobytes()
     n_heard = np.bincount(h_at, minlength=n).tolist()
     n_edges = np.bincount(e_at, minlength=n).tolist()
@@ -417,11 +422,12 @@ def column_parts(
     row_at = list(map(operator.add, tag_at, range(n + 1)))
     velocities = cols.velocities.tolist()
     round_, pack, f = cols.round, _FIXED_V3.pack, _FLOATS
+    size_0 = _consensus_size(swarm_id, 0, 0) - f  # header and fixed fields
     out: list[ConsensusParts | None] = []
-    for k, (i0, i1) in enumerate(itertools.pairwise(id_at)):
+    for k, ((i0, i1), ok) in enumerate(zip(itertools.pairwise(id_at), fine, strict=True)):
         h, e = n_heard[k], n_edges[k]
-        size = _consensus_size(swarm_id, h, e)
-        if k in bad or size > max_bytes:
+        size = size_0 + 2 * (h + e) + 4 * e + f * (1 + e)
+        if not ok or size > max_bytes:
             out.append(None)
             continue
         try:
@@ -429,10 +435,7 @@ def column_parts(
                 round_, cols.senders[k], cols.degrees[k], cols.ready_hops[k],
                 cols.incarnations[k], *cols.positions[k], *velocities[k], h, e,
             )  # fmt: skip
-        except (struct.error, OverflowError):  # out of range (float32 too)
-            out.append(None)
-            continue
-        if not math.isfinite(sum(_FIXED_V3.unpack(fixed)[5:11])):
+        except (struct.error, OverflowError):  # out of range (beyond float32 too)
             out.append(None)
             continue
         t0, t1, r0, r1 = tag_at[k], tag_at[k + 1], row_at[k], row_at[k + 1]
