@@ -583,6 +583,7 @@ class AgentLink(ClosesOnExit):
         hold = settings.hold_early and self._last_sent >= 0
         last, reach, dist = self._last_sent, settings.comm_range_m, math.dist
         rx = out_of_range = 0
+        at_round, own = None, position  # our position of the round of the last entry
         for entries in incoming:
             for e in entries:
                 if e.sender == me:
@@ -590,11 +591,16 @@ class AgentLink(ClosesOnExit):
                 rx += 1
                 if e.error is not None:
                     counts[e.error] += 1
-                elif hold and e.round > last:
+                    continue
+                round_ = e.round
+                if hold and round_ > last:
                     self._in_range(e)  # held
-                elif dist(e.origin, sent_at.get(e.round, position)) >= reach:
+                    continue
+                if round_ != at_round:  # (a sample's messages are mostly of one round)
+                    at_round, own = round_, sent_at.get(round_, position)
+                if dist(e.origin, own) >= reach:
                     out_of_range += 1
-                elif (p := self._decoded(e)) is not None:
+                elif (p := e._packet or self._decoded(e)) is not None:
                     out.append(p)
         counts["rx"] += rx
         counts["out_of_range"] += out_of_range
