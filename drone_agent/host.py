@@ -1,8 +1,10 @@
 """Hosting agents: one process runs one or several drones' agents on one event loop.
 
 Each hosted agent keeps its own vehicle link, its own keys, liveliness token and estimator state,
-and reaches its siblings only through the bus, exactly as it reaches remote agents; the agents of
-one process share one Zenoh session (issue 4, "Hosting for scale"). Their cores are the rows of one
+and hears its siblings as it hears remote agents (its own range, faults and counters; the
+process's one consensus hub hands their messages over directly instead of through Zenoh); the
+agents of one process share one Zenoh session (issue 4, "Hosting for scale"). Their cores are the
+rows of one
 :class:`~drone_agent.agent_core.BatchAgentCore`: on each pass the agents due at the same tick (same
 tick number and vehicle time: one simulator drives them, so their samples of a tick arrive
 together) run in one batched call, between each agent's own :meth:`HostedAgent.prepare` (messages,

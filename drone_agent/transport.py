@@ -7,9 +7,10 @@ liveliness tokens, a queryable and queries, on key expressions of ``protocols.ke
 
 An :class:`AgentTransport` is what one agent uses; ``drone_agent.transport_link.AgentLink``
 implements it over any Bus, and ``drone_agent.link_faults.FaultyTransport`` wraps any transport
-with link faults. Several agents hosted in one process share one Bus; each still holds its own
-keys, token and subscriptions and reaches its siblings only through the bus, exactly as it
-reaches remote agents.
+with link faults. Several agents hosted in one process share one Bus and one consensus hub
+(``transport_link.ConsensusHub``); each still holds its own keys, token, cells, radio range and
+counters. Its siblings' messages reach it from the hub directly (the hub publishes to other
+processes only), as they would come back through the bus; remote agents' through the bus.
 
 Threading: subscription inboxes are filled by the bus (Zenoh's threads, or the publisher's thread
 on the memory bus) and drained, decoded and filtered on the agent's own thread. Callbacks given to

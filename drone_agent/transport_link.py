@@ -12,13 +12,17 @@ so a late joiner gets the plan even when the ground station is gone).
 The consensus traffic of the agents of one process goes through one :class:`ConsensusHub`
 (issue 9, batched messaging): one subscription per cell any of its agents listens to, each sample
 opened once (a batch in columns checked whole; a message is built once, the first time an agent
-in range takes it), and, with ``batch=True``, the messages its agents publish in one pass sent
-as one sample per cell (protocols/wire_batch.py, in columns; the host calls
-:meth:`ConsensusHub.flush` before its round-done markers), and their statuses of the pass as
-one status batch (protocols/wire_status.py, on the first drone's status key). Each agent still
-applies its own cells, radio range, early-round hold and counters exactly as when it had its own
-subscriptions. An agent made without a hub gets a private one that publishes each message (and
-status) at once, alone (the single-message schemas on the wire).
+in range takes it), and, with ``batch=True``, the messages its agents publish in one pass laid
+out together (:func:`wire_parts`: a batched core step's messages from its arrays) and sent as one
+sample per cell (protocols/wire_batch.py, in columns; the host calls :meth:`ConsensusHub.flush`
+before its round-done markers), and their statuses of the pass as one status batch
+(protocols/wire_status.py, on the first drone's status key). The process's one hub (``sole``,
+as ``swarm agent`` makes it) publishes to other sessions only and hands its agents' messages to
+their siblings itself, as they would have come back through the bus (no Zenoh loopback, no
+decoding of its own batches). Each agent still applies its own cells, radio range, early-round
+hold and counters exactly as when it had its own subscriptions. An agent made without a hub gets
+a private one that publishes each message (and status) at once, alone (the single-message
+schemas on the wire).
 """
 
 from __future__ import annotations
