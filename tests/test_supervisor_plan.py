@@ -155,3 +155,51 @@ def test_the_simulator_starts_once_the_ground_station_records(tmp_path: Path) ->
 
     line = f"{RECORDING} udp:127.0.0.1:14550"
     assert _slow_then_next(tmp_path, line, "gcs", "simulator") >= 1.5
+
+
+def _report_run(tmp_path: Path, report_stop_s: float, writing_s: float) -> tuple[str, Child, bool]:
+    """A run of a fake ground station that takes ``writing_s`` to write its report once told to
+    stop (SIGTERM) and a fake simulator that ends the run at once; (why it ended, the ground
+    station, whether its report was written)."""
+    from gcs.cli.gcs import RECORDING
+    from gcs.cli.supervisor import supervise
+    from sitl_sim.launch import START_LINE_PREFIX
+
+    tmp_path.mkdir()
+    written = tmp_path / "report.done"
+    gcs = Child(
+        "gcs",
+        [sys.executable, "-c",
+         "import pathlib, signal, sys, time\n"
+         "def stop(*_):\n"
+         f"    time.sleep({writing_s})\n"
+         f"    pathlib.Path({str(written)!r}).write_text('ok')\n"
+         "    sys.exit(0)\n"
+         "signal.signal(signal.SIGTERM, stop)\n"
+         f"print({RECORDING + ' udp:127.0.0.1:1'!r}, flush=True)\n"
+         "time.sleep(60)\n"],
+        tmp_path / "gcs.log",
+    )  # fmt: skip
+    sim = Child(
+        "simulator",
+        [sys.executable, "-c", f"print({START_LINE_PREFIX + '1 vehicle'!r}, flush=True)"],
+        tmp_path / "sim.log",
+    )
+    plan = RunPlan(gcs=gcs, sim=sim, report_stop_s=report_stop_s)
+    seen: list[str] = []
+    reason = supervise(plan, seen.append, poll_s=0.05)
+    assert "the ground station writes the report ..." in seen
+    return reason, gcs, written.exists()
+
+
+def test_the_ground_station_gets_the_time_to_write_the_report(tmp_path: Path) -> None:
+    """swarm up stops the ground station first and waits for its report longer than for the
+    other children (a test suite's load once killed the paper flight's after two of its three
+    plots, at the 15 s every child got); one that still does not finish is killed and said."""
+    from gcs.cli.supervisor import REPORT_STOP_S, STOP_TIMEOUT_S
+
+    assert REPORT_STOP_S >= 4 * STOP_TIMEOUT_S
+    reason, gcs, written = _report_run(tmp_path / "a", report_stop_s=10.0, writing_s=1.0)
+    assert reason == "finished" and written and not gcs.killed
+    reason, gcs, written = _report_run(tmp_path / "b", report_stop_s=0.3, writing_s=5.0)
+    assert reason == "finished" and not written and gcs.killed

@@ -33,6 +33,10 @@ from pathlib import Path
 
 PR_SET_PDEATHSIG = 1
 STOP_TIMEOUT_S = 15.0
+#: The ground station writes the report when it is stopped (metrics, plots, the Rerun
+#: recording): it gets this long (s) before SIGKILL, not STOP_TIMEOUT_S. The paper's 200 s flight
+#: under a test suite's load was killed after two of its three plots at 15 s.
+REPORT_STOP_S = 120.0
 
 
 class SupervisorError(Exception):
@@ -59,6 +63,8 @@ class Child:
     expected_exit: bool = False
     #: where this start's output begins in ``log`` (a report folder used again keeps older runs)
     log_start: int = 0
+    #: :meth:`stop` had to kill it (it did not end within its timeout after SIGTERM)
+    killed: bool = False
 
     def start(self) -> None:
         with self.log.open("ab") as out:
@@ -84,6 +90,7 @@ class Child:
             try:
                 self.proc.wait(timeout_s)
             except subprocess.TimeoutExpired:
+                self.killed = True
                 self.proc.kill()
                 self.proc.wait(5)
         return self.proc.returncode
@@ -108,6 +115,8 @@ class RunPlan:
     session: bool = False
     #: session: how long (wall s) to wait for the ground station to end the run after a Ctrl-C
     shutdown_wait_s: float = 180.0
+    #: how long (wall s) the ground station may take to write the report once stopped
+    report_stop_s: float = REPORT_STOP_S
     #: the ground station listens on ``zenoh_endpoint``, a port picked here because it was free
     #: (:func:`rendezvous_port`): if another process binds it before the ground station does,
     #: the run starts again on another free port (:meth:`move_rendezvous`)
@@ -280,11 +289,13 @@ def supervise(
                 progress((plan.sim or plan.gcs).last_line())
             time.sleep(poll_s)
     finally:
-        # the ground station first, so the report ends with the flight, not with the shutdown;
-        # the router last, so everyone leaves it cleanly
+        # the ground station first, so the report ends with the flight, not with the shutdown
+        # (given the time to write it); the router last, so everyone leaves it cleanly
+        if progress is not None and plan.gcs is not None and plan.gcs.running:
+            progress("the ground station writes the report ...")
         for last in [plan.gcs, *plan.agents, plan.sim, plan.router]:
             if last is not None:
-                last.stop()
+                last.stop(plan.report_stop_s if last is plan.gcs else STOP_TIMEOUT_S)
     return reason
 
 

@@ -423,4 +423,12 @@ def run(args: argparse.Namespace) -> int:
         files = sorted(p for p in args.report.iterdir() if p.is_file())
         for line in summary_lines(metrics, files):
             print(line)
+    if plan.gcs is not None and plan.gcs.killed:
+        print(
+            f"swarm up: the ground station had not finished the report {plan.report_stop_s:g} s "
+            f"after the run ended and was stopped: {args.report} may lack plots or metrics "
+            f"(log: {plan.gcs.log}; the machine is too loaded: run it again when it is not)",
+            file=sys.stderr,
+        )
+        return 1
     return 0 if reason in ("finished", SHUT_DOWN) else 1
