@@ -157,10 +157,13 @@ def test_the_simulator_starts_once_the_ground_station_records(tmp_path: Path) ->
     assert _slow_then_next(tmp_path, line, "gcs", "simulator") >= 1.5
 
 
-def _report_run(tmp_path: Path, report_stop_s: float, writing_s: float) -> tuple[str, Child, bool]:
+def _report_run(
+    tmp_path: Path, report_stop_s: float, writing_s: float, ctrl_c_after_s: float | None = None
+) -> tuple[str, Child, bool]:
     """A run of a fake ground station that takes ``writing_s`` to write its report once told to
-    stop (SIGTERM) and a fake simulator that ends the run at once; (why it ended, the ground
-    station, whether its report was written)."""
+    stop (SIGTERM) and a fake simulator that ends the run at once (and a Ctrl-C that many
+    seconds after it ended); (why it ended, the ground station, whether its report was
+    written)."""
     from gcs.cli.gcs import RECORDING
     from gcs.cli.supervisor import supervise
     from sitl_sim.launch import START_LINE_PREFIX
@@ -187,8 +190,17 @@ def _report_run(tmp_path: Path, report_stop_s: float, writing_s: float) -> tuple
     )
     plan = RunPlan(gcs=gcs, sim=sim, report_stop_s=report_stop_s)
     seen: list[str] = []
-    reason = supervise(plan, seen.append, poll_s=0.05)
-    assert "the ground station writes the report ..." in seen
+    ended: list[float] = []
+
+    def ctrl_c() -> int:
+        if ctrl_c_after_s is None or sim.running or sim.proc is None:
+            return 0
+        if not ended:
+            ended.append(time.monotonic())
+        return int(time.monotonic() - ended[0] > ctrl_c_after_s)
+
+    reason = supervise(plan, seen.append, ctrl_c, poll_s=0.05)
+    assert "the ground station writes the report ... (Ctrl-C: stop it at once)" in seen
     return reason, gcs, written.exists()
 
 
@@ -203,3 +215,8 @@ def test_the_ground_station_gets_the_time_to_write_the_report(tmp_path: Path) ->
     assert reason == "finished" and written and not gcs.killed
     reason, gcs, written = _report_run(tmp_path / "b", report_stop_s=0.3, writing_s=5.0)
     assert reason == "finished" and not written and gcs.killed
+    # a Ctrl-C while it writes: stopped at once, not after the 20 s it would take
+    began = time.monotonic()
+    reason, gcs, written = _report_run(tmp_path / "c", 60.0, writing_s=20.0, ctrl_c_after_s=0.5)
+    assert reason == "finished" and not written and gcs.killed
+    assert time.monotonic() - began < 10.0

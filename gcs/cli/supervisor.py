@@ -81,18 +81,25 @@ class Child:
         """The last line this start of the process wrote ("" before its first)."""
         return _last_line(self.log, self.log_start)
 
-    def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> int | None:
-        """SIGTERM, wait, then SIGKILL; the exit code (None if never started)."""
+    def stop(
+        self, timeout_s: float = STOP_TIMEOUT_S, give_up: Callable[[], bool] | None = None
+    ) -> int | None:
+        """SIGTERM, wait (at most ``timeout_s``, or until ``give_up()``: checked every 0.1 s),
+        then SIGKILL; the exit code (None if never started)."""
         if self.proc is None:
             return None
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout_s)
-            except subprocess.TimeoutExpired:
-                self.killed = True
-                self.proc.kill()
-                self.proc.wait(5)
+            deadline = time.monotonic() + timeout_s
+            while self.proc.poll() is None:
+                left = deadline - time.monotonic()
+                if left <= 0 or (give_up is not None and give_up()):
+                    self.killed = True
+                    self.proc.kill()
+                    self.proc.wait(5)
+                    break
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    self.proc.wait(min(left, 0.1) if give_up is not None else left)
         return self.proc.returncode
 
 
@@ -292,10 +299,13 @@ def supervise(
         # the ground station first, so the report ends with the flight, not with the shutdown
         # (given the time to write it); the router last, so everyone leaves it cleanly
         if progress is not None and plan.gcs is not None and plan.gcs.running:
-            progress("the ground station writes the report ...")
-        for last in [plan.gcs, *plan.agents, plan.sim, plan.router]:
+            progress("the ground station writes the report ... (Ctrl-C: stop it at once)")
+        asked_before = should_stop()  # another Ctrl-C while it writes: no report, stop now
+        if plan.gcs is not None:
+            plan.gcs.stop(plan.report_stop_s, lambda: should_stop() > asked_before)
+        for last in [*plan.agents, plan.sim, plan.router]:
             if last is not None:
-                last.stop(plan.report_stop_s if last is plan.gcs else STOP_TIMEOUT_S)
+                last.stop()
     return reason
 
 

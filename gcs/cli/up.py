@@ -425,9 +425,9 @@ def run(args: argparse.Namespace) -> int:
             print(line)
     if plan.gcs is not None and plan.gcs.killed:
         print(
-            f"swarm up: the ground station had not finished the report {plan.report_stop_s:g} s "
-            f"after the run ended and was stopped: {args.report} may lack plots or metrics "
-            f"(log: {plan.gcs.log}; the machine is too loaded: run it again when it is not)",
+            f"swarm up: the ground station was stopped before it had finished the report (a "
+            f"Ctrl-C while it wrote it, or {plan.report_stop_s:g} s after the run ended: a machine "
+            f"too loaded): {args.report} may lack plots or metrics (log: {plan.gcs.log})",
             file=sys.stderr,
         )
         return 1
