@@ -263,11 +263,9 @@ def message_columns(
     edge_at = np.repeat(np.arange(n), lens)
     # the edges of each message in turn: its run of the pack's edge rows
     take = np.arange(total) + np.repeat(starts - (np.cumsum(lens) - lens), lens)
-    how_fast = pack.how_fast
-    if pack.velocities is not None and all(
-        m.velocity_ned_m_s is how_fast[k] for m, k in zip(messages, at.tolist(), strict=True)
-    ):
-        velocities = pack.velocities[at]
+    motion = packed_motion(messages)
+    if motion is not None:
+        velocities = motion[1]
     else:
         velocities = np.array(
             [np.zeros(3) if m.velocity_ned_m_s is None else m.velocity_ned_m_s for m in messages],

@@ -67,6 +67,7 @@ class Child:
     killed: bool = False
 
     def start(self) -> None:
+        self.killed = False
         with self.log.open("ab") as out:
             self.log_start = out.tell()
             self.proc = subprocess.Popen(
