@@ -20,6 +20,7 @@ the in-process radio delivers it).
 from __future__ import annotations
 
 import heapq
+import operator
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
@@ -32,6 +33,9 @@ from protocols.wire_plan import PlanMessage
 from protocols.wire_status import AgentStatus
 
 Pair = tuple[int, int]
+
+
+_BY_SENDER_ROUND = operator.attrgetter("message.sender", "message.round")
 
 
 def delay_ticks(delay_ms: float, dt_s: float) -> int:
@@ -132,6 +136,7 @@ class PairRandom:
     def __init__(self, seed: int) -> None:
         self.seed = seed
         self._streams: dict[Pair, np.random.Generator] = {}
+        self._ahead: dict[Pair, list[float]] = {}
 
     def __call__(self, sender: int, receiver: int) -> np.random.Generator:
         """The generator of the link sender -> receiver."""
@@ -141,6 +146,22 @@ class PairRandom:
                 (self.seed, sender, receiver)
             )
         return rng
+
+    def draw(self, sender: int, receiver: int) -> float:
+        """The link's next ``random()`` value: the one its generator's next ``random()`` call
+        would give (a generator's ``random(size)`` is its next ``size`` single draws), taken
+        from :data:`DRAW_BLOCK` values drawn ahead at a time (~0.1 us instead of ~0.6 us a
+        draw). The link's generator must then have no other user."""
+        ahead = self._ahead.get((sender, receiver))
+        if not ahead:
+            ahead = self._ahead[(sender, receiver)] = (
+                self(sender, receiver).random(DRAW_BLOCK).tolist()[::-1]
+            )
+        return ahead.pop()
+
+
+#: loss draws a link of :meth:`PairRandom.draw` makes ahead at a time
+DRAW_BLOCK = 64
 
 
 class FaultyTransport(ClosesOnExit):
@@ -159,7 +180,9 @@ class FaultyTransport(ClosesOnExit):
         round_clock: Callable[[], int],
     ) -> None:
         self._inner, self.faults, self._clock = inner, faults, round_clock
-        self._pair_rng = rng if isinstance(rng, PairRandom) else (lambda _i, _j: rng)
+        self._draw: Callable[[int, int], float] = (
+            rng.draw if isinstance(rng, PairRandom) else (lambda _i, _j: float(rng.random()))
+        )
         self._held: list[tuple[int, int, ConsensusPacket]] = []
         #: per sender, the newest round dropped or held back since the last :meth:`withheld`
         self._withheld: dict[int, int] = {}
@@ -179,26 +202,34 @@ class FaultyTransport(ClosesOnExit):
         if not self._held and faults.idle() and all(p.message.round <= now for p in packets):
             self._delivered += len(packets)  # no fault, nothing held: as the loop below would
             return packets
-        withheld = self._withheld
+        withheld, out, held = self._withheld, [], self._held
+        cut_or_split = bool(faults.cut) or faults.partition is not None
+        link_loss, loss_all = faults.link_loss, faults.loss
+        link_delay, delay_all = faults.link_delay_ticks, faults.extra_delay_ticks
+        draw = self._draw
         for packet in packets:
-            sender, round_ = packet.message.sender, packet.message.round
-            loss = faults.loss_for(sender, me)
-            if faults.blocks(sender, me) or (
-                loss > 0.0 and self._pair_rng(sender, me).random() < loss
+            message = packet.message
+            sender, round_ = message.sender, message.round
+            loss = link_loss.get((sender, me), loss_all) if link_loss else loss_all
+            if (cut_or_split and faults.blocks(sender, me)) or (
+                loss > 0.0 and draw(sender, me) < loss
             ):
                 self._dropped += 1
                 if round_ > withheld.get(sender, -1):
                     withheld[sender] = round_
                 continue
             self._arrivals += 1
-            release = round_ + faults.delay_for(sender, me)
-            if release > now and round_ > withheld.get(sender, -1):
-                withheld[sender] = round_
-            heapq.heappush(self._held, (release, self._arrivals, packet))
-        out = []
-        while self._held and self._held[0][0] <= now:
-            out.append(heapq.heappop(self._held)[2])
-        out.sort(key=lambda p: (p.message.sender, p.message.round))
+            delay = link_delay.get((sender, me), delay_all) if link_delay else delay_all
+            release = round_ + delay
+            if release > now:
+                if round_ > withheld.get(sender, -1):
+                    withheld[sender] = round_
+                heapq.heappush(held, (release, self._arrivals, packet))
+            else:
+                out.append(packet)  # due now: as pushed and popped at once
+        while held and held[0][0] <= now:
+            out.append(heapq.heappop(held)[2])
+        out.sort(key=_BY_SENDER_ROUND)
         self._delivered += len(out)
         return out
 
