@@ -547,7 +547,10 @@ class AgentLink(ClosesOnExit):
     def _move(self, position: tuple[float, float, float]) -> None:
         """Follow the drone to ``position``: change cell (the hub's subscriptions) if needed."""
         keys, settings = self._keys, self._settings
-        cell = track_cell(self._cell, position, keys.cell_size_m, settings.hysteresis_m)
+        size, (x, y, z) = keys.cell_size_m, position  # (finite: _vec3)
+        if (math.floor(x / size), math.floor(y / size), math.floor(z / size)) == self._cell:
+            return  # still in its cell (protocols.keys.cell_of): the usual case
+        cell = track_cell(self._cell, position, size, settings.hysteresis_m)
         if cell == self._cell:
             return
         self._hub.follow(self, self._cell, cell)
