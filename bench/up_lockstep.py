@@ -7,7 +7,9 @@ not in ``make bench``'s default set: ``python -m bench.run --only up_lockstep``)
 Cases: the paper's 9 drones (``scenarios/paper.toml``, first 40 s: take-off, the formation, the
 crash at 30 s), hosted in one agent process (``--agents-per-process 9``) and one process per
 drone; and 100 drones hovering on a 2.5 m grid (bench/end_to_end.py's scenario, 25 s) hosted 25
-per process, and 50 per process (``swarm up``'s default on two cores). Each is one real ``swarm
+per process, and 50 per process (``swarm up``'s default on two cores); and the README's
+``scenarios/large_grid100.toml`` as typed (50 per process; 20 % loss on every link, a drop-out
+and a crash: the fault path's cost on top of the hover's). Each is one real ``swarm
 up`` (simulator, ground station, agents, Zenoh), on free ports. Measured:
 
 - ``rtf``: simulated over wall time, the least-squares slope of the simulator's status lines
@@ -16,7 +18,8 @@ up`` (simulator, ground station, agents, Zenoh), on free ports. Measured:
   twice a second) over the same window, per drone per 50 Hz tick: the maths and the messaging
   (Zenoh, MAVLink) of a hosted agent, not the simulator's; ``sim_cpu_share`` and
   ``gcs_cpu_share``: the simulator's and the ground station's CPU per wall second;
-- ``flying_at_end`` (the paper's crash leaves 8) and the 1-minute load average at the start.
+- ``flying_at_end`` (the paper's crash leaves 8, large_grid100's 99) and the 1-minute load
+  average at the start.
 """
 
 from __future__ import annotations
@@ -46,6 +49,9 @@ CASES: dict[str, tuple[int, int, str, float]] = {
     "n100_k25": (100, 25, "grid", 25.0),
     # what swarm up does by default on two cores (one agent process per core: gcs/cli/up.py)
     "n100_k50": (100, 50, "grid", 25.0),
+    # the README's 100-drone scenario as typed (its defaults: two processes of 50): 20 % loss
+    # on every link, a drone dropping out and one crashing, on top of the hover's work
+    "large_grid100": (100, 50, "large_grid100.toml", 25.0),
 }
 #: the issue's targets: name -> real-time factor
 TARGETS = {"n9_hosted": 5.0, "n9_per_drone": 3.0, "n100_k25": 1.0, "n100_k50": 1.0}
@@ -68,6 +74,8 @@ def run_case(n: int, per_process: int, kind: str, seconds: float) -> dict[str, A
     with tempfile.TemporaryDirectory() as tmp:
         if kind == "paper":
             scenario = ROOT / "scenarios" / "paper.toml"
+        elif kind.endswith(".toml"):
+            scenario = ROOT / "scenarios" / kind
         else:
             scenario = Path(tmp) / f"hover{n}.toml"
             scenario.write_text(scenario_text(n, seconds), encoding="utf-8")
@@ -135,7 +143,7 @@ def run_case(n: int, per_process: int, kind: str, seconds: float) -> dict[str, A
     return {
         "n": n,
         "agents_per_process": per_process,
-        "scenario": "paper.toml" if kind == "paper" else f"hover grid {n}",
+        "scenario": {"paper": "paper.toml", "grid": f"hover grid {n}"}.get(kind, kind),
         "seconds": seconds,
         "rtf": None if rtf is None else round(rtf, 2),
         "agent_cpu_us_per_agent_tick": None if agent_us is None else round(agent_us),

@@ -22,7 +22,7 @@ from __future__ import annotations
 import heapq
 import operator
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -242,8 +242,18 @@ class FaultyTransport(ClosesOnExit):
 
     def counters(self) -> LinkCounters:
         """The inner counters, with this wrapper's drops and deliveries."""
-        inner = self._inner.counters()
-        return replace(inner, faults=inner.faults + self._dropped, delivered=self._delivered)
+        c = self._inner.counters()
+        return LinkCounters(
+            c.rx,
+            c.malformed,
+            c.wrong_swarm,
+            c.wrong_version,
+            c.out_of_range,
+            c.faults + self._dropped,
+            self._delivered,
+            c.tx,
+            c.plans_rejected,
+        )  # fmt: skip (dataclasses.replace costs ~5 us: a status of each agent every 2 ticks)
 
     def publish_consensus(self, message: ConsensusMessage, position_ned_m: Position) -> None:
         """Passed through."""
