@@ -42,6 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CONTROL_HZ = 50
 FROM_S = 8.0
 OUT_JSON = ROOT / "bench" / "results_up_lockstep.json"
+OUT_PNG = ROOT / "bench" / "up_lockstep.png"
 #: name -> (drones, agents per process, scenario ("paper" or "grid"), simulated seconds)
 CASES: dict[str, tuple[int, int, str, float]] = {
     "n9_hosted": (9, 9, "paper", 40.0),
@@ -175,12 +176,47 @@ def up_lockstep(only: list[str] | None = None) -> dict[str, Any]:
         "targets": {**TARGETS, "agent_cpu_us_k25": TARGET_AGENT_US},
         "targets_met": met,
         "cpu_count": os.cpu_count(),
+        "plot": str(OUT_PNG.relative_to(ROOT)),
     }
     OUT_JSON.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    plot(rows, OUT_PNG)
     return result
+
+
+def plot(rows: list[dict[str, Any]], path: Path) -> None:
+    """The cases side by side: real-time factor (the targets as red stars, real time as a
+    dashed line) and agent CPU per agent-tick (the 100 µs target dashed)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(9.0, 3.8))
+    FigureCanvasAgg(fig)
+    speed, cpu = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
+    names = [r["case"] for r in rows]
+    at = np.arange(len(rows))
+    speed.bar(at, [r["rtf"] or 0.0 for r in rows], color="tab:blue")
+    for k, name in enumerate(names):
+        if name in TARGETS:
+            speed.plot([k], [TARGETS[name]], marker="*", markersize=12, color="red")
+    speed.plot([], [], marker="*", color="red", linestyle="none", label="target")
+    speed.axhline(1.0, color="grey", linestyle="--", linewidth=1, label="real time")
+    speed.set_ylabel("real-time factor (simulated / wall s)")
+    speed.legend(fontsize=8)
+    cpu.bar(at, [r["agent_cpu_us_per_agent_tick"] or 0.0 for r in rows], color="tab:orange")
+    cpu.axhline(
+        TARGET_AGENT_US, color="red", linestyle="--", linewidth=1, label="target 100 µs (K = 25)"
+    )
+    cpu.set_yscale("log")
+    cpu.set_ylabel("agent CPU per agent-tick (µs)")
+    cpu.legend(fontsize=8)
+    for ax in (speed, cpu):
+        ax.set_xticks(at, names, rotation=30, ha="right", fontsize=8)
+        ax.grid(True, axis="y", which="both", alpha=0.3)
+    fig.suptitle("swarm up --clock lockstep, real processes (2-core machine)")
+    fig.savefig(path, dpi=110, bbox_inches="tight")
 
 
 if __name__ == "__main__":
     names = sys.argv[sys.argv.index("--only") + 1].split(",") if "--only" in sys.argv else None
     up_lockstep(names)
-    print(f"wrote {OUT_JSON.relative_to(ROOT)}")
+    print(f"wrote {OUT_JSON.relative_to(ROOT)} and {OUT_PNG.relative_to(ROOT)}")
