@@ -243,17 +243,18 @@ class FaultyTransport(ClosesOnExit):
     def counters(self) -> LinkCounters:
         """The inner counters, with this wrapper's drops and deliveries."""
         c = self._inner.counters()
+        # (built, not dataclasses.replace: ~5 us less for a status of each agent every 2 ticks)
         return LinkCounters(
-            c.rx,
-            c.malformed,
-            c.wrong_swarm,
-            c.wrong_version,
-            c.out_of_range,
-            c.faults + self._dropped,
-            self._delivered,
-            c.tx,
-            c.plans_rejected,
-        )  # fmt: skip (dataclasses.replace costs ~5 us: a status of each agent every 2 ticks)
+            rx=c.rx,
+            malformed=c.malformed,
+            wrong_swarm=c.wrong_swarm,
+            wrong_version=c.wrong_version,
+            out_of_range=c.out_of_range,
+            faults=c.faults + self._dropped,
+            delivered=self._delivered,
+            tx=c.tx,
+            plans_rejected=c.plans_rejected,
+        )
 
     def publish_consensus(self, message: ConsensusMessage, position_ned_m: Position) -> None:
         """Passed through."""

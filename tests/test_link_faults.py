@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Iterator
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -261,8 +262,6 @@ def test_the_fault_loop_delivers_drops_and_withholds_as_the_reference() -> None:
     """Loss per link and on all, delays per link and on all, cuts and a partition switched
     on and off over 400 rounds of up to 12 senders: the same packets out, in the same order,
     the same withheld rounds and counters as the one-at-a-time model."""
-    from types import SimpleNamespace
-
     rng = np.random.default_rng(11)
     faults, radio = LinkFaults(), _Radio()
     ft = FaultyTransport(radio, faults, PairRandom(5), lambda: now)  # type: ignore[arg-type]
@@ -310,3 +309,20 @@ def test_the_fault_loop_delivers_drops_and_withholds_as_the_reference() -> None:
         assert ft.withheld() == state["withheld"]
         state["withheld"] = {}
     assert ft._dropped == state["dropped"] and ft._delivered == delivered
+
+
+def test_the_wrappers_counters_are_the_inner_ones_with_its_drops_and_deliveries() -> None:
+    """Every field of the inner counters is carried (a field added to LinkCounters later must
+    not come out as 0)."""
+    from drone_agent.transport import LinkCounters
+
+    inner = LinkCounters(*range(1, len(dataclasses.fields(LinkCounters)) + 1))
+    radio = _Radio()
+    radio.counters = lambda: inner  # type: ignore[attr-defined]
+    faults = LinkFaults()
+    faults.set_loss(1.0)
+    ft = FaultyTransport(radio, faults, PairRandom(0), lambda: 0)  # type: ignore[arg-type]
+    radio.next = [SimpleNamespace(message=SimpleNamespace(sender=1, round=0))]
+    assert ft.receive() == []
+    want = dataclasses.replace(inner, faults=inner.faults + 1, delivered=0)
+    assert ft.counters() == want
