@@ -71,12 +71,6 @@ CLIMB_DONE_M, CLIMB_SLOW_M_S = 0.15, 0.2
 NEIGHBOUR_AGE_TICKS = 25
 
 
-_VEHICLE_LINK, _ESTIMATE_FINITE, _CONVERGED, _SEPARATING, _PLAN = (
-    int(Health.VEHICLE_LINK), int(Health.ESTIMATE_FINITE), int(Health.CONVERGED),
-    int(Health.SEPARATING), int(Health.PLAN),
-)  # fmt: skip
-
-
 class Rejoin(Enum):
     """A late joiner's way into the formation (module doc)."""
 
@@ -458,16 +452,18 @@ class HostedAgent:
 
     def _publish_status(self) -> None:
         out = self.last_output
-        # (the flags summed as ints, made a Health once: each | of IntFlags costs ~1.5 us)
-        hears_vehicle = self.clock() - self._last_sample_wall <= self.options.vehicle_timeout_s
+        health = Health.NONE
+        if self.clock() - self._last_sample_wall <= self.options.vehicle_timeout_s:
+            health |= Health.VEHICLE_LINK
+        if out is not None and np.all(np.isfinite(out.estimate)):
+            health |= Health.ESTIMATE_FINITE
+        if self.converged:
+            health |= Health.CONVERGED
+        if out is not None and out.separating:
+            health |= Health.SEPARATING
         received = self.transport.plan()
-        health = (
-            (_VEHICLE_LINK if hears_vehicle else 0)
-            + (_ESTIMATE_FINITE if out is not None and np.isfinite(out.estimate).all() else 0)
-            + (_CONVERGED if self.converged else 0)
-            + (_SEPARATING if out is not None and out.separating else 0)
-            + (_PLAN if received is not None or self.fallback_plan is not None else 0)
-        )
+        if received is not None or self.fallback_plan is not None:
+            health |= Health.PLAN
         estimate = out.estimate if out is not None else np.full(9, np.nan)
         self.transport.publish_status(
             AgentStatus(
@@ -476,7 +472,7 @@ class HostedAgent:
                 t_s=max(self.last_tick, 0) * self.options.control_period_ms / 1000.0,
                 mode=self.mode,
                 armed=self.link.status.armed,
-                health=Health(health),
+                health=health,
                 estimate=estimate,
                 neighbours=out.active_neighbours if out is not None else (),
                 counters=self.transport.counters().status(self.core.rejected_setpoints),

@@ -22,11 +22,17 @@ from __future__ import annotations
 import heapq
 import operator
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from drone_agent.transport import AgentTransport, ClosesOnExit, LinkCounters, Position
+from drone_agent.transport import (
+    BY_SENDER_ROUND,
+    AgentTransport,
+    ClosesOnExit,
+    LinkCounters,
+    Position,
+)
 from protocols.consensus_message import ConsensusMessage
 from protocols.wire import ConsensusPacket
 from protocols.wire_plan import PlanMessage
@@ -35,7 +41,6 @@ from protocols.wire_status import AgentStatus
 Pair = tuple[int, int]
 
 
-_BY_SENDER_ROUND = operator.attrgetter("message.sender", "message.round")
 _ROUND = operator.attrgetter("message.round")
 
 
@@ -204,24 +209,18 @@ class FaultyTransport(ClosesOnExit):
             self._delivered += len(packets)  # no fault, nothing held: as the loop below would
             return packets
         withheld, out, held = self._withheld, [], self._held
-        cut_or_split = bool(faults.cut) or faults.partition is not None
-        link_loss, loss_all = faults.link_loss, faults.loss
-        link_delay, delay_all = faults.link_delay_ticks, faults.extra_delay_ticks
         draw = self._draw
         for packet in packets:
             message = packet.message
             sender, round_ = message.sender, message.round
-            loss = link_loss.get((sender, me), loss_all) if link_loss else loss_all
-            if (cut_or_split and faults.blocks(sender, me)) or (
-                loss > 0.0 and draw(sender, me) < loss
-            ):
+            loss = faults.loss_for(sender, me)
+            if faults.blocks(sender, me) or (loss > 0.0 and draw(sender, me) < loss):
                 self._dropped += 1
                 if round_ > withheld.get(sender, -1):
                     withheld[sender] = round_
                 continue
             self._arrivals += 1
-            delay = link_delay.get((sender, me), delay_all) if link_delay else delay_all
-            release = round_ + delay
+            release = round_ + faults.delay_for(sender, me)
             if release > now:
                 if round_ > withheld.get(sender, -1):
                     withheld[sender] = round_
@@ -230,7 +229,7 @@ class FaultyTransport(ClosesOnExit):
                 out.append(packet)  # due now: as pushed and popped at once
         while held and held[0][0] <= now:
             out.append(heapq.heappop(held)[2])
-        out.sort(key=_BY_SENDER_ROUND)
+        out.sort(key=BY_SENDER_ROUND)
         self._delivered += len(out)
         return out
 
@@ -242,19 +241,8 @@ class FaultyTransport(ClosesOnExit):
 
     def counters(self) -> LinkCounters:
         """The inner counters, with this wrapper's drops and deliveries."""
-        c = self._inner.counters()
-        # (built, not dataclasses.replace: ~5 us less for a status of each agent every 2 ticks)
-        return LinkCounters(
-            rx=c.rx,
-            malformed=c.malformed,
-            wrong_swarm=c.wrong_swarm,
-            wrong_version=c.wrong_version,
-            out_of_range=c.out_of_range,
-            faults=c.faults + self._dropped,
-            delivered=self._delivered,
-            tx=c.tx,
-            plans_rejected=c.plans_rejected,
-        )
+        inner = self._inner.counters()
+        return replace(inner, faults=inner.faults + self._dropped, delivered=self._delivered)
 
     def publish_consensus(self, message: ConsensusMessage, position_ned_m: Position) -> None:
         """Passed through."""

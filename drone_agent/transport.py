@@ -19,6 +19,7 @@ a Bus must only store what they get (no decoding, no blocking).
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
@@ -33,6 +34,9 @@ from protocols.wire_status import AgentStatus, StatusCounters
 
 Position = Sequence[float] | FloatArray
 """A position (3,) NED, m."""
+
+#: the order of what :meth:`AgentTransport.receive` returns: a packet's (sender, round)
+BY_SENDER_ROUND = operator.attrgetter("message.sender", "message.round")
 
 
 class Congestion(StrEnum):

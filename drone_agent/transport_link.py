@@ -39,6 +39,7 @@ import numpy as np
 
 from drone_agent.consensus_batch import from_step, message_columns
 from drone_agent.transport import (
+    BY_SENDER_ROUND,
     Bus,
     Closeable,
     ClosesOnExit,
@@ -67,7 +68,6 @@ from protocols.wire_batch import ConsensusBatch, encode_columns, open_batch
 from protocols.wire_plan import MAX_PLAN_BYTES, PlanMessage, decode_plan, encode_plan
 from protocols.wire_status import AgentStatus, encode_status, encode_status_batch
 
-_BY_SENDER_ROUND = operator.attrgetter("message.sender", "message.round")
 _COUNTER_OF = {Reason.WRONG_SWARM: "wrong_swarm", Reason.BAD_VERSION: "wrong_version"}
 #: Rounds of own positions kept for the range check of late messages.
 _HISTORY = 64
@@ -547,10 +547,7 @@ class AgentLink(ClosesOnExit):
     def _move(self, position: tuple[float, float, float]) -> None:
         """Follow the drone to ``position``: change cell (the hub's subscriptions) if needed."""
         keys, settings = self._keys, self._settings
-        size, (x, y, z) = keys.cell_size_m, position  # (finite: _vec3)
-        if (math.floor(x / size), math.floor(y / size), math.floor(z / size)) == self._cell:
-            return  # still in its cell (protocols.keys.cell_of): the usual case
-        cell = track_cell(self._cell, position, size, settings.hysteresis_m)
+        cell = track_cell(self._cell, position, keys.cell_size_m, settings.hysteresis_m)
         if cell == self._cell:
             return
         self._hub.follow(self, self._cell, cell)
@@ -611,7 +608,7 @@ class AgentLink(ClosesOnExit):
                     out.append(p)
         counts["rx"] += rx
         counts["out_of_range"] += out_of_range
-        out.sort(key=_BY_SENDER_ROUND)
+        out.sort(key=BY_SENDER_ROUND)
         counts["delivered"] += len(out)
         return out
 
