@@ -21,6 +21,7 @@ import numpy as np
 
 from bench.agent_batch import agent_batch
 from bench.end_to_end import end_to_end
+from bench.messaging_floor import messaging_floor
 from bench.physics import physics_step
 from bench.physics_tick import physics_tick
 from bench.runners_gap import runners_gap
@@ -44,11 +45,12 @@ BENCHMARKS: dict[str, Benchmark] = {
     "sitl": sitl_rtf,
     "end_to_end": end_to_end,
     "up_lockstep": up_lockstep,
+    "messaging_floor": messaging_floor,
     "runners_gap": runners_gap,
 }
 #: Run only with ``--only NAME``: ``swarm up --clock lockstep`` at N = 9 and 100 (about 10 min);
 #: the 100-drone flight distributed and in process, compared (about 5 min on a quiet machine).
-ON_REQUEST = {"up_lockstep", "runners_gap"}
+ON_REQUEST = {"up_lockstep", "runners_gap", "messaging_floor"}
 
 
 def machine_info() -> dict[str, Any]:
