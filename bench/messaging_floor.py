@@ -115,7 +115,10 @@ def worker(index: int, ports: list[int], mode: str, rounds: int, tag: str) -> di
         pub.put(payload)
         if mode == "lockstep":
             mark.put(str(k).encode())
+            stuck = time.monotonic() + 30.0
             while markers.get(k, 0) < n - 1:
+                if time.monotonic() > stuck:  # a process died or the mesh never formed
+                    raise SystemExit(f"process {index}: round {k}'s markers did not all come")
                 select.select([wake_r], [], [], 0.5)
                 with contextlib.suppress(BlockingIOError):
                     os.read(wake_r, 4096)
@@ -157,7 +160,12 @@ def run_case(mode: str, n: int, rounds: int) -> dict[str, Any]:
         )
         for i in range(n)
     ]
-    outs = [json.loads(p.communicate(timeout=900)[0].strip().splitlines()[-1]) for p in procs]
+    outs = []
+    for i, p in enumerate(procs):
+        lines = p.communicate(timeout=900)[0].strip().splitlines()
+        if p.returncode != 0 or not lines:
+            raise RuntimeError(f"{mode} x {n}: worker {i} failed (exit {p.returncode})")
+        outs.append(json.loads(lines[-1]))
     rps = sum(o["rounds_per_s"] for o in outs) / n
     cpu_ms = sum(o["cpu_ms_per_round"] for o in outs) / n
     return {
