@@ -19,6 +19,11 @@ QUEUED) and drains every sample that came (a pulled ring channel, as the agents'
 - ``realtime``: paced by the wall clock at 50 Hz (the control rate); ``late`` counts rounds that
   started behind their time.
 
+Topology ``mesh`` (the peers, as above) or ``router``: every process a Zenoh client of one router
+(``swarm router``, the project's, a process of its own), which fans the samples out; its CPU per
+round once it has started (the clients' joining and the warm-up included: a slight
+overestimate) at the case's rate is ``router_cores``.
+
 Measured over the rounds after the first ``WARM_ROUNDS``: each process's CPU time (all threads,
 Zenoh's included) per round, and ``cores``: the N processes' CPU per wall second. Real agents
 send more than this (a status every other tick, liveliness, larger messages with many
@@ -45,8 +50,15 @@ CONTROL_HZ = 50
 #: a consensus message of an agent with eight neighbours is about 1.4 kB (protocols/wire.py)
 PAYLOAD_BYTES = 1000
 WARM_ROUNDS = 50
-#: (mode, processes): the issue's per-drone targets (lockstep 3x at N = 9, realtime at N = 25)
-CASES = (("lockstep", 9), ("lockstep", 25), ("realtime", 25))
+#: (mode, processes, topology): the issue's per-drone targets (lockstep 3x at N = 9, realtime at
+#: N = 25), and whether a router instead of the mesh changes them
+CASES = (
+    ("lockstep", 9, "mesh"),
+    ("lockstep", 25, "mesh"),
+    ("realtime", 25, "mesh"),
+    ("lockstep", 9, "router"),
+    ("realtime", 25, "router"),
+)
 
 
 def _free_tcp_ports(n: int) -> list[int]:
@@ -62,18 +74,25 @@ def _free_tcp_ports(n: int) -> list[int]:
             s.close()
 
 
-def worker(index: int, ports: list[int], mode: str, rounds: int, tag: str) -> dict[str, Any]:
-    """One process of a case (module docstring); returns its figures."""
+def worker(
+    index: int, ports: list[int], mode: str, rounds: int, tag: str, router: str | None = None
+) -> dict[str, Any]:
+    """One process of a case (module docstring); returns its figures. ``router``: the endpoint
+    of the router it is a client of (None: a peer of the mesh on ``ports``)."""
     import zenoh
 
     n = len(ports)
     conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
     conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{ports[index]}"]))
-    conf.insert_json5(
-        "connect/endpoints", json.dumps([f"tcp/127.0.0.1:{p}" for p in ports[:index]])
-    )
+    if router is not None:
+        conf.insert_json5("mode", '"client"')
+        conf.insert_json5("connect/endpoints", json.dumps([router]))
+    else:
+        conf.insert_json5("mode", '"peer"')
+        conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{ports[index]}"]))
+        conf.insert_json5(
+            "connect/endpoints", json.dumps([f"tcp/127.0.0.1:{p}" for p in ports[:index]])
+        )
     session = zenoh.open(conf)
     data = session.declare_subscriber(f"{tag}/c/*", zenoh.handlers.RingChannel(256))
     wake_r, wake_w = os.pipe()
@@ -144,37 +163,64 @@ def worker(index: int, ports: list[int], mode: str, rounds: int, tag: str) -> di
     }
 
 
-def run_case(mode: str, n: int, rounds: int) -> dict[str, Any]:
-    """``n`` worker processes of ``mode`` (module docstring)."""
-    ports = _free_tcp_ports(n)
-    tag = f"floor{os.getpid()}x{n}{mode[0]}"
+def run_case(mode: str, n: int, rounds: int, topology: str = "mesh") -> dict[str, Any]:
+    """``n`` worker processes of ``mode`` in ``topology`` (module docstring)."""
+    import psutil
+
+    ports = _free_tcp_ports(n + 1)
+    tag = f"floor{os.getpid()}x{n}{mode[0]}{topology[0]}"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
     load = os.getloadavg()[0]
-    case = [mode, str(rounds), tag, ",".join(map(str, ports))]
-    procs = [
-        subprocess.Popen(
-            [sys.executable, "-m", "bench.messaging_floor", "worker", str(i), *case],
+    router = started = None
+    case = [mode, str(rounds), tag, ",".join(map(str, ports[:n]))]
+    if topology == "router":
+        endpoint = f"tcp/127.0.0.1:{ports[n]}"
+        router = subprocess.Popen(
+            [sys.executable, "-m", "gcs.cli", "router", "--listen", endpoint],
             cwd=ROOT,
-            env={**os.environ, "PYTHONPATH": str(ROOT)},
-            stdout=subprocess.PIPE,
-            text=True,
+            env=env,
+            stderr=subprocess.DEVNULL,
         )
-        for i in range(n)
-    ]
-    outs = []
-    for i, p in enumerate(procs):
-        lines = p.communicate(timeout=900)[0].strip().splitlines()
-        if p.returncode != 0 or not lines:
-            raise RuntimeError(f"{mode} x {n}: worker {i} failed (exit {p.returncode})")
-        outs.append(json.loads(lines[-1]))
+        time.sleep(1.5)  # listening before the clients connect (they would retry, later)
+        case.append(endpoint)
+        started = psutil.Process(router.pid).cpu_times()
+    try:
+        procs = [
+            subprocess.Popen(
+                [sys.executable, "-m", "bench.messaging_floor", "worker", str(i), *case],
+                cwd=ROOT,
+                env=env,
+                stdout=subprocess.PIPE,
+                text=True,
+            )
+            for i in range(n)
+        ]
+        outs = []
+        for i, p in enumerate(procs):
+            lines = p.communicate(timeout=900)[0].strip().splitlines()
+            if p.returncode != 0 or not lines:
+                raise RuntimeError(f"{mode} x {n}: worker {i} failed (exit {p.returncode})")
+            outs.append(json.loads(lines[-1]))
+        router_ms = None  # the router's CPU per round (the clients' joining included)
+        if router is not None and started is not None:
+            times = psutil.Process(router.pid).cpu_times()
+            spent = times.user + times.system - started.user - started.system
+            router_ms = 1e3 * spent / rounds
+    finally:
+        if router is not None:
+            router.terminate()
+            router.wait(timeout=30)
     rps = sum(o["rounds_per_s"] for o in outs) / n
     cpu_ms = sum(o["cpu_ms_per_round"] for o in outs) / n
     return {
         "mode": mode,
         "processes": n,
+        "topology": topology,
         "rounds_per_s": round(rps, 1),
         "best_rtf": round(rps / CONTROL_HZ, 2),
         "cpu_ms_per_process_round": round(cpu_ms, 3),
         "cores": round(n * cpu_ms * rps / 1000.0, 2),
+        "router_cores": None if router_ms is None else round(router_ms * rps / 1000.0, 2),
         "received_per_round": round(sum(o["received_per_round"] for o in outs) / n, 1),
         "late_rounds": sum(o["late"] for o in outs),
         "load_1min": round(load, 1),
@@ -184,8 +230,8 @@ def run_case(mode: str, n: int, rounds: int) -> dict[str, Any]:
 def messaging_floor(rounds: int = 1000) -> dict[str, Any]:
     """Every case of :data:`CASES`; writes :data:`OUT_JSON`."""
     rows = []
-    for mode, n in CASES:
-        row = run_case(mode, n, rounds)
+    for mode, n, topology in CASES:
+        row = run_case(mode, n, rounds, topology)
         print(json.dumps(row), file=sys.stderr, flush=True)
         rows.append(row)
     result = {"rounds": rounds, "payload_bytes": PAYLOAD_BYTES, "rows": rows}
@@ -194,11 +240,14 @@ def messaging_floor(rounds: int = 1000) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """CLI (module docstring); ``worker I MODE ROUNDS TAG PORTS`` is one process of a case."""
+    """CLI (module docstring); ``worker I MODE ROUNDS TAG PORTS [ROUTER]`` is one process of a
+    case."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "worker":
         index, mode, rounds, tag, ports = argv[1:6]  # (run_case's order)
-        figures = worker(int(index), [int(p) for p in ports.split(",")], mode, int(rounds), tag)
+        router = argv[6] if len(argv) > 6 else None
+        listed = [int(p) for p in ports.split(",")]
+        figures = worker(int(index), listed, mode, int(rounds), tag, router)
         print(json.dumps(figures), flush=True)
         return 0
     parser = argparse.ArgumentParser(prog="python -m bench.messaging_floor", description=__doc__)
