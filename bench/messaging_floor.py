@@ -1,4 +1,4 @@
-"""The messaging floor of one process per drone: what N Zenoh peer sessions on this machine cost
+"""The messaging floor of one process per drone: what N Zenoh sessions on this machine cost
 for the consensus traffic alone, with no estimator, controller, MAVLink, simulator or ground
 station. It bounds what ``swarm up --agents-per-process 1`` can reach on two cores whatever the
 agents' own code costs.
@@ -253,6 +253,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.messaging_floor", description=__doc__)
     parser.add_argument("--rounds", type=int, default=1000, help="rounds per case (default 1000)")
     args = parser.parse_args(argv)
+    if args.rounds <= 2 * WARM_ROUNDS:
+        parser.error(f"--rounds must be above {2 * WARM_ROUNDS} (the first {WARM_ROUNDS} warm up)")
     print(json.dumps(messaging_floor(args.rounds), indent=2))
     return 0
 
