@@ -6,23 +6,25 @@ agents' own code costs.
 ``python -m bench.messaging_floor [--rounds R]`` (about 3 minutes; on request:
 ``python -m bench.run --only messaging_floor``). Writes ``bench/results_messaging_floor.json``.
 
-N worker processes (``subprocess``, never forked after a session opened), one Zenoh peer session
-each, meshed over TCP on loopback (each listens on its own port and connects to those before it;
-multicast scouting off), as ``swarm agent`` processes are. Per round each publishes one consensus
-sample of ``PAYLOAD_BYTES`` on its own key (congestion DROP, not express: a lockstep agent's
-QUEUED) and drains every sample that came (a pulled ring channel, as the agents' hub does):
+N worker processes (``subprocess``, never forked after a session opened), one Zenoh session each
+with the settings ``swarm agent`` takes by default (drone_agent.agent_cli.zenoh_settings: the
+first listens on a rendezvous endpoint on loopback, the others connect to it and mesh by gossip;
+lockstep's longer lease and deeper send queue), through the agents' Zenoh adapter. Per round
+each publishes one consensus sample of ``PAYLOAD_BYTES`` on its own key, to the other sessions
+only (QUEUED in lockstep, express DROP in realtime, as an agent process's hub), and drains every
+sample that came (a pulled ring channel, as the hub does):
 
-- ``lockstep``: then publishes an express round-done marker and waits, on a pipe written by a
-  marker callback, until every other process's marker of the round has come (the agents' round
-  gate); as fast as that goes: ``rounds_per_s`` / 50 is the best real-time factor such a swarm
-  can fly at;
+- ``lockstep``: then publishes an express round-done marker (as the round book) and waits, on a
+  pipe written by a marker callback, until every other process's marker of the round has come
+  (the agents' round gate); as fast as that goes: ``rounds_per_s`` / 50 is the best real-time
+  factor such a swarm can fly at;
 - ``realtime``: paced by the wall clock at 50 Hz (the control rate); ``late`` counts rounds that
   started behind their time.
 
 Topology ``mesh`` (the peers, as above) or ``router``: every process a Zenoh client of one router
 (``swarm router``, the project's, a process of its own), which fans the samples out; its CPU per
-round once it has started (the clients' joining and the warm-up included: a slight
-overestimate) at the case's rate is ``router_cores``.
+wall second over the first process's measured rounds (sampled every 50 ms) is
+``router_cores``.
 
 Measured over the rounds after the first ``WARM_ROUNDS``: each process's CPU time (all threads,
 Zenoh's included) per round, and ``cores``: the N processes' CPU per wall second. Real agents
@@ -37,7 +39,6 @@ import contextlib
 import json
 import os
 import select
-import socket
 import subprocess
 import sys
 import time
@@ -61,69 +62,70 @@ CASES = (
 )
 
 
-def _free_tcp_ports(n: int) -> list[int]:
-    socks = []
-    try:
-        for _ in range(n):
-            s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-            s.bind(("127.0.0.1", 0))
-            socks.append(s)
-        return [int(s.getsockname()[1]) for s in socks]
-    finally:
-        for s in socks:
-            s.close()
+def _settings(mode: str, first: bool, endpoint: str, router: bool) -> Any:
+    """The Zenoh settings ``swarm agent`` takes in ``mode`` (drone_agent.agent_cli): a peer
+    listening on the rendezvous ``endpoint`` (the ``first``) or connected to it, or a client of
+    the router there."""
+    from drone_agent.agent_cli import zenoh_settings
+
+    if router:
+        listen, connect = None, [endpoint]
+    else:
+        listen, connect = ([endpoint], []) if first else (["tcp/127.0.0.1:0"], [endpoint])
+    return zenoh_settings(
+        argparse.Namespace(
+            zenoh_listen=listen,
+            zenoh_connect=connect,
+            zenoh_mode="client" if router else "peer",
+            lockstep=mode == "lockstep",
+            secrets=None,
+        )
+    )
 
 
 def worker(
-    index: int, ports: list[int], mode: str, rounds: int, tag: str, router: str | None = None
+    index: int, n: int, mode: str, rounds: int, tag: str, endpoint: str, router: bool
 ) -> dict[str, Any]:
-    """One process of a case (module docstring); returns its figures. ``router``: the endpoint
-    of the router it is a client of (None: a peer of the mesh on ``ports``)."""
-    import zenoh
+    """One of the ``n`` processes of a case (module docstring); returns its figures. Its
+    session: :func:`_settings`, through the agents' Zenoh adapter (drone_agent.zenoh_transport):
+    the consensus publisher as an agent process's hub declares it (to other sessions only;
+    QUEUED in lockstep, express DROP in realtime), the markers as its round book does (express
+    DROP)."""
+    from drone_agent.host import REPEAT_MARKERS_S
+    from drone_agent.transport import Congestion
+    from drone_agent.zenoh_transport import ZenohBus
 
-    n = len(ports)
-    conf = zenoh.Config()
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    if router is not None:
-        conf.insert_json5("mode", '"client"')
-        conf.insert_json5("connect/endpoints", json.dumps([router]))
-    else:
-        conf.insert_json5("mode", '"peer"')
-        conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{ports[index]}"]))
-        conf.insert_json5(
-            "connect/endpoints", json.dumps([f"tcp/127.0.0.1:{p}" for p in ports[:index]])
-        )
-    session = zenoh.open(conf)
-    data = session.declare_subscriber(f"{tag}/c/*", zenoh.handlers.RingChannel(256))
+    bus = ZenohBus.open(_settings(mode, index == 0, endpoint, router))
+    data = bus.subscribe(f"{tag}/c/*", 256)
     wake_r, wake_w = os.pipe()
+    os.set_blocking(wake_r, False)
     os.set_blocking(wake_w, False)
-    markers: dict[int, int] = {}
+    # the newest round each other process has finished (a marker says all rounds up to its
+    # own are done, as the agents' round book reads them: a lost one is made up by the next)
+    done: dict[int, int] = {}
 
-    def on_marker(sample: Any) -> None:
-        k = int(sample.payload.to_bytes())
-        markers[k] = markers.get(k, 0) + 1
+    def on_marker(_key: str, payload: bytes) -> None:
+        k, sender = map(int, payload.split(b","))
+        if sender != index and k > done.get(sender, -2):  # (its own comes back too)
+            done[sender] = k
         with contextlib.suppress(BlockingIOError):
             os.write(wake_w, b"x")
 
-    marker_sub = session.declare_subscriber(f"{tag}/m/*", on_marker)
-    cc = zenoh.CongestionControl
-    # to the other sessions only, as an agent process's hub publishes (its own agents get their
-    # siblings' messages from it directly)
-    pub = session.declare_publisher(
-        f"{tag}/c/{index}",
-        congestion_control=cc.DROP,
-        express=False,
-        allowed_destination=zenoh.Locality.REMOTE,
-    )
-    mark = session.declare_publisher(f"{tag}/m/{index}", congestion_control=cc.BLOCK, express=True)
+    def heard(k: int) -> int:
+        return sum(r >= k for r in list(done.values()))
+
+    bus.subscribe_callback(f"{tag}/m/*", on_marker)
+    congestion = Congestion.QUEUED if mode == "lockstep" else Congestion.DROP
+    pub = bus.publisher(f"{tag}/c/{index}", congestion, remote_only=True)
+    mark = bus.publisher(f"{tag}/m/{index}", Congestion.DROP)
     payload = bytes(PAYLOAD_BYTES)
     # the mesh forms by gossip; then every process starts together (round -1's markers)
     time.sleep(2.0)
-    mark.put(b"-1")
+    mark.put(b"-1,%d" % index)
     deadline = time.monotonic() + 30.0
-    while markers.get(-1, 0) < n - 1 and time.monotonic() < deadline:
+    while heard(-1) < n - 1 and time.monotonic() < deadline:
         select.select([wake_r], [], [], 0.1)
-        mark.put(b"-1")  # until all are there (an early one's went to no one)
+        mark.put(b"-1,%d" % index)  # until all are there (an early one's went to no one)
     time.sleep(0.2)
     got = late = 0
     c0 = w0 = 0.0
@@ -133,12 +135,16 @@ def worker(
             c0, w0, got, late = time.process_time(), time.monotonic(), 0, 0
         pub.put(payload)
         if mode == "lockstep":
-            mark.put(str(k).encode())
+            marker = b"%d,%d" % (k, index)
+            mark.put(marker)
             stuck = time.monotonic() + 30.0
-            while markers.get(k, 0) < n - 1:
+            while heard(k) < n - 1:
                 if time.monotonic() > stuck:  # a process died or the mesh never formed
                     raise SystemExit(f"process {index}: round {k}'s markers did not all come")
-                select.select([wake_r], [], [], 0.5)
+                # express DROP loses a marker now and then: sent again, as the agents' host
+                # does (drone_agent/host.py, REPEAT_MARKERS_S)
+                if not select.select([wake_r], [], [], REPEAT_MARKERS_S)[0]:
+                    mark.put(marker)
                 with contextlib.suppress(BlockingIOError):
                     os.read(wake_r, 4096)
         else:
@@ -148,18 +154,17 @@ def worker(
                 time.sleep(wait)
             else:
                 late += 1
-        while data.try_recv() is not None:
-            got += 1
+        got += len(data.drain())
     c1, w1 = time.process_time(), time.monotonic()
     measured = rounds - WARM_ROUNDS
     time.sleep(0.5)  # the others' last rounds
-    marker_sub.undeclare()
-    session.close()
+    bus.close()
     return {
         "rounds_per_s": measured / (w1 - w0),
         "cpu_ms_per_round": 1e3 * (c1 - c0) / measured,
         "received_per_round": got / measured,
         "late": late,
+        "window": [w0, w1],
     }
 
 
@@ -167,14 +172,14 @@ def run_case(mode: str, n: int, rounds: int, topology: str = "mesh") -> dict[str
     """``n`` worker processes of ``mode`` in ``topology`` (module docstring)."""
     import psutil
 
-    ports = _free_tcp_ports(n + 1)
+    from drone_agent.zenoh_transport import free_loopback_endpoint
+
+    endpoint = free_loopback_endpoint()  # the rendezvous, or the router's
     tag = f"floor{os.getpid()}x{n}{mode[0]}{topology[0]}"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     load = os.getloadavg()[0]
-    router = started = None
-    case = [mode, str(rounds), tag, ",".join(map(str, ports[:n]))]
+    router = None
     if topology == "router":
-        endpoint = f"tcp/127.0.0.1:{ports[n]}"
         router = subprocess.Popen(
             [sys.executable, "-m", "gcs.cli", "router", "--listen", endpoint],
             cwd=ROOT,
@@ -182,8 +187,7 @@ def run_case(mode: str, n: int, rounds: int, topology: str = "mesh") -> dict[str
             stderr=subprocess.DEVNULL,
         )
         time.sleep(1.5)  # listening before the clients connect (they would retry, later)
-        case.append(endpoint)
-        started = psutil.Process(router.pid).cpu_times()
+    case = [str(n), mode, str(rounds), tag, endpoint, topology]
     try:
         procs = [
             subprocess.Popen(
@@ -195,17 +199,24 @@ def run_case(mode: str, n: int, rounds: int, topology: str = "mesh") -> dict[str
             )
             for i in range(n)
         ]
+        samples = []  # the router's (time, CPU s) while the workers run
+        while router is not None and any(p.poll() is None for p in procs):
+            t = psutil.Process(router.pid).cpu_times()
+            samples.append((time.monotonic(), t.user + t.system))
+            time.sleep(0.05)
         outs = []
         for i, p in enumerate(procs):
             lines = p.communicate(timeout=900)[0].strip().splitlines()
             if p.returncode != 0 or not lines:
                 raise RuntimeError(f"{mode} x {n}: worker {i} failed (exit {p.returncode})")
             outs.append(json.loads(lines[-1]))
-        router_ms = None  # the router's CPU per round (the clients' joining included)
-        if router is not None and started is not None:
-            times = psutil.Process(router.pid).cpu_times()
-            spent = times.user + times.system - started.user - started.system
-            router_ms = 1e3 * spent / rounds
+        router_cores = None  # over worker 0's measured rounds (time.monotonic is system-wide)
+        if samples:
+            w0, w1 = outs[0]["window"]
+            inside = [(t, c) for t, c in samples if w0 <= t <= w1]
+            if len(inside) >= 2:
+                (ta, ca), (tb, cb) = inside[0], inside[-1]
+                router_cores = round((cb - ca) / (tb - ta), 2)
     finally:
         if router is not None:
             router.terminate()
@@ -220,7 +231,7 @@ def run_case(mode: str, n: int, rounds: int, topology: str = "mesh") -> dict[str
         "best_rtf": round(rps / CONTROL_HZ, 2),
         "cpu_ms_per_process_round": round(cpu_ms, 3),
         "cores": round(n * cpu_ms * rps / 1000.0, 2),
-        "router_cores": None if router_ms is None else round(router_ms * rps / 1000.0, 2),
+        "router_cores": router_cores,
         "received_per_round": round(sum(o["received_per_round"] for o in outs) / n, 1),
         "late_rounds": sum(o["late"] for o in outs),
         "load_1min": round(load, 1),
@@ -240,14 +251,12 @@ def messaging_floor(rounds: int = 1000) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """CLI (module docstring); ``worker I MODE ROUNDS TAG PORTS [ROUTER]`` is one process of a
-    case."""
+    """CLI (module docstring); ``worker I N MODE ROUNDS TAG ENDPOINT TOPOLOGY`` is one process
+    of a case."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "worker":
-        index, mode, rounds, tag, ports = argv[1:6]  # (run_case's order)
-        router = argv[6] if len(argv) > 6 else None
-        listed = [int(p) for p in ports.split(",")]
-        figures = worker(int(index), listed, mode, int(rounds), tag, router)
+        index, n, mode, rounds, tag, endpoint, topology = argv[1:8]  # (run_case's order)
+        figures = worker(int(index), int(n), mode, int(rounds), tag, endpoint, topology == "router")
         print(json.dumps(figures), flush=True)
         return 0
     parser = argparse.ArgumentParser(prog="python -m bench.messaging_floor", description=__doc__)
