@@ -294,7 +294,14 @@ def test_garbage_on_consensus_keys_is_dropped_and_counted(net: Network) -> None:
             for k, payload in garbage:
                 publishers[k].put(payload)
             publishers[key].put(good)
-            return any(p.message.sender == 9 for p in got.poll())
+            got.poll()
+            # until each kind got through once: DROP publishers lose some of a burst on a
+            # loaded machine (the valid one alone came first in a run of the whole suite)
+            c = link.counters()
+            return (
+                any(p.message.sender == 9 for p in got.packets)
+                and min(c.malformed, c.wrong_swarm, c.wrong_version) > 0
+            )
 
         net.eventually(attack_then_valid)
         net.quiet()
