@@ -26,6 +26,7 @@ from pathlib import Path
 
 from bench.end_to_end import scenario_text
 from bench.sitl import _free_block
+from bench.up_lockstep import _role
 
 ROOT = Path(__file__).resolve().parents[1]
 _FRAME = re.compile(r"(.*) \((.*):\d+\)")
@@ -59,6 +60,7 @@ def summarise(raw: Path, top: int = 25) -> str:
 
 
 def _roles(pid: int) -> list[tuple[str, int]]:
+    """The flight's processes under ``pid``: (role, pid), an agent process named by its drones."""
     import psutil
 
     out = []
@@ -67,8 +69,8 @@ def _roles(pid: int) -> list[tuple[str, int]]:
             words = child.cmdline()
         except psutil.Error:
             continue
-        role = next((r for r in ("agent", "sim", "gcs") if r in words), None)
-        if role is None or "gcs.cli" not in words:
+        role = _role(words)  # bench/up_lockstep.py's reading of a command line
+        if role is None:
             continue
         if role == "agent" and "--drone-id" in words:
             role = f"agent{words[words.index('--drone-id') + 1]}"
@@ -85,6 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate", type=int, default=100, help="py-spy samples per second")
     ap.add_argument("--out", type=Path, default=Path("profile_roles"), help="raw files and summary")
     args = ap.parse_args(argv)
+    if min(args.drones, args.agents_per_process, args.seconds, args.rate) < 1 or args.warmup_s < 0:
+        ap.error("--drones, --agents-per-process, --seconds and --rate must be >= 1")
     spy = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
     if not Path(spy).exists():
         print("py-spy is not installed: .venv/bin/pip install py-spy", file=sys.stderr)
@@ -104,7 +108,17 @@ def main(argv: list[str] | None = None) -> int:
                                   stderr=subprocess.DEVNULL)  # fmt: skip
         try:
             time.sleep(args.warmup_s)
-            roles = _roles(flight.pid)
+            roles = _roles(flight.pid) if flight.poll() is None else []
+            if not roles:
+                code = flight.poll()
+                why = (
+                    f"swarm up exited with {code}"
+                    if code is not None
+                    else f"no process of the flight yet after {args.warmup_s:g} s"
+                )
+                print(f"nothing to record: {why} (a longer --warmup-s?)",
+                      file=sys.stderr)  # fmt: skip
+                return 1
             print(f"recording {', '.join(r for r, _ in roles)} for {args.seconds} s", flush=True)
             spies = []
             for role, pid in roles:
