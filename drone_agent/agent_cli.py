@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import sys
@@ -86,6 +87,31 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         default=None,
         help="vehicle I listens on BASE+I (default: as swarm sim: drones 0-9 on 14540-14549, "
         "10-249 on 14560-14799)",
+    )
+    p.add_argument(
+        "--dialect",
+        choices=("auto", "px4", "ardupilot"),
+        default="auto",
+        help="the vehicles' autopilot dialect: px4 (OFFBOARD; the project's simulator by "
+        "default) or ardupilot (ArduCopter: GUIDED_NOGPS, GUID_OPTIONS thrust, EKF/GPS "
+        "readiness, GLOBAL_POSITION_INT about the scenario's home); auto (default) takes it "
+        "from each vehicle's HEARTBEAT",
+    )
+    p.add_argument(
+        "--vehicle-listen",
+        action="store_true",
+        help="bind each vehicle's port and answer whoever sends to it, instead of sending to it "
+        "(ArduCopter SITL started with --serial0 udpclient:HOST:PORT)",
+    )
+    p.add_argument(
+        "--swarm-epoch",
+        type=float,
+        default=None,
+        metavar="UNIX_S",
+        help="vehicles that each count time from their own boot (ArduCopter SITL instances): "
+        "the swarm's clock is seconds since this Unix time, the same for every agent and the "
+        "ground station (swarm up passes it); without it the vehicles' time_boot_ms is the "
+        "swarm's clock (one simulator)",
     )
     p.add_argument("--swarm-id", default="swarm", help="swarm name on Zenoh (default %(default)s)")
     p.add_argument(
@@ -272,9 +298,11 @@ def run(args: argparse.Namespace) -> int:
     from drone_agent.vehicle_link import VehicleLink
     from drone_agent.zenoh_transport import ZenohBus
     from protocols.collector import flight_collector
-    from protocols.mavlink_conventions import vehicle_port
+    from protocols.frames import G_M_S2
+    from protocols.mavlink_conventions import Dialect, vehicle_port
     from protocols.mavlink_signing import SigningKeyError, load_signing_key
     from protocols.scenario import ScenarioError, load_scenario
+    from protocols.swarm_clock import VehicleClock
 
     try:
         drones = parse_drone_ids(args.drone_id)
@@ -317,13 +345,27 @@ def run(args: argparse.Namespace) -> int:
     faults = LinkFaults()
     period_ms = round(config.consensus.dt_s * 1000)
     links = []
+    dialect = None if args.dialect == "auto" else Dialect(args.dialect)
+    limits = config.limits
+    thrust_to_weight = limits.max_thrust_n / (limits.mass_kg * G_M_S2)
+    origin = scenario.home if scenario is not None else None
+    epoch = args.swarm_epoch
+    if epoch is not None and not math.isfinite(epoch):
+        raise AgentCliError("--swarm-epoch must be a Unix time in seconds")
     try:
         for d in drones:
             if args.vehicle:
                 address = _endpoint(args.vehicle)
             else:
                 address = (args.vehicle_host, vehicle_port(d, args.base_port))
-            links.append(VehicleLink(d, address[0], address[1], signing_key=key))
+            links.append(
+                VehicleLink(
+                    d, address[0], address[1], signing_key=key, dialect=dialect,
+                    thrust_to_weight=thrust_to_weight, control_hz=1.0 / config.consensus.dt_s,
+                    origin=origin, clock=None if epoch is None else VehicleClock(epoch),
+                    listen=args.vehicle_listen,
+                )
+            )  # fmt: skip
     except OSError as exc:
         raise AgentCliError(f"cannot open the vehicle link: {exc}") from None
     zsettings = zenoh_settings(args)
@@ -516,6 +558,11 @@ def _status_line(host: AgentHost, period_s: float) -> str:
     nb = f"{min(neighbours)}-{max(neighbours)}" if neighbours else "-"
     planless = sum(1 for a in agents if a.fallback_plan is None and a.transport.plan() is None)
     waiting = f"; {planless} waiting for the ground station's plan" if planless else ""
+    dialects = [(a.drone, a.link.dialect) for a in agents]
+    unready = [(d, dialect.not_ready_reason) for d, dialect in dialects if not dialect.ready]
+    if unready:  # e.g. an ArduCopter whose EKF has not settled: the swarm waits for it
+        drone, why = unready[0]
+        waiting += f"; {len(unready)} vehicle(s) not ready (drone {drone}: {why})"
     return (
         f"agents t={tick * period_s:7.2f}s  {len(agents)} joined: {mode_text}; neighbours {nb}"
         f"{waiting}; {time.strftime('%H:%M:%S')}"

@@ -214,11 +214,14 @@ class Readiness:
         inbox: Iterable[ConsensusMessage],
         members: frozenset[int],
         committed: bool,
+        vehicle_ready: bool = True,
     ) -> bool:
-        """This tick's core output, the inbox it was computed from, the live membership and
-        whether the agent already flies; whether the swarm is ready to leave the ground."""
+        """This tick's core output, the inbox it was computed from, the live membership,
+        whether the agent already flies and whether its vehicle can fly (its autopilot dialect's
+        checks: drone_agent/dialects.py); whether the swarm is ready to leave the ground. An
+        agent whose vehicle is not ready does not agree, so nobody leaves without it."""
         self.settling.update(out, members)
-        agrees = self.settling.agrees or committed
+        agrees = (self.settling.agrees and vehicle_ready) or committed
         swarm = self.swarm.update(out.message.round, agrees, inbox, members)
         self.ready = swarm and (out.ready_to_fly or committed)
         return self.ready

@@ -362,6 +362,7 @@ class AgentHost:
         if now - slot.greeted_at >= 1.0:
             slot.link.send_heartbeat()
             slot.greeted_at = now
+        slot.link.service_dialect(now)  # e.g. ask an ArduCopter for its state streams
 
     def _revive(self, slot: _Slot) -> None:
         """A restarted drone: its next sample starts a new agent (:meth:`_join`) on a fresh

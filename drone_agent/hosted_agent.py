@@ -52,7 +52,6 @@ from drone_agent.vehicle_link import VehicleLink, VehicleSample
 from protocols.consensus_message import ConsensusMessage
 from protocols.descriptor_vector import CENTRE
 from protocols.frames import quat_from_zyx
-from protocols.mavlink_conventions import MODE_HOLD, MODE_LAND, MODE_OFFBOARD
 from protocols.trajectory import DescriptorTrajectory
 from protocols.wire_plan import FlightCommand
 from protocols.wire_status import AgentMode, AgentStatus, Health
@@ -239,6 +238,10 @@ class HostedAgent:
         if now - self._last_heartbeat >= self.options.heartbeat_period_s:
             self.link.send_heartbeat()
             self._last_heartbeat = now
+        # the dialect's set-up (streams, parameters) on simulated time in lockstep, as commands
+        sample_ms = None if self.gate is None or self.sample is None else self.sample.time_boot_ms
+        lockstep_s = None if sample_ms is None else sample_ms / 1000.0
+        self.link.service_dialect(now if lockstep_s is None else lockstep_s)
         if (
             self.sample is not None
             and now - self._last_sample_wall > self.options.vehicle_timeout_s
@@ -345,7 +348,10 @@ class HostedAgent:
         answer, while the agents' messages are laid out and sent."""
         sample = due.sample
         self.last_output = out
-        self.readiness.update(out, due.inbox, due.members, self.phase.committed)
+        # a vehicle its dialect does not call ready (EKF, GPS, pre-arm, parameters) keeps the
+        # agent from agreeing: the swarm waits for it
+        vehicle_ready = self.link.dialect.ready
+        self.readiness.update(out, due.inbox, due.members, self.phase.committed, vehicle_ready)
         assert out.desired is not None  # the core gives the plan's value of the tick
         commanded_altitude = -float(out.desired[CENTRE][2])
         self._carry_out(self._decide(due.command, out.setpoint, commanded_altitude, sample), sample)
@@ -395,12 +401,12 @@ class HostedAgent:
         commanded_altitude_m: float,
         sample: VehicleSample,
     ) -> Order:
-        status = self.link.status
+        modes = self.link.modes()
         vehicle = VehicleView(
-            armed=status.armed,
-            in_offboard=status.custom_mode == MODE_OFFBOARD,
-            in_land=status.custom_mode == MODE_LAND,
-            in_hold=status.custom_mode == MODE_HOLD,
+            armed=self.link.status.armed,
+            in_offboard=modes.in_offboard,
+            in_land=modes.in_land,
+            in_hold=modes.in_hold,
             altitude_m=-float(sample.position_ned_m[2]),
         )
         return self.phase.decide(
@@ -421,7 +427,8 @@ class HostedAgent:
         self._request(order.request, sample)
         sp = order.setpoint
         q = quat_from_zyx(sp.yaw_rad, sp.pitch_rad, sp.roll_rad)
-        self.link.send_setpoint(sample.time_boot_ms, q, sp.thrust_normalised)
+        thrust = self.link.dialect.wire_thrust(sp.thrust_normalised, sp.roll_rad, sp.pitch_rad)
+        self.link.send_setpoint(sample.time_boot_ms, q, thrust)
         self.mode = order.mode
 
     def _request(self, request: Request, sample: VehicleSample) -> None:

@@ -1,11 +1,21 @@
 """The agent's MAVLink link to its own vehicle over UDP; pymavlink is used only as a codec.
 
 The agent speaks as its vehicle's system id with component 191 (onboard computer), sends to the
-vehicle's UDP port (``14540 + index`` by default) and receives from it. It builds a
-:class:`VehicleSample` whenever ATTITUDE and LOCAL_POSITION_NED of one ``time_boot_ms`` have both
-arrived: that stamp is the agent's clock and names the control tick (lockstep handshake in
-protocols/mavlink_conventions.py). Malformed datagrams and messages from other systems are counted
+vehicle's UDP port (``14540 + index`` by default) and receives from it; or, with ``listen``, binds
+that port and answers whoever sends to it (an ArduCopter SITL's ``--serial0 udpclient:...``, as
+PX4 SITL's onboard port does). Malformed datagrams and messages from other systems are counted
 and dropped.
+
+What the vehicle's autopilot speaks is its :class:`~drone_agent.dialects.AutopilotDialect`:
+forced (``dialect``) or taken from its first HEARTBEAT's ``autopilot`` field (until then no
+sample is made). In the PX4 dialect a :class:`VehicleSample` is made whenever ATTITUDE and
+LOCAL_POSITION_NED of one ``time_boot_ms`` have both arrived: that stamp is the agent's clock and
+names the control tick (lockstep handshake in protocols/mavlink_conventions.py). In the ArduCopter
+dialect the position in the swarm's frame is GLOBAL_POSITION_INT about the swarm's common origin
+(``origin``; each vehicle's LOCAL_POSITION_NED is about its own EKF origin and is not used), paired
+with the ATTITUDE nearest in time (within :data:`PAIR_MS`): the sample's time is the position's.
+With a ``clock`` (vehicles that each count from their own boot: protocols/swarm_clock.py) the
+sample's ``time_boot_ms`` is the vehicle's stamp on the swarm's clock.
 """
 
 from __future__ import annotations
@@ -19,26 +29,34 @@ from typing import Any
 import numpy as np
 
 os.environ.setdefault("MAVLINK20", "1")
-from pymavlink.dialects.v20 import common
+from pymavlink.dialects.v20 import ardupilotmega, common
 
+from drone_agent.dialects import AutopilotDialect, Command, ModeView, make_dialect
 from protocols import mavlink_fast
 from protocols.frames import FloatArray
+from protocols.geodesy import GeoPoint, geodetic_to_ned
 from protocols.mavlink_conventions import (
     AGENT_COMPID,
     AUTOPILOT_COMPID,
-    MODE_OFFBOARD,
-    Px4AutoSubMode,
-    Px4MainMode,
+    Dialect,
+    dialect_of_autopilot,
     sysid_of,
     vehicle_port,
 )
 from protocols.mavlink_signing import setup_signing
+from protocols.swarm_clock import VehicleClock
 
 _MAX_DATAGRAM = 65535
 _POSITION = common.MAVLink_local_position_ned_message
 _ATTITUDE = common.MAVLink_attitude_message
 #: SET_ATTITUDE_TARGET type_mask: ignore body rates, use attitude and thrust.
 IGNORE_BODY_RATES = 0b0000_0111
+#: ArduCopter dialect: a position and an attitude at most this far apart (ms) make one sample.
+PAIR_MS = 30
+#: Messages a dialect reads (parameters, EKF and GPS state, pre-arm checks).
+_DIALECT_KINDS = frozenset(
+    {"PARAM_VALUE", "EKF_STATUS_REPORT", "GPS_RAW_INT", "SYS_STATUS", "ATTITUDE"}
+)
 
 
 @dataclass(frozen=True)
@@ -63,6 +81,8 @@ class VehicleStatus:
     last_ack: dict[int, int] = field(default_factory=dict)
     texts: list[str] = field(default_factory=list)
     emergency: bool = False
+    #: the HEARTBEAT's ``autopilot`` field (MAV_AUTOPILOT), None before the first
+    autopilot: int | None = None
 
 
 @dataclass
@@ -87,23 +107,59 @@ class VehicleLink:
         port: int | None = None,
         signing_key: bytes | None = None,
         wall_clock: Callable[[], float] | None = None,
+        dialect: Dialect | None = Dialect.PX4,
+        thrust_to_weight: float = 2.0,
+        control_hz: float = 50.0,
+        origin: GeoPoint | None = None,
+        clock: VehicleClock | None = None,
+        listen: bool = False,
     ) -> None:
+        """``dialect``: the vehicle's autopilot dialect, None to take it from its HEARTBEAT;
+        ``thrust_to_weight`` and ``control_hz``: the scale of the agent's normalised thrust and
+        its control rate (the ArduCopter dialect's thrust and stream rates); ``origin``: the
+        swarm frame's origin on the map (ArduCopter dialect); ``clock``: maps the vehicle's own
+        ``time_boot_ms`` onto the swarm's; ``listen``: bind the port instead of sending to it."""
         self.index = index
         self.sysid = sysid_of(index)
         self.address = (host, vehicle_port(index) if port is None else port)
         self._mav = common.MAVLink(None, srcSystem=self.sysid, srcComponent=AGENT_COMPID)
         self._mav.robust_parsing = True
+        # ArduPilot's own messages (EKF_STATUS_REPORT) need its dialect's codec to be read
+        self._apm = ardupilotmega.MAVLink(None, srcSystem=self.sysid, srcComponent=AGENT_COMPID)
+        self._apm.robust_parsing = True
         if signing_key is not None:
             setup_signing(self._mav, signing_key, link_id=1, wall_clock=wall_clock)
-        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._sock.setblocking(False)
-        self._sock.connect(self.address)
+            setup_signing(self._apm, signing_key, link_id=1, wall_clock=wall_clock)
+        self._listen = listen
+        self._peer: tuple[str, int] | None = None
+        self._sock = self._open()
+        self._thrust_to_weight, self._control_hz = thrust_to_weight, control_hz
+        self.dialect_forced = dialect is not None
+        self.dialect: AutopilotDialect = make_dialect(
+            dialect or Dialect.PX4, thrust_to_weight, control_hz
+        )
+        self.origin = origin if origin is not None else GeoPoint()
+        self.clock = clock
         self.status = VehicleStatus()
         self.counters = LinkCounters()
         #: half samples by time_boot_ms: (time_boot_ms, x, y, z, vx, vy, vz) and
         #: (time_boot_ms, roll, pitch, yaw, ...)
         self._pos: dict[int, tuple[Any, ...]] = {}
         self._att: dict[int, tuple[Any, ...]] = {}
+
+    def _open(self) -> socket.socket:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.setblocking(False)
+        if self._listen:
+            sock.bind(self.address)
+        else:
+            sock.connect(self.address)
+        return sock
+
+    @property
+    def dialect_known(self) -> bool:
+        """The dialect was forced, or the vehicle's HEARTBEAT named it."""
+        return self.dialect_forced or self.status.autopilot is not None
 
     def fileno(self) -> int:
         return self._sock.fileno()
@@ -117,10 +173,13 @@ class VehicleLink:
         at once), and whoever speaks next from the new port is a new agent to it. Samples half
         assembled on the old port are dropped. Re-register :meth:`fileno` with any selector."""
         old = self._sock
-        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._sock.setblocking(False)
-        self._sock.connect(self.address)
-        old.close()
+        if self._listen:
+            old.close()
+            self._peer = None
+            self._sock = self._open()
+        else:
+            self._sock = self._open()
+            old.close()
         self._pos.clear()
         self._att.clear()
 
@@ -136,19 +195,26 @@ class VehicleLink:
         samples: list[VehicleSample] = []
         while True:
             try:
-                data = self._sock.recv(_MAX_DATAGRAM)
+                data, source = self._sock.recvfrom(_MAX_DATAGRAM)
             except (BlockingIOError, InterruptedError):
                 break
             except ConnectionRefusedError:  # the vehicle is not (yet) listening
                 break
+            if self._listen:
+                self._peer = source
             self.counters.rx_datagrams += 1
             # unsigned links: protocols/mavlink_fast.py; pymavlink's codec for anything it does
             # not take, and for signed links (their signature policy)
-            fast = mavlink_fast.fast_receive_ok(self._mav)
+            fast = (
+                mavlink_fast.fast_receive_ok(self._mav)
+                and self.dialect_known
+                and not self.dialect.global_frame
+            )
             messages = self._fast_parse(data) if fast else None
             if messages is None:
+                codec = self._mav if fast else self._rx_codec()
                 try:
-                    messages = self._mav.parse_buffer(data) or []
+                    messages = codec.parse_buffer(data) or []
                 except Exception:  # pymavlink raises MAVError and struct errors alike
                     self.counters.rx_bad += 1
                     continue
@@ -161,6 +227,12 @@ class VehicleLink:
                 else:
                     samples += self._handle(msg)
         return samples
+
+    def _rx_codec(self) -> Any:
+        """The codec of the slow path: ArduPilot's until a PX4 dialect is known."""
+        if self.dialect_known and not self.dialect.global_frame:
+            return self._mav
+        return self._apm
 
     def _fast_parse(self, data: bytes) -> list[Any] | None:
         """:func:`protocols.mavlink_fast.parse` of ``data``, except that our vehicle's
@@ -196,11 +268,15 @@ class VehicleLink:
             return []
         self.counters.rx_messages += 1
         kind = msg.get_type()
+        if kind in _DIALECT_KINDS:
+            self.dialect.on_message(kind, msg)
         if kind == "HEARTBEAT":
             self.status.heartbeats += 1
             self.status.armed = bool(msg.base_mode & common.MAV_MODE_FLAG_SAFETY_ARMED)
             self.status.custom_mode = int(msg.custom_mode)
             self.status.system_status = int(msg.system_status)
+            if self.status.autopilot is None:
+                self._learn_dialect(int(msg.autopilot))
         elif kind == "COMMAND_ACK":
             self.status.last_ack[int(msg.command)] = int(msg.result)
         elif kind == "STATUSTEXT":
@@ -208,15 +284,62 @@ class VehicleLink:
             del self.status.texts[:-50]
             if int(msg.severity) == common.MAV_SEVERITY_EMERGENCY:
                 self.status.emergency = True  # e.g. motors failed: the vehicle is going down
-        elif kind == "LOCAL_POSITION_NED":
+        elif not self.dialect_known:
+            return []  # which frame a position is in is not known yet
+        elif kind == "LOCAL_POSITION_NED" and not self.dialect.global_frame:
             ms = int(msg.time_boot_ms)
             self._pos[ms] = (ms, msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
             return self._pair(ms)
+        elif kind == "GLOBAL_POSITION_INT" and self.dialect.global_frame:
+            ms = int(msg.time_boot_ms)
+            ned = geodetic_to_ned(self.origin, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)[0]
+            self._pos[ms] = (ms, *ned, msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
+            return self._pair_nearest(ms, self._pos, self._att)
         elif kind == "ATTITUDE":
             ms = int(msg.time_boot_ms)
             self._att[ms] = (ms, msg.roll, msg.pitch, msg.yaw)
+            if self.dialect.global_frame:
+                return self._pair_nearest(ms, self._att, self._pos)
             return self._pair(ms)
         return []
+
+    def _learn_dialect(self, autopilot: int) -> None:
+        """The first HEARTBEAT: its autopilot names the dialect unless one was forced."""
+        self.status.autopilot = autopilot
+        if self.dialect_forced:
+            return
+        found = dialect_of_autopilot(autopilot)
+        if found is not None and found != self.dialect.name:
+            self.dialect = make_dialect(found, self._thrust_to_weight, self._control_hz)
+            self._pos.clear()
+            self._att.clear()
+
+    def _pair_nearest(
+        self, ms: int, mine: dict[int, tuple[Any, ...]], other: dict[int, tuple[Any, ...]]
+    ) -> list[VehicleSample]:
+        """ArduCopter dialect: the half just stored at ``ms`` with the other half nearest in time
+        (within PAIR_MS); both used up, older halves forgotten."""
+        near = [k for k in other if abs(k - ms) <= PAIR_MS]
+        if not near:
+            self._prune(ms)
+            return []
+        k = min(near, key=lambda k: abs(k - ms))
+        mine_half, other_half = mine.pop(ms), other.pop(k)
+        pos, att = (mine_half, other_half) if mine is self._pos else (other_half, mine_half)
+        for store in (self._pos, self._att):  # what is older than the pair is stale now
+            for old in [t for t in store if t < min(ms, k)]:
+                del store[old]
+        stamp = int(pos[0])
+        if self.clock is not None:
+            stamp = self.clock.swarm_ms(stamp)
+        return [
+            VehicleSample(
+                stamp,
+                np.array(pos[1:4], dtype=float),
+                np.array(pos[4:7], dtype=float),
+                np.array(att[1:4], dtype=float),
+            )
+        ]
 
     def _pair(self, ms: int) -> list[VehicleSample]:
         pos, att = self._pos.get(ms), self._att.get(ms)
@@ -243,7 +366,14 @@ class VehicleLink:
     # -- send ----------------------------------------------------------------------------------
     def _send(self, msg: Any) -> None:
         try:
-            self._sock.send(mavlink_fast.pack(msg, self._mav))  # msg.pack's bytes
+            data = mavlink_fast.pack(msg, self._mav)  # msg.pack's bytes
+            if self._listen:
+                if self._peer is None:  # nobody has spoken to us yet
+                    self.counters.tx_errors += 1
+                    return
+                self._sock.sendto(data, self._peer)
+            else:
+                self._sock.send(data)
             self.counters.tx_messages += 1
         except OSError:
             self.counters.tx_errors += 1
@@ -285,32 +415,48 @@ class VehicleLink:
     def arm(self, arm: bool = True) -> None:
         self.command(common.MAV_CMD_COMPONENT_ARM_DISARM, 1.0 if arm else 0.0)
 
+    def _send_command(self, command: Command) -> None:
+        self.command(command[0], *command[1])
+
     def set_offboard(self) -> None:
-        self.command(
-            common.MAV_CMD_DO_SET_MODE,
-            common.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-            float(Px4MainMode.OFFBOARD),
-        )
+        """The mode that flies the agent's attitude setpoints (PX4 OFFBOARD, ArduCopter
+        GUIDED_NOGPS)."""
+        self._send_command(self.dialect.offboard_command())
 
     def set_land(self) -> None:
-        """The autopilot's LAND mode (PX4 AUTO.LAND): level, sink, disarm on touchdown."""
-        self._set_px4_mode(Px4MainMode.AUTO, Px4AutoSubMode.LAND)
+        """The autopilot's LAND mode: level, sink, disarm on touchdown."""
+        self._send_command(self.dialect.land_command())
 
     def set_hold(self) -> None:
-        """The autopilot's HOLD mode (PX4 AUTO.LOITER): level, hold the altitude."""
-        self._set_px4_mode(Px4MainMode.AUTO, Px4AutoSubMode.LOITER)
+        """The autopilot's hold (PX4 AUTO.LOITER, ArduCopter BRAKE)."""
+        self._send_command(self.dialect.hold_command())
 
-    def _set_px4_mode(self, main: int, sub: int) -> None:
-        self.command(
-            common.MAV_CMD_DO_SET_MODE,
-            common.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-            float(main),
-            float(sub),
-        )
+    def modes(self) -> ModeView:
+        """Which of the agent's modes the vehicle reports."""
+        return self.dialect.modes(self.status.custom_mode)
 
     @property
     def in_offboard(self) -> bool:
-        return self.status.custom_mode == MODE_OFFBOARD
+        return self.modes().in_offboard
+
+    def service_dialect(self, now_s: float) -> None:
+        """The dialect's set-up due now (streams, parameters; nothing for PX4)."""
+        if self.dialect_known:
+            self.dialect.service(self, now_s, self.status.armed)
+
+    def param_set(self, name: str, value: float) -> None:
+        """PARAM_SET of a numeric parameter (sent as MAV_PARAM_TYPE_REAL32's value)."""
+        self._send(
+            self._mav.param_set_encode(
+                self.sysid, AUTOPILOT_COMPID, name.encode(), float(value),
+                common.MAV_PARAM_TYPE_REAL32,
+            )
+        )  # fmt: skip
+
+    def param_read(self, name: str) -> None:
+        """PARAM_REQUEST_READ of a parameter by name."""
+        request = self._mav.param_request_read_encode
+        self._send(request(self.sysid, AUTOPILOT_COMPID, name.encode(), -1))
 
     def request_interval(self, message_id: int, rate_hz: float) -> None:
         """MAV_CMD_SET_MESSAGE_INTERVAL for one message id at ``rate_hz``."""

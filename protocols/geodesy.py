@@ -82,3 +82,23 @@ def ned_to_geodetic(home: GeoPoint, ned_m: FloatArray) -> tuple[FloatArray, Floa
     lat, lon, _ = ecef_to_geodetic(origin + ned @ _ned_axes(lat0, lon0))
     lon_deg = (np.degrees(lon) + 180.0) % 360.0 - 180.0
     return np.degrees(lat), lon_deg, home.alt_m - ned[:, 2]
+
+
+def geodetic_to_ned(
+    home: GeoPoint, lat_deg: FloatArray, lon_deg: FloatArray, alt_m: FloatArray
+) -> FloatArray:
+    """NED points (N, 3) m about ``home`` of latitudes, longitudes (deg) and altitudes (m MSL):
+    the inverse of :func:`ned_to_geodetic` (within 0.1 mm over 1 km). The point in space is
+    found from its ellipsoidal height, taken as its altitude plus the plane's rise above the
+    ellipsoid there (``(n² + e²) / 2R``, from a first pass); down is flat (``home.alt_m - alt``)."""
+    lat = np.radians(np.asarray(lat_deg, dtype=float).reshape(-1))
+    lon = np.radians(np.asarray(lon_deg, dtype=float).reshape(-1))
+    alt = np.asarray(alt_m, dtype=float).reshape(-1)
+    lat0, lon0 = np.radians(home.lat_deg), np.radians(home.lon_deg)
+    origin = geodetic_to_ecef(np.asarray(lat0), np.asarray(lon0), np.asarray(home.alt_m))
+    axes = _ned_axes(lat0, lon0).T
+    first = (geodetic_to_ecef(lat, lon, alt) - origin) @ axes
+    rise = (first[:, 0] ** 2 + first[:, 1] ** 2) / (2.0 * WGS84_A_M)
+    ned = (geodetic_to_ecef(lat, lon, alt + rise) - origin) @ axes
+    ned[:, 2] = home.alt_m - alt
+    return ned

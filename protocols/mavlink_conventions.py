@@ -67,7 +67,7 @@ Details of the simulator's side (``swarm sim``, sitl_sim/lockstep.py and sitl_si
 
 from __future__ import annotations
 
-from enum import IntEnum
+from enum import IntEnum, StrEnum
 
 GCS_SYSID = 255
 GCS_COMPID = 190
@@ -201,3 +201,82 @@ MODE_HOLD = px4_custom_mode(Px4MainMode.AUTO, Px4AutoSubMode.LOITER)
 MODE_OFFBOARD = px4_custom_mode(Px4MainMode.OFFBOARD)
 MODE_LAND = px4_custom_mode(Px4MainMode.AUTO, Px4AutoSubMode.LAND)
 MODE_NAMES = {MODE_HOLD: "HOLD", MODE_OFFBOARD: "OFFBOARD", MODE_LAND: "LAND"}
+
+
+# -- autopilot dialects ------------------------------------------------------------------------
+#
+# The agents fly two firmware dialects (drone_agent/dialects.py; the simulator speaks either,
+# ``swarm sim --dialect``). PX4 (above) is the project's own simulator's default. ArduCopter:
+# HEARTBEAT autopilot MAV_AUTOPILOT_ARDUPILOTMEGA, ``custom_mode`` = the copter mode number
+# (:class:`CopterMode`, base_mode has CUSTOM_MODE_ENABLED); attitude + thrust setpoints are flown
+# in GUIDED_NOGPS; the agent holds in BRAKE and lands in LAND. SET_ATTITUDE_TARGET's thrust is a
+# climb rate unless GUID_OPTIONS has bit 3 (:data:`GUID_OPTIONS_THRUST`): 0.5 holds, above climbs
+# at up to WPNAV_SPEED_UP (cm/s) at 1, below descends at up to WPNAV_SPEED_DN at 0. As a thrust it
+# is the motors' linearised throttle, hover at MOT_THST_HOVER, divided by the cosine of the tilt
+# by the attitude controller (angle boost). Each ArduCopter vehicle keeps its own EKF origin, so
+# its LOCAL_POSITION_NED is relative to where it started: the swarm's one frame comes from
+# GLOBAL_POSITION_INT and a common origin (protocols/geodesy.py).
+
+
+class Dialect(StrEnum):
+    """The autopilot firmware a vehicle speaks (``--dialect``)."""
+
+    PX4 = "px4"
+    ARDUPILOT = "ardupilot"
+
+
+#: HEARTBEAT autopilot values of the two dialects.
+MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+MAV_AUTOPILOT_PX4 = 12
+#: HEARTBEAT ``type`` of a quadrotor, base_mode flags.
+MAV_TYPE_QUADROTOR = 2
+MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
+MAV_MODE_FLAG_SAFETY_ARMED = 128
+
+
+def dialect_of_autopilot(autopilot: int) -> Dialect | None:
+    """The dialect of a HEARTBEAT's ``autopilot`` field, None if neither."""
+    if autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA:
+        return Dialect.ARDUPILOT
+    if autopilot == MAV_AUTOPILOT_PX4:
+        return Dialect.PX4
+    return None
+
+
+class CopterMode(IntEnum):
+    """ArduCopter's flight modes (HEARTBEAT custom_mode) the project uses or names."""
+
+    STABILIZE = 0
+    ALT_HOLD = 2
+    GUIDED = 4
+    LOITER = 5
+    RTL = 6
+    LAND = 9
+    BRAKE = 17
+    GUIDED_NOGPS = 20
+
+
+#: GUID_OPTIONS bit 3: SET_ATTITUDE_TARGET's thrust is a thrust, not a climb rate.
+GUID_OPTIONS_THRUST = 8
+#: ArduCopter's defaults of the parameters the climb-rate reading uses (cm/s).
+WPNAV_SPEED_UP_CM_S = 250.0
+WPNAV_SPEED_DN_CM_S = 150.0
+#: GUID_TIMEOUT (s): GUIDED_NOGPS without a new attitude target levels and holds its altitude.
+GUID_TIMEOUT_S = 3.0
+
+#: EKF_STATUS_REPORT flags (EKF_STATUS_FLAGS) an ArduCopter vehicle must show before it flies:
+#: attitude, velocities, relative and absolute horizontal position, absolute vertical position.
+EKF_READY_FLAGS = 0x001 | 0x002 | 0x004 | 0x008 | 0x010 | 0x020
+#: ... and must not show: constant position mode, uninitialised, GPS glitch.
+EKF_BAD_FLAGS = 0x080 | 0x400 | 0x8000
+#: SYS_STATUS sensor bit MAV_SYS_STATUS_PREARM_CHECK: healthy = its pre-arm checks pass.
+SYS_STATUS_PREARM_CHECK = 0x10000000
+#: GPS_RAW_INT fix_type of a 3-D fix.
+GPS_FIX_3D = 3
+#: Message ids the ArduCopter dialect streams or asks for.
+MSG_GLOBAL_POSITION_INT = 33
+MSG_ATTITUDE = 30
+MSG_LOCAL_POSITION_NED = 32
+MSG_SYS_STATUS = 1
+MSG_GPS_RAW_INT = 24
+MSG_EKF_STATUS_REPORT = 193

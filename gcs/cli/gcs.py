@@ -134,6 +134,15 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         metavar="S",
         help="how long (wall s) a shutdown waits for the swarm to land (default %(default)s)",
     )
+    p.add_argument(
+        "--swarm-epoch",
+        type=float,
+        default=None,
+        metavar="UNIX_S",
+        help="vehicles that each count time from their own boot (ArduCopter SITL instances): "
+        "the swarm's clock is seconds since this Unix time, as the agents' --swarm-epoch "
+        "(swarm up passes it)",
+    )
     p.add_argument("--quiet", action="store_true", help="no status line")
 
 
@@ -228,6 +237,7 @@ def run(args: argparse.Namespace) -> int:
         signing_key=key,
         session=args.session,
         shutdown_timeout_s=args.shutdown_timeout_s,
+        swarm_epoch_s=args.swarm_epoch,
         envelope=envelope_of(scenario.safety),
         on_line=None if args.quiet else lambda line: print(line, file=sys.stderr, flush=True),
         on_recording=lambda: print(

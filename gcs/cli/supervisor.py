@@ -65,14 +65,17 @@ class Child:
     log_start: int = 0
     #: :meth:`stop` had to kill it (it did not end within its timeout after SIGTERM)
     killed: bool = False
+    #: its working folder (None: the supervisor's)
+    cwd: Path | None = None
 
     def start(self) -> None:
         self.killed = False
         with self.log.open("ab") as out:
             self.log_start = out.tell()
             self.proc = subprocess.Popen(
-                self.argv, stdout=out, stderr=subprocess.STDOUT, preexec_fn=_die_with_parent
-            )
+                self.argv, stdout=out, stderr=subprocess.STDOUT, preexec_fn=_die_with_parent,
+                cwd=self.cwd,
+            )  # fmt: skip
 
     @property
     def running(self) -> bool:
@@ -129,12 +132,21 @@ class RunPlan:
     #: (:func:`rendezvous_port`): if another process binds it before the ground station does,
     #: the run starts again on another free port (:meth:`move_rendezvous`)
     rendezvous_picked: bool = False
+    #: autopilots of another project (ArduCopter SITL, gcs/cli/ardupilot_sitl.py), started
+    #: first; ``wait_vehicles(progress)`` returns once they can fly, and the swarm's clock
+    #: starts then: :data:`EPOCH` in the other children's arguments becomes that Unix time
+    vehicles: list[Child] = field(default_factory=list)
+    wait_vehicles: Callable[[Callable[[str], None] | None], None] | None = None
 
     @property
     def children(self) -> list[Child]:
-        """Every child, in start order: router, ground station, simulator, agents (a partial
-        start on one host of several has only some of them)."""
-        return [c for c in (self.router, self.gcs, self.sim) if c is not None] + self.agents
+        """Every child, in start order: vehicles, router, ground station, simulator, agents (a
+        partial start on one host of several has only some of them)."""
+        return (
+            self.vehicles
+            + [c for c in (self.router, self.gcs, self.sim) if c is not None]
+            + self.agents
+        )
 
     def move_rendezvous(self, endpoint: str) -> None:
         """Every child's Zenoh flags name ``endpoint`` instead of the run's endpoint now."""
@@ -221,6 +233,8 @@ def swarm_argv(*args: str) -> list[str]:
 
 #: Why a run ended when the ground station ended it (``swarm shutdown``, or Ctrl-C in a session).
 SHUT_DOWN = "shut down"
+#: A placeholder argument: the swarm clock's epoch (Unix s), set once the vehicles are ready.
+EPOCH = "{swarm-epoch}"
 
 
 def supervise(
@@ -240,7 +254,7 @@ def supervise(
     shutdown_deadline: float | None = None
     moves = 0
     try:
-        _start(plan)
+        _start(plan, progress)
         while True:
             asked = should_stop()
             if asked and not (plan.session and asked < 2):
@@ -304,19 +318,30 @@ def supervise(
         asked_before = should_stop()  # another Ctrl-C while it writes: no report, stop now
         if plan.gcs is not None:
             plan.gcs.stop(plan.report_stop_s, lambda: should_stop() > asked_before)
-        for last in [*plan.agents, plan.sim, plan.router]:
+        for last in [*plan.agents, plan.sim, plan.router, *plan.vehicles]:
             if last is not None:
                 last.stop()
     return reason
 
 
-def _start(plan: RunPlan) -> None:
-    """Start the children in order (a router: once it listens; the simulator: once the ground
-    station records; the agents: once the simulator's ports are bound) and write the run file."""
+def _start(plan: RunPlan, progress: Callable[[str], None] | None = None) -> None:
+    """Start the children in order (other projects' vehicles first, then, once they can fly,
+    everything else on a swarm clock starting now; a router: once it listens; the simulator:
+    once the ground station records; the agents: once the simulator's ports are bound) and write
+    the run file."""
     from gcs.cli.gcs import RECORDING
     from sitl_sim.launch import START_LINE_PREFIX
 
+    for vehicle in plan.vehicles:
+        vehicle.start()
+    if plan.wait_vehicles is not None:
+        plan.wait_vehicles(progress)
+    epoch = f"{time.time():.3f}"
     for child in plan.children:
+        child.argv = [epoch if arg == EPOCH else arg for arg in child.argv]
+    for child in plan.children:
+        if any(child is vehicle for vehicle in plan.vehicles):
+            continue
         child.start()
         if child is plan.router:
             _wait_listening(plan.zenoh_endpoint, child)

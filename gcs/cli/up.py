@@ -15,8 +15,10 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from gcs.cli.ardupilot_sitl import ENV as ARDUPILOT_ENV
 from gcs.cli.compiled import warm_compiled
 from gcs.cli.supervisor import (
+    EPOCH,
     SHUT_DOWN,
     Child,
     RunPlan,
@@ -138,10 +140,36 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--clock",
         choices=("lockstep", "realtime"),
-        default="lockstep",
-        help="lockstep (default): results do not depend on machine load",
+        default=None,
+        help="lockstep (default with our simulator): results do not depend on machine load; "
+        "realtime (the only clock of --ardupilot-bin)",
     )
     p.add_argument("--speedup", type=float, default=1.0, help="realtime clock speed-up")
+    p.add_argument(
+        "--dialect",
+        choices=("px4", "ardupilot"),
+        default="px4",
+        help="the autopilot dialect our simulator speaks: px4 (default; OFFBOARD) or ardupilot "
+        "(ArduCopter's GUIDED_NOGPS, parameters, EKF/GPS readiness); the agents take it from "
+        "each vehicle's heartbeat",
+    )
+    p.add_argument(
+        "--ardupilot-bin",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help=f"fly ArduPilot's own ArduCopter SITL instead of our simulator: the arducopter "
+        f"binary built for the sitl board (or set {ARDUPILOT_ENV}); one instance per drone, homes "
+        "placed as the scenario's layout, real time. docs/autopilots.md says how to build it",
+    )
+    p.add_argument(
+        "--ardupilot-defaults",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="ArduPilot parameter defaults for every instance (default: "
+        "Tools/autotest/default_params/copter.parm of the binary's source tree)",
+    )
     p.add_argument(
         "--agents-per-process",
         type=int,
@@ -198,6 +226,7 @@ def build_plan(
         generated = session_scenario(session, scenario_path)
         scenario, text = generated.scenario, generated.text
     n = scenario.n_drones
+    ardupilot_bin = _ardupilot_binary(args)
     if args.agents_per_process is None:
         args.agents_per_process = default_agents_per_process(n)
     if args.agents_per_process < 1:
@@ -218,6 +247,8 @@ def build_plan(
     if "gcs" in layout.parts:
         check_udp_ports([args.gcs_port], "ground station", layout.bind)
     if layout.router is not None or layout.secrets is not None:
+        if ardupilot_bin is not None:
+            raise SupervisorError("--ardupilot-bin flies on one host: no router, secrets or hosts")
         return multihost_plan(args, scenario_path, layout, n, duration), n
     report: Path = args.report
     logs = report / "logs"
@@ -239,6 +270,11 @@ def build_plan(
         agent_zenoh = ["--zenoh-listen", "tcp/127.0.0.1:0", "--zenoh-connect", endpoint]
     key = flags([("--signing-key", args.signing_key)])
     common = ["--scenario", str(scenario_path)]
+    # ArduCopter SITL instances count from their own boot: the swarm clock starts once they
+    # are ready (supervisor.EPOCH); the ground station ends the run at the duration
+    ardupilot = ardupilot_bin is not None
+    clock_flags = ["--swarm-epoch", EPOCH] if ardupilot else []
+    gcs_end = ["--duration-s", str(duration)] if ardupilot and session is None else []
     gcs = Child(
         "gcs",
         swarm_argv(
@@ -256,6 +292,8 @@ def build_plan(
             str(logs / RUN_FILE),
             *_session_flags(session),
             *key,
+            *clock_flags,
+            *gcs_end,
             "--quiet",
             *gcs_zenoh,
         ),
@@ -271,9 +309,21 @@ def build_plan(
             ("--gcs", f"udp:127.0.0.1:{args.gcs_port}"),
             ("--gcs-rate-hz", TELEMETRY_HZ),
             ("--duration-s", None if session else duration),  # a session: no end
+            ("--dialect", None if args.dialect == "px4" else args.dialect),
         ]
     )
-    sim = Child("simulator", swarm_argv("sim", *common, *sim_flags, *key), logs / "sim.log")
+    sim: Child | None = None
+    vehicles: list[Child] = []
+    if ardupilot_bin is None:
+        sim = Child("simulator", swarm_argv("sim", *common, *sim_flags, *key), logs / "sim.log")
+    else:
+        from gcs.cli.ardupilot_sitl import default_params, vehicle_children
+
+        defaults = args.ardupilot_defaults or default_params(ardupilot_bin)
+        vehicles = vehicle_children(ardupilot_bin, scenario, ports, args.gcs_port, logs, defaults)
+    dialect_flags = ["--dialect", "ardupilot"] if ardupilot or args.dialect != "px4" else []
+    if ardupilot:
+        dialect_flags += ["--vehicle-listen", *clock_flags]
     groups = agent_groups(n, args.agents_per_process)
     agents = [
         Child(
@@ -289,6 +339,7 @@ def build_plan(
                 "--quiet",
                 *(["--lockstep"] if args.clock == "lockstep" else []),
                 *(["--wait-for-plan"] if session else []),  # a session: GROUND until takeoff
+                *dialect_flags,
                 *agent_zenoh,
                 *key,
             ),
@@ -299,10 +350,43 @@ def build_plan(
     drones = agent_ranges(n, args.agents_per_process)
     plan = RunPlan(gcs, sim, agents, drones, logs / RUN_FILE, endpoint)
     plan.rendezvous_picked = not args.zenoh_connect
+    if vehicles:
+        from gcs.cli.ardupilot_sitl import wait_ready
+
+        plan.vehicles = vehicles
+        plan.wait_vehicles = lambda progress: wait_ready(scenario, ports, vehicles, progress)
     if session is not None:
         plan.session = True
         plan.shutdown_wait_s = session.shutdown_timeout_s + REPORT_WAIT_S
     return plan, n
+
+
+def _ardupilot_binary(args: argparse.Namespace) -> Path | None:
+    """The ArduCopter SITL binary to fly (None: our simulator); settles ``--clock`` and refuses
+    what ArduCopter SITL cannot do here (gcs/cli/ardupilot_sitl.py)."""
+    from gcs.cli.ardupilot_sitl import find_binary
+
+    binary = find_binary(getattr(args, "ardupilot_bin", None))
+    if binary is None:
+        args.clock = args.clock or "lockstep"
+        if getattr(args, "ardupilot_defaults", None) is not None:
+            raise SupervisorError("--ardupilot-defaults goes with --ardupilot-bin")
+        return None
+    if args.clock == "lockstep":
+        raise SupervisorError(
+            "--ardupilot-bin flies in real time only: ArduCopter SITL steps its own physics "
+            "(a lockstep would need our simulator as its physics through --model JSON); leave "
+            "--clock out or say --clock realtime"
+        )
+    if args.speedup != 1.0:
+        raise SupervisorError(
+            "--ardupilot-bin flies at --speedup 1 only: each ArduCopter instance would speed its "
+            "own clock up, while the swarm's clock is the wall clock"
+        )
+    if args.dialect != "px4":
+        raise SupervisorError("--dialect is our simulator's; ArduCopter speaks its own")
+    args.clock = "realtime"
+    return binary
 
 
 def _session_flags(session: SessionRequest | None) -> list[str]:

@@ -17,6 +17,13 @@ logs) does not and reads back with those ids unknown (protocols/mavlink_conventi
 
 pymavlink is used only as a codec, one per (system id, component): the autopilot (1) for vehicle
 telemetry, the onboard computer (191) for agent statuses; each carries its own sequence numbers.
+
+ArduCopter-dialect vehicles (their HEARTBEAT's autopilot is ArduPilot; protocols/
+mavlink_conventions.py) each keep their own EKF origin and their own boot clock: the reader takes
+their position from GLOBAL_POSITION_INT about the swarm frame's origin (the GPS_GLOBAL_ORIGIN the
+ground station, system 255, wrote at the start; the default home without one), and the time of
+their positions and attitudes from the record timestamps (the swarm's clock, on which the ground
+station stamped them: gcs/station/telemetry.py).
 """
 
 from __future__ import annotations
@@ -34,9 +41,10 @@ from typing import Any, BinaryIO
 
 import numpy as np
 import numpy.typing as npt
-from pymavlink.dialects.v20 import common
+from pymavlink.dialects.v20 import ardupilotmega, common
 
 from protocols.frames import FloatArray
+from protocols.geodesy import GeoPoint, geodetic_to_ned
 from protocols.mavlink_conventions import (
     ACTUATOR_ROTORS,
     AGENT_COMPID,
@@ -44,10 +52,13 @@ from protocols.mavlink_conventions import (
     AGENT_STATUS_LAYOUT,
     AGENT_STATUS_NAME,
     AGENT_STATUS_VALUES,
+    GCS_SYSID,
+    MAV_AUTOPILOT_ARDUPILOTMEGA,
 )
 from protocols.mavlink_fast import pack, parse
 
 _TS = struct.Struct(">Q")
+_Rows = list[tuple[float, ...]]
 _AUTOPILOT_COMPONENT = 1
 #: A vehicle whose last sample is older than this is reported NaN by ``TlogTrack.resample``.
 MAX_SAMPLE_AGE_S = 0.5
@@ -329,8 +340,14 @@ class TlogReader:
 
     def __init__(self, epoch_offset_s: float = 0.0) -> None:
         self.epoch_offset_s = epoch_offset_s
-        self._codec = common.MAVLink(None)
+        self._codec = ardupilotmega.MAVLink(None)  # an ArduPilot vehicle's messages too
         self._pos: dict[int, list[tuple[float, ...]]] = {}
+        #: ArduCopter dialect: GLOBAL_POSITION_INT rows (record ms, lat, lon (deg), alt (m),
+        #: vx, vy, vz (m/s)) and each ATTITUDE's record time (ms); which vehicles; the origin
+        self._global: dict[int, list[tuple[float, ...]]] = {}
+        self._att_rec: dict[int, list[float]] = {}
+        self._ardupilot: set[int] = set()
+        self.origin: GeoPoint | None = None
         self._att: dict[int, list[tuple[float, ...]]] = {}
         self._act: dict[int, list[tuple[float, ...]]] = {}
         self._agent: dict[int, list[tuple[float, ...]]] = {}
@@ -377,6 +394,13 @@ class TlogReader:
             self._att.setdefault(sysid, []).append(
                 (msg.time_boot_ms, msg.roll, msg.pitch, msg.yaw, *rates)
             )
+            self._att_rec.setdefault(sysid, []).append(t_rec * 1000.0)
+        elif mtype == "GLOBAL_POSITION_INT":
+            row = (t_rec * 1000.0, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3,
+                   msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)  # fmt: skip
+            self._global.setdefault(sysid, []).append(row)
+        elif mtype == "GPS_GLOBAL_ORIGIN" and sysid == GCS_SYSID:
+            self.origin = GeoPoint(msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
         elif mtype == "ACTUATOR_OUTPUT_STATUS":
             forces = msg.actuator[:ACTUATOR_ROTORS]
             self._act.setdefault(sysid, []).append((msg.time_usec / 1000.0, *forces))
@@ -390,6 +414,8 @@ class TlogReader:
                 row = (msg.time_usec / 1000.0, *values, float(layout), *ids)
                 self._agent.setdefault(sysid, []).append(row)
         elif mtype == "HEARTBEAT" and msg.get_srcComponent() == _AUTOPILOT_COMPONENT:
+            if msg.autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA:
+                self._ardupilot.add(sysid)
             armed = float(bool(msg.base_mode & common.MAV_MODE_FLAG_SAFETY_ARMED))
             beat = (t_rec * 1000.0, armed, float(msg.custom_mode))
             self._beats.setdefault(sysid, []).append(beat)
@@ -404,6 +430,10 @@ class TlogReader:
     def track(self) -> TlogTrack:
         """Everything read so far."""
         pos, att, act, agent, beats = self._pos, self._att, self._act, self._agent, self._beats
+        if self._ardupilot:
+            pos, att = dict(pos), dict(att)
+            for s in self._ardupilot:
+                pos[s], att[s] = self._ardupilot_rows(s)
         vehicles = {
             s: _track(
                 pos.get(s, []), att.get(s, []), act.get(s, []), agent.get(s, []), beats.get(s, [])
@@ -416,6 +446,24 @@ class TlogReader:
                     name: _by_time([tuple(r) for r in rows], 2) for name, rows in values.items()
                 }
         return TlogTrack(vehicles, list(self._texts), self._bad)
+
+
+    def _ardupilot_rows(self, sysid: int) -> tuple[_Rows, _Rows]:
+        """An ArduCopter vehicle's position rows (record ms, NED about the origin, velocity) and
+        attitude rows on record times (module doc)."""
+        rows = self._global.get(sysid, [])
+        pos: list[tuple[float, ...]] = []
+        if rows:
+            table = np.asarray(rows, dtype=float)
+            origin = self.origin if self.origin is not None else GeoPoint()
+            ned = geodetic_to_ned(origin, table[:, 1], table[:, 2], table[:, 3])
+            out = np.column_stack([table[:, 0], ned, table[:, 4:7]])
+            pos = [tuple(r) for r in out.tolist()]
+        att = [
+            (t, *row[1:])
+            for t, row in zip(self._att_rec.get(sysid, []), self._att.get(sysid, []), strict=True)
+        ]
+        return pos, att
 
 
 def _packet_length(data: bytes, ofs: int) -> int | None:

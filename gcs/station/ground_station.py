@@ -104,6 +104,9 @@ class GcsOptions:
     session: bool = False
     shutdown_timeout_s: float = 120.0
     on_recording: Callable[[], None] | None = None
+    #: vehicles that each count from their own boot: the swarm clock's epoch (Unix s;
+    #: protocols/swarm_clock.py), None when one simulator's time is the swarm's
+    swarm_epoch_s: float | None = None
 
 
 class GroundStation:
@@ -142,6 +145,8 @@ class GroundStation:
                 # a restarted station's clock: what comes before any timed telemetry (a
                 # STATUSTEXT, a HEARTBEAT) is stamped there, not at 0, in the tlog and the events
                 sim_time_s=self._t_floor_s,
+                origin=options.scenario.home,
+                epoch_s=options.swarm_epoch_s,
             )
             self._closers.append(self.telemetry.close)
             if options.on_recording is not None:

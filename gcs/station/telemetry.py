@@ -6,6 +6,15 @@ The simulator sends to the ground station's address; the ground station sends ba
 (:meth:`TelemetryReceiver.send_command`, e.g. MAV_CMD_INJECT_FAILURE), to the address the vehicles'
 telemetry comes from. The record time of a packet is its own ``time_boot_ms`` (s) when it has one,
 else its vehicle's last known time, else the newest simulated time heard from any vehicle.
+
+Vehicles of either autopilot dialect (protocols/mavlink_conventions.py), known by their HEARTBEAT:
+a PX4-dialect vehicle's position is its LOCAL_POSITION_NED (one simulator, one frame); an
+ArduCopter's is its GLOBAL_POSITION_INT about the swarm's origin (``origin``, written into the log
+as a GPS_GLOBAL_ORIGIN of the ground station's system id, 255, so that the report reads it back),
+since each ArduCopter keeps its own EKF origin. With ``epoch_s`` (autopilots that each count from
+their own boot: protocols/swarm_clock.py) a ``time_boot_ms`` is put on the swarm's clock first.
+Commands go back to the address each vehicle's telemetry comes from (one simulator, or one
+ArduCopter instance each).
 """
 
 from __future__ import annotations
@@ -16,11 +25,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pymavlink.dialects.v20 import common
+from pymavlink.dialects.v20 import ardupilotmega, common
 
 from gcs.report.tlog import TlogWriter
+from protocols.geodesy import GeoPoint, geodetic_to_ned
+from protocols.mavlink_conventions import GCS_COMPID, GCS_SYSID, MAV_AUTOPILOT_ARDUPILOTMEGA
 from protocols.mavlink_fast import fast_receive_ok, parse
 from protocols.mavlink_signing import setup_signing
+from protocols.swarm_clock import VehicleClock
 from protocols.wire_status import AgentStatus
 
 _MAX_DATAGRAM = 65535
@@ -39,6 +51,10 @@ class VehicleState:
     armed: bool = False
     system_status: int = 0
     packets: int = 0
+    #: its HEARTBEAT says ArduPilot: its position is GLOBAL_POSITION_INT about the origin
+    ardupilot: bool = False
+    #: its HEARTBEAT's custom_mode
+    custom_mode: int = 0
 
 
 @dataclass(frozen=True)
@@ -67,19 +83,28 @@ class TelemetryReceiver:
     sim_address: tuple[str, int] | None = None
     append: bool = False
     signing_key: bytes | None = None
+    #: the swarm frame's origin on the map (ArduCopter-dialect positions)
+    origin: GeoPoint | None = None
+    #: the swarm clock's epoch (Unix s) for vehicles that each count from their own boot
+    epoch_s: float | None = None
 
     def __post_init__(self) -> None:
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._clocks: dict[int, VehicleClock] = {}
+        self._address_of: dict[int, tuple[str, int]] = {}
         try:
             self._sock.bind((self.host, self.port))
             self._sock.setblocking(False)
-            self._codec = common.MAVLink(None)
+            # ArduPilot's own messages (EKF_STATUS_REPORT, ...) are logged too
+            self._codec = ardupilotmega.MAVLink(None)
             self._out = common.MAVLink(None, srcSystem=255, srcComponent=190)  # a GCS
             if self.signing_key is not None:  # the simulator rejects unsigned commands then
                 setup_signing(self._out, self.signing_key, link_id=2)
             self._codec.robust_parsing = True
             self._tlog = TlogWriter(self.tlog_path, append=self.append)
             self._tlog.open()
+            if self.origin is not None:
+                self._log_origin(self.origin)
         except BaseException:
             self._sock.close()
             raise
@@ -99,6 +124,14 @@ class TelemetryReceiver:
         """The socket, for ``select``."""
         return self._sock.fileno()
 
+    def _log_origin(self, origin: GeoPoint) -> None:
+        """GPS_GLOBAL_ORIGIN of the swarm frame, as the ground station (report/tlog.py)."""
+        codec = self._tlog.codec(GCS_SYSID, GCS_COMPID)
+        msg = codec.gps_global_origin_encode(
+            round(origin.lat_deg * 1e7), round(origin.lon_deg * 1e7), round(origin.alt_m * 1e3)
+        )
+        self._tlog.write_message(self.sim_time_s, GCS_SYSID, msg)
+
     def poll(self) -> list[VehicleText]:
         """Drain every waiting datagram; returns the status texts that came."""
         texts: list[VehicleText] = []
@@ -117,8 +150,10 @@ class TelemetryReceiver:
                     self.malformed += 1
                     continue
             for msg in messages:
-                if msg.get_type() != "BAD_DATA" and 1 <= msg.get_srcSystem() <= 254:
+                sysid = msg.get_srcSystem()
+                if msg.get_type() != "BAD_DATA" and 1 <= sysid <= 254:
                     self.sim_address = (str(address[0]), int(address[1]))
+                    self._address_of[sysid] = self.sim_address
                 text = self._handle(msg)
                 if text is not None:
                     texts.append(text)
@@ -137,7 +172,8 @@ class TelemetryReceiver:
             raise OSError("no telemetry heard yet: the simulator's address is unknown")
         padded = [float(p) for p in params] + [0.0] * (7 - len(params))
         msg = self._out.command_long_encode(drone + 1, 1, command, 0, *padded)
-        self._sock.sendto(msg.pack(self._out), self.sim_address)
+        address = self._address_of.get(drone + 1, self.sim_address)
+        self._sock.sendto(msg.pack(self._out), address)
 
     def _handle(self, msg: Any) -> VehicleText | None:
         if msg.get_type() == "BAD_DATA":
@@ -149,19 +185,35 @@ class TelemetryReceiver:
         state = self.vehicles.setdefault(sysid - 1, VehicleState(t_s=self.sim_time_s))
         boot_ms = getattr(msg, "time_boot_ms", None)
         if isinstance(boot_ms, int):
+            if self.epoch_s is not None:
+                clock = self._clocks.get(sysid)
+                if clock is None:
+                    clock = self._clocks[sysid] = VehicleClock(self.epoch_s)
+                boot_ms = clock.swarm_ms(boot_ms)
             state.t_s = boot_ms / 1000.0
             self.sim_time_s = max(self.sim_time_s, state.t_s)
         state.packets += 1
         self._tlog.write_packet(state.t_s, bytes(msg.get_msgbuf()))
         kind = msg.get_type()
         if kind == "LOCAL_POSITION_NED":
-            state.position_ned_m = (msg.x, msg.y, msg.z)
-            state.velocity_ned_m_s = (msg.vx, msg.vy, msg.vz)
+            if not state.ardupilot:  # an ArduCopter's is about its own EKF origin
+                state.position_ned_m = (msg.x, msg.y, msg.z)
+                state.velocity_ned_m_s = (msg.vx, msg.vy, msg.vz)
+        elif kind == "GLOBAL_POSITION_INT":
+            if state.ardupilot:
+                origin = self.origin if self.origin is not None else GeoPoint()
+                ned = geodetic_to_ned(origin, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)[0]
+                state.position_ned_m = (float(ned[0]), float(ned[1]), float(ned[2]))
+                state.velocity_ned_m_s = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
         elif kind == "ATTITUDE":
             state.euler_rad = (msg.roll, msg.pitch, msg.yaw)
         elif kind == "HEARTBEAT":
+            if msg.get_srcComponent() != 1:  # a companion's or a camera's: not the vehicle's
+                return None
             state.armed = bool(msg.base_mode & _ARMED_FLAG)
             state.system_status = int(msg.system_status)
+            state.custom_mode = int(msg.custom_mode)
+            state.ardupilot = int(msg.autopilot) == MAV_AUTOPILOT_ARDUPILOTMEGA
         elif kind == "STATUSTEXT":
             raw = getattr(msg, "_text_raw", b"")
             text = raw.split(b"\x00", 1)[0].decode("utf-8", "replace") if raw else str(msg.text)

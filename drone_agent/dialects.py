@@ -1,0 +1,276 @@
+"""The autopilot dialects an agent speaks: one class per firmware behind one interface.
+
+An agent never branches on the firmware elsewhere: its vehicle link (drone_agent/vehicle_link.py)
+holds one :class:`AutopilotDialect`, taken from the vehicle's HEARTBEAT (its ``autopilot`` field)
+unless ``--dialect`` forces one, and asks it
+
+- which of the agent's modes the vehicle is in (:meth:`AutopilotDialect.modes`: flying the
+  agent's setpoints, its own LAND, its own hold) and how to ask for each
+  (:meth:`~AutopilotDialect.offboard_command`, :meth:`~AutopilotDialect.land_command`,
+  :meth:`~AutopilotDialect.hold_command`);
+- what to set up on the vehicle, and whether the vehicle is ready to fly
+  (:meth:`~AutopilotDialect.service`, :attr:`~AutopilotDialect.ready` and
+  :attr:`~AutopilotDialect.not_ready_reason`);
+- how its thrust goes on the wire (:meth:`~AutopilotDialect.wire_thrust`);
+- which message carries the position in the swarm's frame (:attr:`~AutopilotDialect.global_frame`).
+
+PX4 (the project's own simulator's default): OFFBOARD, AUTO.LAND, AUTO.LOITER; the thrust is the
+normalised thrust of the vehicle's maximum; LOCAL_POSITION_NED is already in the swarm's frame
+(one simulator, one origin); always ready.
+
+ArduCopter (protocols/mavlink_conventions.py, "autopilot dialects"): GUIDED_NOGPS flies
+SET_ATTITUDE_TARGET, LAND lands and disarms, BRAKE holds. The agent reads GUID_OPTIONS and sets its
+bit 3 (thrust as thrust, not a climb rate), and counts it done only once a PARAM_VALUE says so;
+it reads MOT_THST_HOVER (learnt in flight: read again every few seconds) to put its thrust in the
+autopilot's units: ``throttle = thrust / weight * MOT_THST_HOVER * cos(roll) cos(pitch)`` (the
+attitude controller divides by the cosine again: angle boost). It asks for the messages it needs
+(ATTITUDE and GLOBAL_POSITION_INT at the control rate, EKF_STATUS_REPORT, GPS_RAW_INT and
+SYS_STATUS at 2 Hz) and calls the vehicle ready once its EKF reports attitude, velocities and
+positions (no constant-position mode, no GPS glitch), its GPS a 3-D fix, its SYS_STATUS pre-arm
+checks passing, and both parameters are known. Until then the agent says it is not ready, so the
+swarm waits for it (flight_phase.Readiness). Each ArduCopter vehicle keeps its own EKF origin: its
+position in the swarm's one frame comes from GLOBAL_POSITION_INT about the swarm's common origin.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from protocols.mavlink_conventions import (
+    EKF_BAD_FLAGS,
+    EKF_READY_FLAGS,
+    GPS_FIX_3D,
+    GUID_OPTIONS_THRUST,
+    MODE_HOLD,
+    MODE_LAND,
+    MODE_OFFBOARD,
+    MSG_ATTITUDE,
+    MSG_EKF_STATUS_REPORT,
+    MSG_GLOBAL_POSITION_INT,
+    MSG_GPS_RAW_INT,
+    MSG_SYS_STATUS,
+    SYS_STATUS_PREARM_CHECK,
+    CopterMode,
+    Dialect,
+    Px4AutoSubMode,
+    Px4MainMode,
+)
+
+#: MAV_CMD_DO_SET_MODE and its base-mode flag.
+CMD_DO_SET_MODE = 176
+CUSTOM_MODE_ENABLED = 1.0
+#: How often (s, the agent's clock) an ArduCopter set-up step not yet confirmed is asked again.
+SETUP_RETRY_S = 1.0
+#: How often (s) MOT_THST_HOVER is read again (the autopilot learns it in flight).
+HOVER_REREAD_S = 3.0
+#: The status-message rate (Hz) an ArduCopter agent asks for.
+STATUS_RATE_HZ = 2.0
+#: The cosine of the tilt the throttle is scaled by is never taken below this (as ArduCopter).
+MIN_BOOST_COS = 0.1
+
+#: (command id, params) of a COMMAND_LONG; the link sends it to its vehicle's autopilot.
+Command = tuple[int, tuple[float, ...]]
+
+
+@dataclass(frozen=True)
+class ModeView:
+    """Which of the agent's modes the vehicle is in."""
+
+    in_offboard: bool
+    in_land: bool
+    in_hold: bool
+
+
+class VehicleIo:
+    """What a dialect may do on its link: the link's own sends (drone_agent/vehicle_link.py)."""
+
+    command: Callable[..., None]
+    request_interval: Callable[[int, float], None]
+    param_set: Callable[[str, float], None]
+    param_read: Callable[[str], None]
+
+
+class AutopilotDialect:
+    """The PX4 dialect, and the interface (module doc)."""
+
+    name = Dialect.PX4
+    #: whether the swarm-frame position is GLOBAL_POSITION_INT about the common origin (else
+    #: LOCAL_POSITION_NED), paired with ATTITUDE by time rather than by equal ``time_boot_ms``
+    global_frame = False
+
+    def modes(self, custom_mode: int) -> ModeView:
+        return ModeView(
+            custom_mode == MODE_OFFBOARD, custom_mode == MODE_LAND, custom_mode == MODE_HOLD
+        )
+
+    def offboard_command(self) -> Command:
+        return CMD_DO_SET_MODE, (CUSTOM_MODE_ENABLED, float(Px4MainMode.OFFBOARD))
+
+    def land_command(self) -> Command:
+        """PX4 AUTO.LAND: level, sink, disarm on touchdown."""
+        return CMD_DO_SET_MODE, (
+            CUSTOM_MODE_ENABLED, float(Px4MainMode.AUTO), float(Px4AutoSubMode.LAND)
+        )  # fmt: skip
+
+    def hold_command(self) -> Command:
+        """PX4 AUTO.LOITER: level, hold the altitude."""
+        return CMD_DO_SET_MODE, (
+            CUSTOM_MODE_ENABLED, float(Px4MainMode.AUTO), float(Px4AutoSubMode.LOITER)
+        )  # fmt: skip
+
+    def service(self, io: VehicleIo, now_s: float, armed: bool) -> None:
+        """Set-up due now (nothing for PX4)."""
+
+    def on_message(self, kind: str, msg: Any) -> None:
+        """A message of the vehicle's autopilot the dialect reads (parameters, EKF, ...)."""
+
+    @property
+    def ready(self) -> bool:
+        """Whether the vehicle can be armed and flown with this dialect's setpoints."""
+        return True
+
+    @property
+    def not_ready_reason(self) -> str:
+        """Why it is not :attr:`ready` ("" when it is)."""
+        return ""
+
+    def wire_thrust(self, thrust_normalised: float, roll_rad: float, pitch_rad: float) -> float:
+        """SET_ATTITUDE_TARGET's thrust for the agent's thrust (normalised, of the scenario
+        vehicle's maximum) at the setpoint's attitude."""
+        return thrust_normalised
+
+
+class Px4Dialect(AutopilotDialect):
+    """PX4's OFFBOARD dialect (the base class's behaviour)."""
+
+
+class ArduCopterDialect(AutopilotDialect):
+    """ArduCopter's GUIDED_NOGPS dialect (module doc). ``thrust_to_weight``: the scenario
+    vehicle's maximum thrust over its weight, the scale of the agent's normalised thrust;
+    ``control_hz``: the rate at which ATTITUDE and GLOBAL_POSITION_INT are asked for."""
+
+    name = Dialect.ARDUPILOT
+    global_frame = True
+
+    def __init__(self, thrust_to_weight: float, control_hz: float = 50.0) -> None:
+        self.thrust_to_weight = thrust_to_weight
+        self.control_hz = control_hz
+        self.guid_options: int | None = None  # as the vehicle last said
+        self.hover: float | None = None  # MOT_THST_HOVER as the vehicle last said
+        self.ekf_flags: int | None = None
+        self.gps_fix: int | None = None
+        self.prearm_ok: bool | None = None
+        self._streams_asked_s = -math.inf
+        self._options_asked_s = -math.inf
+        self._hover_asked_s = -math.inf
+        self._heard_stream = False
+
+    def modes(self, custom_mode: int) -> ModeView:
+        return ModeView(
+            custom_mode == CopterMode.GUIDED_NOGPS,
+            custom_mode == CopterMode.LAND,
+            custom_mode == CopterMode.BRAKE,
+        )
+
+    def offboard_command(self) -> Command:
+        return CMD_DO_SET_MODE, (CUSTOM_MODE_ENABLED, float(CopterMode.GUIDED_NOGPS))
+
+    def land_command(self) -> Command:
+        """LAND: descend, disarm on touchdown."""
+        return CMD_DO_SET_MODE, (CUSTOM_MODE_ENABLED, float(CopterMode.LAND))
+
+    def hold_command(self) -> Command:
+        """BRAKE: stop and hold the position, no pilot input."""
+        return CMD_DO_SET_MODE, (CUSTOM_MODE_ENABLED, float(CopterMode.BRAKE))
+
+    @property
+    def thrust_confirmed(self) -> bool:
+        """The vehicle said GUID_OPTIONS has the thrust bit."""
+        return self.guid_options is not None and bool(self.guid_options & GUID_OPTIONS_THRUST)
+
+    def service(self, io: VehicleIo, now_s: float, armed: bool) -> None:
+        if not self._heard_stream and _due(now_s, self._streams_asked_s, SETUP_RETRY_S):
+            self._streams_asked_s = now_s
+            io.request_interval(MSG_ATTITUDE, self.control_hz)
+            io.request_interval(MSG_GLOBAL_POSITION_INT, self.control_hz)
+            for msg_id in (MSG_EKF_STATUS_REPORT, MSG_GPS_RAW_INT, MSG_SYS_STATUS):
+                io.request_interval(msg_id, STATUS_RATE_HZ)
+        if not self.thrust_confirmed and _due(now_s, self._options_asked_s, SETUP_RETRY_S):
+            self._options_asked_s = now_s
+            if self.guid_options is None:
+                io.param_read("GUID_OPTIONS")
+            else:  # keep the user's other bits
+                io.param_set("GUID_OPTIONS", float(self.guid_options | GUID_OPTIONS_THRUST))
+        reread = HOVER_REREAD_S if self.hover is not None else SETUP_RETRY_S
+        if _due(now_s, self._hover_asked_s, reread):
+            self._hover_asked_s = now_s
+            io.param_read("MOT_THST_HOVER")
+
+    def on_message(self, kind: str, msg: Any) -> None:
+        if kind == "PARAM_VALUE":
+            name = _param_name(msg.param_id)
+            value = float(msg.param_value)
+            if name == "GUID_OPTIONS" and math.isfinite(value):
+                self.guid_options = int(value)
+            elif name == "MOT_THST_HOVER" and math.isfinite(value) and 0.05 <= value <= 0.95:
+                self.hover = value
+        elif kind == "EKF_STATUS_REPORT":
+            self.ekf_flags = int(msg.flags)
+        elif kind == "GPS_RAW_INT":
+            self.gps_fix = int(msg.fix_type)
+        elif kind == "SYS_STATUS":
+            present = int(msg.onboard_control_sensors_present) & SYS_STATUS_PREARM_CHECK
+            healthy = int(msg.onboard_control_sensors_health) & SYS_STATUS_PREARM_CHECK
+            self.prearm_ok = bool(present and healthy)
+        elif kind in ("GLOBAL_POSITION_INT", "ATTITUDE"):
+            self._heard_stream = True
+
+    @property
+    def ready(self) -> bool:
+        return self.not_ready_reason == ""
+
+    @property
+    def not_ready_reason(self) -> str:
+        flags = self.ekf_flags
+        if flags is None:
+            return "no EKF status yet"
+        if flags & EKF_READY_FLAGS != EKF_READY_FLAGS or flags & EKF_BAD_FLAGS:
+            return f"EKF not ready (flags 0x{flags:x})"
+        if self.gps_fix is None or self.gps_fix < GPS_FIX_3D:
+            return f"GPS has no 3-D fix (fix type {self.gps_fix})"
+        if not self.prearm_ok:
+            return "pre-arm checks failing"
+        if not self.thrust_confirmed:
+            return "GUID_OPTIONS thrust bit not confirmed"
+        if self.hover is None:
+            return "MOT_THST_HOVER unknown"
+        return ""
+
+    def wire_thrust(self, thrust_normalised: float, roll_rad: float, pitch_rad: float) -> float:
+        hover = self.hover if self.hover is not None else 0.0
+        cos_tilt = max(math.cos(roll_rad) * math.cos(pitch_rad), MIN_BOOST_COS)
+        throttle = thrust_normalised * self.thrust_to_weight * hover * cos_tilt
+        return min(max(throttle, 0.0), 1.0)
+
+
+def make_dialect(dialect: Dialect, thrust_to_weight: float, control_hz: float) -> AutopilotDialect:
+    """A fresh dialect object of ``dialect`` for one vehicle."""
+    if dialect == Dialect.ARDUPILOT:
+        return ArduCopterDialect(thrust_to_weight, control_hz)
+    return Px4Dialect()
+
+
+def _due(now_s: float, last_s: float, period_s: float) -> bool:
+    """``period_s`` has passed since ``last_s``, or the clock changed (a greeting on the wall
+    clock, then a lockstep agent on simulated time)."""
+    return not 0.0 <= now_s - last_s < period_s
+
+
+def _param_name(raw: Any) -> str:
+    """A PARAM_* param_id (str or bytes, NUL-padded) as text."""
+    if isinstance(raw, bytes | bytearray):
+        raw = raw.decode("ascii", errors="replace")
+    return str(raw).rstrip("\x00")
