@@ -21,6 +21,11 @@ normalised thrust of the vehicle's maximum; LOCAL_POSITION_NED is already in the
 ArduCopter (protocols/mavlink_conventions.py, "autopilot dialects"): GUIDED_NOGPS flies
 SET_ATTITUDE_TARGET, LAND lands and disarms, BRAKE holds. The agent reads GUID_OPTIONS and sets its
 bit 3 (thrust as thrust, not a climb rate), and counts it done only once a PARAM_VALUE says so;
+it makes itself the vehicle's GCS for the heartbeat failsafe (MAV_GCS_SYSID, SYSID_MYGCS before
+ArduPilot 4.7, = the vehicle's own system id: its companion's heartbeats count) with
+FS_GCS_ENABLE = 5 (land), so that a vehicle whose agent dies lands after FS_GCS_TIMEOUT (5 s)
+instead of hovering on in GUIDED_NOGPS (which only levels and holds its altitude), also confirmed
+by PARAM_VALUE;
 it reads MOT_THST_HOVER (learnt in flight: read again every few seconds) to put its thrust in the
 autopilot's units: ``throttle = thrust / weight * MOT_THST_HOVER * cos(roll) cos(pitch)`` (the
 attitude controller divides by the cosine again: angle boost). It asks for the messages it needs
@@ -70,6 +75,10 @@ HOVER_REREAD_S = 3.0
 STATUS_RATE_HZ = 2.0
 #: The cosine of the tilt the throttle is scaled by is never taken below this (as ArduCopter).
 MIN_BOOST_COS = 0.1
+#: FS_GCS_ENABLE's value "always land".
+FS_GCS_LAND = 5
+#: The GCS system id parameter's names: ArduPilot 4.7 and earlier releases.
+GCS_SYSID_PARAMS = ("MAV_GCS_SYSID", "SYSID_MYGCS")
 
 #: (command id, params) of a COMMAND_LONG; the link sends it to its vehicle's autopilot.
 Command = tuple[int, tuple[float, ...]]
@@ -155,9 +164,12 @@ class ArduCopterDialect(AutopilotDialect):
     name = Dialect.ARDUPILOT
     global_frame = True
 
-    def __init__(self, thrust_to_weight: float, control_hz: float = 50.0) -> None:
+    def __init__(self, thrust_to_weight: float, control_hz: float = 50.0, sysid: int = 1) -> None:
         self.thrust_to_weight = thrust_to_weight
         self.control_hz = control_hz
+        self.sysid = sysid
+        #: parameters as the vehicle last said them (PARAM_VALUE)
+        self.params: dict[str, float] = {}
         self.guid_options: int | None = None  # as the vehicle last said
         self.hover: float | None = None  # MOT_THST_HOVER as the vehicle last said
         self.ekf_flags: int | None = None
@@ -166,6 +178,7 @@ class ArduCopterDialect(AutopilotDialect):
         self._streams_asked_s = -math.inf
         self._options_asked_s = -math.inf
         self._hover_asked_s = -math.inf
+        self._failsafe_asked_s = -math.inf
         self._heard_stream = False
 
     def modes(self, custom_mode: int) -> ModeView:
@@ -187,6 +200,12 @@ class ArduCopterDialect(AutopilotDialect):
         return CMD_DO_SET_MODE, (CUSTOM_MODE_ENABLED, float(CopterMode.BRAKE))
 
     @property
+    def failsafe_confirmed(self) -> bool:
+        """The vehicle said its GCS is this agent and its GCS failsafe lands."""
+        mine = any(self.params.get(name) == float(self.sysid) for name in GCS_SYSID_PARAMS)
+        return mine and self.params.get("FS_GCS_ENABLE") == float(FS_GCS_LAND)
+
+    @property
     def thrust_confirmed(self) -> bool:
         """The vehicle said GUID_OPTIONS has the thrust bit."""
         return self.guid_options is not None and bool(self.guid_options & GUID_OPTIONS_THRUST)
@@ -204,6 +223,11 @@ class ArduCopterDialect(AutopilotDialect):
                 io.param_read("GUID_OPTIONS")
             else:  # keep the user's other bits
                 io.param_set("GUID_OPTIONS", float(self.guid_options | GUID_OPTIONS_THRUST))
+        if not self.failsafe_confirmed and _due(now_s, self._failsafe_asked_s, SETUP_RETRY_S):
+            self._failsafe_asked_s = now_s
+            for name in GCS_SYSID_PARAMS:  # a release that lacks one ignores it
+                io.param_set(name, float(self.sysid))
+            io.param_set("FS_GCS_ENABLE", float(FS_GCS_LAND))
         reread = HOVER_REREAD_S if self.hover is not None else SETUP_RETRY_S
         if _due(now_s, self._hover_asked_s, reread):
             self._hover_asked_s = now_s
@@ -213,6 +237,7 @@ class ArduCopterDialect(AutopilotDialect):
         if kind == "PARAM_VALUE":
             name = _param_name(msg.param_id)
             value = float(msg.param_value)
+            self.params[name] = value
             if name == "GUID_OPTIONS" and math.isfinite(value):
                 self.guid_options = int(value)
             elif name == "MOT_THST_HOVER" and math.isfinite(value) and 0.05 <= value <= 0.95:
@@ -245,6 +270,8 @@ class ArduCopterDialect(AutopilotDialect):
             return "pre-arm checks failing"
         if not self.thrust_confirmed:
             return "GUID_OPTIONS thrust bit not confirmed"
+        if not self.failsafe_confirmed:
+            return "heartbeat failsafe (MAV_GCS_SYSID, FS_GCS_ENABLE) not confirmed"
         if self.hover is None:
             return "MOT_THST_HOVER unknown"
         return ""
@@ -256,10 +283,12 @@ class ArduCopterDialect(AutopilotDialect):
         return min(max(throttle, 0.0), 1.0)
 
 
-def make_dialect(dialect: Dialect, thrust_to_weight: float, control_hz: float) -> AutopilotDialect:
-    """A fresh dialect object of ``dialect`` for one vehicle."""
+def make_dialect(
+    dialect: Dialect, thrust_to_weight: float, control_hz: float, sysid: int = 1
+) -> AutopilotDialect:
+    """A fresh dialect object of ``dialect`` for vehicle ``sysid``."""
     if dialect == Dialect.ARDUPILOT:
-        return ArduCopterDialect(thrust_to_weight, control_hz)
+        return ArduCopterDialect(thrust_to_weight, control_hz, sysid)
     return Px4Dialect()
 
 

@@ -136,7 +136,7 @@ class VehicleLink:
         self._thrust_to_weight, self._control_hz = thrust_to_weight, control_hz
         self.dialect_forced = dialect is not None
         self.dialect: AutopilotDialect = make_dialect(
-            dialect or Dialect.PX4, thrust_to_weight, control_hz
+            dialect or Dialect.PX4, thrust_to_weight, control_hz, self.sysid
         )
         self.origin = origin if origin is not None else GeoPoint()
         self.clock = clock
@@ -310,7 +310,7 @@ class VehicleLink:
             return
         found = dialect_of_autopilot(autopilot)
         if found is not None and found != self.dialect.name:
-            self.dialect = make_dialect(found, self._thrust_to_weight, self._control_hz)
+            self.dialect = make_dialect(found, self._thrust_to_weight, self._control_hz, self.sysid)
             self._pos.clear()
             self._att.clear()
 

@@ -143,6 +143,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "the swarm's clock is seconds since this Unix time, as the agents' --swarm-epoch "
         "(swarm up passes it)",
     )
+    p.add_argument(
+        "--land-at-end",
+        action="store_true",
+        help="at the end time, land the swarm and end the run once every vehicle is down (or "
+        "after --shutdown-timeout-s), as swarm shutdown does; swarm up sets it for vehicles "
+        "that outlive the run (--ardupilot-bin)",
+    )
     p.add_argument("--quiet", action="store_true", help="no status line")
 
 
@@ -238,6 +245,7 @@ def run(args: argparse.Namespace) -> int:
         session=args.session,
         shutdown_timeout_s=args.shutdown_timeout_s,
         swarm_epoch_s=args.swarm_epoch,
+        land_at_end=args.land_at_end,
         envelope=envelope_of(scenario.safety),
         on_line=None if args.quiet else lambda line: print(line, file=sys.stderr, flush=True),
         on_recording=lambda: print(

@@ -274,7 +274,9 @@ def build_plan(
     # are ready (supervisor.EPOCH); the ground station ends the run at the duration
     ardupilot = ardupilot_bin is not None
     clock_flags = ["--swarm-epoch", EPOCH] if ardupilot else []
-    gcs_end = ["--duration-s", str(duration)] if ardupilot and session is None else []
+    gcs_end = (
+        ["--duration-s", str(duration), "--land-at-end"] if ardupilot and session is None else []
+    )
     gcs = Child(
         "gcs",
         swarm_argv(

@@ -107,6 +107,9 @@ class GcsOptions:
     #: vehicles that each count from their own boot: the swarm clock's epoch (Unix s;
     #: protocols/swarm_clock.py), None when one simulator's time is the swarm's
     swarm_epoch_s: float | None = None
+    #: at the end time, land the swarm (the ``land`` plan) and end the run once it is down, as
+    #: a shutdown does (vehicles that outlive the run: another project's SITL, hardware)
+    land_at_end: bool = False
 
 
 class GroundStation:
@@ -272,7 +275,7 @@ class GroundStation:
         # the simulator's last report
         last_sample_s = math.inf if end_s is None else end_s - 1.0 / self._o.telemetry_hz
         last_pass = time.monotonic()
-        while not self._stop and self.now_s < last_sample_s:
+        while not self._stop and (self.now_s < last_sample_s or self._landing_at_end(end_s)):
             select.select([self.telemetry], [], [], _POLL_S)
             # at most one pass every _MIN_PASS_S: what came meanwhile waits in the socket and the
             # queues, and is taken in one pass (not one pass per datagram)
@@ -298,8 +301,8 @@ class GroundStation:
             self.events.record(self.now_s, "gcs_stopped", reason="restart", plan_seq=self.plan.seq)
             return []
         self.events.record(self.now_s, "run_end", plan_seq=self.plan.seq)
-        if end_s is None:  # a session ends now
-            end_s = self.now_s
+        if end_s is None or self._o.land_at_end:  # a session, or a landing after the end
+            end_s = max(self.now_s, end_s or 0.0)
         self.telemetry.close()
         n = self._o.scenario.n_drones
         report = self._o.report_dir
@@ -408,6 +411,15 @@ class GroundStation:
             return Reply(False, str(exc), self.plan.seq)
         self._publish(plan, request.name)
         return Reply(True, f"plan {plan.seq}: {when}", plan.seq)
+
+    def _landing_at_end(self, end_s: float | None) -> bool:
+        """With ``land_at_end``, past the end time: land first (once), True until the swarm is
+        down (:meth:`_shutdown_over`, checked in the loop)."""
+        if not self._o.land_at_end or end_s is None:
+            return False
+        if self._shutdown_since is None:
+            self._begin_shutdown(self.now_s, "the scenario ended")
+        return True
 
     def _begin_shutdown(self, now_s: float, why: str) -> Reply:
         """Land the swarm if it flies (the ``land`` plan), then end the run once it is down
