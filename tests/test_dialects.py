@@ -259,3 +259,22 @@ def test_auto_dialect_with_a_px4_heartbeat_keeps_local_position() -> None:
     finally:
         link.close()
         peer_sock.close()
+
+
+def test_ardupilot_learns_the_hover_throttle_that_holds_the_vehicle() -> None:
+    d = ArduCopterDialect(thrust_to_weight=2.0, control_hz=50.0)
+    _ready(d)  # MOT_THST_HOVER 0.39
+    # the vehicle really hovers at 0.42: holding it, the agent's altitude loop sends 0.42 (a
+    # steady altitude error makes up for the wrong hover; it shrinks as the hover is learnt)
+    for _ in range(50 * 40):  # 40 s of a steady hover
+        assert d.hover is not None
+        assert d.wire_thrust(0.5 * 0.42 / d.hover, 0.0, 0.0) == pytest.approx(0.42)
+        d.on_sample(0.0, 0.01, -0.01, armed=True)
+    assert d.hover == pytest.approx(0.42, abs=0.005)
+    before = d.hover
+    for _ in range(500):  # climbing, tilted or disarmed: nothing is learnt
+        d.wire_thrust(0.8, 0.0, 0.0)
+        d.on_sample(-1.0, 0.0, 0.0, armed=True)
+        d.on_sample(0.0, 0.3, 0.0, armed=True)
+        d.on_sample(0.0, 0.0, 0.0, armed=False)
+    assert d.hover == before
