@@ -28,11 +28,15 @@ instead of hovering on in GUIDED_NOGPS (which only levels and holds its altitude
 by PARAM_VALUE;
 it reads MOT_THST_HOVER once to put its thrust in the autopilot's units:
 ``throttle = thrust / weight * hover * cos(roll) cos(pitch)`` (the attitude controller divides by
-the cosine again: angle boost). ``hover`` starts at MOT_THST_HOVER and is then learnt in flight as
-ArduCopter learns its own (time constant :data:`HOVER_LEARN_TC_S`, only while the vehicle is armed,
-nearly level and neither climbing nor sinking): the throttle that holds the vehicle up. Without it
-the paper's controller, a PD without an integral, holds a steady altitude error wherever the
-parameter is off (measured on ArduCopter SITL: 0.3 m high at 5 m with MOT_THST_HOVER 0.39).
+the cosine again: angle boost, so the throttle sent is the vertical thrust in hover units).
+``hover`` starts at MOT_THST_HOVER and is then estimated in flight from what the throttle did: a
+vertical thrust ``u`` (hover units) accelerates the vehicle up by ``g (u / H - 1)``, so each
+sample's measured vertical acceleration gives ``H = u g / (g + a_up)``, low-passed with the time
+constant :data:`HOVER_LEARN_TC_S` while the vehicle is armed, above idle and nearly level. Without
+it the paper's controller, a PD without an integral, holds a steady altitude error wherever the
+parameter is off (measured on ArduCopter SITL: 0.3 m high at 5 m with MOT_THST_HOVER 0.39). (A
+learning from the throttle that holds the vehicle, as ArduCopter's own, is an integral of the
+altitude error: after an overshoot it held the swarm up for 30 s.)
 It asks for the messages it needs (ATTITUDE and GLOBAL_POSITION_INT at the control rate,
 EKF_STATUS_REPORT, GPS_RAW_INT and SYS_STATUS at 2 Hz) and calls the vehicle ready once its EKF
 reports attitude, velocities and positions (no constant-position mode, no GPS glitch), its GPS a
@@ -49,6 +53,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from protocols.frames import G_M_S2
 from protocols.mavlink_conventions import (
     EKF_BAD_FLAGS,
     EKF_READY_FLAGS,
@@ -74,11 +79,13 @@ CMD_DO_SET_MODE = 176
 CUSTOM_MODE_ENABLED = 1.0
 #: How often (s, the agent's clock) an ArduCopter set-up step not yet confirmed is asked again.
 SETUP_RETRY_S = 1.0
-#: The agent's hover throttle follows the throttle that holds the vehicle with this time constant
-#: (s), as ArduCopter's own learning (AP_MOTORS_THST_HOVER_TC).
-HOVER_LEARN_TC_S = 10.0
-#: ... while the vehicle's vertical speed is under this (m/s) and its tilt under this (rad).
-HOVER_LEARN_MAX_VZ_M_S, HOVER_LEARN_MAX_TILT_RAD = 0.3, 0.1
+#: The hover estimate's time constant (s): a sample's estimate is noisy (GLOBAL_POSITION_INT's
+#: velocity is in cm/s: 0.5 m/s² over a 20 ms step), a few seconds average it to under 1 %.
+HOVER_LEARN_TC_S = 3.0
+#: ... used while the vehicle is tilted less than this (rad), samples at most this far apart (s).
+HOVER_LEARN_MAX_TILT_RAD, HOVER_LEARN_MAX_GAP_S = 0.3, 0.1
+#: ... and kept within this factor of MOT_THST_HOVER.
+HOVER_LEARN_RANGE = 1.5
 #: The status-message rate (Hz) an ArduCopter agent asks for.
 STATUS_RATE_HZ = 2.0
 #: The cosine of the tilt the throttle is scaled by is never taken below this (as ArduCopter).
@@ -145,9 +152,9 @@ class AutopilotDialect:
         """A message of the vehicle's autopilot the dialect reads (parameters, EKF, ...)."""
 
     def on_sample(
-        self, velocity_down_m_s: float, roll_rad: float, pitch_rad: float, armed: bool
+        self, t_ms: int, velocity_down_m_s: float, roll_rad: float, pitch_rad: float, armed: bool
     ) -> None:
-        """A state sample of the vehicle (one a control period)."""
+        """A state sample of the vehicle (one a control period), at its own ``t_ms``."""
 
     @property
     def ready(self) -> bool:
@@ -192,6 +199,8 @@ class ArduCopterDialect(AutopilotDialect):
         self._options_asked_s = -math.inf
         self._hover_asked_s = -math.inf
         self._last_throttle: float | None = None
+        self._parameter_hover: float | None = None
+        self._last_sample: tuple[int, float] | None = None  # (t_ms, velocity down)
         self._failsafe_asked_s = -math.inf
         self._heard_stream = False
 
@@ -254,7 +263,7 @@ class ArduCopterDialect(AutopilotDialect):
             if name == "GUID_OPTIONS" and math.isfinite(value):
                 self.guid_options = int(value)
             elif name == "MOT_THST_HOVER" and self.hover is None and 0.05 <= value <= 0.95:
-                self.hover = value  # then learnt in flight (on_sample)
+                self.hover = self._parameter_hover = value  # then learnt in flight (on_sample)
         elif kind == "EKF_STATUS_REPORT":
             self.ekf_flags = int(msg.flags)
         elif kind == "GPS_RAW_INT":
@@ -267,18 +276,25 @@ class ArduCopterDialect(AutopilotDialect):
             self._heard_stream = True
 
     def on_sample(
-        self, velocity_down_m_s: float, roll_rad: float, pitch_rad: float, armed: bool
+        self, t_ms: int, velocity_down_m_s: float, roll_rad: float, pitch_rad: float, armed: bool
     ) -> None:
-        """Learn the hover throttle (module doc) from the throttle last sent."""
-        last, hover = self._last_throttle, self.hover
-        if not armed or last is None or hover is None or last < 0.5 * hover:
-            return  # on the ground, idling, or nothing sent yet
-        if abs(velocity_down_m_s) > HOVER_LEARN_MAX_VZ_M_S:
+        """Estimate the hover throttle (module doc) from the throttle sent since the last
+        sample and the vertical acceleration it gave."""
+        previous, self._last_sample = self._last_sample, (t_ms, velocity_down_m_s)
+        sent, hover, base = self._last_throttle, self.hover, self._parameter_hover
+        if previous is None or sent is None or hover is None or base is None or not armed:
+            return
+        if sent < 0.5 * hover:  # idling on the ground, or cutting its thrust
             return
         if abs(roll_rad) > HOVER_LEARN_MAX_TILT_RAD or abs(pitch_rad) > HOVER_LEARN_MAX_TILT_RAD:
             return
-        dt = 1.0 / self.control_hz
-        self.hover = hover + dt / (dt + HOVER_LEARN_TC_S) * (last - hover)
+        dt = (t_ms - previous[0]) / 1000.0
+        if not 0.0 < dt <= HOVER_LEARN_MAX_GAP_S:
+            return
+        up = -(velocity_down_m_s - previous[1]) / dt
+        estimate = sent * G_M_S2 / max(G_M_S2 + up, 0.5 * G_M_S2)
+        learnt = hover + dt / (dt + HOVER_LEARN_TC_S) * (estimate - hover)
+        self.hover = min(max(learnt, base / HOVER_LEARN_RANGE), base * HOVER_LEARN_RANGE)
 
     @property
     def ready(self) -> bool:
@@ -307,7 +323,7 @@ class ArduCopterDialect(AutopilotDialect):
         hover = self.hover if self.hover is not None else 0.0
         cos_tilt = max(math.cos(roll_rad) * math.cos(pitch_rad), MIN_BOOST_COS)
         throttle = min(max(thrust_normalised * self.thrust_to_weight * hover * cos_tilt, 0.0), 1.0)
-        self._last_throttle = throttle / cos_tilt  # the vertical part, as a level hover needs
+        self._last_throttle = throttle  # the vertical thrust, hover units (angle boost)
         return throttle
 
 

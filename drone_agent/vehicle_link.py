@@ -332,7 +332,9 @@ class VehicleLink:
         stamp = int(pos[0])
         if self.clock is not None:
             stamp = self.clock.swarm_ms(stamp)
-        self.dialect.on_sample(float(pos[6]), float(att[1]), float(att[2]), self.status.armed)
+        self.dialect.on_sample(
+            int(pos[0]), float(pos[6]), float(att[1]), float(att[2]), self.status.armed
+        )
         return [
             VehicleSample(
                 stamp,
