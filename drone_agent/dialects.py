@@ -49,9 +49,8 @@ GLOBAL_POSITION_INT about the swarm's common origin.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from protocols.frames import G_M_S2
 from protocols.mavlink_conventions import (
@@ -108,13 +107,14 @@ class ModeView:
     in_hold: bool
 
 
-class VehicleIo:
+class VehicleIo(Protocol):
     """What a dialect may do on its link: the link's own sends (drone_agent/vehicle_link.py)."""
 
-    command: Callable[..., None]
-    request_interval: Callable[[int, float], None]
-    param_set: Callable[[str, float], None]
-    param_read: Callable[[str], None]
+    def request_interval(self, message_id: int, rate_hz: float) -> None: ...
+
+    def param_set(self, name: str, value: float) -> None: ...
+
+    def param_read(self, name: str) -> None: ...
 
 
 class AutopilotDialect:

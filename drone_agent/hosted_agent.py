@@ -235,13 +235,16 @@ class HostedAgent:
         if self.left:
             return None
         now = self.clock()
-        if now - self._last_heartbeat >= self.options.heartbeat_period_s:
-            self.link.send_heartbeat()
-            self._last_heartbeat = now
-        # the dialect's set-up (streams, parameters) on simulated time in lockstep, as commands
+        # heartbeats and the dialect's set-up (streams, parameters) on simulated time in
+        # lockstep, as commands: an ArduCopter's GCS failsafe counts heartbeats on its own
+        # clock, which a lockstep faster than real time runs ahead of the wall
         sample_ms = None if self.gate is None or self.sample is None else self.sample.time_boot_ms
-        lockstep_s = None if sample_ms is None else sample_ms / 1000.0
-        self.link.service_dialect(now if lockstep_s is None else lockstep_s)
+        vehicle_now = now if sample_ms is None else sample_ms / 1000.0
+        since = vehicle_now - self._last_heartbeat
+        if not 0.0 <= since < self.options.heartbeat_period_s:  # due, or the clock changed
+            self.link.send_heartbeat()
+            self._last_heartbeat = vehicle_now
+        self.link.service_dialect(vehicle_now)
         if (
             self.sample is not None
             and now - self._last_sample_wall > self.options.vehicle_timeout_s

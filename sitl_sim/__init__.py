@@ -6,10 +6,12 @@ Pure core (numpy, no I/O, no clock):
 failsafe and crash state machines of N vehicles), ``guidance`` (what each autopilot asks of its
 inner loop per physics step), ``world`` (N vehicles stepped at the physics rate), ``tunables``
 (the parameter table), ``streams`` (message-interval bookkeeping), ``lockstep`` (the barrier),
-``pacing`` (wall-clock pacing and the real-time factor).
+``pacing`` (wall-clock pacing and the real-time factor), ``copter`` (the ArduCopter dialect's
+autopilot and guidance).
 
 MAVLink edge (pymavlink as a codec only): ``messages`` (what a vehicle sends), ``commands``
-(COMMAND_LONG/INT and SET_MODE), ``dispatch`` (inbound routing, checks, counters), ``channel``
+(COMMAND_LONG/INT and SET_MODE), ``dispatch`` (inbound routing, checks, counters), ``dialect``
+(PX4 or ArduCopter on the wire, chosen once; ``copter_messages``), ``channel``
 (UDP endpoints, batching, signing), ``network`` (the sockets), ``server`` (the event loop under
 either clock). ``swarm sim``: ``sim_config``, ``launch`` and ``sim_cli``.
 """

@@ -218,6 +218,17 @@ class Autopilot:
         self.silent |= self._wrecked
         self._impacts(impact_m_s, events)
         self._wrecked = self.crashed & self.landed
+        self._failsafes(t_s, events)
+        for i in np.flatnonzero(self.armed & (self.mode == Mode.LAND) & self.landed):
+            text = "Failsafe: landed, disarmed" if self.failsafe[i] else "Landed, disarmed"
+            self._disarm(int(i))
+            events.append(VehicleEvent(int(i), Severity.NOTICE, text))
+        return events
+
+    def _failsafes(self, t_s: float, events: list[VehicleEvent]) -> None:
+        """The offboard-loss failsafe: armed in OFFBOARD without a valid setpoint for the
+        offboard timeout -> level hold for the hold time -> land (a dialect may have others:
+        sitl_sim/copter.py)."""
         lost = self.armed & (self.mode == Mode.OFFBOARD) & ~self.failsafe
         lost &= t_s - self.last_setpoint_s > self.offboard_timeout_s
         for i in np.flatnonzero(lost):
@@ -231,11 +242,6 @@ class Autopilot:
         for i in np.flatnonzero(descend):
             self._enter(int(i), Mode.LAND)
             events.append(VehicleEvent(int(i), Severity.CRITICAL, "Failsafe: descending to land"))
-        for i in np.flatnonzero(self.armed & (self.mode == Mode.LAND) & self.landed):
-            text = "Failsafe: landed, disarmed" if self.failsafe[i] else "Landed, disarmed"
-            self._disarm(int(i))
-            events.append(VehicleEvent(int(i), Severity.NOTICE, text))
-        return events
 
     def _impacts(self, impact_m_s: FloatArray, events: list[VehicleEvent]) -> None:
         for i in np.flatnonzero(impact_m_s > self.config.hard_landing_m_s):

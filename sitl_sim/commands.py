@@ -5,8 +5,11 @@ reply's reason goes out as a STATUSTEXT), UNSUPPORTED (a command this autopilot 
 or FAILED (the vehicle cannot: crashed, motor failure). Handled:
 
 - MAV_CMD_COMPONENT_ARM_DISARM (400): param1 1 arm / 0 disarm, param2 21196 forces a disarm.
-- MAV_CMD_DO_SET_MODE (176): PX4 encoding, param1 base mode with CUSTOM_MODE_ENABLED, param2 main
-  mode, param3 sub mode; HOLD (AUTO.LOITER), OFFBOARD, LAND (AUTO.LAND). Others are DENIED.
+- MAV_CMD_DO_SET_MODE (176): param1 base mode with CUSTOM_MODE_ENABLED; the mode in the
+  dialect's encoding (a :class:`ModeDecoder`, from sitl_sim/dialect.py): PX4's param2 main mode,
+  param3 sub mode, HOLD (AUTO.LOITER), OFFBOARD, LAND (AUTO.LAND) (:class:`Px4Modes`, the
+  default); ArduCopter's param2 copter mode. Modes the simulator does not fly are DENIED. The
+  SET_MODE message's ``custom_mode`` is read the same way (:meth:`CommandHandler.set_custom_mode`).
 - MAV_CMD_NAV_LAND (21): LAND mode.
 - MAV_CMD_SET_MESSAGE_INTERVAL (511) / MAV_CMD_GET_MESSAGE_INTERVAL (510): the rates of the link
   the command came on (param1 message id, param2 interval µs: 0 default, -1 off).
@@ -25,7 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 from protocols.mavlink_conventions import Px4AutoSubMode, Px4MainMode
 from sitl_sim import messages
@@ -80,13 +83,46 @@ def mode_of(main: int, sub: int) -> Mode | None:
     return None
 
 
-class CommandHandler:
-    """Executes commands on ``world``'s vehicles; ``build`` makes requested messages."""
+class ModeDecoder(Protocol):
+    """How a dialect names the modes in MAV_CMD_DO_SET_MODE and in SET_MODE."""
 
-    def __init__(self, world: World, sysids: Sequence[int], build: MessageBuilder) -> None:
+    def params_of_custom(self, custom_mode: int) -> tuple[int, int]:
+        """DO_SET_MODE's (param2, param3) for a SET_MODE / HEARTBEAT ``custom_mode``."""
+        ...
+
+    def mode_of_params(self, param2: int, param3: int) -> Mode | str:
+        """The simulator's mode DO_SET_MODE's param2 and param3 ask for, or why it is denied."""
+        ...
+
+
+class Px4Modes:
+    """PX4's custom modes: param2 main mode, param3 sub mode (``custom_mode`` bits 16..31)."""
+
+    def params_of_custom(self, custom_mode: int) -> tuple[int, int]:
+        return (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+
+    def mode_of_params(self, param2: int, param3: int) -> Mode | str:
+        mode = mode_of(param2, param3)
+        if mode is None:
+            return f"Mode change denied: mode {param2}.{param3} not available"
+        return mode
+
+
+class CommandHandler:
+    """Executes commands on ``world``'s vehicles; ``build`` makes requested messages; ``modes``
+    reads the dialect's mode encoding (PX4's by default)."""
+
+    def __init__(
+        self,
+        world: World,
+        sysids: Sequence[int],
+        build: MessageBuilder,
+        modes: ModeDecoder | None = None,
+    ) -> None:
         self.world = world
         self.sysids = list(sysids)
         self.build = build
+        self.modes: ModeDecoder = Px4Modes() if modes is None else modes
 
     def command(
         self, i: int, command: int, params: Sequence[float], streams: StreamTable
@@ -120,12 +156,17 @@ class CommandHandler:
             return self._inject(i, int(_finite(p[0])), int(_finite(p[1])), int(_finite(p[2])))
         return CommandReply(Outcome(Result.UNSUPPORTED))
 
-    def set_mode(self, i: int, main: int, sub: int) -> CommandReply:
-        """A PX4 (main, sub) mode, from DO_SET_MODE or the SET_MODE message."""
-        mode = mode_of(main, sub)
-        if mode is None:
-            return _denied(f"Mode change denied: mode {main}.{sub} not available")
+    def set_mode(self, i: int, param2: int, param3: int = 0) -> CommandReply:
+        """The mode of DO_SET_MODE's param2 and param3 in the dialect's encoding (PX4: main and
+        sub mode)."""
+        mode = self.modes.mode_of_params(param2, param3)
+        if isinstance(mode, str):
+            return _denied(mode)
         return self._mode(i, mode)
+
+    def set_custom_mode(self, i: int, custom_mode: int) -> CommandReply:
+        """The SET_MODE message's ``custom_mode`` in the dialect's encoding."""
+        return self.set_mode(i, *self.modes.params_of_custom(custom_mode))
 
     def _mode(self, i: int, mode: Mode) -> CommandReply:
         outcome, events = self.world.autopilot.set_mode(i, mode, self.world.t_s)

@@ -4,12 +4,16 @@
   the last valid frame. Frames addressed to another system count as wrong-target.
 - GCS endpoint: frames are routed by ``target_system`` (0 = every vehicle; unknown ids count as
   wrong-target on the GCS link); frames without a target (HEARTBEAT, ...) are only counted.
-- SET_ATTITUDE_TARGET must name the vehicle exactly; invalid setpoints are counted, never flown.
-  On the agent link its ``time_boot_ms`` is the lockstep echo (:mod:`sitl_sim.lockstep`).
+- SET_ATTITUDE_TARGET must name the vehicle exactly; invalid setpoints are counted, never flown
+  (the check is the dialect's, ``validate``: ArduCopter clamps the thrust to 0..1 first). On the
+  agent link its ``time_boot_ms`` is the lockstep echo (:mod:`sitl_sim.lockstep`).
 - COMMAND_LONG / COMMAND_INT get a COMMAND_ACK on the link they came on (:mod:`sitl_sim.commands`),
   then any requested messages, then a STATUSTEXT with the reason of a refusal.
 - The parameter protocol: PARAM_REQUEST_LIST, PARAM_REQUEST_READ, PARAM_SET -> PARAM_VALUE
-  (a refused set answers the unchanged value and a STATUSTEXT saying why).
+  (a refused set answers the unchanged value and a STATUSTEXT saying why; a set of an unknown
+  name gets the STATUSTEXT alone, or nothing where the dialect says so: ArduPilot ignores it).
+- HEARTBEAT: only counted, unless the dialect watches them (``on_heartbeat(sender system id,
+  vehicle)``, vehicle None for the GCS link: every vehicle): ArduCopter's GCS failsafe.
 - TIMESYNC requests are answered with the simulated time (ns).
 A crashed vehicle that went silent ignores everything.
 """
@@ -27,11 +31,16 @@ from sitl_sim.channel import Address, Channel, decode_datagram
 from sitl_sim.commands import CommandHandler, CommandReply
 from sitl_sim.lockstep import LockstepBarrier
 from sitl_sim.messages import RxCounters
-from sitl_sim.setpoint import Rejection, validate_attitude_target
+from sitl_sim.setpoint import AttitudeSetpoint, Rejection, validate_attitude_target
 from sitl_sim.streams import StreamTable
 from sitl_sim.tick_answers import TickAnswers
 from sitl_sim.tunables import SetStatus, Tunables
 from sitl_sim.world import World
+
+#: A SET_ATTITUDE_TARGET's check: (quaternion w, x, y, z, thrust, type_mask) -> what to fly.
+SetpointCheck = Callable[[Any, float, int], AttitudeSetpoint | Rejection]
+#: A HEARTBEAT of system ``sysid`` reached vehicle ``i`` (None: every vehicle, the GCS link).
+HeartbeatWatch = Callable[[int, int | None], None]
 
 
 @dataclass
@@ -46,7 +55,9 @@ class Dispatcher:
     """Acts on received datagrams for every vehicle of ``world``.
 
     ``report`` sends vehicle events to every link; ``on_new_peer(i)`` is called when vehicle
-    ``i``'s agent endpoint starts answering a new address.
+    ``i``'s agent endpoint starts answering a new address; ``validate`` checks a setpoint (the
+    dialect's; PX4's by default); ``on_heartbeat`` watches HEARTBEATs, ``quiet_unknown_params``
+    ignores a PARAM_SET of an unknown name (module doc).
     """
 
     def __init__(
@@ -61,8 +72,14 @@ class Dispatcher:
         report: Callable[[list[VehicleEvent]], None],
         on_new_peer: Callable[[int], None],
         answers: TickAnswers | None = None,
+        validate: SetpointCheck = validate_attitude_target,
+        on_heartbeat: HeartbeatWatch | None = None,
+        quiet_unknown_params: bool = False,
     ) -> None:
         self.world = world
+        self._validate = validate
+        self._on_heartbeat = on_heartbeat
+        self._quiet_unknown = quiet_unknown_params
         self.sysids = list(sysids)
         self.index_of = {sysid: i for i, sysid in enumerate(self.sysids)}
         self.tunables = tunables
@@ -84,6 +101,11 @@ class Dispatcher:
             "PARAM_SET": self._param_set,
             "TIMESYNC": self._timesync,
         }
+        #: messages without a target the GCS link acts on (for every vehicle)
+        self._untargeted: dict[str, Callable[[Any], None]] = {}
+        if on_heartbeat is not None:
+            self._handlers["HEARTBEAT"] = self._heartbeat
+            self._untargeted["HEARTBEAT"] = lambda msg: on_heartbeat(msg.get_srcSystem(), None)
 
     # -- datagrams -----------------------------------------------------------------------------
     def agent_datagram(self, i: int, data: bytes, addr: Address) -> None:
@@ -119,6 +141,10 @@ class Dispatcher:
             handler = self._handlers.get(msg.get_type())
             if target is None or handler is None:
                 self.gcs_counters.rx += 1
+                if self._untargeted:
+                    untargeted = self._untargeted.get(msg.get_type())
+                    if untargeted is not None:
+                        untargeted(msg)
                 continue
             if target == 0:
                 vehicles = [i for i in range(len(self.sysids)) if not silent[i]]
@@ -143,7 +169,7 @@ class Dispatcher:
                 self.barrier.echo(i, tick)
             if self.answers is not None:
                 self.answers.echo(i, tick)
-        sp = validate_attitude_target(msg.q, msg.thrust, int(msg.type_mask))
+        sp = self._validate(msg.q, msg.thrust, int(msg.type_mask))
         if isinstance(sp, Rejection):
             self.counters[i].setpoint_rejected += 1
             return
@@ -167,8 +193,7 @@ class Dispatcher:
         self._finish(i, reply, channel)
 
     def _set_mode(self, i: int, msg: Any, side: LinkSide, from_agent: bool) -> None:
-        custom = int(msg.custom_mode)
-        reply = self.commands.set_mode(i, (custom >> 16) & 0xFF, (custom >> 24) & 0xFF)
+        reply = self.commands.set_custom_mode(i, int(msg.custom_mode))
         self._finish(i, reply, side.channels[i])
 
     def _finish(self, i: int, reply: CommandReply, channel: Channel) -> None:
@@ -178,6 +203,10 @@ class Dispatcher:
             channel.send(messages.statustext(Severity.WARNING, reply.outcome.reason))
         if reply.events:
             self.report(reply.events)
+
+    def _heartbeat(self, i: int, msg: Any, side: LinkSide, from_agent: bool) -> None:
+        assert self._on_heartbeat is not None
+        self._on_heartbeat(msg.get_srcSystem(), i)
 
     def _param_list(self, i: int, msg: Any, side: LinkSide, from_agent: bool) -> None:
         for index in range(self.tunables.count):
@@ -194,6 +223,8 @@ class Dispatcher:
         name = _param_name(msg.param_id)
         status = self.tunables.set(i, name, float(msg.param_value))
         channel = side.channels[i]
+        if status == SetStatus.UNKNOWN and self._quiet_unknown:
+            return
         if status != SetStatus.OK:
             channel.send(messages.statustext(Severity.WARNING, f"Param {name}: {status.value}"))
         index = self.tunables.index_of(name)
@@ -201,8 +232,10 @@ class Dispatcher:
             self._param_value(i, index, channel)
 
     def _param_value(self, i: int, index: int, channel: Channel) -> None:
-        name, value = self.tunables.value(i, index)
-        channel.send(messages.param_value(name, value, index, self.tunables.count))
+        tunables = self.tunables
+        name, value = tunables.value(i, index)
+        kind = tunables.param_type(index)
+        channel.send(messages.param_value(name, value, index, tunables.count, kind))
 
     def _timesync(self, i: int, msg: Any, side: LinkSide, from_agent: bool) -> None:
         if int(msg.tc1) == 0:

@@ -15,9 +15,10 @@ import numpy as np
 
 from protocols.frames import FloatArray
 from protocols.geodesy import GeoPoint
-from protocols.mavlink_conventions import describe_ports, vehicle_ports
+from protocols.mavlink_conventions import Dialect, describe_ports, vehicle_ports
 from sitl_sim.attitude_control import AttitudeGains
 from sitl_sim.autopilot import AutopilotConfig
+from sitl_sim.dialect import tunables_for
 from sitl_sim.failsafe import FailsafeConfig
 from sitl_sim.server import Status
 from sitl_sim.shard import DroneRange, parse_drones
@@ -41,12 +42,16 @@ from sitl_sim.sim_config import (
 from sitl_sim.streams import (
     AGENT_RATES_HZ,
     AGENT_STATE_STREAMS,
+    COPTER_AGENT_RATES_HZ,
+    COPTER_AGENT_STATE_STREAMS,
+    COPTER_GCS_RATES_HZ,
+    COPTER_GCS_STATE_STREAMS,
     GCS_RATES_HZ,
     GCS_STATE_STREAMS,
 )
 from sitl_sim.tunables import FleetAttitudeGains, Tunables
 from sitl_sim.vehicle_params import VehicleParams
-from sitl_sim.world import World, WorldConfig
+from sitl_sim.world import DEFAULT_EKF_READY_S, World, WorldConfig
 
 
 @dataclass(frozen=True)
@@ -82,6 +87,8 @@ def build_config(args: argparse.Namespace) -> SimConfig:
     if key_file is None and getattr(args, "secrets", None) is not None:
         key_file = args.secrets / "mavlink.key"
     autopilot = AutopilotConfig(failsafe=FailsafeConfig(offboard_timeout_s=args.offboard_timeout))
+    dialect, ekf_ready_s = _dialect(args)
+    agent_rates, gcs_rates = stream_rates(dialect, args.agent_rate_hz, args.gcs_rate_hz)
     return SimConfig(
         sysids=parse_sysids(args.sysids, n) if shard is None else _shard_sysids(args, shard),
         params=v.params,
@@ -95,6 +102,8 @@ def build_config(args: argparse.Namespace) -> SimConfig:
             args.position_noise_m,
             v.crashes,
             v.home if args.home is None else parse_home(args.home),
+            dialect=dialect,
+            ekf_ready_s=ekf_ready_s,
         ),
         net=NetConfig(
             bind_host=args.bind,
@@ -102,8 +111,8 @@ def build_config(args: argparse.Namespace) -> SimConfig:
             gcs=gcs,
             signing_key=read_signing_key(key_file),
             first_drone=first,
-            agent_rates_hz=_rates(AGENT_RATES_HZ, AGENT_STATE_STREAMS, args.agent_rate_hz),
-            gcs_rates_hz=_rates(GCS_RATES_HZ, GCS_STATE_STREAMS, args.gcs_rate_hz),
+            agent_rates_hz=agent_rates,
+            gcs_rates_hz=gcs_rates,
         ),
         clock=ClockConfig(
             mode=args.clock,
@@ -184,6 +193,41 @@ def _check_numbers(args: argparse.Namespace) -> None:
         raise SimConfigError("--wait-agents must be >= 0")
 
 
+def _dialect(args: argparse.Namespace) -> tuple[Dialect, float]:
+    """--dialect (default px4) and --ekf-ready-s (ArduCopter only; default 2 s)."""
+    try:
+        dialect = Dialect(getattr(args, "dialect", None) or Dialect.PX4)
+    except ValueError:
+        names = ", ".join(d.value for d in Dialect)
+        raise SimConfigError(f"--dialect {args.dialect!r}: one of {names}") from None
+    ekf_ready_s = getattr(args, "ekf_ready_s", None)
+    if ekf_ready_s is None:
+        return dialect, DEFAULT_EKF_READY_S
+    if dialect != Dialect.ARDUPILOT:
+        raise SimConfigError("--ekf-ready-s is for --dialect ardupilot (PX4 is ready at once)")
+    if not (np.isfinite(ekf_ready_s) and ekf_ready_s >= 0):
+        raise SimConfigError(f"--ekf-ready-s must be a number >= 0, got {ekf_ready_s:g}")
+    return dialect, float(ekf_ready_s)
+
+
+def stream_rates(
+    dialect: Dialect, agent_rate_hz: float, gcs_rate_hz: float
+) -> tuple[dict[int, float], dict[int, float]]:
+    """The default stream rates (Hz) of the agent links and of the GCS link in ``dialect``, the
+    state messages at ``agent_rate_hz`` and ``gcs_rate_hz`` (``NetConfig``'s rates; for a
+    :class:`NetConfig` built by hand for ArduCopter, so that GLOBAL_POSITION_INT, the lockstep's
+    tick message, reaches the agents: sitl_sim/dialect.py)."""
+    if dialect == Dialect.ARDUPILOT:
+        return (
+            _rates(COPTER_AGENT_RATES_HZ, COPTER_AGENT_STATE_STREAMS, agent_rate_hz),
+            _rates(COPTER_GCS_RATES_HZ, COPTER_GCS_STATE_STREAMS, gcs_rate_hz),
+        )
+    return (
+        _rates(AGENT_RATES_HZ, AGENT_STATE_STREAMS, agent_rate_hz),
+        _rates(GCS_RATES_HZ, GCS_STATE_STREAMS, gcs_rate_hz),
+    )
+
+
 def _rates(
     defaults: Mapping[int, float], state_streams: Sequence[int], state_hz: float
 ) -> dict[int, float]:
@@ -204,7 +248,7 @@ def build_world(config: SimConfig) -> tuple[World, Tunables]:
         config.world,
         np.random.default_rng(config.seed),
     )
-    return world, Tunables(world.autopilot, gains, list(config.sysids))
+    return world, tunables_for(world, gains, list(config.sysids))
 
 
 #: How the start line begins: printed once the vehicles' ports are bound (`swarm up` starts the
@@ -220,11 +264,15 @@ def start_line(config: SimConfig) -> str:
     gcs = "none" if net.gcs is None else f"udp:{net.gcs[0]}:{net.gcs[1]}"
     ids = f"{config.sysids[0]}..{config.sysids[-1]}" if config.n > 1 else str(config.sysids[0])
     signed = ", signed" if net.signing_key is not None else ""
+    dialect = Dialect(config.world.dialect)
+    speaks = f"dialect {dialect.value}"
+    if dialect == Dialect.ARDUPILOT:
+        speaks += f" (EKF ready after {config.world.ekf_ready_s:g} s)"
     return (
         f"{START_LINE_PREFIX}{config.n} vehicles (system ids {ids}) on UDP {ports_text}, GCS {gcs}"
         f"{signed}; "
         f"clock {clock.mode} x{clock.speedup:g}, physics {config.world.physics_hz} Hz, "
-        f"control {config.world.control_hz} Hz"
+        f"control {config.world.control_hz} Hz; {speaks}"
     )
 
 

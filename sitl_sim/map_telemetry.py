@@ -3,7 +3,9 @@ HOME_POSITION and EXTENDED_SYS_STATE, built from the world's NED state and its h
 
 The NED origin is the scenario's ``[home]`` (protocols/geodesy.py: the tangent plane at home,
 altitude flat). Every vehicle reports that one point as its HOME_POSITION (x = y = z = 0: the
-swarm's shared launch point), so the map shows one home and each vehicle at its own place.
+swarm's shared launch point), so the map shows one home and each vehicle at its own place. (In
+the ArduCopter dialect each vehicle's home is where it started, and ``relative_alt`` is above it:
+sitl_sim/dialect.py.)
 
 - GLOBAL_POSITION_INT: the telemetry position (with its noise, the one LOCAL_POSITION_NED carries
   at the same tick) as latitude/longitude (degE7), altitude MSL and above home (mm), NED velocity
@@ -63,10 +65,15 @@ def _cdeg(angle_rad: float) -> int:
     return round(math.degrees(angle_rad) * 100.0) % 36000
 
 
-def global_position_int(snap: Snapshot, fix: MapFix, home: GeoPoint, i: int) -> Any:
-    """GLOBAL_POSITION_INT of vehicle ``i`` at the snapshot's time."""
+def global_position_int(
+    snap: Snapshot, fix: MapFix, home: GeoPoint, i: int, home_alt_mm: int | None = None
+) -> Any:
+    """GLOBAL_POSITION_INT of vehicle ``i`` at the snapshot's time; ``relative_alt`` is above
+    ``home_alt_mm`` (mm MSL; None: ``home``'s altitude)."""
     vn, ve, vd = snap.velocity_ned_m_s[i]
-    relative_mm = fix.alt_mm[i] - round(home.alt_m * 1000.0)
+    if home_alt_mm is None:
+        home_alt_mm = round(home.alt_m * 1000.0)
+    relative_mm = fix.alt_mm[i] - home_alt_mm
     return mavlink.MAVLink_global_position_int_message(
         snap.time_boot_ms, fix.lat_e7[i], fix.lon_e7[i], fix.alt_mm[i], relative_mm,
         _cm_s(vn), _cm_s(ve), _cm_s(vd), _cdeg(snap.euler_rad[i][2]),
@@ -84,6 +91,15 @@ def gps_raw_int(snap: Snapshot, fix: MapFix, accuracy_m: float, i: int) -> Any:
         snap.time_boot_ms * 1000, mavlink.GPS_FIX_TYPE_3D_FIX, fix.lat_e7[i], fix.lon_e7[i],
         fix.alt_mm[i], HDOP_CENTI, VDOP_CENTI, min(round(speed * 100.0), _U16_UNKNOWN - 1), cog,
         SATELLITES, fix.alt_mm[i], acc_mm, acc_mm, 50, 0, 0,
+    )  # fmt: skip
+
+
+def gps_no_fix(time_usec: int) -> Any:
+    """GPS_RAW_INT of a receiver without a fix (ArduPilot before its first fix): fix type 1,
+    position and altitude 0, accuracies and course unknown, no satellites."""
+    return mavlink.MAVLink_gps_raw_int_message(
+        time_usec, mavlink.GPS_FIX_TYPE_NO_FIX, 0, 0, 0, _U16_UNKNOWN, _U16_UNKNOWN, 0,
+        _U16_UNKNOWN, 0, 0, 0, 0, 0, 0, 0,
     )  # fmt: skip
 
 

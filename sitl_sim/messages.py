@@ -3,7 +3,8 @@
 pymavlink is used only as a codec: these functions return pymavlink message objects (a message
 type plus its fields, no socket), and :class:`sitl_sim.channel.Channel` encodes them.
 
-Identity: HEARTBEAT says MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_PX4, PX4 custom modes
+Identity (the PX4 dialect; ArduCopter's own messages are in sitl_sim/copter_messages.py):
+HEARTBEAT says MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_PX4, PX4 custom modes
 (protocols/mavlink_conventions.py), base_mode CUSTOM_MODE_ENABLED (+ SAFETY_ARMED when armed),
 system_status STANDBY / ACTIVE / CRITICAL (failsafe) / EMERGENCY (crashed).
 
@@ -44,6 +45,7 @@ from protocols.mavlink_conventions import (
     MODE_HOLD,
     MODE_LAND,
     MODE_OFFBOARD,
+    SYS_STATUS_PREARM_CHECK,
 )
 from sitl_sim.autopilot import Autopilot, Mode
 from sitl_sim.battery import Battery
@@ -102,38 +104,56 @@ def heartbeat(ap: Autopilot, i: int) -> Any:
     base_mode = _AUTO_FLAGS
     if ap.armed[i]:
         base_mode |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-    if ap.crashed[i]:
-        status = mavlink.MAV_STATE_EMERGENCY
-    elif ap.failsafe[i]:
-        status = mavlink.MAV_STATE_CRITICAL
-    elif ap.armed[i]:
-        status = mavlink.MAV_STATE_ACTIVE
-    else:
-        status = mavlink.MAV_STATE_STANDBY
     return mavlink.MAVLink_heartbeat_message(
         mavlink.MAV_TYPE_QUADROTOR,
         mavlink.MAV_AUTOPILOT_PX4,
         base_mode,
         CUSTOM_MODE[Mode(int(ap.mode[i]))],
-        status,
+        system_status(ap, i),
         3,
     )
 
 
+def system_status(ap: Autopilot, i: int) -> int:
+    """HEARTBEAT's MAV_STATE of vehicle ``i``: EMERGENCY crashed, CRITICAL in failsafe, ACTIVE
+    armed, else STANDBY."""
+    if ap.crashed[i]:
+        return int(mavlink.MAV_STATE_EMERGENCY)
+    if ap.failsafe[i]:
+        return int(mavlink.MAV_STATE_CRITICAL)
+    if ap.armed[i]:
+        return int(mavlink.MAV_STATE_ACTIVE)
+    return int(mavlink.MAV_STATE_STANDBY)
+
+
 def sys_status(
-    ap: Autopilot, i: int, counters: RxCounters, load: float, battery: Battery | None = None
+    ap: Autopilot,
+    i: int,
+    counters: RxCounters,
+    load: float,
+    battery: Battery | None = None,
+    prearm_ok: bool | None = None,
 ) -> Any:
     """SYS_STATUS of vehicle ``i`` with its receive counters and its battery (None: unknown);
     ``load`` is a 0..1 busy share. Absent subsystems (geofence) are reported healthy, as PX4
-    does."""
+    does. ``prearm_ok`` (ArduPilot's MAV_SYS_STATUS_PREARM_CHECK; None: not reported, as PX4):
+    the bit is present and enabled, healthy when the pre-arm checks pass; while they fail the
+    GPS is reported unhealthy too (no fix)."""
+    present = _SENSORS
     health = _SENSORS | mavlink.MAV_SYS_STATUS_GEOFENCE
     if not ap.motor_ok[:, i].all() or ap.crashed[i]:
         health &= ~mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    if prearm_ok is not None:
+        present |= SYS_STATUS_PREARM_CHECK
+        if prearm_ok:
+            health |= SYS_STATUS_PREARM_CHECK
+        else:
+            health &= ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
     total = counters.rx + counters.rejected
     drop = round(10_000 * counters.rejected / total) if total else 0
     return mavlink.MAVLink_sys_status_message(
-        _SENSORS,
-        _SENSORS,
+        present,
+        present,
         health,
         min(1000, round(1000 * load)),
         *_battery_fields(battery, i),
@@ -231,11 +251,17 @@ def command_ack(command: int, result: int, target_system: int, target_component:
     )
 
 
-def param_value(name: str, value: float, index: int, count: int) -> Any:
-    """PARAM_VALUE of a REAL32 parameter."""
-    return mavlink.MAVLink_param_value_message(
-        name.encode("ascii"), value, mavlink.MAV_PARAM_TYPE_REAL32, count, index
-    )
+def param_value(
+    name: str,
+    value: float,
+    index: int,
+    count: int,
+    param_type: int = mavlink.MAV_PARAM_TYPE_REAL32,
+) -> Any:
+    """PARAM_VALUE of a parameter of MAV_PARAM_TYPE ``param_type`` (REAL32 by default); the value
+    travels as a float (an integer parameter as the float of its value, as ArduPilot sends it)."""
+    encoded = name.encode("ascii")
+    return mavlink.MAVLink_param_value_message(encoded, value, param_type, count, index)
 
 
 def timesync(tc1: int, ts1: int) -> Any:

@@ -13,6 +13,11 @@ to ``k + 1`` with the setpoints and commands received so far.
 
 The wall clock is injected (``time.monotonic`` by default) and only decides *when* things happen,
 never *what*: in lockstep the telemetry depends on the seed and the agents' answers alone.
+
+What the vehicles speak on the wire is the world's dialect (:mod:`sitl_sim.dialect`, PX4 or
+ArduCopter), set up once here: the messages it builds its own way replace the PX4 builders, and
+the barrier awaits an agent at a tick when the dialect's tick message (PX4: LOCAL_POSITION_NED,
+ArduCopter: GLOBAL_POSITION_INT) of that tick went to it.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from protocols.frames import FloatArray
 from sitl_sim import map_telemetry, messages
 from sitl_sim.autopilot import Severity, VehicleEvent
 from sitl_sim.commands import CommandHandler
+from sitl_sim.dialect import sim_dialect
 from sitl_sim.dispatch import Dispatcher, LinkSide
 from sitl_sim.lockstep import LockstepBarrier
 from sitl_sim.map_telemetry import MapFix
@@ -105,25 +111,29 @@ class SimServer:
         control_hz = world.config.control_hz
         n = world.n
         rates = network.config
+        self.dialect = dialect = sim_dialect(world)
         self.agent = LinkSide(
-            network.agent_channels, StreamTable(n, rates.agent_rates_hz, control_hz)
+            network.agent_channels,
+            StreamTable(n, dialect.agent_rates(rates.agent_rates_hz), control_hz,
+                        dialect.agent_phases),
+        )  # fmt: skip
+        self.gcs = LinkSide(
+            network.gcs_channels, StreamTable(n, dialect.gcs_rates(rates.gcs_rates_hz), control_hz)
         )
-        self.gcs = LinkSide(network.gcs_channels, StreamTable(n, rates.gcs_rates_hz, control_hz))
         lockstep = clock.mode == "lockstep"
         self.barrier = LockstepBarrier(clock.drop_timeout_s) if lockstep else None
         self.pacer = Pacer(1.0 / control_hz, clock.speedup)
-        self.commands = CommandHandler(world, network.sysids, self.build)
+        self.commands = CommandHandler(world, network.sysids, self.build, dialect.modes)
         self.answers = None if lockstep else TickAnswers(n, 1000.0 / control_hz)
         self.dispatch = Dispatcher(
             world, network.sysids, tunables, self.commands, self.agent, self.gcs,
-            self.barrier, self.report, self._new_peer, self.answers,
+            self.barrier, self.report, self._new_peer, self.answers, dialect.validate,
+            dialect.on_heartbeat, dialect.quiet_unknown_params,
         )  # fmt: skip
         home = world.config.home
         self._builders: dict[int, Callable[[int], Any]] = {
             HEARTBEAT: lambda i: messages.heartbeat(world.autopilot, i),
-            SYS_STATUS: lambda i: messages.sys_status(
-                world.autopilot, i, self.dispatch.counters[i], self._load, world.battery
-            ),
+            SYS_STATUS: lambda i: self.sys_status(i),
             ATTITUDE: lambda i: messages.attitude(self._snapshot, i),
             LOCAL_POSITION_NED: lambda i: messages.local_position_ned(self._snapshot, i),
             ATTITUDE_TARGET: lambda i: messages.attitude_target(world, i),
@@ -141,6 +151,10 @@ class SimServer:
                 world.autopilot, self._snapshot, i
             ),
         }
+        self._builders.update(dialect.builders(self))
+        #: the dialect's message that keys the barrier, and the tick's state re-sent
+        self._tick_message = dialect.tick_message
+        self._tick_state = dialect.tick_state
         self._forces_tick = -1
         self._forces = np.zeros((4, n))
         self._snapshot: Snapshot = world.snapshot()
@@ -160,6 +174,22 @@ class SimServer:
         """Streamed message ``msg_id`` of vehicle ``i`` now, None if not streamable."""
         builder = self._builders.get(msg_id)
         return None if builder is None else builder(i)
+
+    def snapshot(self) -> Snapshot:
+        """Every vehicle's telemetry at the current tick."""
+        return self._snapshot
+
+    def map_fix(self) -> MapFix:
+        """Every vehicle's geodetic position at the current tick (computed once per tick)."""
+        return self._map_fix()
+
+    def sys_status(self, i: int, prearm_ok: bool | None = None) -> Any:
+        """Vehicle ``i``'s SYS_STATUS now (``prearm_ok``: :func:`sitl_sim.messages.sys_status`)."""
+        world = self.world
+        counters = self.dispatch.counters[i]
+        return messages.sys_status(
+            world.autopilot, i, counters, self._load, world.battery, prearm_ok
+        )
 
     def report(self, events: list[VehicleEvent]) -> None:
         """Send each event as a STATUSTEXT on every link of its vehicle, then a HEARTBEAT of
@@ -374,6 +404,7 @@ class SimServer:
         self.agent.streams.shared.due(tick)
         self.gcs.streams.shared.due(tick)
         sent_to: list[int] = []
+        tick_message = self._tick_message
         for side, is_agent in ((self.agent, True), (self.gcs, False)):
             streams = side.streams
             for i, channel in enumerate(side.channels):
@@ -382,7 +413,7 @@ class SimServer:
                 due = streams.of(i).due(tick)
                 for msg_id in due:
                     channel.send(build[msg_id](i))
-                if is_agent and LOCAL_POSITION_NED in due:
+                if is_agent and tick_message in due:
                     sent_to.append(i)
             if is_agent:  # the agents' states leave first: in lockstep they wait for them
                 self.net.flush()
@@ -405,7 +436,7 @@ class SimServer:
     def _new_peer(self, i: int) -> None:
         """A new agent address: give it the heartbeat and the current tick's state now."""
         channel = self.agent.channels[i]
-        for msg_id in (HEARTBEAT, ATTITUDE, LOCAL_POSITION_NED):
+        for msg_id in (HEARTBEAT, *self._tick_state):
             channel.send(self._builders[msg_id](i))
 
     def _resend(self, vehicles: set[int] | None) -> None:
@@ -415,8 +446,8 @@ class SimServer:
         for i in targets:
             channel = self.agent.channels[i]
             if channel.active and not silent[i]:
-                channel.send(self._builders[ATTITUDE](i))
-                channel.send(self._builders[LOCAL_POSITION_NED](i))
+                for msg_id in self._tick_state:
+                    channel.send(self._builders[msg_id](i))
         self.net.flush()
 
     # -- status --------------------------------------------------------------------------------

@@ -23,8 +23,14 @@ DESCRIPTION = (
     "MAVLink frame (an agent starts with a HEARTBEAT), and every vehicle's telemetry goes to "
     "the ground station. Each vehicle has the autopilot inner loop (attitude controller + mixer "
     "at the physics rate), modes HOLD/OFFBOARD/LAND, arming, the offboard-loss failsafe, "
-    "parameters and failure injection. Units: metres, seconds, Hz."
+    "parameters and failure injection. With --dialect ardupilot the vehicles speak ArduCopter's "
+    "MAVLink instead (ArduCopter 4.6 SITL): modes GUIDED_NOGPS/BRAKE/LAND, an EKF and GPS that "
+    "are ready --ekf-ready-s after start, GUID_OPTIONS, GUID_TIMEOUT and the GCS heartbeat "
+    "failsafe, each vehicle's LOCAL_POSITION_NED about its own start and GLOBAL_POSITION_INT on "
+    "the map (sitl_sim/dialect.py). "
+    "Units: metres, seconds, Hz."
 )
+DIALECTS = ("px4", "ardupilot")  # protocols.mavlink_conventions.Dialect (not imported: cheap)
 
 
 def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
@@ -66,6 +72,23 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
         metavar="X",
         help="simulated seconds per wall second (realtime; lockstep while no agent "
         "holds the barrier); default 1",
+    )
+    p.add_argument(
+        "--dialect",
+        choices=DIALECTS,
+        default="px4",
+        help="the autopilot the vehicles emulate on the wire: px4 (default; OFFBOARD, "
+        "AUTO.LOITER, AUTO.LAND, normalised thrust) or ardupilot (ArduCopter: GUIDED_NOGPS, "
+        "BRAKE, LAND; SET_ATTITUDE_TARGET's thrust a climb rate unless GUID_OPTIONS has bit 3; "
+        "arming refused until the EKF is ready; lockstep keyed on GLOBAL_POSITION_INT)",
+    )
+    p.add_argument(
+        "--ekf-ready-s",
+        type=float,
+        default=None,
+        metavar="S",
+        help="--dialect ardupilot: simulated seconds after start before each vehicle's EKF and "
+        "GPS are ready and it may arm (default 2; 0: at once)",
     )
     p.add_argument(
         "--base-port",
@@ -141,7 +164,8 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
         type=float,
         default=0.5,
         metavar="S",
-        help="no valid setpoint for S seconds in OFFBOARD -> failsafe (default 0.5)",
+        help="no valid setpoint for S seconds in OFFBOARD -> failsafe (default 0.5; PX4 "
+        "dialect: ArduCopter's GUID_TIMEOUT is a parameter, 3 s)",
     )
     p.add_argument("--sysids", metavar="LIST", help="system ids, e.g. 1,2,7 (default 1..N)")
     p.add_argument(

@@ -22,6 +22,7 @@ from protocols.mavlink_conventions import (
     DEFAULT_GCS_PORT,
     LOCKSTEP_DROP_TIMEOUT_S,
     MAX_VEHICLES,
+    Dialect,
     port_clash,
     vehicle_ports,
 )
@@ -47,7 +48,8 @@ class SimConfigError(ValueError):
 class NetConfig:
     """Where the vehicles listen (``bind_host``, :func:`~protocols.mavlink_conventions.
     vehicle_port` of ``base_port``: None is the default layout), where telemetry for the
-    ground station goes (None: nowhere), the signing key and the default stream rates (Hz)."""
+    ground station goes (None: nowhere), the signing key and the default stream rates (Hz; the
+    defaults here are PX4's: for ArduCopter take sitl_sim.launch.stream_rates)."""
 
     bind_host: str = "127.0.0.1"
     base_port: int | None = None
@@ -81,7 +83,10 @@ class ClockConfig:
 @dataclass(frozen=True)
 class SimConfig:
     """Everything a run needs: vehicles (system ids, parameters, gains, initial positions (N, 3)
-    NED m and yaw (N,) rad), the world's rates and faults, network, clock and seed."""
+    NED m and yaw (N,) rad), the world's rates and faults, network, clock and seed. The autopilot
+    dialect on the wire is ``world.dialect`` (:class:`~protocols.mavlink_conventions.Dialect`,
+    with ``world.ekf_ready_s`` for ArduCopter); ``net``'s rates must then be that dialect's
+    (sitl_sim.launch.stream_rates)."""
 
     sysids: tuple[int, ...]
     params: VehicleParams
@@ -97,6 +102,11 @@ class SimConfig:
     def n(self) -> int:
         """Number of vehicles."""
         return len(self.sysids)
+
+    @property
+    def dialect(self) -> Dialect:
+        """The autopilot dialect the vehicles speak (``world.dialect``)."""
+        return Dialect(self.world.dialect)
 
 
 def grid_positions(n: int, spacing_m: float = GRID_SPACING_M) -> FloatArray:

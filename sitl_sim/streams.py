@@ -14,6 +14,11 @@ global position, 1 Hz the rest: at 100 vehicles 800 messages a second), and are 
 links (an agent may ask). Each map message starts at its own phase of its interval
 (:data:`PHASE`), so that the whole fleet's 1 Hz messages do not all fall on one tick.
 
+The ArduCopter dialect (sitl_sim/dialect.py) streams more by default: GLOBAL_POSITION_INT at the
+agent link's state rate (its swarm-frame position; in phase with ATTITUDE, every control tick
+at the default rates) and EKF_STATUS_REPORT (off on an agent link, 1 Hz to the GCS)
+(:data:`COPTER_AGENT_RATES_HZ`, :data:`COPTER_GCS_RATES_HZ`).
+
 Links that keep the default rates share one :class:`StreamSchedule`; :class:`StreamTable` gives a
 link its own copy on its first change (copy on write), so the common case costs one schedule
 evaluation per tick for all vehicles.
@@ -31,6 +36,7 @@ ATTITUDE = 30
 LOCAL_POSITION_NED = 32
 GLOBAL_POSITION_INT = 33
 ATTITUDE_TARGET = 83
+EKF_STATUS_REPORT = 193
 HOME_POSITION = 242
 EXTENDED_SYS_STATE = 245
 ACTUATOR_OUTPUT_STATUS = 375
@@ -66,19 +72,44 @@ PHASE: Mapping[int, float] = {
     GPS_RAW_INT: 0.25,
     HOME_POSITION: 0.5,
     EXTENDED_SYS_STATE: 0.75,
+    EKF_STATUS_REPORT: 0.875,
 }
 #: The messages whose default rate is the link's state rate (``--agent-rate-hz``,
 #: ``--gcs-rate-hz``): the vehicle state on both links, and the rotor outputs to the GCS.
 AGENT_STATE_STREAMS: tuple[int, ...] = (ATTITUDE, LOCAL_POSITION_NED)
 GCS_STATE_STREAMS: tuple[int, ...] = (ATTITUDE, LOCAL_POSITION_NED, ACTUATOR_OUTPUT_STATUS)
 
+#: The ArduCopter dialect's defaults (module doc): the swarm-frame position joins the agent's
+#: state streams, the EKF's status goes to the GCS.
+COPTER_AGENT_RATES_HZ: Mapping[int, float] = {
+    **AGENT_RATES_HZ,
+    GLOBAL_POSITION_INT: 50.0,
+    EKF_STATUS_REPORT: 0.0,
+}
+COPTER_GCS_RATES_HZ: Mapping[int, float] = {**GCS_RATES_HZ, EKF_STATUS_REPORT: 1.0}
+COPTER_AGENT_STATE_STREAMS: tuple[int, ...] = (ATTITUDE, LOCAL_POSITION_NED, GLOBAL_POSITION_INT)
+#: ... and the GCS's: an ArduCopter's position in the swarm's frame is its GLOBAL_POSITION_INT, so
+#: the ground station's record takes it at the state rate (5 Hz held a moving centre 9 cm off)
+COPTER_GCS_STATE_STREAMS: tuple[int, ...] = (*GCS_STATE_STREAMS, GLOBAL_POSITION_INT)
+#: An ArduCopter agent link's phases: its state streams (GLOBAL_POSITION_INT among them) all
+#: start at tick 0, so that each tick's position and attitude go out together.
+COPTER_AGENT_PHASE: Mapping[int, float] = {
+    msg_id: phase for msg_id, phase in PHASE.items() if msg_id != GLOBAL_POSITION_INT
+}
+
 
 class StreamSchedule:
     """Rates and due times of the streamed messages of one link, counted in control ticks."""
 
-    def __init__(self, defaults_hz: Mapping[int, float], control_hz: float) -> None:
+    def __init__(
+        self,
+        defaults_hz: Mapping[int, float],
+        control_hz: float,
+        phases: Mapping[int, float] = PHASE,
+    ) -> None:
         self.defaults_hz = dict(defaults_hz)
         self.control_hz = control_hz
+        self.phases = phases
         self._interval_ticks: dict[int, float] = {}
         self._next_tick: dict[int, float] = {}
         for msg_id, rate in self.defaults_hz.items():
@@ -88,7 +119,7 @@ class StreamSchedule:
 
     def copy(self) -> StreamSchedule:
         """An independent schedule with the same rates and phase."""
-        twin = StreamSchedule(self.defaults_hz, self.control_hz)
+        twin = StreamSchedule(self.defaults_hz, self.control_hz, self.phases)
         twin._interval_ticks = dict(self._interval_ticks)
         twin._next_tick = dict(self._next_tick)
         return twin
@@ -140,15 +171,22 @@ class StreamSchedule:
             return
         interval = max(1.0, self.control_hz / rate_hz)
         self._interval_ticks[msg_id] = interval
-        current = self._next_tick.get(msg_id, math.floor(PHASE.get(msg_id, 0.0) * interval))
+        current = self._next_tick.get(msg_id, math.floor(self.phases.get(msg_id, 0.0) * interval))
         self._next_tick[msg_id] = 0.0 if math.isinf(current) else current
 
 
 class StreamTable:
-    """The schedules of one kind of link for every vehicle, sharing the default one."""
+    """The schedules of one kind of link for every vehicle, sharing the default one
+    (``phases``: where each message starts in its interval, :data:`PHASE` by default)."""
 
-    def __init__(self, n: int, defaults_hz: Mapping[int, float], control_hz: float) -> None:
-        self.shared = StreamSchedule(defaults_hz, control_hz)
+    def __init__(
+        self,
+        n: int,
+        defaults_hz: Mapping[int, float],
+        control_hz: float,
+        phases: Mapping[int, float] = PHASE,
+    ) -> None:
+        self.shared = StreamSchedule(defaults_hz, control_hz, phases)
         self._own: dict[int, StreamSchedule] = {}
         self.n = n
 

@@ -15,6 +15,12 @@ SYS_FAILURE_EN            1: MAV_CMD_INJECT_FAILURE is honoured, 0: denied      
 MAV_SYS_ID                the vehicle's MAVLink system id (read-only)                -
 ========================  =========================================================  ==========
 
+A dialect may add parameters and leave some out (``extra``, ``without``: the ArduCopter
+dialect's GUID_OPTIONS, MOT_THST_HOVER, ... in sitl_sim/copter.py). Each parameter has a MAVLink
+type (``param_type``, MAV_PARAM_TYPE): the value always travels as a float, the type says what
+the autopilot stores (REAL32 for all of the table above; ArduPilot's integer parameters are
+INT8/16/32, their value sent as the float of the integer, as ArduPilot does).
+
 The attitude gains are per vehicle: :class:`FleetAttitudeGains` is an
 :class:`~sitl_sim.attitude_control.AttitudeGains` whose columns are the vehicles, so the shared
 inner loop uses each vehicle's own gains.
@@ -22,7 +28,7 @@ inner loop uses each vehicle's own gains.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from enum import Enum
 
@@ -33,6 +39,11 @@ from sitl_sim.attitude_control import AttitudeGains
 from sitl_sim.autopilot import Autopilot
 
 _AXES = ("ROLL", "PITCH", "YAW")
+#: MAV_PARAM_TYPE values (MAVLink common.xml).
+PARAM_INT8 = 2
+PARAM_INT16 = 4
+PARAM_INT32 = 6
+PARAM_REAL32 = 9
 
 
 class FleetAttitudeGains(AttitudeGains):
@@ -68,25 +79,35 @@ class SetStatus(Enum):
 @dataclass(frozen=True)
 class ParamSpec:
     """One tunable: name (<= 16 characters), range, and how to read and write vehicle ``i``'s
-    value (``write`` None: read-only)."""
+    value (``write`` None: read-only); ``param_type`` its MAV_PARAM_TYPE."""
 
     name: str
     minimum: float
     maximum: float
     read: Callable[[int], float]
     write: Callable[[int, float], None] | None
+    param_type: int = PARAM_REAL32
 
 
 class Tunables:
-    """The parameter table of every vehicle, bound to the autopilot and gains it tunes."""
+    """The parameter table of every vehicle, bound to the autopilot and gains it tunes; a
+    dialect's ``extra`` parameters follow the common ones, those named in ``without`` are left
+    out."""
 
-    def __init__(self, autopilot: Autopilot, gains: FleetAttitudeGains, sysids: list[int]) -> None:
-        self.specs: tuple[ParamSpec, ...] = (
+    def __init__(
+        self,
+        autopilot: Autopilot,
+        gains: FleetAttitudeGains,
+        sysids: list[int],
+        extra: Sequence[ParamSpec] = (),
+        without: Collection[str] = (),
+    ) -> None:
+        common = (
             *_gain_specs(gains.kp_matrix, "KP", 10_000.0),
             *_gain_specs(gains.kd_matrix, "KD", 1_000.0),
-            _array_spec("COM_OF_LOSS_T", autopilot.offboard_timeout_s, 0.02, 60.0),
-            _array_spec("COM_FS_HOLD_T", autopilot.failsafe_hold_s, 0.0, 60.0),
-            _array_spec("MPC_LAND_SPEED", autopilot.land_speed_m_s, 0.1, 5.0),
+            array_spec("COM_OF_LOSS_T", autopilot.offboard_timeout_s, 0.02, 60.0),
+            array_spec("COM_FS_HOLD_T", autopilot.failsafe_hold_s, 0.0, 60.0),
+            array_spec("MPC_LAND_SPEED", autopilot.land_speed_m_s, 0.1, 5.0),
             ParamSpec(
                 "SYS_FAILURE_EN",
                 0.0,
@@ -95,6 +116,10 @@ class Tunables:
                 lambda i, v: autopilot.failure_injection.__setitem__(i, v >= 0.5),
             ),
             ParamSpec("MAV_SYS_ID", 1.0, 250.0, lambda i: float(sysids[i]), None),
+        )
+        self.specs: tuple[ParamSpec, ...] = (
+            *(spec for spec in common if spec.name not in without),
+            *extra,
         )
         self._index = {spec.name: k for k, spec in enumerate(self.specs)}
 
@@ -112,6 +137,10 @@ class Tunables:
         spec = self.specs[index]
         return spec.name, spec.read(vehicle)
 
+    def param_type(self, index: int) -> int:
+        """The MAV_PARAM_TYPE of parameter ``index``."""
+        return self.specs[index].param_type
+
     def set(self, vehicle: int, name: str, value: float) -> SetStatus:
         """Set ``vehicle``'s parameter ``name`` to ``value`` if known, writable and in range."""
         index = self._index.get(name)
@@ -126,11 +155,23 @@ class Tunables:
         return SetStatus.OK
 
 
-def _array_spec(name: str, values: FloatArray, minimum: float, maximum: float) -> ParamSpec:
-    def write(i: int, v: float) -> None:
-        values[i] = v
+def array_spec(
+    name: str,
+    values: FloatArray,
+    minimum: float,
+    maximum: float,
+    param_type: int = PARAM_REAL32,
+    writable: bool = True,
+) -> ParamSpec:
+    """A parameter stored in ``values`` (N,), one entry per vehicle. An integer ``param_type``
+    stores the set value's integer part (as ArduPilot's integer parameters do)."""
+    integer = param_type != PARAM_REAL32
 
-    return ParamSpec(name, minimum, maximum, lambda i: float(values[i]), write)
+    def write(i: int, v: float) -> None:
+        values[i] = float(int(v)) if integer else v
+
+    read = lambda i: float(values[i])  # noqa: E731
+    return ParamSpec(name, minimum, maximum, read, write if writable else None, param_type)
 
 
 def _gain_specs(matrix: FloatArray, kind: str, maximum: float) -> list[ParamSpec]:

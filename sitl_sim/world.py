@@ -12,6 +12,10 @@ Each control period also drains each vehicle's battery by the current its rotors
 (:mod:`sitl_sim.battery`, reported in SYS_STATUS). ``config.home`` places the NED origin on the
 map (protocols/geodesy.py), for the telemetry only: the world itself is flat.
 
+``config.dialect`` chooses, once, the autopilot firmware the vehicles emulate: PX4 (the
+simulator's own :class:`~sitl_sim.autopilot.Autopilot` and :class:`~sitl_sim.guidance.Guidance`)
+or ArduCopter (:mod:`sitl_sim.copter`, whose EKF is ready ``config.ekf_ready_s`` after start).
+
 Time is the control tick ``k``: ``t_s = k / control_hz``. The only randomness is the optional
 position noise of the telemetry, drawn from the injected generator every tick for all vehicles,
 so a seed fixes a run.
@@ -19,27 +23,34 @@ so a seed fixes a run.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from protocols.frames import FloatArray
 from protocols.geodesy import GeoPoint
+from protocols.mavlink_conventions import Dialect
 from sitl_sim.attitude_control import euler_from_quat_batch
 from sitl_sim.autopilot import Autopilot, AutopilotConfig, VehicleEvent
 from sitl_sim.battery import Battery, BatteryConfig
+from sitl_sim.copter import CopterAutopilot, CopterGuidance
 from sitl_sim.dynamics import POS, QUAT, RATES, VEL, initial_state
 from sitl_sim.guidance import Guidance
 from sitl_sim.physics_kernel import PhysicsKernel
 from sitl_sim.tunables import FleetAttitudeGains
 from sitl_sim.vehicle_params import VehicleParams
 
+#: ArduCopter dialect: simulated seconds after start before the EKF and GPS are ready.
+DEFAULT_EKF_READY_S = 2.0
+
 
 @dataclass(frozen=True)
 class WorldConfig:
     """Rates (Hz; physics a multiple of control), autopilot defaults, telemetry position noise
     (standard deviation, m), scheduled crashes ``(t_s, vehicle index)``, where the NED origin is
-    on the map, and the batteries."""
+    on the map, the batteries, the autopilot firmware emulated (``dialect``) and, for
+    ArduCopter, the simulated seconds after start before its EKF and GPS are ready."""
 
     physics_hz: int = 500
     control_hz: int = 50
@@ -48,6 +59,8 @@ class WorldConfig:
     crashes: tuple[tuple[float, int], ...] = ()
     home: GeoPoint = field(default_factory=GeoPoint)
     battery: BatteryConfig = field(default_factory=BatteryConfig)
+    dialect: Dialect = Dialect.PX4
+    ekf_ready_s: float = DEFAULT_EKF_READY_S
 
     def validate(self) -> WorldConfig:
         """Raise ValueError naming the field unless the rates and noise are usable."""
@@ -59,6 +72,10 @@ class WorldConfig:
             )
         if not (np.isfinite(self.position_noise_m) and self.position_noise_m >= 0.0):
             raise ValueError("position_noise_m must be finite and >= 0")
+        if self.dialect not in tuple(Dialect):
+            raise ValueError(f"dialect must be one of {[d.value for d in Dialect]}")
+        if not (math.isfinite(self.ekf_ready_s) and self.ekf_ready_s >= 0.0):
+            raise ValueError("ekf_ready_s must be finite and >= 0")
         return self
 
 
@@ -94,10 +111,13 @@ class World:
         self.rng = rng
         self.state = initial_state(positions_ned_m, yaw_rad)
         self.n = self.state.shape[1]
+        #: where each vehicle started (N, 3) NED m
+        self.start_ned_m: FloatArray = self.state[POS].T.copy()
         self.substeps = config.physics_hz // config.control_hz
         self.dt_physics_s = 1.0 / config.physics_hz
-        self.autopilot = Autopilot(self.n, config.autopilot, np.asarray(yaw_rad, float))
-        self.guidance = Guidance(self.autopilot, params.hover_thrust_n / params.max_thrust_n)
+        self.autopilot, self.guidance = _flight_core(
+            config, self.n, np.asarray(yaw_rad, float), params, self.dt_physics_s
+        )
         self.tick = 0
         #: rotor speeds (4, N) rad/s applied in the last physics step (0 before the first)
         self.rotor_speed_rad_s = np.zeros((4, self.n))
@@ -165,3 +185,15 @@ class World:
     def commanded(self) -> tuple[FloatArray, FloatArray]:
         """The attitude (3, N) ZYX rad and normalised thrust (N,) last given to the inner loop."""
         return self.guidance.euler_rad, self.guidance.thrust
+
+
+def _flight_core(
+    config: WorldConfig, n: int, yaw_rad: FloatArray, params: VehicleParams, dt_s: float
+) -> tuple[Autopilot, Guidance]:
+    """The autopilots and guidance of ``config.dialect``'s firmware (chosen here, once)."""
+    hover = params.hover_thrust_n / params.max_thrust_n
+    if config.dialect == Dialect.ARDUPILOT:
+        copter = CopterAutopilot(n, config.autopilot, yaw_rad, hover, config.ekf_ready_s)
+        return copter, CopterGuidance(copter, hover, dt_s)
+    autopilot = Autopilot(n, config.autopilot, yaw_rad)
+    return autopilot, Guidance(autopilot, hover)

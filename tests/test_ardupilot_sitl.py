@@ -96,6 +96,6 @@ def test_an_agent_killed_mid_flight_lands_and_the_others_reconverge(tmp_path: Pa
     assert any("GCS" in t and "ailsafe" in t for t in texts), texts  # ArduCopter's own words
     assert _landed_disarmed(report, 3)
     centre, spread = _errors(report, [0, 1, 2], HOLDS[1])
-    assert centre < 0.5 and spread < 0.25, (centre, spread)
+    assert centre < 0.3 and spread < 0.10, (centre, spread)
     for drone in range(3):
         assert _landed_disarmed(report, drone)

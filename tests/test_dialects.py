@@ -45,8 +45,8 @@ class _Io:
     def command(self, *args: float) -> None:
         self.sent.append(("command", args))
 
-    def request_interval(self, msg_id: int, hz: float) -> None:
-        self.sent.append(("interval", (msg_id, hz)))
+    def request_interval(self, message_id: int, rate_hz: float) -> None:
+        self.sent.append(("interval", (message_id, rate_hz)))
 
     def param_set(self, name: str, value: float) -> None:
         self.sent.append(("set", (name, value)))

@@ -33,11 +33,13 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from gcs.cli.supervisor import Child, SupervisorError
-from protocols.geodesy import ned_to_geodetic
 from protocols.mavlink_conventions import Dialect, sysid_of
-from protocols.scenario import Scenario
+
+if TYPE_CHECKING:  # numpy: imported when a swarm comes up, not by the parser
+    from protocols.scenario import Scenario
 
 #: The environment variable naming the ArduCopter SITL binary (``--ardupilot-bin`` wins).
 ENV = "ARDUPILOT_SITL"
@@ -87,6 +89,8 @@ def default_params(binary: Path) -> Path | None:
 def homes(scenario: Scenario) -> list[tuple[float, float, float, float]]:
     """Each drone's start as ArduPilot's ``--home``: latitude, longitude (deg), altitude (m MSL),
     heading (deg), from its start position about the scenario's home."""
+    from protocols.geodesy import ned_to_geodetic
+
     start = scenario.positions_ned_m()
     lat, lon, alt = ned_to_geodetic(scenario.home, start)
     return [
