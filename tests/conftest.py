@@ -85,6 +85,7 @@ REALTIME_MODULES = frozenset(
 #: test modules that fly on the default ports, as a newcomer types the commands
 DEFAULT_PORT_MODULES = frozenset(
     {
+        "test_ardupilot_dialect_flight",
         "test_ardupilot_sitl",  # real ArduCopter SITL on the default ports (skipped without it)
         "test_drill_flight",
         "test_drills_run",

@@ -198,6 +198,13 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gcs-port", type=int, default=DEFAULT_GCS_PORT, help="telemetry to the GCS")
     p.add_argument("--duration-s", type=float, metavar="S", help="fly only the first S seconds")
     p.add_argument(
+        "--land-at-end",
+        action="store_true",
+        help="at the scenario's end, land the swarm and end the run once every vehicle is "
+        "disarmed on the ground (always so with --ardupilot-bin); without it the run ends with "
+        "the swarm where the plan left it",
+    )
+    p.add_argument(
         "--view",
         action="store_true",
         help="also watch the flight live in Rerun: runs `swarm view` on the report folder and "
@@ -274,9 +281,10 @@ def build_plan(
     # are ready (supervisor.EPOCH); the ground station ends the run at the duration
     ardupilot = ardupilot_bin is not None
     clock_flags = ["--swarm-epoch", EPOCH] if ardupilot else []
-    gcs_end = (
-        ["--duration-s", str(duration), "--land-at-end"] if ardupilot and session is None else []
-    )
+    # --land-at-end (always with ArduCopter SITL, whose vehicles outlive the run): the ground
+    # station lands the swarm at the end and ends the run; the simulator runs on until then
+    land_at_end = session is None and (ardupilot or getattr(args, "land_at_end", False))
+    gcs_end = ["--duration-s", str(duration), "--land-at-end"] if land_at_end else []
     gcs = Child(
         "gcs",
         swarm_argv(
@@ -310,7 +318,8 @@ def build_plan(
             ("--base-port", args.base_port),  # None (the default layout) is left out
             ("--gcs", f"udp:127.0.0.1:{args.gcs_port}"),
             ("--gcs-rate-hz", TELEMETRY_HZ),
-            ("--duration-s", None if session else duration),  # a session: no end
+            # a session, or a landing at the end: the ground station ends the run
+            ("--duration-s", None if session or land_at_end else duration),
             ("--dialect", None if args.dialect == "px4" else args.dialect),
         ]
     )
