@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from bench.agent_batch import agent_batch
+from bench.autopilots import autopilots
 from bench.end_to_end import end_to_end
 from bench.messaging_floor import messaging_floor
 from bench.physics import physics_step
@@ -47,10 +48,12 @@ BENCHMARKS: dict[str, Benchmark] = {
     "up_lockstep": up_lockstep,
     "messaging_floor": messaging_floor,
     "runners_gap": runners_gap,
+    "autopilots": autopilots,
 }
 #: Run only with ``--only NAME``: ``swarm up --clock lockstep`` at N = 9 and 100 (about 10 min);
 #: the 100-drone flight distributed and in process, compared (about 5 min on a quiet machine).
-ON_REQUEST = {"up_lockstep", "runners_gap", "messaging_floor"}
+#: the same flight on our simulator in both dialects and on ArduCopter SITL (about 4 min).
+ON_REQUEST = {"up_lockstep", "runners_gap", "messaging_floor", "autopilots"}
 
 
 def machine_info() -> dict[str, Any]:

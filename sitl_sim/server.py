@@ -118,7 +118,8 @@ class SimServer:
                         dialect.agent_phases),
         )  # fmt: skip
         self.gcs = LinkSide(
-            network.gcs_channels, StreamTable(n, dialect.gcs_rates(rates.gcs_rates_hz), control_hz)
+            network.gcs_channels,
+            StreamTable(n, dialect.gcs_rates(rates.gcs_rates_hz), control_hz, dialect.gcs_phases),
         )
         lockstep = clock.mode == "lockstep"
         self.barrier = LockstepBarrier(clock.drop_timeout_s) if lockstep else None

@@ -17,14 +17,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from gcs.report.events import read_events
+from gcs.report.holds import window_errors
 from gcs.report.tlog import read_tlog
-from gcs.report.trajectory_file import read_trajectory
-from protocols.descriptor_vector import CENTRE, SHAPE
-from protocols.descriptors import descriptors
 
 ROOT = Path(__file__).resolve().parents[1]
 BINARY = os.environ.get("ARDUPILOT_SITL", "")
@@ -51,19 +48,8 @@ def _fly(tmp_path: Path, scenario: Path) -> Path:
 
 def _errors(report: Path, drones: list[int], window: tuple[float, float]) -> tuple[float, float]:
     """Worst centre error (m) and worst relative spread error of ``drones`` in ``window``."""
-    track = read_tlog(report / "flight.tlog")
-    plan = read_trajectory(report / "trajectory.json")
-    grid = np.arange(window[0], window[1], 0.2)
-    pos = track.resample(grid, 4)[:, drones]
-    centre_err, spread_err = 0.0, 0.0
-    for k, t in enumerate(grid):
-        want = plan.evaluate(float(t))[0]
-        got = descriptors(pos[k], want)
-        centre_err = max(centre_err, float(np.linalg.norm(got[CENTRE] - want[CENTRE])))
-        spreads = np.sqrt(np.maximum(got[SHAPE][:2], 0.0))
-        wanted = np.sqrt(want[SHAPE][:2])
-        spread_err = max(spread_err, float(np.max(np.abs(spreads / wanted - 1.0))))
-    return centre_err, spread_err
+    found = window_errors(report, drones, *window, n_drones=4)
+    return found.centre_m, found.spread
 
 
 def _landed_disarmed(report: Path, drone: int) -> bool:
