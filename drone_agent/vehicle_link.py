@@ -335,14 +335,7 @@ class VehicleLink:
         self.dialect.on_sample(
             int(pos[0]), float(pos[6]), float(att[1]), float(att[2]), self.status.armed
         )
-        return [
-            VehicleSample(
-                stamp,
-                np.array(pos[1:4], dtype=float),
-                np.array(pos[4:7], dtype=float),
-                np.array(att[1:4], dtype=float),
-            )
-        ]
+        return [_sample(stamp, pos, att)]
 
     def _pair(self, ms: int) -> list[VehicleSample]:
         pos, att = self._pos.get(ms), self._att.get(ms)
@@ -351,14 +344,7 @@ class VehicleLink:
             return []
         del self._pos[ms], self._att[ms]
         self._prune(ms)
-        return [
-            VehicleSample(
-                ms,
-                np.array(pos[1:4], dtype=float),
-                np.array(pos[4:7], dtype=float),
-                np.array(att[1:4], dtype=float),
-            )
-        ]
+        return [_sample(ms, pos, att)]
 
     def _prune(self, ms: int) -> None:
         """Forget half-pairs more than a second older than ``ms``."""
@@ -464,3 +450,13 @@ class VehicleLink:
     def request_interval(self, message_id: int, rate_hz: float) -> None:
         """MAV_CMD_SET_MESSAGE_INTERVAL for one message id at ``rate_hz``."""
         self.command(common.MAV_CMD_SET_MESSAGE_INTERVAL, float(message_id), 1e6 / rate_hz)
+
+
+def _sample(time_boot_ms: int, pos: tuple[Any, ...], att: tuple[Any, ...]) -> VehicleSample:
+    """A sample of the halves ``(ms, x, y, z, vx, vy, vz)`` and ``(ms, roll, pitch, yaw)``."""
+    return VehicleSample(
+        time_boot_ms,
+        np.array(pos[1:4], dtype=float),
+        np.array(pos[4:7], dtype=float),
+        np.array(att[1:4], dtype=float),
+    )

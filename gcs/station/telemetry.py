@@ -30,7 +30,7 @@ from pymavlink.dialects.v20 import ardupilotmega, common
 from gcs.report.tlog import TlogWriter
 from protocols.geodesy import GeoPoint, geodetic_to_ned
 from protocols.mavlink_conventions import GCS_COMPID, GCS_SYSID, MAV_AUTOPILOT_ARDUPILOTMEGA
-from protocols.mavlink_fast import fast_receive_ok, parse
+from protocols.mavlink_fast import fast_receive_ok, pack, parse
 from protocols.mavlink_signing import setup_signing
 from protocols.swarm_clock import VehicleClock
 from protocols.wire_status import AgentStatus
@@ -130,7 +130,7 @@ class TelemetryReceiver:
         msg = codec.gps_global_origin_encode(
             round(origin.lat_deg * 1e7), round(origin.lon_deg * 1e7), round(origin.alt_m * 1e3)
         )
-        self._tlog.write_message(self.sim_time_s, GCS_SYSID, msg)
+        self._tlog.write_packet(self.sim_time_s, pack(msg, codec))  # from 255/190, not a vehicle
 
     def poll(self) -> list[VehicleText]:
         """Drain every waiting datagram; returns the status texts that came."""
