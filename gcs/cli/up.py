@@ -396,6 +396,9 @@ def _ardupilot_binary(args: argparse.Namespace) -> Path | None:
         )
     if args.dialect != "px4":
         raise SupervisorError("--dialect is our simulator's; ArduCopter speaks its own")
+    defaults = getattr(args, "ardupilot_defaults", None)
+    if defaults is not None and not defaults.is_file():
+        raise SupervisorError(f"--ardupilot-defaults {defaults}: no such parameter file")
     args.clock = "realtime"
     return binary
 
