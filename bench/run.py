@@ -22,6 +22,7 @@ import numpy as np
 from bench.agent_batch import agent_batch
 from bench.autopilots import autopilots
 from bench.end_to_end import end_to_end
+from bench.layouts import layouts
 from bench.messaging_floor import messaging_floor
 from bench.physics import physics_step
 from bench.physics_tick import physics_tick
@@ -49,11 +50,13 @@ BENCHMARKS: dict[str, Benchmark] = {
     "messaging_floor": messaging_floor,
     "runners_gap": runners_gap,
     "autopilots": autopilots,
+    "layouts": layouts,
 }
 #: Run only with ``--only NAME``: ``swarm up --clock lockstep`` at N = 9 and 100 (about 10 min);
 #: the 100-drone flight distributed and in process, compared (about 5 min on a quiet machine).
 #: the same flight on our simulator in both dialects and on ArduCopter SITL (about 4 min).
-ON_REQUEST = {"up_lockstep", "runners_gap", "messaging_floor", "autopilots"}
+#: swarm up with its agents in one process, two, or one per drone (about 4 min).
+ON_REQUEST = {"up_lockstep", "runners_gap", "messaging_floor", "autopilots", "layouts"}
 
 
 def machine_info() -> dict[str, Any]:

@@ -417,9 +417,14 @@ def run(args: argparse.Namespace) -> int:
             flush=True,
         )
 
+    def kill(drone: int) -> None:  # the dropout drill of a hosted agent (swarm drill dropout)
+        if drone in host.drones:
+            host.kill(drone, "killed by a dropout drill")
+
     live = FaultDrills(
-        bus, args.swarm_id, faults, config.consensus.dt_s, host_round(host), restart=restart
-    )
+        bus, args.swarm_id, faults, config.consensus.dt_s, host_round(host), restart=restart,
+        kill=kill,
+    )  # fmt: skip
 
     def stop(_sig: int, _frame: FrameType | None) -> None:
         host.stop()

@@ -23,6 +23,7 @@ from protocols.wire import WireError
 from protocols.wire_fault import (
     Clear,
     Delay,
+    Dropout,
     FaultCommand,
     LinkCut,
     LinkRestore,
@@ -57,6 +58,8 @@ def describe(command: FaultCommand) -> str:
         return f"delay {command.delay_ms:g} ms{where}"
     if isinstance(command, Restart):
         return f"restart drone {command.drone} after {command.gap_s:g} s"
+    if isinstance(command, Dropout):
+        return f"dropout of drone {command.drone}'s agent"
     if isinstance(command, Partition):
         if command.groups is None:
             return "partition healed"
@@ -68,7 +71,8 @@ class FaultDrills:
     """Applies the fault commands of swarm ``swarm_id`` to ``faults``; ``period_s`` is the control
     period (s) and ``round_clock()`` the current control round, so simulated time is their
     product. ``log(line)`` (default: stderr) reports each command applied or rejected;
-    ``restart(drone, gap_s)`` carries out a restart drill (the process's agent host)."""
+    ``restart(drone, gap_s)`` carries out a restart drill and ``kill(drone)`` a dropout drill of
+    a hosted agent (the process's agent host; a drone it does not host is left alone)."""
 
     def __init__(
         self,
@@ -79,9 +83,11 @@ class FaultDrills:
         round_clock: Callable[[], int],
         log: Callable[[str], None] | None = None,
         restart: Callable[[int, float], None] | None = None,
+        kill: Callable[[int], None] | None = None,
     ) -> None:
         self._faults, self._period_s, self._clock = faults, period_s, round_clock
         self._restart = restart
+        self._kill = kill
         self._log = log or _stderr
         self._swarm_id = swarm_id
         self._queue: deque[bytes] = deque()
@@ -145,6 +151,8 @@ class FaultDrills:
             self._undo.clear()
         elif isinstance(command, Restart) and self._restart is not None:
             self._restart(command.drone, command.gap_s)
+        elif isinstance(command, Dropout) and self._kill is not None:
+            self._kill(command.drone)
 
     def _later(self, t_s: float, command: FaultCommand) -> None:
         heapq.heappush(self._undo, (t_s, next(self._order), command))

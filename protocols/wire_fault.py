@@ -12,6 +12,8 @@ Body after the common header (``protocols.wire``), little-endian: ``u8 op`` (Fau
                   increasing; no drone in two groups)
     RESTART       u16 drone, f32 gap_s (> 0): the process hosting drone's agent kills it and
                   starts a new one (a new incarnation) gap_s simulated seconds later
+    DROPOUT       u16 drone: the process hosting drone's agent kills it for good (its other
+                  agents fly on; the ground station's dropout drill of a hosted agent)
 
 ``i``/``j`` are drone indices; with ``has_link`` 0 the command applies to every link and i, j
 are 0. A one-way cut stops i -> j only (what j receives from i).
@@ -54,6 +56,7 @@ class FaultOp(IntEnum):
     DELAY = 4
     PARTITION = 5
     RESTART = 6
+    DROPOUT = 7
 
 
 @dataclass(frozen=True)
@@ -113,7 +116,14 @@ class Restart:
     gap_s: float
 
 
-FaultCommand = Clear | LinkCut | LinkRestore | Loss | Delay | Partition | Restart
+@dataclass(frozen=True)
+class Dropout:
+    """Kill drone ``drone``'s agent now, for good."""
+
+    drone: int
+
+
+FaultCommand = Clear | LinkCut | LinkRestore | Loss | Delay | Partition | Restart | Dropout
 
 _OPS: dict[type, FaultOp] = {
     Clear: FaultOp.CLEAR,
@@ -123,6 +133,7 @@ _OPS: dict[type, FaultOp] = {
     Delay: FaultOp.DELAY,
     Partition: FaultOp.PARTITION,
     Restart: FaultOp.RESTART,
+    Dropout: FaultOp.DROPOUT,
 }
 
 
@@ -183,6 +194,10 @@ def encode_fault(command: FaultCommand, swarm_id: str) -> bytes:
             raise ValueError(f"drone must be 0..{MAX_DRONE_ID}, got {command.drone!r}")
         body = _RESTART.pack(command.drone, _duration(command.gap_s))
         return head + bytes([FaultOp.RESTART]) + body
+    if isinstance(command, Dropout):
+        if not 0 <= command.drone <= MAX_DRONE_ID:
+            raise ValueError(f"drone must be 0..{MAX_DRONE_ID}, got {command.drone!r}")
+        return head + bytes([FaultOp.DROPOUT]) + _U16.pack(command.drone)
     groups = command.groups
     parts = [head, bytes([FaultOp.PARTITION]), _U16.pack(0 if groups is None else len(groups))]
     seen: set[int] = set()
@@ -239,6 +254,10 @@ def decode_fault(data: bytes, swarm_id: str, *, max_bytes: int = MAX_FAULT_BYTES
         if gap_s is None:
             raise WireError(Reason.BAD_VALUE, "fault restart gap 0 s")
         return Restart(drone, gap_s)
+    if op == FaultOp.DROPOUT:
+        expect_length(data, off + _U16.size, "fault dropout")
+        (drone,) = _U16.unpack_from(data, off)
+        return Dropout(drone)
     raise WireError(Reason.BAD_VALUE, f"fault op {op}")
 
 

@@ -1,7 +1,8 @@
 """``swarm demo`` (what ``make demo`` runs) end to end: the paper's 200 s flight with the real
-simulator, 9 agent processes over Zenoh and the ground station, judged from the ground station's
-own ``report/flight.tlog`` (recomputed here, not read from metrics.json), and compared with the
-in-process reference ``swarm simulate`` on the same scenario.
+simulator, the 9 agents (hosted in one process, the default) over Zenoh and the ground station,
+judged from the ground station's own ``report/flight.tlog`` (recomputed here, not read from
+metrics.json), and compared with the in-process reference ``swarm simulate`` on the same
+scenario.
 
 The bars sit at 2-3x the figures the README quotes (measured on two runs, in brackets), never
 looser than the ground-station issue's (centroid RMS < 0.10 m, shape < 0.2 m^2 after 20 s, 1.0 m

@@ -570,14 +570,15 @@ def test_crash_drops_the_vehicle_and_its_agent_the_others_fly_on(flight: Flight)
     assert all(table[d]["mode"] == "FLYING" and float(table[d]["z"]) < -2.5 for d in others)
 
 
-def test_dropout_kills_the_agent_process_and_the_gcs_detects_it(flight: Flight) -> None:
-    """``swarm drill dropout --drone 6``: the ground station SIGKILLs drone 6's agent process
-    (from swarm up's run file) and logs dropout_detected; the seven others fly on."""
+def test_dropout_kills_the_agent_and_the_gcs_detects_it(flight: Flight) -> None:
+    """``swarm drill dropout --drone 6``: the ground station has the process hosting drone 6's
+    agent (all nine, by default; from swarm up's run file) kill that agent alone and logs
+    dropout_detected; the seven others fly on, their process with them."""
     pid = json.loads((flight.report / "logs" / "run.json").read_text())["agents"][str(DROPPED)]
     reply = flight.drill("dropout", "--drone", str(DROPPED))
     assert "drill dropout: accepted" in reply and f"pid {pid}" in reply and "killed" in reply
     assert flight.wait_sim(lambda: flight.seen.alive.get(DROPPED) is False, 3.0)
-    assert flight.wait_sim(lambda: not _running(pid), 3.0)  # swarm up reaped it
+    assert _running(pid)  # hosted: the process flies the others on
     assert flight.wait_sim(
         lambda: any(
             e["kind"] == "dropout_detected" and e["drone"] == DROPPED

@@ -134,3 +134,21 @@ def test_crash_is_an_operator_request_with_a_drone() -> None:
     assert request == Request("crash", {"drone": 2.0})
     with pytest.raises(CommandError, match="missing argument 'drone'"):
         parse_request(encode_request(Request("crash", {})))
+
+
+def test_a_dropout_command_kills_a_hosted_agent_through_the_host() -> None:
+    """The DROPOUT fault command (the ground station's dropout drill of a hosted agent) reaches
+    the process's ``kill`` callback with the drone; a process without one ignores it."""
+    from drone_agent.transport import Congestion
+    from protocols.wire_fault import Dropout, encode_fault
+
+    medium = MemoryBus()
+    killed: list[int] = []
+    drills = FaultDrills(medium.session(), "s", LinkFaults(), 0.02, lambda: 0,
+                         log=lambda _: None, kill=killed.append)  # fmt: skip
+    deaf = FaultDrills(medium.session(), "s", LinkFaults(), 0.02, lambda: 0, log=lambda _: None)
+    publisher = medium.session().publisher(SwarmKeys("s", 1.0).fault, Congestion.BLOCK)
+    publisher.put(encode_fault(Dropout(4), "s"))
+    drills.poll()
+    deaf.poll()
+    assert killed == [4] and drills.applied == 1 and deaf.applied == 1

@@ -1,13 +1,13 @@
 """Lockstep repeats exactly (issue 14, item 4): two ``swarm up`` runs of the paper scenario log
 identical LOCAL_POSITION_NED and ATTITUDE samples for every vehicle over the first 20 s, with
 the link cuts at 17 s, field by field at each ``time_boot_ms``, however the machine's load
-schedules the processes: one run hosts the nine agents in one process (``--agents-per-process 9
---duration-s 20``), the other runs one process per drone: ``swarm demo`` (``swarm up
-scenarios/paper.toml``), the session's demo flight that tests/test_demo_paper.py judges, whose
-first 20 s are compared. Each agent waits for every live drone's round-done marker of the
-previous round before its tick (drone_agent/round_gate.py), link faults act by message round and
-draw from per-link seeded generators, and an agent's commands go before its tick's echo. About a
-minute beside the demo's flight."""
+schedules the processes: one run gives each drone's agent a process of its own
+(``--agents-per-process 1 --duration-s 20``), the other hosts the nine in one process, as by
+default: ``swarm demo`` (``swarm up scenarios/paper.toml``), the session's demo flight that
+tests/test_demo_paper.py judges, whose first 20 s are compared. Each agent waits for every live
+drone's round-done marker of the previous round before its tick (drone_agent/round_gate.py),
+link faults act by message round and draw from per-link seeded generators, and an agent's
+commands go before its tick's echo. About a minute beside the demo's flight."""
 
 from __future__ import annotations
 
@@ -57,8 +57,8 @@ def _fly(tmp_path: Path, endpoint: str, name: str, *extra: str) -> Path:
 def test_two_lockstep_runs_log_identical_vehicle_telemetry(
     tmp_path: Path, rendezvous: str, demo_run: tuple[Path, str]
 ) -> None:
-    hosted = vehicle_samples(_fly(tmp_path, rendezvous, "hosted", "--agents-per-process", "9"))
-    # one process per drone: the demo's flight (200 s) up to where the hosted run's log ends
+    hosted = vehicle_samples(_fly(tmp_path, rendezvous, "apart", "--agents-per-process", "1"))
+    # hosted (the default): the demo's flight (200 s) up to where the other run's log ends
     end_ms = max(t for _, _, t in hosted)
     assert end_ms >= (DURATION_S - 1.0) * 1e3, end_ms
     apart = {

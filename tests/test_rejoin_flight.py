@@ -105,6 +105,8 @@ def test_agents_killed_in_flight_come_back_into_the_formation(tmp_path: Path) ->
         proc = subprocess.Popen(
             swarm_command(
                 *("up", str(scenario), "--report", str(report)),
+                # a process per drone: drone 3's is killed and typed again, alone
+                *("--agents-per-process", "1"),
                 *("--base-port", str(base), "--gcs-port", str(gcs_port)),
                 *("--swarm-id", SWARM, "--zenoh-connect", obs.endpoint),
             ),

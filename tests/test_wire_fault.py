@@ -11,6 +11,7 @@ from protocols.wire import WIRE_VERSION, Kind, Reason, WireError
 from protocols.wire_fault import (
     Clear,
     Delay,
+    Dropout,
     FaultCommand,
     FaultOp,
     LinkCut,
@@ -60,6 +61,7 @@ GOLDEN: list[tuple[FaultCommand, str, bytes]] = [
         "5101040464656d6f06030000002040",
         HEAD + bytes([FaultOp.RESTART]) + struct.pack("<Hf", 3, 2.5),
     ),
+    (Dropout(6), "5101040464656d6f070600", HEAD + bytes([FaultOp.DROPOUT, 6, 0])),
 ]
 
 
@@ -75,7 +77,7 @@ def test_each_command_has_its_op() -> None:
     ops = [fault_op(command) for command, _, _ in GOLDEN]
     assert [op.name.lower() for op in ops] == [
         "clear", "link_cut", "link_restore", "loss", "delay", "partition", "partition",
-        "restart",
+        "restart", "dropout",
     ]  # fmt: skip
     assert [encode_fault(c, SID)[len(HEAD)] for c, _, _ in GOLDEN] == [int(op) for op in ops]
 
@@ -104,6 +106,7 @@ def test_defaults_round_trip() -> None:
         Restart(3, 0.0),
         Restart(3, math.nan),
         Restart(-1, 1.0),
+        Dropout(-1),
     ],
 )
 def test_encoder_refuses_what_cannot_be_sent(command: FaultCommand) -> None:

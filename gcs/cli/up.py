@@ -65,23 +65,27 @@ drone agents as supervised child processes; the report in --report):
 """
 
 
-#: ``swarm up`` runs one agent process per drone up to this many drones by default.
-PER_DRONE_UP_TO = 16
+#: ``swarm up`` hosts every agent in one process up to this many drones by default.
+ONE_PROCESS_UP_TO = 25
 #: Beyond, one agent process per CPU core, at least this many.
 MIN_HOSTED_PROCESSES = 2
 
 
 def default_agents_per_process(n: int, cpus: int | None = None) -> int:
     """``--agents-per-process``'s default for ``n`` drones on a machine of ``cpus`` cores (None:
-    this one's). One process per drone, as each drone's companion computer would run it, up to
-    PER_DRONE_UP_TO drones; beyond, one agent process per core (at least MIN_HOSTED_PROCESSES):
-    each process pays its own messaging (Zenoh, round markers, every other process's batches) on
-    top of its agents' work. On two cores, a hundred processes took 16 GB and two minutes to fly
+    this one's). Every agent in one process up to ONE_PROCESS_UP_TO drones: each process pays
+    its own messaging (Zenoh, round markers, every other process's batches) on top of its agents'
+    work, and the agents' maths is batched across a process's drones. Measured on two cores,
+    lockstep, whole runs (bench/results_layouts.json): the paper's 9 drones at 5.9x real time in
+    one process, 3.9x in two, 1.2x in nine (one per drone, as each drone's companion computer
+    would run it: the old default); 16 drones 5.1x, 3.4x, 0.5x in one, two, sixteen; 25 drones
+    3.7x in one, 2.7x in two. Beyond, one agent process per core (at least
+    MIN_HOSTED_PROCESSES): on two cores, a hundred processes took 16 GB and two minutes to fly
     0.06 simulated seconds; four of 25 fly at 0.70-0.77x real time (lockstep), two of 50 at
-    0.98-1.01x; 25 drones in four processes of 7 at 1.2-1.6x, in two of 13 at 2.1-2.2x
-    (bench/up_lockstep.py's run_case, interleaved)."""
-    if n <= PER_DRONE_UP_TO:
-        return 1
+    0.98-1.01x (bench/up_lockstep.py's run_case, interleaved). A dropout drill of one hosted
+    agent kills that agent only (gcs/station/drills.py)."""
+    if n <= ONE_PROCESS_UP_TO:
+        return max(1, n)
     processes = max(MIN_HOSTED_PROCESSES, cpus if cpus is not None else os.cpu_count() or 1)
     return math.ceil(n / processes)
 
@@ -175,10 +179,11 @@ def _common(p: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         metavar="K",
-        help=f"drones hosted per agent process (default: one process per drone up to "
-        f"{PER_DRONE_UP_TO} drones; more are hosted in one process per CPU core, at "
-        f"least {MIN_HOSTED_PROCESSES}: each agent process takes ~200 MB and pays its own "
-        "messaging)",
+        help=f"drones hosted per agent process (default: all in one process up to "
+        f"{ONE_PROCESS_UP_TO} drones, the fastest layout measured; more in one process per CPU "
+        f"core, at least {MIN_HOSTED_PROCESSES}: each agent process takes ~200 MB and pays its "
+        "own messaging; 1 runs each drone's agent in a process of its own, as its companion "
+        "computer would)",
     )
     p.add_argument("--signing-key", type=Path, metavar="FILE", help="MAVLink 2 signing key")
     p.add_argument(
@@ -234,8 +239,15 @@ def build_plan(
         scenario, text = generated.scenario, generated.text
     n = scenario.n_drones
     ardupilot_bin = _ardupilot_binary(args)
+    args.layout_why = ""
     if args.agents_per_process is None:
         args.agents_per_process = default_agents_per_process(n)
+        args.layout_why = (
+            f" (the default: all in one process up to {ONE_PROCESS_UP_TO} drones, the fastest "
+            "measured; --agents-per-process 1 gives each drone its own)"
+            if n <= ONE_PROCESS_UP_TO
+            else " (the default beyond 25 drones: one process per CPU core)"
+        )
     if args.agents_per_process < 1:
         raise SupervisorError("--agents-per-process must be at least 1")
     duration = scenario.duration_s if args.duration_s is None else args.duration_s
@@ -487,8 +499,10 @@ def run(args: argparse.Namespace) -> int:
     hosting = ""
     if args.agents_per_process > 1 and len(plan.agents) > 1:
         hosting = f" of up to {args.agents_per_process} drones each"
+    processes = f"{len(plan.agents)} agent process{'es' if len(plan.agents) != 1 else ''}"
     print(
-        f"swarm up: {n} drones, {len(plan.agents)} agent processes{hosting}, {args.clock} clock; "
+        f"swarm up: {n} drones, {processes}{hosting}{getattr(args, 'layout_why', '')}, "
+        f"{args.clock} clock; "
         f"here: {', '.join(dict.fromkeys(parts))}; logs in {args.report / 'logs'}",
         file=sys.stderr,
     )

@@ -1,9 +1,12 @@
 """The ground station's part in drills: it records every link-fault command seen on
 ``swarm/<sid>/fault`` as a "drill" event, injects vehicle crashes (``swarm drill crash``) with
-MAV_CMD_INJECT_FAILURE sent to the vehicle through the simulator's GCS endpoint, and kills an
-agent's process (``swarm drill dropout``, SIGKILL) when ``swarm up`` told it the agents' process
-ids in its run file (:data:`RUN_FILE` in the report's logs folder:
-``{"agents": {"<drone>": pid}}``).
+MAV_CMD_INJECT_FAILURE sent to the vehicle through the simulator's GCS endpoint, and kills a
+drone's agent (``swarm drill dropout``) when ``swarm up`` told it the agents' process ids in its
+run file (:data:`RUN_FILE` in the report's logs folder: ``{"agents": {"<drone>": pid}}``): a
+process that runs that agent alone is killed (SIGKILL), as a companion computer dies; one that
+hosts other drones' agents too is told to kill that one agent (the DROPOUT fault command, which
+drops its liveliness token at once: to its neighbours the same as a killed process), so that
+the other drones fly on.
 
 The Zenoh callback only queues payloads; :meth:`GcsDrills.drain` runs on the ground station's
 loop. Times in events are simulated seconds.
@@ -20,13 +23,21 @@ from collections.abc import Callable
 from pathlib import Path
 
 from drone_agent.fault_drills import describe
-from drone_agent.transport import Bus, Closeable
+from drone_agent.transport import Bus, Closeable, Congestion
 from gcs.report.events import EventLog
 from gcs.station.commands import Reply
 from gcs.station.telemetry import TelemetryReceiver
 from protocols.keys import SwarmKeys
 from protocols.wire import WireError
-from protocols.wire_fault import LinkCut, LinkRestore, Restart, decode_fault, fault_op
+from protocols.wire_fault import (
+    Dropout,
+    LinkCut,
+    LinkRestore,
+    Restart,
+    decode_fault,
+    encode_fault,
+    fault_op,
+)
 
 MAV_CMD_INJECT_FAILURE = 420
 FAILURE_UNIT_SYSTEM_MOTOR = 101
@@ -47,9 +58,10 @@ class GcsDrills:
         self._queue: deque[bytes] = deque(maxlen=_MAX_QUEUED)
         self._lock = threading.Lock()
         self.malformed = 0
-        self._sub: Closeable = bus.subscribe_callback(
-            SwarmKeys(swarm_id, 1.0).fault, self._on_sample
-        )
+        key = SwarmKeys(swarm_id, 1.0).fault
+        self._sub: Closeable = bus.subscribe_callback(key, self._on_sample)
+        # remote_only: its own drill event is recorded once, by the dropout drill itself
+        self._pub = bus.publisher(key, Congestion.BLOCK, remote_only=True)
 
     def _on_sample(self, _key: str, payload: bytes) -> None:  # Zenoh thread: enqueue only
         with self._lock:
@@ -108,9 +120,17 @@ class GcsDrills:
 
         return self._on_drone("crash", drone, n_drones, now_s, stop_motors)
 
-    def dropout(self, drone: float, n_drones: int, now_s: float, run_file: Path | None) -> Reply:
-        """SIGKILL the process of drone ``drone``'s agent (hosted agents die with it), found in
-        ``run_file``; refused without one (the swarm was not started by ``swarm up``)."""
+    def dropout(
+        self,
+        drone: float,
+        n_drones: int,
+        now_s: float,
+        run_file: Path | None,
+        alive: set[int] | None = None,
+    ) -> Reply:
+        """Kill drone ``drone``'s agent (module doc), its process found in ``run_file``; refused
+        without one (the swarm was not started by ``swarm up``), and for an agent not in
+        ``alive`` (the agents whose liveliness token is up; None: not checked)."""
 
         def kill(index: int) -> Reply:
             if run_file is None:
@@ -119,7 +139,9 @@ class GcsDrills:
                     "dropout needs the agents' process ids: only a swarm started by swarm up "
                     "(or its ground station's --run-file) can be drilled this way",
                 )
-            return _kill_agent(index, run_file)
+            if alive is not None and index not in alive:
+                return Reply(False, f"the agent of drone {index} is not running")
+            return _kill_agent(index, run_file, self._dropout)
 
         return self._on_drone("dropout", drone, n_drones, now_s, kill)
 
@@ -147,13 +169,19 @@ class GcsDrills:
         )
         return reply
 
+    def _dropout(self, drone: int) -> None:
+        """Tell the process hosting drone ``drone``'s agent to kill that agent."""
+        self._pub.put(encode_fault(Dropout(drone), self._swarm_id))
+
     def close(self) -> None:
         """Stop listening for fault commands."""
         self._sub.close()
+        self._pub.close()
 
 
-def _kill_agent(drone: int, run_file: Path) -> Reply:
-    """SIGKILL the agent process of ``drone`` listed in ``run_file``."""
+def _kill_agent(drone: int, run_file: Path, dropout: Callable[[int], None]) -> Reply:
+    """Kill the agent of ``drone``: SIGKILL its process listed in ``run_file`` if it runs that
+    agent alone, else ``dropout(drone)`` (the module doc)."""
     try:
         agents = json.loads(run_file.read_text())["agents"]
         pid = int(agents[str(drone)])
@@ -166,12 +194,18 @@ def _kill_agent(drone: int, run_file: Path) -> Reply:
         cmdline = []
     if cmdline and b"agent" not in cmdline:
         return Reply(False, f"the agent process of drone {drone} (pid {pid}) is not running")
+    others = [d for d in together if d != drone]
+    if others:
+        dropout(drone)
+        return Reply(
+            True,
+            f"agent of drone {drone} killed in its process (pid {pid}), which flies on with "
+            f"drones {others}",
+        )
     try:
         os.kill(pid, signal.SIGKILL)
     except ProcessLookupError:
         return Reply(False, f"the agent process of drone {drone} (pid {pid}) is not running")
     except PermissionError:
         return Reply(False, f"not allowed to kill the agent process of drone {drone} (pid {pid})")
-    others = [d for d in together if d != drone]
-    also = f"; it also hosted drones {others}" if others else ""
-    return Reply(True, f"agent process of drone {drone} (pid {pid}) killed{also}")
+    return Reply(True, f"agent process of drone {drone} (pid {pid}) killed")

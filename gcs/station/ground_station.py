@@ -381,7 +381,9 @@ class GroundStation:
         if request.name == "crash":  # drills, recorded by GcsDrills
             return replace(self.drills.crash(request.args["drone"], n, now), seq=self.plan.seq)
         if request.name == "dropout":
-            reply = self.drills.dropout(request.args["drone"], n, now, self._o.run_file)
+            reply = self.drills.dropout(
+                request.args["drone"], n, now, self._o.run_file, self.watch.alive
+            )
             return replace(reply, seq=self.plan.seq)
         if request.name == "gcs-restart":
             return self._restart(now)
