@@ -178,7 +178,9 @@ def up_with_a_frozen_agent(
     with observer(swarm_id=swarm_id) as obs:
         proc = subprocess.Popen(
             swarm_command(
-                *("up", str(scenario), "--report", str(report), *flags),
+                # a process per drone (flags may say otherwise): one frozen agent, not all
+                *("up", str(scenario), "--report", str(report), "--agents-per-process", "1"),
+                *flags,
                 *("--base-port", str(base), "--gcs-port", str(gcs_port)),
                 *("--swarm-id", swarm_id, "--zenoh-connect", obs.endpoint),
             ),

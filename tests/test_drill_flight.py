@@ -679,7 +679,9 @@ def test_the_logs_hold_every_drill_and_the_survivors_flew_to_the_end(flight: Fli
     kinds = [e["kind"] for e in events]
     metrics = json.loads((flight.report / "metrics.json").read_text())
     # the report's wall time is the whole run's, not the restarted station's alone
-    assert metrics["wall_time_s"] > 30.0 and metrics["real_time_factor"] < 5.0, metrics
+    started = next(e["wall_clock_s"] for e in events if e["kind"] == "run_start")
+    restarted = next(e["wall_clock_s"] for e in events if e["kind"] == "gcs_restarted")
+    assert metrics["wall_time_s"] > restarted - started, (metrics, started, restarted)
     assert kinds.count("gcs_stopped") == 1 and kinds.count("gcs_restarted") == 1
     assert metrics["plan_seq"] == 2  # the partition's move (1), the hold after the restart (2)
     assert sorted(d["sysid"] for d in metrics["drones_lost"]) == [DROPPED + 1, CRASHED + 1]

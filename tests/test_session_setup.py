@@ -104,7 +104,7 @@ def test_each_child_is_told_it_is_a_session(tmp_path: Path) -> None:
     request = session_request(args)
     path = tmp_path / "logs" / SESSION_FILE
     plan, n = build_plan(args, path, request)
-    assert n == 4 and plan.session and len(plan.agents) == 4
+    assert n == 4 and plan.session and plan.agent_drones == [range(4)]  # hosted: one process
     assert path.exists() and load_scenario(path).n_drones == 4
     assert "--session" in plan.gcs.argv and "--duration-s" not in plan.gcs.argv
     assert "--duration-s" not in plan.sim.argv  # the simulator runs until it is stopped

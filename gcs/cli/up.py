@@ -76,10 +76,10 @@ def default_agents_per_process(n: int, cpus: int | None = None) -> int:
     this one's). Every agent in one process up to ONE_PROCESS_UP_TO drones: each process pays
     its own messaging (Zenoh, round markers, every other process's batches) on top of its agents'
     work, and the agents' maths is batched across a process's drones. Measured on two cores,
-    lockstep, whole runs (bench/results_layouts.json): the paper's 9 drones at 5.9x real time in
-    one process, 3.9x in two, 1.2x in nine (one per drone, as each drone's companion computer
-    would run it: the old default); 16 drones 5.1x, 3.4x, 0.5x in one, two, sixteen; 25 drones
-    3.7x in one, 2.7x in two. Beyond, one agent process per core (at least
+    lockstep, whole runs (bench/results_layouts.json): the paper's 9 drones at 6.4x real time in
+    one process, 4.3x in two, 1.4x in nine (one per drone, as each drone's companion computer
+    would run it); 16 drones 5.1x, 2.9x, 0.5x in one, two, sixteen; 25 drones 3.7x in one, 2.7x
+    in two. Beyond, one agent process per core (at least
     MIN_HOSTED_PROCESSES): on two cores, a hundred processes took 16 GB and two minutes to fly
     0.06 simulated seconds; four of 25 fly at 0.70-0.77x real time (lockstep), two of 50 at
     0.98-1.01x (bench/up_lockstep.py's run_case, interleaved). A dropout drill of one hosted
