@@ -4,7 +4,7 @@ judged from the ground station's own ``report/flight.tlog`` (recomputed here, no
 metrics.json), and compared with the in-process reference ``swarm simulate`` on the same
 scenario.
 
-The bars sit at 2-3x the figures the README quotes (measured on two runs, in brackets), never
+The bars sit at 2-3x the figures docs/measured.md quotes (measured on two runs, in brackets), never
 looser than the ground-station issue's (centroid RMS < 0.10 m, shape < 0.2 m^2 after 20 s, 1.0 m
 separation, estimates back within the agent issue's bound within 10 s, within 0.05 m / 0.1 m^2
 RMS of ``swarm simulate``); where the figure is a crash transient the flight repeats exactly, the
@@ -69,17 +69,17 @@ def flight(track: TlogTrack) -> dict[str, np.ndarray]:
 def test_tracking_from_the_ground_stations_tlog(flight: dict[str, np.ndarray]) -> None:
     t, pos, member, desired = flight["t"], flight["positions"], flight["member"], flight["desired"]
     errors = tracking_from_positions(t, pos, member, desired, SETTLE_S)
-    assert errors["centroid_m"]["rms"] < 0.06, errors["centroid_m"]  # README: 0.048 m
-    assert errors["shape_m2"]["rms"] < 0.12, errors["shape_m2"]  # README: 0.095 m^2
+    assert errors["centroid_m"]["rms"] < 0.06, errors["centroid_m"]  # docs/measured.md: 0.048 m
+    assert errors["shape_m2"]["rms"] < 0.12, errors["shape_m2"]  # docs/measured.md: 0.095 m^2
     window = [(CRASH_T_S, CRASH_T_S + 10.0)]
     steady = tracking_from_positions(t, pos, member, desired, SETTLE_S, exclude=window)
-    assert steady["centroid_m"]["rms"] < 0.002, steady["centroid_m"]  # README: 0.6 mm
-    assert steady["shape_m2"]["rms"] < 0.008, steady["shape_m2"]  # README: 0.003 m^2
+    assert steady["centroid_m"]["rms"] < 0.002, steady["centroid_m"]  # docs/measured.md: 0.6 mm
+    assert steady["shape_m2"]["rms"] < 0.008, steady["shape_m2"]  # docs/measured.md: 0.003 m^2
 
 
 def test_no_two_airborne_drones_closer_than_1_9_metres(flight: dict[str, np.ndarray]) -> None:
     separation = min_airborne_separation(flight["positions"])
-    assert separation > 1.9, separation  # README: 2.0 m
+    assert separation > 1.9, separation  # docs/measured.md: 2.0 m
 
 
 def test_drop_out_survived_and_every_estimate_back_within_1_s(
@@ -90,8 +90,8 @@ def test_drop_out_survived_and_every_estimate_back_within_1_s(
     # the survivors fly to the end; the crashed vehicle went silent after it hit the ground
     assert np.all(-pos[-1, SURVIVORS, 2] > 4.5)
     assert np.all(np.isnan(pos[-1, CRASHED]))
-    # their formation is back within 5 cm / 0.1 m^2 of the plan within 7 s (README: 5.2 s) and
-    # stays there until the next fault (67 s)
+    # their formation is back within 5 cm / 0.1 m^2 of the plan within 7 s (docs/measured.md:
+    # 5.2 s) and stays there until the next fault (67 s)
     centroid = np.linalg.norm(truth[:, :3] - desired[:, :3], axis=1)
     shape = np.abs(truth[:, 6:9] - desired[:, 6:9]).max(axis=1)
     recovered = (t >= CRASH_T_S + 7.0) & (t < 67.0)
@@ -113,7 +113,7 @@ def test_drop_out_survived_and_every_estimate_back_within_1_s(
         err = np.abs(estimate[:, rows] - truth[:, rows])
         err[tie, HEADING] = 0.0
         assert (err[back] <= bound[back]).all(), (i, err[back].max(axis=0))
-    # the crash is felt (README: peak error 0.50 m), so the bound above is not vacuous
+    # the crash is felt (docs/measured.md: peak error 0.50 m), so the bound above is not vacuous
     during = (t >= CRASH_T_S) & (t < CRASH_T_S + 1.0)
     assert np.nanmax(np.abs(truth[during, 0] - desired[during, 0])) > 0.4
 
@@ -162,7 +162,7 @@ def test_report_and_summary(demo: tuple[Path, str]) -> None:
     crash = next(r for r in metrics["reconvergence"] if "lost" in r["description"])
     # the ground station's measure also waits for every agent's estimate: 5.2 s and 8.5 s measured
     assert crash["time_to_reconverge_s"] is not None and crash["time_to_reconverge_s"] < 10.0
-    # README: agents' centroid estimate error 0.8-0.9 mm RMS in steady flight
+    # docs/measured.md: agents' centroid estimate error 0.8-0.9 mm RMS in steady flight
     assert metrics["consensus_steady"]["centroid_m"]["rms"] < 0.0025, metrics["consensus_steady"]
     events = read_events(report / "events.jsonl")
     assert {e["drone"] for e in events if e["kind"] == "agent_joined"} == set(range(9))

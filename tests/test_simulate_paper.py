@@ -1,7 +1,7 @@
 """``swarm simulate scenarios/paper.toml`` end to end, judged from the run's own flight.tlog.
 
 The full 200 s paper flight runs once (about a minute) for the session. The run is seeded, so
-its figures do not vary from run to run; the bars sit at 2-3x the figures the README quotes
+its figures do not vary from run to run; the bars sit at 2-3x the figures docs/measured.md quotes
 (measured, in brackets), never looser than the flight-core issue's (centroid RMS < 0.05 m,
 shape-variance RMS < 0.1 m^2 after 20 s, 1.0 m separation, re-converged within 10 s):
 
@@ -50,8 +50,8 @@ def test_tracking_from_the_tlog(flight: dict[str, np.ndarray]) -> None:
         20.0,
         exclude=[(30.0, 40.0)],
     )
-    assert steady["centroid_m"]["rms"] < 1e-4, steady["centroid_m"]  # README: 0.03 mm
-    assert steady["shape_m2"]["rms"] < 0.008, steady["shape_m2"]  # README: 0.003 m^2
+    assert steady["centroid_m"]["rms"] < 1e-4, steady["centroid_m"]  # docs/measured.md: 0.03 mm
+    assert steady["shape_m2"]["rms"] < 0.008, steady["shape_m2"]  # docs/measured.md: 0.003 m^2
     everything = tracking_from_positions(
         flight["t"], flight["positions"], flight["member"], flight["desired"], 20.0
     )
@@ -64,7 +64,7 @@ def test_tracking_from_the_tlog(flight: dict[str, np.ndarray]) -> None:
 @pytest.mark.slow
 def test_no_two_airborne_drones_closer_than_1_9_metres(flight: dict[str, np.ndarray]) -> None:
     separation = min_airborne_separation(flight["positions"])
-    assert separation > 1.9, separation  # README: 2.0 m
+    assert separation > 1.9, separation  # docs/measured.md: 2.0 m
 
 
 @pytest.mark.slow
@@ -73,10 +73,10 @@ def test_drop_out_survived_and_reconverged_within_6_s(flight: dict[str, np.ndarr
     a = descriptors_of(pos, member, desired)
     centroid = np.linalg.norm(a[:, :3] - desired[:, :3], axis=1)
     shape = np.abs(a[:, 6:9] - desired[:, 6:9]).max(axis=1)
-    # the loss is felt (README: peak 0.50 m) ...
+    # the loss is felt (docs/measured.md: peak 0.50 m) ...
     just_after = (t >= 30.0) & (t < 31.0)
     assert 0.4 < centroid[just_after].max() < 0.6, centroid[just_after].max()
-    # ... the survivors are back within 5 cm / 0.1 m^2 within 6 s (README: 5.2 s) and stay
+    # ... the survivors are back within 5 cm / 0.1 m^2 within 6 s (docs/measured.md: 5.2 s) and stay
     # there until the next fault (67 s) ...
     recovered = (t >= 36.0) & (t < 67.0)
     assert centroid[recovered].max() < 0.05 and shape[recovered].max() < 0.1
@@ -109,11 +109,11 @@ def test_report_contents(report: Path) -> None:
     assert metrics["collisions"]["count"] == 0
     assert [d["sysid"] for d in metrics["drones_lost"]] == [2]
     crash = next(r for r in metrics["reconvergence"] if "crash" in r["description"])
-    # README: re-converged in 5.2 s, peak error 0.50 m / 0.98 m^2
+    # docs/measured.md: re-converged in 5.2 s, peak error 0.50 m / 0.98 m^2
     assert crash["time_to_reconverge_s"] is not None and crash["time_to_reconverge_s"] < 6.0
     assert 0.4 < crash["peak_centroid_error_m"] < 0.6, crash
     assert 0.8 < crash["peak_shape_error_m2"] < 1.2, crash
-    # README: consensus error 0.6 mm
+    # docs/measured.md: consensus error 0.6 mm
     assert metrics["consensus_steady"]["centroid_m"]["rms"] < 0.0015, metrics["consensus_steady"]
     assert metrics["separation"]["min_m"] > 1.9, metrics["separation"]
     kinds = [e["kind"] for e in read_events(report / "events.jsonl")]
