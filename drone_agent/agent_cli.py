@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import signal
 import sys
@@ -12,6 +11,8 @@ from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING
+
+from protocols.swarm_clock import EPOCH_HELP, epoch_arg
 
 # the parser (add_parser, main.py) imports no more than this: the machinery (numpy, numba, Zenoh,
 # pymavlink) is imported when an agent runs (tests/test_cli.py checks it)
@@ -105,13 +106,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     p.add_argument(
         "--swarm-epoch",
-        type=float,
+        type=epoch_arg,
         default=None,
         metavar="UNIX_S",
-        help="vehicles that each count time from their own boot (ArduCopter SITL instances): "
-        "the swarm's clock is seconds since this Unix time, the same for every agent and the "
-        "ground station (swarm up passes it); without it the vehicles' time_boot_ms is the "
-        "swarm's clock (one simulator)",
+        help=EPOCH_HELP,
     )
     p.add_argument("--swarm-id", default="swarm", help="swarm name on Zenoh (default %(default)s)")
     p.add_argument(
@@ -350,8 +348,6 @@ def run(args: argparse.Namespace) -> int:
     thrust_to_weight = limits.max_thrust_n / (limits.mass_kg * G_M_S2)
     origin = scenario.home if scenario is not None else None
     epoch = args.swarm_epoch
-    if epoch is not None and not math.isfinite(epoch):
-        raise AgentCliError("--swarm-epoch must be a Unix time in seconds")
     try:
         for d in drones:
             if args.vehicle:
@@ -418,8 +414,7 @@ def run(args: argparse.Namespace) -> int:
         )
 
     def kill(drone: int) -> None:  # the dropout drill of a hosted agent (swarm drill dropout)
-        if drone in host.drones:
-            host.kill(drone, "killed by a dropout drill")
+        host.kill(drone, "killed by a dropout drill")  # a drone it does not host: nothing
 
     live = FaultDrills(
         bus, args.swarm_id, faults, config.consensus.dt_s, host_round(host), restart=restart,

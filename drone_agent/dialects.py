@@ -48,6 +48,7 @@ GLOBAL_POSITION_INT about the swarm's common origin.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -126,9 +127,7 @@ class AutopilotDialect:
     global_frame = False
 
     def modes(self, custom_mode: int) -> ModeView:
-        return ModeView(
-            custom_mode == MODE_OFFBOARD, custom_mode == MODE_LAND, custom_mode == MODE_HOLD
-        )
+        return _px4_modes(custom_mode)
 
     def offboard_command(self) -> Command:
         return CMD_DO_SET_MODE, (CUSTOM_MODE_ENABLED, float(Px4MainMode.OFFBOARD))
@@ -145,7 +144,7 @@ class AutopilotDialect:
             CUSTOM_MODE_ENABLED, float(Px4MainMode.AUTO), float(Px4AutoSubMode.LOITER)
         )  # fmt: skip
 
-    def service(self, io: VehicleIo, now_s: float, armed: bool) -> None:
+    def service(self, io: VehicleIo, now_s: float) -> None:
         """Set-up due now (nothing for PX4)."""
 
     def on_message(self, kind: str, msg: Any) -> None:
@@ -205,11 +204,7 @@ class ArduCopterDialect(AutopilotDialect):
         self._heard_stream = False
 
     def modes(self, custom_mode: int) -> ModeView:
-        return ModeView(
-            custom_mode == CopterMode.GUIDED_NOGPS,
-            custom_mode == CopterMode.LAND,
-            custom_mode == CopterMode.BRAKE,
-        )
+        return _copter_modes(custom_mode)
 
     def offboard_command(self) -> Command:
         return CMD_DO_SET_MODE, (CUSTOM_MODE_ENABLED, float(CopterMode.GUIDED_NOGPS))
@@ -233,7 +228,7 @@ class ArduCopterDialect(AutopilotDialect):
         """The vehicle said GUID_OPTIONS has the thrust bit."""
         return self.guid_options is not None and bool(self.guid_options & GUID_OPTIONS_THRUST)
 
-    def service(self, io: VehicleIo, now_s: float, armed: bool) -> None:
+    def service(self, io: VehicleIo, now_s: float) -> None:
         if not self._heard_stream and _due(now_s, self._streams_asked_s, SETUP_RETRY_S):
             self._streams_asked_s = now_s
             io.request_interval(MSG_ATTITUDE, self.control_hz)
@@ -334,6 +329,24 @@ def make_dialect(
     if dialect == Dialect.ARDUPILOT:
         return ArduCopterDialect(thrust_to_weight, control_hz, sysid)
     return Px4Dialect()
+
+
+@functools.cache
+def _px4_modes(custom_mode: int) -> ModeView:
+    """The PX4 dialect's view of a custom mode (one object per mode: asked every tick)."""
+    return ModeView(
+        custom_mode == MODE_OFFBOARD, custom_mode == MODE_LAND, custom_mode == MODE_HOLD
+    )
+
+
+@functools.cache
+def _copter_modes(custom_mode: int) -> ModeView:
+    """The ArduCopter dialect's view of a custom mode."""
+    return ModeView(
+        custom_mode == CopterMode.GUIDED_NOGPS,
+        custom_mode == CopterMode.LAND,
+        custom_mode == CopterMode.BRAKE,
+    )
 
 
 def _due(now_s: float, last_s: float, period_s: float) -> bool:

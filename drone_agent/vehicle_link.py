@@ -34,7 +34,7 @@ from pymavlink.dialects.v20 import ardupilotmega, common
 from drone_agent.dialects import AutopilotDialect, Command, ModeView, make_dialect
 from protocols import mavlink_fast
 from protocols.frames import FloatArray
-from protocols.geodesy import GeoPoint, geodetic_to_ned
+from protocols.geodesy import GeoPoint, ned_of_global_int
 from protocols.mavlink_conventions import (
     AGENT_COMPID,
     AUTOPILOT_COMPID,
@@ -195,13 +195,14 @@ class VehicleLink:
         samples: list[VehicleSample] = []
         while True:
             try:
-                data, source = self._sock.recvfrom(_MAX_DATAGRAM)
+                if self._listen:  # answer whoever spoke last
+                    data, self._peer = self._sock.recvfrom(_MAX_DATAGRAM)
+                else:
+                    data = self._sock.recv(_MAX_DATAGRAM)
             except (BlockingIOError, InterruptedError):
                 break
             except ConnectionRefusedError:  # the vehicle is not (yet) listening
                 break
-            if self._listen:
-                self._peer = source
             self.counters.rx_datagrams += 1
             # unsigned links: protocols/mavlink_fast.py; pymavlink's codec for anything it does
             # not take, and for signed links (their signature policy)
@@ -292,7 +293,7 @@ class VehicleLink:
             return self._pair(ms)
         elif kind == "GLOBAL_POSITION_INT" and self.dialect.global_frame:
             ms = int(msg.time_boot_ms)
-            ned = geodetic_to_ned(self.origin, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)[0]
+            ned = ned_of_global_int(self.origin, msg.lat, msg.lon, msg.alt)[0]
             self._pos[ms] = (ms, *ned, msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
             return self._pair_nearest(ms, self._pos, self._att)
         elif kind == "ATTITUDE":
@@ -431,7 +432,7 @@ class VehicleLink:
     def service_dialect(self, now_s: float) -> None:
         """The dialect's set-up due now (streams, parameters; nothing for PX4)."""
         if self.dialect_known:
-            self.dialect.service(self, now_s, self.status.armed)
+            self.dialect.service(self, now_s)
 
     def param_set(self, name: str, value: float) -> None:
         """PARAM_SET of a numeric parameter (sent as MAV_PARAM_TYPE_REAL32's value)."""

@@ -102,3 +102,16 @@ def geodetic_to_ned(
     ned = (geodetic_to_ecef(lat, lon, alt + rise) - origin) @ axes
     ned[:, 2] = home.alt_m - alt
     return ned
+
+
+def ned_of_global_int(
+    home: GeoPoint, lat_e7: FloatArray, lon_e7: FloatArray, alt_mm: FloatArray
+) -> FloatArray:
+    """NED points (N, 3) m about ``home`` of MAVLink GLOBAL_POSITION_INT fields: latitude and
+    longitude in 1e-7 degrees, altitude in mm above sea level (:func:`geodetic_to_ned`)."""
+    return geodetic_to_ned(
+        home,
+        np.asarray(lat_e7, dtype=float) * 1e-7,
+        np.asarray(lon_e7, dtype=float) * 1e-7,
+        np.asarray(alt_mm, dtype=float) * 1e-3,
+    )

@@ -13,6 +13,8 @@ A vehicle that reboots starts a new window at once (its stamps went back by more
 
 from __future__ import annotations
 
+import argparse
+import math
 import time
 from collections import deque
 from collections.abc import Callable
@@ -47,6 +49,27 @@ class VehicleClock:
             lags.popleft()
         self._seq += 1
         return round(boot_ms + lags[0][1])
+
+
+#: ``--swarm-epoch``'s help, for every role that takes it (agents, ground station).
+EPOCH_HELP = (
+    "vehicles that each count time from their own boot (ArduCopter SITL instances): the swarm's "
+    "clock is seconds since this Unix time, the same for every agent and the ground station "
+    "(swarm up passes it); without it the vehicles' time_boot_ms is the swarm's clock (one "
+    "simulator)"
+)
+
+
+def epoch_arg(text: str) -> float:
+    """``--swarm-epoch``'s value: a finite, positive Unix time (s); otherwise the one-line error
+    argparse prints."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"must be a Unix time in seconds, got {text!r}")
+    return value
 
 
 def swarm_now_ms(epoch_s: float, wall: Callable[[], float] = time.time) -> int:

@@ -87,3 +87,14 @@ def test_each_instance_starts_where_the_scenario_puts_its_drone(
         params = (child.cwd / "quadswarm.parm").read_text().split("\n")
         assert "MAV2_POSITION 25" in params and "SR1_POSITION 25" in params
         assert len([p for p in params if p]) == len(GCS_STREAM_PARAMS)
+
+
+@pytest.mark.parametrize(
+    "role", [["agent", "--drone-id", "0"], ["gcs", "--scenario", str(SCENARIO)]]
+)
+def test_a_swarm_epoch_that_is_no_unix_time_is_refused(role: list[str]) -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "gcs.cli", *role, "--swarm-epoch", "nan"],
+        cwd=ROOT, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2 and "must be a Unix time in seconds" in done.stderr, done.stderr

@@ -103,19 +103,19 @@ def test_ardupilot_readiness_names_what_is_missing_until_all_is_confirmed() -> N
 def test_ardupilot_setup_keeps_the_users_guid_options_bits_and_retries_until_confirmed() -> None:
     d = ArduCopterDialect(thrust_to_weight=2.0, sysid=4)
     io = _Io()
-    d.service(io, 0.0, armed=False)
+    d.service(io, 0.0)
     assert ("read", "GUID_OPTIONS") in io.sent and ("read", "MOT_THST_HOVER") in io.sent
     assert ("set", ("MAV_GCS_SYSID", 4.0)) in io.sent and ("set", ("FS_GCS_ENABLE", 5.0)) in io.sent
     assert ("interval", (33, 50.0)) in io.sent and ("interval", (30, 50.0)) in io.sent
     d.on_message("PARAM_VALUE", _param("GUID_OPTIONS", 1))  # the user's bit 0
     io.sent.clear()
-    d.service(io, 0.5, armed=False)  # not due yet
+    d.service(io, 0.5)  # not due yet
     assert not any(kind == "set" and args[0] == "GUID_OPTIONS" for kind, args in io.sent)
-    d.service(io, 1.5, armed=False)
+    d.service(io, 1.5)
     assert ("set", ("GUID_OPTIONS", float(1 | GUID_OPTIONS_THRUST))) in io.sent
     d.on_message("PARAM_VALUE", _param("GUID_OPTIONS", 1 | GUID_OPTIONS_THRUST))
     io.sent.clear()
-    d.service(io, 3.0, armed=False)
+    d.service(io, 3.0)
     assert not any(args[0] == "GUID_OPTIONS" for _, args in io.sent if isinstance(args, tuple))
 
 

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 from drone_agent.agent_cli import RENDEZVOUS_PORT
 from protocols.mavlink_conventions import DEFAULT_GCS_PORT
+from protocols.swarm_clock import EPOCH_HELP, epoch_arg
 
 if TYPE_CHECKING:  # Zenoh: imported when the ground station runs, not by the parser
     from drone_agent.zenoh_transport import ZenohSettings
@@ -136,12 +137,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     p.add_argument(
         "--swarm-epoch",
-        type=float,
+        type=epoch_arg,
         default=None,
         metavar="UNIX_S",
-        help="vehicles that each count time from their own boot (ArduCopter SITL instances): "
-        "the swarm's clock is seconds since this Unix time, as the agents' --swarm-epoch "
-        "(swarm up passes it)",
+        help=EPOCH_HELP,
     )
     p.add_argument(
         "--land-at-end",

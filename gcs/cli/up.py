@@ -246,7 +246,7 @@ def build_plan(
             f" (the default: all in one process up to {ONE_PROCESS_UP_TO} drones, the fastest "
             "measured; --agents-per-process 1 gives each drone its own)"
             if n <= ONE_PROCESS_UP_TO
-            else " (the default beyond 25 drones: one process per CPU core)"
+            else f" (the default beyond {ONE_PROCESS_UP_TO} drones: one process per CPU core)"
         )
     if args.agents_per_process < 1:
         raise SupervisorError("--agents-per-process must be at least 1")

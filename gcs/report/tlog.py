@@ -44,7 +44,7 @@ import numpy.typing as npt
 from pymavlink.dialects.v20 import ardupilotmega, common
 
 from protocols.frames import FloatArray
-from protocols.geodesy import GeoPoint, geodetic_to_ned
+from protocols.geodesy import GeoPoint, ned_of_global_int
 from protocols.mavlink_conventions import (
     ACTUATOR_ROTORS,
     AGENT_COMPID,
@@ -342,7 +342,7 @@ class TlogReader:
         self.epoch_offset_s = epoch_offset_s
         self._codec = ardupilotmega.MAVLink(None)  # an ArduPilot vehicle's messages too
         self._pos: dict[int, list[tuple[float, ...]]] = {}
-        #: ArduCopter dialect: GLOBAL_POSITION_INT rows (record ms, lat, lon (deg), alt (m),
+        #: ArduCopter dialect: GLOBAL_POSITION_INT rows (record ms, lat, lon (degE7), alt (mm),
         #: vx, vy, vz (m/s)) and each ATTITUDE's record time (ms); which vehicles; the origin
         self._global: dict[int, list[tuple[float, ...]]] = {}
         self._att_rec: dict[int, list[float]] = {}
@@ -396,7 +396,7 @@ class TlogReader:
             )
             self._att_rec.setdefault(sysid, []).append(t_rec * 1000.0)
         elif mtype == "GLOBAL_POSITION_INT":
-            row = (t_rec * 1000.0, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3,
+            row = (t_rec * 1000.0, msg.lat, msg.lon, msg.alt,
                    msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)  # fmt: skip
             self._global.setdefault(sysid, []).append(row)
         elif mtype == "GPS_GLOBAL_ORIGIN" and sysid == GCS_SYSID:
@@ -456,7 +456,7 @@ class TlogReader:
         if rows:
             table = np.asarray(rows, dtype=float)
             origin = self.origin if self.origin is not None else GeoPoint()
-            ned = geodetic_to_ned(origin, table[:, 1], table[:, 2], table[:, 3])
+            ned = ned_of_global_int(origin, table[:, 1], table[:, 2], table[:, 3])
             out = np.column_stack([table[:, 0], ned, table[:, 4:7]])
             pos = [tuple(r) for r in out.tolist()]
         att = [

@@ -28,7 +28,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega, common
 
 from gcs.report.tlog import TlogWriter
-from protocols.geodesy import GeoPoint, geodetic_to_ned
+from protocols.geodesy import GeoPoint, ned_of_global_int
 from protocols.mavlink_conventions import GCS_COMPID, GCS_SYSID, MAV_AUTOPILOT_ARDUPILOTMEGA
 from protocols.mavlink_fast import fast_receive_ok, pack, parse
 from protocols.mavlink_signing import setup_signing
@@ -53,8 +53,6 @@ class VehicleState:
     packets: int = 0
     #: its HEARTBEAT says ArduPilot: its position is GLOBAL_POSITION_INT about the origin
     ardupilot: bool = False
-    #: its HEARTBEAT's custom_mode
-    custom_mode: int = 0
 
 
 @dataclass(frozen=True)
@@ -202,7 +200,7 @@ class TelemetryReceiver:
         elif kind == "GLOBAL_POSITION_INT":
             if state.ardupilot:
                 origin = self.origin if self.origin is not None else GeoPoint()
-                ned = geodetic_to_ned(origin, msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)[0]
+                ned = ned_of_global_int(origin, msg.lat, msg.lon, msg.alt)[0]
                 state.position_ned_m = (float(ned[0]), float(ned[1]), float(ned[2]))
                 state.velocity_ned_m_s = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
         elif kind == "ATTITUDE":
@@ -212,7 +210,6 @@ class TelemetryReceiver:
                 return None
             state.armed = bool(msg.base_mode & _ARMED_FLAG)
             state.system_status = int(msg.system_status)
-            state.custom_mode = int(msg.custom_mode)
             state.ardupilot = int(msg.autopilot) == MAV_AUTOPILOT_ARDUPILOTMEGA
         elif kind == "STATUSTEXT":
             raw = getattr(msg, "_text_raw", b"")
