@@ -108,7 +108,8 @@ def test_swarm_up_flies_and_reports(tmp_path: Path) -> None:
 
 
 def test_ctrl_c_stops_everything(tmp_path: Path) -> None:
-    proc, report, base, gcs_port = _up(tmp_path)
+    # long enough not to end on its own first (hosted agents fly 4 drones at several x)
+    proc, report, base, gcs_port = _up(tmp_path, duration_s=600.0)
     deadline = time.monotonic() + 60
     while not (report / "logs" / "sim.log").exists() and time.monotonic() < deadline:
         time.sleep(0.2)
@@ -133,7 +134,7 @@ def _wait(condition: object, timeout_s: float) -> bool:
 def test_a_dead_simulator_ends_the_run_and_everything_is_stopped(tmp_path: Path) -> None:
     """A child that dies (here the simulator, SIGKILLed) ends swarm up with exit code 1 and the
     reason; no process of the run is left and its ports are free."""
-    proc, report, base, gcs_port = _up(tmp_path)
+    proc, report, base, gcs_port = _up(tmp_path, duration_s=600.0)
     run_file = report / "logs" / "run.json"
     assert _wait(run_file.exists, 60.0)
     time.sleep(3.0)
