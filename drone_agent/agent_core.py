@@ -237,18 +237,21 @@ class BatchAgentCore:
         inboxes: Sequence[Iterable[ConsensusMessage]],
         members: Sequence[frozenset[int] | None],
         climb_to: Sequence[float | None] | None = None,
+        plan_t_s: Sequence[float] | None = None,
     ) -> list[AgentOutput]:
         """Estimate and control rows ``rows`` (distinct) for round ``round_`` at simulated time
         ``t_s``: positions and velocities (len(rows), 3) NED of their own vehicles, and per row
         its plan, its inbox and its membership view. ``climb_to``: per row None (fly the
         formation) or the NED z a returning drone climbs to or holds (:func:`climb_acceleration`
-        instead of the cooperative field, through the same separation layer and limits). One
-        output per row, in order (:meth:`tick_columns`' rows)."""
+        instead of the cooperative field, through the same separation layer and limits).
+        ``plan_t_s``: per row the plan's own time to fly (protocols/plan_timing.py: held before
+        the take-off, re-timed after it); None: ``t_s`` for every row. One output per row, in
+        order (:meth:`tick_columns`' rows)."""
         if len(rows) == 0:
             return []
         return self.tick_columns(
             rows, round_, t_s, positions_ned_m, velocities_ned_m_s, plans, inboxes, members,
-            climb_to,
+            climb_to, plan_t_s,
         ).outputs()  # fmt: skip
 
     def tick_columns(
@@ -262,13 +265,15 @@ class BatchAgentCore:
         inboxes: Sequence[Iterable[ConsensusMessage]],
         members: Sequence[frozenset[int] | None],
         climb_to: Sequence[float | None] | None = None,
+        plan_t_s: Sequence[float] | None = None,
     ) -> BatchOutputs:
         """:meth:`tick`'s outputs as columns, one row per row of ``rows`` (at least one), without
         an :class:`AgentOutput` per row (what ``swarm simulate`` reads of a hundred agents)."""
         x = np.asarray(positions_ned_m, dtype=float).reshape(-1, 3)
         v = np.asarray(velocities_ned_m_s, dtype=float).reshape(-1, 3)
         inboxes = as_inboxes(inboxes)  # read once for the consensus and the separation layer
-        a_d, ad_dot, ad_ddot = self._references(plans, t_s)
+        times = [t_s] * len(plans) if plan_t_s is None else plan_t_s
+        a_d, ad_dot, ad_ddot = self._references(plans, times)
         r_d = desired_axes_batch(a_d)
         # channels in the plan's turning frame (drone_agent/moments.py)
         omega_d = (
@@ -313,27 +318,29 @@ class BatchAgentCore:
             separating,
         )
 
-    def _references(self, plans: Sequence[DescriptorTrajectory], t_s: float) -> StateTriple:
-        """Each row's plan value, rate and acceleration (len(plans), 9), every distinct plan
-        evaluated once (plans with equal content, e.g. one plan decoded by each agent's own
-        transport, count as one)."""
-        groups: dict[bytes, list[int]] = {}
-        first: dict[bytes, DescriptorTrajectory] = {}
-        for k, plan in enumerate(plans):
+    def _references(
+        self, plans: Sequence[DescriptorTrajectory], times_s: Sequence[float]
+    ) -> StateTriple:
+        """Each row's plan value, rate and acceleration (len(plans), 9) at its plan time,
+        every distinct (plan, time) evaluated once (plans with equal content, e.g. one plan
+        decoded by each agent's own transport, count as one)."""
+        groups: dict[tuple[bytes, float], list[int]] = {}
+        first: dict[tuple[bytes, float], DescriptorTrajectory] = {}
+        for k, (plan, t_s) in enumerate(zip(plans, times_s, strict=True)):
             key = self._plan_keys.get(plan)
             if key is None:
                 key = b"%d|" % plan.seq + plan.t_knots_s.tobytes() + plan.coeffs.tobytes()
                 self._plan_keys[plan] = key
-            groups.setdefault(key, []).append(k)
-            first.setdefault(key, plan)
+            groups.setdefault((key, t_s), []).append(k)
+            first.setdefault((key, t_s), plan)
         if len(groups) == 1:
-            (plan,) = first.values()
+            (((_, t_s), plan),) = first.items()
             a, a_dot, a_ddot = plan.evaluate(t_s)
             n = len(plans)
             return a[None].repeat(n, 0), a_dot[None].repeat(n, 0), a_ddot[None].repeat(n, 0)
         out = (np.empty((len(plans), 9)), np.empty((len(plans), 9)), np.empty((len(plans), 9)))
-        for key, ks in groups.items():
-            for dst, value in zip(out, first[key].evaluate(t_s), strict=True):
+        for (key, t_s), ks in groups.items():
+            for dst, value in zip(out, first[(key, t_s)].evaluate(t_s), strict=True):
                 dst[ks] = value
         return out
 
@@ -442,9 +449,10 @@ class AgentCore:
         inbox: Iterable[ConsensusMessage],
         members: frozenset[int] | None = None,
         climb_to: float | None = None,
+        plan_t_s: float | None = None,
     ) -> AgentOutput:
-        """Estimate and control for round ``round_`` at simulated time ``t_s`` (``climb_to``:
-        :meth:`BatchAgentCore.tick`)."""
+        """Estimate and control for round ``round_`` at simulated time ``t_s`` (``climb_to``,
+        ``plan_t_s``: :meth:`BatchAgentCore.tick`; None: the plan at ``t_s``)."""
         return self.batch.tick(
             (self.row,),
             round_,
@@ -455,4 +463,5 @@ class AgentCore:
             (inbox,),
             (members,),
             (climb_to,),
+            None if plan_t_s is None else (plan_t_s,),
         )[0]

@@ -277,6 +277,7 @@ def message_columns(
         [m.degree for m in messages],
         [m.ready_hops for m in messages],
         [m.incarnation for m in messages],
+        [-1 if m.takeoff_round is None else m.takeoff_round for m in messages],  # takeoffs
         positions,
         velocities,
         pack.gamma[at],
@@ -382,16 +383,18 @@ _new_output = frozen_factory(ConsensusOutput)
 _new_message = frozen_factory(ConsensusMessage)
 
 
-def with_level(message: ConsensusMessage, ready_hops: int) -> ConsensusMessage:
-    """``dataclasses.replace(message, ready_hops=ready_hops)``, several times cheaper (an agent
-    puts its settled level on its message every tick); ``message`` itself if it has that
-    level."""
-    if message.ready_hops == ready_hops:
+def with_level(
+    message: ConsensusMessage, ready_hops: int, *, takeoff_round: int | None = None
+) -> ConsensusMessage:
+    """``dataclasses.replace(message, ready_hops=ready_hops, takeoff_round=takeoff_round)``,
+    several times cheaper (an agent puts its settled level and the round its swarm took off at
+    on its message every tick); ``message`` itself if it has that level and take-off round."""
+    if message.ready_hops == ready_hops and message.takeoff_round == takeoff_round:
         return message
     m = message
     return _new_message(
         m.sender, m.round, m.gamma, m.edge_sums, m.heard, m.degree, ready_hops,
-        m.position_ned_m, m.velocity_ned_m_s, m.incarnation, m.edge_incarnations,
+        m.position_ned_m, m.velocity_ned_m_s, m.incarnation, m.edge_incarnations, takeoff_round,
     )  # fmt: skip
 
 
@@ -427,12 +430,18 @@ class Outgoing:
         self.positions, self.velocities = positions, velocities
         self.incarnations = incarnations
 
-    def messages(self, ready_hops: Sequence[int] | None = None) -> list[ConsensusMessage]:
+    def messages(
+        self,
+        ready_hops: Sequence[int] | None = None,
+        takeoffs: Sequence[int | None] | None = None,
+    ) -> list[ConsensusMessage]:
         """Each row's message, with its settled level ``ready_hops[k]`` (None: 0 each, for the
-        adapter to put its own on)."""
+        adapter to put its own on) and its swarm's take-off round ``takeoffs[k]`` (None: None
+        each)."""
         pack = self.pack
         gammas, heard_sets = pack.gammas, pack.heard_sets
         levels = [0] * len(self.senders) if ready_hops is None else ready_hops
+        takeoff_rounds = [None] * len(self.senders) if takeoffs is None else takeoffs
         edge_sums, edge_tags = self.edge_sums, self.edge_tags
         positions, velocities, own_inc = self.positions, self.velocities, self.incarnations
         return [
@@ -448,8 +457,11 @@ class Outgoing:
                 velocities[p],
                 own_inc[p],  # incarnation
                 edge_tags[p],
+                takeoff,  # takeoff_round
             )
-            for p, (sender, level) in enumerate(zip(self.senders, levels, strict=True))
+            for p, (sender, level, takeoff) in enumerate(
+                zip(self.senders, levels, takeoff_rounds, strict=True)
+            )
         ]
 
 

@@ -335,12 +335,121 @@ class BatchReadiness:
 class Arrivals:
     """The consensus messages that arrived at a tick, as arrays (M,) in delivery order (each
     receiver's messages in its inbox order): ``receiver`` row, the message's ``sender``,
-    ``round`` and ``level`` (its ``ready_hops``)."""
+    ``round``, ``level`` (its ``ready_hops``) and ``takeoff`` (its ``takeoff_round``, -1 for
+    None; None: no message says one)."""
 
     receiver: npt.NDArray[np.intp]
     sender: npt.NDArray[np.intp]
     round: npt.NDArray[np.int64]
     level: npt.NDArray[np.int64]
+    takeoff: npt.NDArray[np.int64] | None = None
+
+
+class TakeoffClock:
+    """The round the swarm left the ground, agreed by its agents: the clock the plan is flown
+    on (protocols/plan_timing.py). The same rule for ``swarm simulate`` (:class:`BatchTakeoff`)
+    and every ``swarm agent``.
+
+    An agent that flies (``committed``) advertises a take-off round on its consensus messages
+    (``takeoff_round``): the round it decided to fly, lowered to the least one its neighbours
+    advertise. Agents that leave together decide at the same round (the settled-level flood,
+    :class:`SwarmSettled`, brings every agent to the cap at the same round when no message is
+    lost); where losses split them by a few ticks, the least round floods through the flying
+    swarm within its diameter in ticks, while the plan's climb is still at rest. An agent that
+    does not fly (on the ground, or climbing back to rejoin) flies the plan on the least round
+    its neighbours advertise (heard within the heard timeout): a drone re-armed after a rejoin
+    joins the swarm's clock, not one of its own. Landed, it forgets its round: the next take-off
+    has its own. Call :meth:`update` once per tick after the flight phase decided; put
+    :attr:`advertised` on the tick's consensus message; :attr:`round` is what the next tick's
+    plan time uses."""
+
+    def __init__(self, heard_timeout_ticks: int) -> None:
+        self.timeout = heard_timeout_ticks
+        #: the round this flying agent advertises (None when it does not fly)
+        self.advertised: int | None = None
+        self._heard: int | None = None
+        self._heard_at = 0
+
+    @property
+    def round(self) -> int | None:
+        """The take-off round the plan is flown on: its own while it flies, else the least one
+        heard lately, else None (the swarm has not left the ground)."""
+        return self.advertised if self.advertised is not None else self._heard
+
+    def update(self, round_: int, committed: bool, inbox: Iterable[ConsensusMessage]) -> int | None:
+        """This tick's round, whether the agent flies (after this tick's decision) and the
+        messages that arrived; the round to advertise (None: none)."""
+        heard = min((t for t in (m.takeoff_round for m in inbox) if t is not None), default=None)
+        self._heard, self._heard_at = _heard_takeoff(
+            self._heard, self._heard_at, heard, round_, self.timeout
+        )
+        if not committed:
+            self.advertised = None
+        else:
+            own = round_ if self.advertised is None else self.advertised
+            self.advertised = own if self._heard is None else min(own, self._heard)
+        return self.advertised
+
+
+def _heard_takeoff(
+    held: int | None, held_at: int, heard: int | None, round_: int, timeout: int
+) -> tuple[int | None, int]:
+    """The take-off round heard (this tick's least, else the one held until ``timeout`` ticks
+    without any) and the round it was last heard."""
+    if heard is not None:
+        return heard, round_
+    if held is not None and round_ - held_at > timeout:
+        return None, held_at
+    return held, held_at
+
+
+#: No take-off round (:class:`BatchTakeoff`'s arrays).
+_NO_TAKEOFF = -1
+
+
+class BatchTakeoff:
+    """:class:`TakeoffClock` of K agents at once (rows ``0..k-1``), as array operations: the
+    same rule and results row by row (tests/test_flight_phase.py compares them), for
+    ``swarm simulate``'s hundred agents in one call a tick."""
+
+    def __init__(self, k: int, heard_timeout_ticks: int) -> None:
+        self.timeout = heard_timeout_ticks
+        self.advertised = np.full(k, _NO_TAKEOFF, dtype=np.int64)
+        self._heard = np.full(k, _NO_TAKEOFF, dtype=np.int64)
+        self._heard_at = np.zeros(k, dtype=np.int64)
+
+    def rounds(self, rows: Sequence[int]) -> list[int | None]:
+        """:attr:`TakeoffClock.round` of each row of ``rows``."""
+        r = np.asarray(rows, dtype=np.intp)
+        out = np.where(self.advertised[r] >= 0, self.advertised[r], self._heard[r])
+        return [None if t < 0 else t for t in out.tolist()]
+
+    def update(
+        self,
+        rows: Sequence[int],
+        round_: int,
+        committed: Sequence[bool],
+        arrivals: Arrivals,
+    ) -> list[int | None]:
+        """:meth:`TakeoffClock.update` of rows ``rows`` (distinct), from the messages that
+        arrived (those to other rows are ignored); the rounds each advertises."""
+        r = np.asarray(rows, dtype=np.intp)
+        k = self.advertised.shape[0]
+        least = np.full(k, np.iinfo(np.int64).max, dtype=np.int64)
+        if arrivals.takeoff is not None and arrivals.takeoff.shape[0]:
+            says = arrivals.takeoff >= 0
+            np.minimum.at(least, arrivals.receiver[says], arrivals.takeoff[says])
+        heard_now = least[r] != np.iinfo(np.int64).max
+        held, held_at = self._heard[r], self._heard_at[r]
+        expired = (held >= 0) & (round_ - held_at > self.timeout)
+        heard = np.where(heard_now, least[r], np.where(expired, _NO_TAKEOFF, held))
+        self._heard[r] = heard
+        self._heard_at[r] = np.where(heard_now, round_, held_at)
+        flies = np.asarray(committed, dtype=bool)
+        own = np.where(self.advertised[r] >= 0, self.advertised[r], round_)
+        own = np.where(heard >= 0, np.minimum(own, heard), own)
+        self.advertised[r] = np.where(flies, own, _NO_TAKEOFF)
+        return [None if t < 0 else t for t in self.advertised[r].tolist()]
 
 
 class FlightPhase:

@@ -338,6 +338,7 @@ class AgentHost:
             [t.inbox for t in ticks],
             [t.members for t in ticks],
             [t.climb_to for t in ticks],
+            [t.t_s if t.plan_t_s is None else t.plan_t_s for t in ticks],
         )
         for (agent, tick), out in zip(group, outs, strict=True):
             agent.act(tick, out)  # every vehicle answered first (HostedAgent.act)

@@ -45,13 +45,21 @@ import numpy as np
 
 from drone_agent.agent_core import AgentCore, AgentOutput, Setpoint
 from drone_agent.consensus_batch import with_level
-from drone_agent.flight_phase import FlightPhase, Order, Readiness, Request, VehicleView
+from drone_agent.flight_phase import (
+    FlightPhase,
+    Order,
+    Readiness,
+    Request,
+    TakeoffClock,
+    VehicleView,
+)
 from drone_agent.round_gate import RoundGate
 from drone_agent.transport import AgentTransport
 from drone_agent.vehicle_link import VehicleLink, VehicleSample
 from protocols.consensus_message import ConsensusMessage
 from protocols.descriptor_vector import CENTRE
 from protocols.frames import quat_from_zyx
+from protocols.plan_timing import flown_time_s, tick_time_s
 from protocols.trajectory import DescriptorTrajectory
 from protocols.wire_plan import FlightCommand
 from protocols.wire_status import AgentMode, AgentStatus, Health
@@ -111,6 +119,8 @@ class DueTick:
     inbox: list[ConsensusMessage]
     members: frozenset[int]
     climb_to: float | None = None
+    #: the plan's own time to fly this tick (protocols/plan_timing.py); None: :attr:`t_s`
+    plan_t_s: float | None = None
 
     @property
     def t_s(self) -> float:
@@ -153,6 +163,7 @@ class HostedAgent:
         self._last_command = -1e9
         self.readiness = Readiness(core.config)
         self.phase = FlightPhase(core.config.limits)
+        self.takeoff = TakeoffClock(core.config.consensus.heard_timeout_ticks)
         self.left = False
         self.leave_reason = ""
         self.rejoin = Rejoin.NONE
@@ -222,6 +233,7 @@ class HostedAgent:
                 due.inbox,
                 due.members,
                 due.climb_to,
+                due.plan_t_s,
             )
             self.finish(due, out)
 
@@ -287,7 +299,14 @@ class HostedAgent:
             return None
         inbox, self._inbox = self._inbox, []
         climb = self._rejoin_step(tick, sample, command, members)
-        return DueTick(self.core, tick, sample, plan, command, inbox, members, climb)
+        takeoff = self.takeoff.round
+        period = self.options.control_period_ms
+        plan_t = flown_time_s(
+            plan,
+            sample.time_boot_ms / 1000.0,
+            None if takeoff is None else tick_time_s(takeoff, period),
+        )
+        return DueTick(self.core, tick, sample, plan, command, inbox, members, climb, plan_t)
 
     def _flying_neighbours_alt(self, tick: int, members: frozenset[int]) -> float | None:
         """The mean altitude (m) of the members heard lately above NEIGHBOURS_AIRBORNE_M."""
@@ -358,13 +377,17 @@ class HostedAgent:
         assert out.desired is not None  # the core gives the plan's value of the tick
         commanded_altitude = -float(out.desired[CENTRE][2])
         self._carry_out(self._decide(due.command, out.setpoint, commanded_altitude, sample), sample)
+        # the swarm's take-off round, agreed with the neighbours (flight_phase.TakeoffClock)
+        self.takeoff.update(due.tick, self.phase.committed, due.inbox)
 
     def publish(self, due: DueTick) -> None:
         """The swarm's side of the tick, after :meth:`act`: the consensus message with this
         agent's settled level, the round done and the status."""
         out = self.last_output
         assert out is not None
-        message = with_level(out.message, self.readiness.level)
+        message = with_level(
+            out.message, self.readiness.level, takeoff_round=self.takeoff.advertised
+        )
         self.transport.publish_consensus(message, due.sample.position_ned_m)
         self._after_tick(due.tick)
 
@@ -487,6 +510,7 @@ class HostedAgent:
                 neighbours=out.active_neighbours if out is not None else (),
                 counters=self.transport.counters().status(self.core.rejected_setpoints),
                 plan_seq=None if received is None else received.seq,
+                takeoff_round=self.takeoff.round,
             )
         )
 

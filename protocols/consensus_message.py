@@ -31,6 +31,9 @@ class ConsensusMessage:
     a sender that does not say); ``edge_incarnations``: per neighbour j of ``edge_sums``, the
     incarnation of j that ``Q_sender,j`` was made with (None: not said, every sum is taken).
     The rules: drone_agent/consensus.py, "incarnations".
+    ``takeoff_round``: the control round at which the sender's swarm left the ground, as the
+    sender knows it (drone_agent/flight_phase.py, TakeoffClock); None: the sender is not flying
+    or does not say (a sender of an older build).
     """
 
     sender: int
@@ -44,6 +47,7 @@ class ConsensusMessage:
     velocity_ned_m_s: FloatArray | None = None
     incarnation: int = 0
     edge_incarnations: Mapping[int, int] | None = None
+    takeoff_round: int | None = None
 
 
 class EdgeIncarnations(Mapping[int, int]):

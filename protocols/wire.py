@@ -4,20 +4,24 @@ All integers and floats are little-endian, with no padding. Every payload starts
 
     offset  size  field
     0       1     magic 0x51 ('Q')
-    1       1     schema version of the kind (WIRE_VERSION; CONSENSUS_VERSION for consensus)
+    1       1     schema version of the kind (WIRE_VERSION; CONSENSUS_VERSION for consensus,
+                  protocols.wire_status.STATUS_VERSION for status)
     2       1     message kind (Kind)
     3       1     swarm id length L (1..32)
     4       L     swarm id (ASCII, protocols.keys rules)
 
-Versions are per kind: status, plan and fault payloads are at WIRE_VERSION (1); consensus
-payloads are sent at CONSENSUS_VERSION (3). Version 2 added the sender's velocity and settled
-level, version 3 the incarnations (drone_agent/consensus.py: a restarted agent's sums are never
-mixed with its old life's). Versions 1 and 2 are still decoded: a version-1 message's
-``velocity_ned_m_s`` is None (the sender's velocity is unknown) and its ``ready_hops`` 0 (a
-version-1 neighbour holds the swarm on the ground); a version-1 or 2 message has incarnation 0
-and no edge incarnations (its sums are taken as before).
-Bumping only the consensus kind keeps every other payload, and their golden bytes, unchanged; a
-build that speaks only older versions counts a newer consensus payload as ``wrong_version``.
+Versions are per kind: plan, fault and round-done payloads are at WIRE_VERSION (1), status
+payloads at their own version (``protocols.wire_status``); consensus payloads are sent at
+CONSENSUS_VERSION (4). Version 2 added the sender's velocity and settled level, version 3 the
+incarnations (drone_agent/consensus.py: a restarted agent's sums are never mixed with its old
+life's), version 4 the round at which the sender's swarm took off (drone_agent/flight_phase.py,
+TakeoffClock). Versions 1 to 3 are still decoded: a version-1 message's ``velocity_ned_m_s`` is
+None (the sender's velocity is unknown) and its ``ready_hops`` 0 (a version-1 neighbour holds
+the swarm on the ground); a version-1 or 2 message has incarnation 0 and no edge incarnations
+(its sums are taken as before); a message before version 4 has ``takeoff_round`` None (the
+sender does not say).
+Bumping one kind keeps every other payload, and their golden bytes, unchanged; a build that
+speaks only older versions counts a newer payload of that kind as ``wrong_version``.
 
 The consensus body (Kind.CONSENSUS) follows the header::
 
@@ -27,6 +31,8 @@ The consensus body (Kind.CONSENSUS) follows the header::
     u16 ready_hops     the sender's settled level (drone_agent.flight_phase.SwarmSettled;
                        from version 2, 0 from version 1)
     u32 incarnation    the sender agent's life: the round of its first step (from version 3)
+    u32 takeoff_round  the control round at which the sender's swarm left the ground, as the
+                       sender knows it; 0xFFFFFFFF: not flying / not said (from version 4)
     3 x f32 position   the sender's position, NED, m (receivers apply the radio range)
     3 x f32 velocity   the sender's velocity, NED, m/s (from version 2; for the separation layer)
     u16 n_heard, u16 n_edges
@@ -73,11 +79,13 @@ from protocols.keys import MAX_DRONE_ID, validate_swarm_id
 
 MAGIC = 0x51
 WIRE_VERSION = 1
-#: Schema version of consensus payloads sent (versions 1 and 2 still decode).
-CONSENSUS_VERSION = 3
-CONSENSUS_VERSIONS = (1, 2, 3)
+#: Schema version of consensus payloads sent (versions 1 to 3 still decode).
+CONSENSUS_VERSION = 4
+CONSENSUS_VERSIONS = (1, 2, 3, 4)
 #: An edge incarnation on the wire that says nothing (the message did not give one).
 NO_INCARNATION = 0xFFFF_FFFF
+#: A take-off round on the wire that says nothing (the message's ``takeoff_round`` is None).
+NO_TAKEOFF = 0xFFFF_FFFF
 N_GAMMA = 18
 #: Default largest consensus payload accepted (bytes): about 110 edge sums.
 MAX_CONSENSUS_BYTES = 16 * 1024
@@ -87,7 +95,8 @@ _HEAD = struct.Struct("<BBBB")
 _FIXED_V1 = struct.Struct("<IHH3fHH")
 _FIXED_V2 = struct.Struct("<IHHH3f3fHH")
 _FIXED_V3 = struct.Struct("<IHHHI3f3fHH")
-_FIXED = {1: _FIXED_V1, 2: _FIXED_V2, 3: _FIXED_V3}
+_FIXED_V4 = struct.Struct("<IHHHII3f3fHH")
+_FIXED = {1: _FIXED_V1, 2: _FIXED_V2, 3: _FIXED_V3, 4: _FIXED_V4}
 _FLOATS = N_GAMMA * 8  # bytes of one (18,) float64 block
 _NOT_SAID = struct.pack("<I", NO_INCARNATION)
 _VEC3_F32 = struct.Struct("<3f")
@@ -254,8 +263,9 @@ class ConsensusParts(NamedTuple):
     :func:`encode_parts` sends alone and ``protocols.wire_batch.encode_columns`` sends in columns
     with other messages of one cell and tick (one layout, two arrangements).
 
-    ``sender``: its sender; ``fixed``: the fixed fields (_FIXED_V3's layout: round, sender,
-    degree, ready_hops, incarnation, position and velocity as float32, n_heard, n_edges);
+    ``sender``: its sender; ``fixed``: the fixed fields (_FIXED_V4's layout: round, sender,
+    degree, ready_hops, incarnation, takeoff round (NO_TAKEOFF: None), position and velocity as
+    float32, n_heard, n_edges);
     ``ids``: the heard ids then the edge neighbours (u16 each); ``tags``: the edge incarnations
     (u32 each); ``floats``: gamma then the edge sums ((1 + n_edges) x 18 float64, finite);
     ``size``: the bytes of the single payload, header included."""
@@ -280,8 +290,8 @@ def encode_consensus(
     as float32. The position argument is the one sent (the transport's radio origin); the
     message's own ``position_ned_m`` field is not read.
 
-    ValueError if a field is out of range (ids and degree uint16, round uint32), not finite, or
-    the payload would be larger than ``max_bytes``.
+    ValueError if a field is out of range (ids and degree uint16, round uint32, incarnation and
+    takeoff round 0..0xFFFFFFFE), not finite, or the payload would be larger than ``max_bytes``.
     """
     parts = consensus_parts(message, position_ned_m, swarm_id, max_bytes=max_bytes)
     return encode_parts(parts, swarm_id)
@@ -314,6 +324,8 @@ def consensus_parts(
     degree = _uint(message.degree, MAX_DRONE_ID, "degree")
     ready = _uint(message.ready_hops, MAX_DRONE_ID, "ready_hops")
     incarnation = _uint(message.incarnation, MAX_U32 - 1, "incarnation")
+    takeoff = message.takeoff_round
+    takeoff = NO_TAKEOFF if takeoff is None else _uint(takeoff, MAX_U32 - 1, "takeoff_round")
     heard = uint_ids(message.heard, "heard id")
     fast = _edge_arrays(message)
     if fast is not None:  # the batched core's messages: the same bytes, from arrays
@@ -330,6 +342,7 @@ def consensus_parts(
         degree,
         ready,
         incarnation,
+        takeoff,
         *_vec3_f32(position_ned_m, "position_ned_m"),
         *_vec3_f32((0.0, 0.0, 0.0) if velocity is None else velocity, "velocity_ned_m_s"),
         len(heard),
@@ -341,7 +354,7 @@ def consensus_parts(
         raise ValueError(f"consensus payload of {size} bytes exceeds {max_bytes}")
     return ConsensusParts(
         sender,
-        _FIXED_V3.pack(*fixed),
+        _FIXED_V4.pack(*fixed),
         struct.pack(f"<{len(ids)}H", *ids),
         struct.pack(f"<{len(edge_incs)}I", *edge_incs),
         floats.tobytes(),
@@ -352,21 +365,23 @@ def consensus_parts(
 def _consensus_size(swarm_id: str, n_heard: int, n_edges: int) -> int:
     """The bytes of a single consensus payload with these counts, header included."""
     head = len(encode_header(Kind.CONSENSUS, swarm_id, CONSENSUS_VERSION))
-    return head + _FIXED_V3.size + 2 * (n_heard + n_edges) + 4 * n_edges + _FLOATS * (1 + n_edges)
+    return head + _FIXED_V4.size + 2 * (n_heard + n_edges) + 4 * n_edges + _FLOATS * (1 + n_edges)
 
 
 class MessageColumns(NamedTuple):
     """P consensus messages of one round as columns (:func:`column_parts`): per message its
-    ``senders``, ``degrees``, ``ready_hops`` and ``incarnations`` (lists), the ``positions`` it is
-    sent from (tuples of 3 floats, NED, m), ``velocities`` (P, 3) and ``gamma`` (P, 18); its heard
-    ids (``heard_at`` the message of each, ``heard_ids``) and edges (``edge_at``, ``edge_ids``,
-    ``edge_tags`` (negative: not said), ``edge_sums`` (E, 18)), each ascending by (message, id)."""
+    ``senders``, ``degrees``, ``ready_hops``, ``incarnations`` and ``takeoffs`` (its
+    ``takeoff_round``, -1 for None) (lists), the ``positions`` it is sent from (tuples of 3
+    floats, NED, m), ``velocities`` (P, 3) and ``gamma`` (P, 18); its heard ids (``heard_at``
+    the message of each, ``heard_ids``) and edges (``edge_at``, ``edge_ids``, ``edge_tags``
+    (negative: not said), ``edge_sums`` (E, 18)), each ascending by (message, id)."""
 
     round: int
     senders: list[int]
     degrees: list[int]
     ready_hops: list[int]
     incarnations: list[int]
+    takeoffs: list[int]
     positions: Sequence[tuple[float, float, float]]
     velocities: FloatArray
     gamma: FloatArray
@@ -421,7 +436,9 @@ def column_parts(
     tag_at = list(itertools.accumulate(n_edges, initial=0))
     row_at = list(map(operator.add, tag_at, range(n + 1)))
     velocities = cols.velocities.tolist()
-    round_, pack, f = cols.round, _FIXED_V3.pack, _FLOATS
+    round_, pack, f = cols.round, _FIXED_V4.pack, _FLOATS
+    # None (negative) on the wire; 0xFFFFFFFF (that None) and beyond: -1, which pack refuses
+    takeoffs = [NO_TAKEOFF if t < 0 else t if t < NO_TAKEOFF else -1 for t in cols.takeoffs]
     size_0 = _consensus_size(swarm_id, 0, 0) - f  # header and fixed fields
     out: list[ConsensusParts | None] = []
     for k, ((i0, i1), ok) in enumerate(zip(itertools.pairwise(id_at), fine, strict=True)):
@@ -433,7 +450,7 @@ def column_parts(
         try:
             fixed = pack(
                 round_, cols.senders[k], cols.degrees[k], cols.ready_hops[k],
-                cols.incarnations[k], *cols.positions[k], *velocities[k], h, e,
+                cols.incarnations[k], takeoffs[k], *cols.positions[k], *velocities[k], h, e,
             )  # fmt: skip
         except (struct.error, OverflowError):  # out of range (beyond float32 too)
             out.append(None)
@@ -539,9 +556,9 @@ def _vec3_f32(values: Sequence[float] | FloatArray, what: str) -> tuple[float, f
 
 def _fixed(data: bytes, swarm_id: str, max_bytes: int) -> tuple[int, int, tuple[Any, ...]]:
     """The offset after the fixed fields, the version and the fields' values (round, sender,
-    degree, ready_hops (0 from version 1), incarnation (0 before version 3), position (3),
-    velocity (3, from version 2), n_heard, n_edges), after checking the header and that the
-    position and velocity are finite."""
+    degree, ready_hops (0 from version 1), incarnation (0 before version 3), takeoff round as on
+    the wire (NO_TAKEOFF before version 4), position (3), velocity (3, from version 2), n_heard,
+    n_edges), after checking the header and that the position and velocity are finite."""
     off, version = open_versioned(data, Kind.CONSENSUS, swarm_id, max_bytes, CONSENSUS_VERSIONS)
     layout = _FIXED[version]
     if len(data) < off + layout.size:
@@ -549,9 +566,11 @@ def _fixed(data: bytes, swarm_id: str, max_bytes: int) -> tuple[int, int, tuple[
     values = layout.unpack_from(data, off)
     if version == 1:
         values = (*values[:3], 0, *values[3:])
-    if version < 3:
-        values = (*values[:4], 0, *values[4:])
-    if not math.isfinite(sum(values[5:-2])):  # float32s: the sum cannot overflow
+    if version < 4:
+        if version < 3:
+            values = (*values[:4], 0, *values[4:])
+        values = (*values[:5], NO_TAKEOFF, *values[5:])
+    if not math.isfinite(sum(values[6:-2])):  # float32s: the sum cannot overflow
         raise WireError(Reason.NOT_FINITE, "consensus position or velocity is NaN or infinite")
     return off + layout.size, version, values
 
@@ -573,7 +592,7 @@ def consensus_head(
     (the round too: a receiver applies the radio range between the two drones' positions of the
     same round)."""
     _, _, values = _fixed(data, swarm_id, max_bytes)
-    return values[1], values[0], values[5:8]
+    return values[1], values[0], values[6:9]
 
 
 def decode_consensus(
@@ -582,13 +601,14 @@ def decode_consensus(
     """Decode a consensus payload of swarm ``swarm_id``; WireError for anything malformed.
 
     The arrays of the returned message are float64 copies, read-only; its ``position_ned_m`` is
-    the packet's, its ``velocity_ned_m_s`` None from a version-1 sender. Its edge sums and
+    the packet's, its ``velocity_ned_m_s`` None from a version-1 sender, its ``takeoff_round``
+    None when the payload does not say (0xFFFFFFFF, or before version 4). Its edge sums and
     incarnations are array-backed mappings (:class:`~protocols.consensus_message.EdgeSums`,
     :class:`~protocols.consensus_message.EdgeIncarnations`, the incarnations said only), as the
     batched core's own messages: a receiver's estimator reads them as arrays.
     """
     off, version, fields = _fixed(data, swarm_id, max_bytes)
-    round_, sender, degree, ready, incarnation = fields[:5]
+    round_, sender, degree, ready, incarnation, takeoff = fields[:6]
     n_heard, n_edges = fields[-2:]
     n_ids = n_heard + n_edges
     n_tags = n_edges if version >= 3 else 0
@@ -611,7 +631,7 @@ def decode_consensus(
     floats.setflags(write=False)
     neighbours = np.array(edge_ids, dtype=np.intp)
     neighbours.setflags(write=False)
-    motion = np.array(fields[5:-2])  # position (3), then velocity (3) from version 2
+    motion = np.array(fields[6:-2])  # position (3), then velocity (3) from version 2
     motion.setflags(write=False)
     position = motion[:3]
     edge_tags: EdgeIncarnations | None = None
@@ -635,5 +655,6 @@ def decode_consensus(
         velocity_ned_m_s=None if version == 1 else motion[3:],
         incarnation=incarnation,
         edge_incarnations=edge_tags,
+        takeoff_round=None if takeoff == NO_TAKEOFF else takeoff,
     )
     return ConsensusPacket(message, position)

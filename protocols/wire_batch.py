@@ -11,15 +11,15 @@ The batch does not change what is received: each message in it is one consensus 
 radio range (from the message's position), link faults, heard sets and incarnations as for a
 single message. It only saves the per-message publication, delivery and parsing.
 
-Version 2 (BATCH_VERSION, sent): the messages in columns, so that a receiver checks the whole
+Version 3 (BATCH_VERSION, sent): the messages in columns, so that a receiver checks the whole
 batch in a few array operations and builds each message it takes as views of the columns (its
 arrays are read-only slices of the batch's), instead of parsing each message. Body after the
 common header (``protocols.wire``), little-endian::
 
     u16 n              number of messages (2..)
-    n x 42 bytes       each message's fixed fields, as consensus version 3 lays them out
-                       (round, sender, degree, ready_hops, incarnation, position, velocity,
-                       n_heard, n_edges), senders strictly increasing
+    n x 46 bytes       each message's fixed fields, as consensus version 4 lays them out
+                       (round, sender, degree, ready_hops, incarnation, takeoff_round,
+                       position, velocity, n_heard, n_edges), senders strictly increasing
     sum(n_heard + n_edges) x u16
                        per message in turn: its heard ids, then its edge neighbours (each run
                        strictly increasing)
@@ -27,10 +27,14 @@ common header (``protocols.wire``), little-endian::
     sum(1 + n_edges) x 18 x f64
                        per message in turn: gamma, then its edge sums in the order of its ids
 
-Each message is what consensus version 3 carries (a version-3 payload of the same fields decodes
+Each message is what consensus version 4 carries (a version-4 payload of the same fields decodes
 to the same message, bit for bit), and each must be within the receiver's consensus size limit
 as that payload. :func:`open_batch` checks everything :func:`protocols.wire.decode_consensus`
 checks of each message; a bad message rejects the whole batch (one process wrote it).
+
+Version 2 (still decoded: :func:`open_batch`): the same columns with each message's fixed
+fields as consensus version 3 lays them out (42 bytes: no takeoff_round); its messages decode
+as that version's payloads do, with ``takeoff_round`` None.
 
 Version 1 (still decoded: :func:`split_batch`, :func:`open_batch`)::
 
@@ -59,13 +63,13 @@ import numpy.typing as npt
 from protocols.consensus_message import ConsensusMessage, EdgeIncarnations, EdgeSums
 from protocols.frames import FloatArray
 from protocols.wire import (
-    _FIXED_V3,
     _FLOATS,
     _NOT_SAID,
     CONSENSUS_VERSION,
     MAX_CONSENSUS_BYTES,
     N_GAMMA,
     NO_INCARNATION,
+    NO_TAKEOFF,
     ConsensusPacket,
     ConsensusParts,
     Kind,
@@ -78,9 +82,9 @@ from protocols.wire import (
     open_versioned,
 )
 
-#: Schema version of consensus batches sent (version 1 still decodes: :func:`open_batch`).
-BATCH_VERSION = 2
-BATCH_VERSIONS = (1, 2)
+#: Schema version of consensus batches sent (versions 1 and 2 still decode: :func:`open_batch`).
+BATCH_VERSION = 3
+BATCH_VERSIONS = (1, 2, 3)
 #: Most messages in one batch (a process hosts at most this many agents in one cell).
 MAX_BATCH_MESSAGES = 256
 _COUNT = struct.Struct("<H")
@@ -103,7 +107,7 @@ class BatchEntry:
 
 def encode_batch(payloads: Sequence[tuple[int, bytes]], swarm_id: str) -> bytes:
     """The version-1 batch of ``payloads``, (sender, consensus payload) pairs with senders
-    strictly increasing (what earlier builds send; :func:`encode_columns` makes version 2);
+    strictly increasing (what earlier builds send; :func:`encode_columns` makes version 3);
     ValueError for fewer than two, more than MAX_BATCH_MESSAGES, or unsorted."""
     n = len(payloads)
     if not 2 <= n <= MAX_BATCH_MESSAGES:
@@ -137,7 +141,7 @@ def split_batch(
     data: bytes, swarm_id: str, *, max_consensus_bytes: int = MAX_CONSENSUS_BYTES
 ) -> list[BatchEntry]:
     """The messages of version-1 batch ``data``, heads read (not fully decoded); WireError
-    otherwise (a version-2 batch: :func:`open_batch`)."""
+    otherwise (a batch in columns: :func:`open_batch`)."""
     off, _ = open_versioned(
         data, Kind.CONSENSUS_BATCH, swarm_id, max_batch_bytes(max_consensus_bytes), (1,)
     )
@@ -164,9 +168,23 @@ def split_batch(
     return out
 
 
-# -- version 2: the messages in columns --------------------------------------------------------
-#: one message's fixed fields in a version-2 batch (protocols.wire's consensus version 3 layout)
+# -- versions 2 and 3: the messages in columns -------------------------------------------------
+#: one message's fixed fields in a version-3 batch (protocols.wire's consensus version 4 layout)
 _RECORD = np.dtype(
+    [
+        ("round", "<u4"),
+        ("sender", "<u2"),
+        ("degree", "<u2"),
+        ("ready_hops", "<u2"),
+        ("incarnation", "<u4"),
+        ("takeoff", "<u4"),
+        ("motion", "<f4", (6,)),
+        ("n_heard", "<u2"),
+        ("n_edges", "<u2"),
+    ]
+)
+#: one message's fixed fields in a version-2 batch (consensus version 3: no takeoff round)
+_RECORD_V2 = np.dtype(
     [
         ("round", "<u4"),
         ("sender", "<u2"),
@@ -178,11 +196,12 @@ _RECORD = np.dtype(
         ("n_edges", "<u2"),
     ]
 )
-assert _RECORD.itemsize == 42
+_RECORDS = {2: _RECORD_V2, 3: _RECORD}
+assert _RECORD.itemsize == 46 and _RECORD_V2.itemsize == 42
 
 
 def encode_columns(parts: Sequence[ConsensusParts], swarm_id: str) -> bytes:
-    """The version-2 batch of ``parts`` (:func:`protocols.wire.consensus_parts`,
+    """The version-3 batch of ``parts`` (:func:`protocols.wire.consensus_parts`,
     :func:`protocols.wire.column_parts`), senders strictly increasing; ValueError for fewer
     than two, more than MAX_BATCH_MESSAGES, or unsorted."""
     n = len(parts)
@@ -233,8 +252,8 @@ class ConsensusBatch:
 
 
 class _Columns:
-    """A version-2 batch's columns (arrays read-only; per message values as lists) and where
-    each message's ids, tags and float rows start."""
+    """A batch's columns (arrays read-only; per message values as lists) and where each
+    message's ids, tags and float rows start."""
 
     __slots__ = (
         "degree",
@@ -253,6 +272,7 @@ class _Columns:
         "sender",
         "tag_at",
         "tags",
+        "takeoff",
     )
 
     def __init__(
@@ -270,6 +290,11 @@ class _Columns:
         self.degree: list[int] = rec["degree"].tolist()
         self.ready: list[int] = rec["ready_hops"].tolist()
         self.incarnation: list[int] = rec["incarnation"].tolist()
+        self.takeoff: list[int | None] = (
+            [None if t == NO_TAKEOFF else t for t in rec["takeoff"].tolist()]
+            if rec.dtype == _RECORD
+            else [None] * len(self.sender)  # a version-2 batch: not said
+        )
         self.motion, self.ids, self.tags, self.said, self.floats = motion, ids, tags, said, floats
         self.ids_list: list[int] = ids.tolist()
         self.n_heard, self.n_edges, self.id_at, self.tag_at, self.row_at = starts
@@ -299,6 +324,7 @@ class _Columns:
             velocity_ned_m_s=motion[3:],
             incarnation=self.incarnation[k],
             edge_incarnations=edge_tags,
+            takeoff_round=self.takeoff[k],
         )
         return ConsensusPacket(message, position)
 
@@ -306,9 +332,9 @@ class _Columns:
 def open_batch(
     data: bytes, swarm_id: str, *, max_consensus_bytes: int = MAX_CONSENSUS_BYTES
 ) -> ConsensusBatch:
-    """Batch ``data`` of either version, checked (every message of a version-2 batch whole,
-    as :func:`protocols.wire.decode_consensus` checks one; a version-1 batch's heads, as
-    :func:`split_batch`); WireError otherwise."""
+    """Batch ``data`` of any version, checked (every message of a batch in columns (version 2
+    or 3) whole, as :func:`protocols.wire.decode_consensus` checks one; a version-1 batch's
+    heads, as :func:`split_batch`); WireError otherwise."""
     if len(data) > 1 and data[1] == 1:
         entries = split_batch(data, swarm_id, max_consensus_bytes=max_consensus_bytes)
         return ConsensusBatch(
@@ -318,21 +344,23 @@ def open_batch(
             [e.payload for e in entries],
             None,
         )
-    off, _ = open_versioned(
+    off, version = open_versioned(
         data, Kind.CONSENSUS_BATCH, swarm_id, max_batch_bytes(max_consensus_bytes), BATCH_VERSIONS
     )
+    record = _RECORDS[version]
     n, off = _message_count(data, off)
-    if len(data) < off + _RECORD.itemsize * n:
+    if len(data) < off + record.itemsize * n:
         raise WireError(Reason.TRUNCATED, f"consensus batch: {len(data)} bytes, {n} messages")
-    rec = np.frombuffer(data, _RECORD, n, off)
-    off += _RECORD.itemsize * n
+    rec = np.frombuffer(data, record, n, off)
+    off += record.itemsize * n
     n_heard, n_edges = rec["n_heard"].tolist(), rec["n_edges"].tolist()
     total_heard, total_edges = sum(n_heard), sum(n_edges)
     total_ids = total_heard + total_edges
     off_tags = off + 2 * total_ids
     off_floats = off_tags + 4 * total_edges
     expect_length(data, off_floats + _FLOATS * (n + total_edges), "consensus batch")
-    single = len(encode_header(Kind.CONSENSUS, swarm_id, CONSENSUS_VERSION)) + _FIXED_V3.size
+    # each message alone, as the consensus payload of its fields' version (the same header size)
+    single = len(encode_header(Kind.CONSENSUS, swarm_id, CONSENSUS_VERSION)) + record.itemsize
     # the largest message alone: header, fields, 2 per id, and per edge 4 (its tag) and 144
     biggest = max(map(operator.add, n_heard, map((3 + _FLOATS // 2).__mul__, n_edges)))
     if single + _FLOATS + 2 * biggest > max_consensus_bytes:

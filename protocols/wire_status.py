@@ -1,6 +1,7 @@
 """The agent status message (Kind.STATUS): what each agent tells the ground station.
 
-Body after the common header (``protocols.wire``), little-endian::
+Status payloads have their own schema version, STATUS_VERSION (2), in the common header. Body
+after the common header (``protocols.wire``), little-endian::
 
     u16 drone            drone index
     u32 round            control tick of the status
@@ -9,12 +10,18 @@ Body after the common header (``protocols.wire``), little-endian::
     u8  armed            0 or 1
     u8  health           Health flags
     u32 plan_seq         sequence number of the plan flown; 0xFFFFFFFF: none yet
+    u32 takeoff_round    the control round at which the agent's swarm left the ground, as the
+                         agent knows it (drone_agent/flight_phase.py, TakeoffClock);
+                         0xFFFFFFFF: not flying / not said (from version 2)
     9 x f64 estimate     the agent's estimate of the swarm descriptors (m, rad, m^2); may be
                          NaN (a diverged estimate is reported as it is)
     6 x u64 counters     rx, rx_dropped_malformed, rx_dropped_wrong_swarm,
                          rx_dropped_wrong_version, tx, rejected_setpoints
     u16 n_neighbours
     n x u16              the neighbours integrating this round, strictly increasing
+
+Version 1 (still decoded) is the same body without ``takeoff_round``: its status has
+``takeoff_round`` None.
 
 The status batch (Kind.STATUS_BATCH, schema STATUS_BATCH_VERSION; issue 9, batched messaging):
 the statuses one agent process's agents publish in one pass, in one Zenoh sample, on the status
@@ -24,8 +31,8 @@ kinds on the status keys (:func:`decode_statuses`). Body after the common header
 
     u16 n                number of statuses (2..MAX_STATUS_BATCH)
     n x u32 length       byte length of each status
-    n x status           complete status payloads (header included), drones strictly
-                         increasing
+    n x status           complete status payloads (header included, any status version),
+                         drones strictly increasing
 """
 
 from __future__ import annotations
@@ -49,21 +56,27 @@ from protocols.wire import (
     check_ids,
     encode_header,
     expect_length,
-    open_payload,
     open_versioned,
     uint_ids,
 )
 
 MAX_STATUS_BYTES = 8 * 1024
+#: Schema version of status payloads sent (version 1 still decodes).
+STATUS_VERSION = 2
+STATUS_VERSIONS = (1, 2)
 #: Schema version of status batches.
 STATUS_BATCH_VERSION = 1
 #: Most statuses in one batch (one process's agents).
 MAX_STATUS_BATCH = 256
 _COUNT = struct.Struct("<H")
 NO_PLAN = MAX_U32
+#: A take-off round on the wire that says nothing (the status's ``takeoff_round`` is None).
+NO_TAKEOFF = MAX_U32
 N_ESTIMATE = 9
 _MAX_U64 = 2**64 - 1
-_FIXED = struct.Struct("<HIdBBBI9d6QH")
+_FIXED_V1 = struct.Struct("<HIdBBBI9d6QH")
+_FIXED = struct.Struct("<HIdBBBII9d6QH")
+_FIXED_OF = {1: _FIXED_V1, 2: _FIXED}
 
 
 class AgentMode(IntEnum):
@@ -115,7 +128,10 @@ class StatusCounters:
 @dataclass(frozen=True, eq=False)
 class AgentStatus:
     """One agent's status. ``estimate`` (9,) descriptors (m, rad, m^2), copied read-only;
-    ``neighbours``: sorted ids; ``plan_seq`` None before the agent has a plan."""
+    ``neighbours``: sorted ids; ``plan_seq`` None before the agent has a plan;
+    ``takeoff_round``: the control round at which the agent's swarm left the ground, as the agent
+    knows it (drone_agent/flight_phase.py, TakeoffClock); None: not flying or not said (a
+    version-1 status)."""
 
     drone: int
     round: int
@@ -127,6 +143,7 @@ class AgentStatus:
     neighbours: tuple[int, ...]
     counters: StatusCounters
     plan_seq: int | None = None
+    takeoff_round: int | None = None
 
     def __post_init__(self) -> None:
         estimate = np.array(self.estimate, dtype=np.float64)
@@ -137,6 +154,17 @@ class AgentStatus:
             raise ValueError(f"t_s must be finite, got {self.t_s!r}")
         if self.plan_seq is not None and not 0 <= self.plan_seq < NO_PLAN:
             raise ValueError(f"plan_seq must be 0..{NO_PLAN - 1} or None, got {self.plan_seq}")
+        takeoff = self.takeoff_round
+        if takeoff is not None:
+            if (
+                isinstance(takeoff, bool)
+                or not isinstance(takeoff, int | np.integer)
+                or not 0 <= takeoff < NO_TAKEOFF
+            ):
+                raise ValueError(
+                    f"takeoff_round must be an integer 0..{NO_TAKEOFF - 1} or None, got {takeoff!r}"
+                )
+            object.__setattr__(self, "takeoff_round", int(takeoff))
         object.__setattr__(self, "estimate", estimate)
         object.__setattr__(self, "mode", AgentMode(self.mode))
         object.__setattr__(self, "health", Health(self.health))
@@ -148,19 +176,26 @@ class AgentStatus:
         fields = ("drone", "round", "t_s", "mode", "armed", "health", "neighbours", "counters")
         return all(getattr(self, f) == getattr(other, f) for f in fields) and (
             self.plan_seq == other.plan_seq
+            and self.takeoff_round == other.takeoff_round
             and np.array_equal(self.estimate, other.estimate, equal_nan=True)
         )
 
 
 def encode_status(status: AgentStatus, swarm_id: str) -> bytes:
-    """The payload of ``status`` for swarm ``swarm_id``; ValueError if a field is out of range."""
+    """The payload (schema STATUS_VERSION) of ``status`` for swarm ``swarm_id``; ValueError if a
+    field is out of range."""
     if not 0 <= status.drone <= MAX_DRONE_ID or not 0 <= status.round <= MAX_U32:
         raise ValueError(f"drone {status.drone} or round {status.round} out of range")
     plan_seq = NO_PLAN if status.plan_seq is None else status.plan_seq
+    takeoff = status.takeoff_round
+    if takeoff is None:
+        takeoff = NO_TAKEOFF
+    elif not 0 <= takeoff < NO_TAKEOFF:  # (as AgentStatus checks it, if set around its check)
+        raise ValueError(f"takeoff_round must be 0..{NO_TAKEOFF - 1} or None, got {takeoff!r}")
     neighbours = status.neighbours
     return b"".join(
         (
-            encode_header(Kind.STATUS, swarm_id),
+            encode_header(Kind.STATUS, swarm_id, STATUS_VERSION),
             _FIXED.pack(
                 status.drone,
                 status.round,
@@ -169,6 +204,7 @@ def encode_status(status: AgentStatus, swarm_id: str) -> bytes:
                 int(status.armed),
                 int(status.health),
                 plan_seq,
+                takeoff,
                 *status.estimate.tolist(),
                 *(getattr(status.counters, n) for n in status.counters.__dataclass_fields__),
                 len(neighbours),
@@ -179,14 +215,18 @@ def encode_status(status: AgentStatus, swarm_id: str) -> bytes:
 
 
 def decode_status(data: bytes, swarm_id: str, *, max_bytes: int = MAX_STATUS_BYTES) -> AgentStatus:
-    """Decode a status payload of swarm ``swarm_id``; WireError for anything malformed."""
-    off = open_payload(data, Kind.STATUS, swarm_id, max_bytes)
-    if len(data) < off + _FIXED.size:
+    """Decode a status payload (any of STATUS_VERSIONS) of swarm ``swarm_id``; WireError for
+    anything malformed. A version-1 status has ``takeoff_round`` None."""
+    off, version = open_versioned(data, Kind.STATUS, swarm_id, max_bytes, STATUS_VERSIONS)
+    layout = _FIXED_OF[version]
+    if len(data) < off + layout.size:
         raise WireError(Reason.TRUNCATED, f"status: {len(data)} bytes, shorter than its fields")
-    values = _FIXED.unpack_from(data, off)
-    drone, round_, t_s, mode, armed, health, plan_seq = values[:7]
-    estimate, counters, n = values[7:16], values[16:22], values[22]
-    off += _FIXED.size
+    values = layout.unpack_from(data, off)
+    if version == 1:
+        values = (*values[:7], NO_TAKEOFF, *values[7:])
+    drone, round_, t_s, mode, armed, health, plan_seq, takeoff = values[:8]
+    estimate, counters, n = values[8:17], values[17:23], values[23]
+    off += layout.size
     expect_length(data, off + 2 * n, "status")
     neighbours = struct.unpack_from(f"<{n}H", data, off)
     check_ids(neighbours, "neighbour")
@@ -205,6 +245,7 @@ def decode_status(data: bytes, swarm_id: str, *, max_bytes: int = MAX_STATUS_BYT
         neighbours=neighbours,
         counters=StatusCounters(*counters),
         plan_seq=None if plan_seq == NO_PLAN else plan_seq,
+        takeoff_round=None if takeoff == NO_TAKEOFF else takeoff,
     )
 
 

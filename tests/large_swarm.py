@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from gcs.report.tlog import read_tlog
+from gcs.report.trajectory_file import read_trajectory
 from protocols.descriptors import desired_axes
 from protocols.scenario import Crash, Dropout, load_scenario
 
@@ -59,13 +60,15 @@ def judge(
         d = np.linalg.norm(p[:, None] - p[None], axis=-1)
         np.fill_diagonal(d, np.inf)
         min_sep = min(min_sep, float(d.min()))
-    plan = scenario.trajectory()
+    # the plan as flown (re-timed to the take-off: protocols/plan_timing.py)
+    plan = read_trajectory(report / "trajectory.json")
+    late = plan.start_s - scenario.trajectory().start_s
     wps = scenario.waypoints
     holds = [
-        (a.t_s + settle_s, b.t_s)
+        (a.t_s + late + settle_s, b.t_s + late)
         for a, b in itertools.pairwise(wps)
-        if np.allclose(plan.evaluate(a.t_s)[0], plan.evaluate(b.t_s)[0])
-        and -plan.evaluate(a.t_s)[0][2] > 1.0  # in the air
+        if np.allclose(plan.evaluate(a.t_s + late)[0], plan.evaluate(b.t_s + late)[0])
+        and -plan.evaluate(a.t_s + late)[0][2] > 1.0  # in the air
     ]
     worst_c, worst_s, samples = 0.0, 0.0, 0
     for k, tk in enumerate(t):

@@ -321,3 +321,78 @@ def test_batch_readiness_is_readiness_row_by_row() -> None:
         levels_sent[round_] = [scalar[i].level for i in range(k)]
     assert max(max(v) for v in levels_sent.values()) >= 3  # the flood did run
     assert any(s.ready for s in scalar)
+
+
+def test_batch_takeoff_is_takeoff_clock_row_by_row() -> None:
+    """BatchTakeoff (swarm simulate's) advertises and flies on the take-off rounds K
+    TakeoffClock objects do, over random traffic: losses, rows skipped for a tick, agents taking
+    off at different rounds, landing and flying again, silences longer than the timeout."""
+    from types import SimpleNamespace
+
+    from drone_agent.flight_phase import Arrivals, BatchTakeoff, TakeoffClock
+
+    rng = np.random.default_rng(11)
+    k, timeout = 10, 3
+    scalar = [TakeoffClock(timeout) for _ in range(k)]
+    batch = BatchTakeoff(k, timeout)
+    sent: dict[int, list[int | None]] = {}
+    committed = np.zeros(k, dtype=bool)
+    for round_ in range(500):
+        rows = [i for i in range(k) if rng.random() < 0.9]
+        receiver, takeoff, inboxes = [], [], {i: [] for i in range(k)}
+        quiet = 200 <= round_ < 220  # nobody hears anybody: held rounds expire
+        for i in range(k):
+            for j in range(k):
+                back = int(rng.integers(1, 4))
+                if quiet or i == j or rng.random() < 0.3 or round_ - back not in sent:
+                    continue
+                t = sent[round_ - back][j]
+                inboxes[i].append(SimpleNamespace(takeoff_round=t))
+                receiver.append(i)
+                takeoff.append(-1 if t is None else t)
+        committed |= rng.random(k) < 0.02
+        committed &= rng.random(k) > (0.05 if round_ > 300 else 0.002)
+        expected = [scalar[i].update(round_, bool(committed[i]), inboxes[i]) for i in rows]
+        n = len(receiver)
+        arrivals = Arrivals(
+            np.array(receiver, dtype=np.intp),
+            np.zeros(n, dtype=np.intp),
+            np.zeros(n, dtype=np.int64),
+            np.zeros(n, dtype=np.int64),
+            np.array(takeoff, dtype=np.int64),
+        )
+        got = batch.update(rows, round_, committed[rows].tolist(), arrivals)
+        assert got == expected, round_
+        assert batch.rounds(range(k)) == [s.round for s in scalar], round_
+        sent[round_] = [s.advertised for s in scalar]
+    seen = {t for v in sent.values() for t in v if t is not None}
+    assert len(seen) >= 2  # a take-off forgotten (landed, silence) and another one
+
+
+def test_agents_that_leave_apart_agree_on_the_first_take_off_round() -> None:
+    """A line of 6 whose agents decide to fly at rounds 10..15 (losses, say): within the line's
+    diameter in ticks every one advertises round 10; one that has not left the ground yet flies
+    the plan on it too, and a landed swarm forgets it."""
+    from drone_agent.flight_phase import TakeoffClock
+
+    n = 6
+    clocks = [TakeoffClock(heard_timeout_ticks=5) for _ in range(n)]
+    sent: list[ConsensusMessage | None] = [None] * n
+    for round_ in range(30):
+        new: list[ConsensusMessage | None] = []
+        for i, clock in enumerate(clocks):
+            inbox = [m for j in (i - 1, i + 1) if 0 <= j < n and (m := sent[j]) is not None]
+            flies = i < n - 1 and round_ >= 10 + i  # the last one stays on the ground
+            clock.update(round_, flies, inbox)
+            new.append(
+                ConsensusMessage(
+                    i, round_, np.zeros(18), {}, frozenset(), 0, takeoff_round=clock.advertised
+                )
+            )
+        sent = new
+    assert [c.advertised for c in clocks] == [10] * (n - 1) + [None]
+    assert [c.round for c in clocks] == [10] * n
+    for round_ in range(30, 40):  # all landed: nobody advertises, the heard round expires
+        for clock in clocks:
+            clock.update(round_, False, [])
+    assert [c.round for c in clocks] == [None] * n

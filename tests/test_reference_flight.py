@@ -135,17 +135,17 @@ def test_a_partition_splits_the_groups_estimates_until_it_heals() -> None:
     """Groups {0, 1} and {2, 3, 4} for 4 s while the formation moves 1 m north: each group keeps
     integrating inside itself (its edges to the other group frozen), so the two groups' estimates
     drift apart; after the heal they agree again and the flight has no lasting error. The
-    partition comes at 16 s, once the estimates have settled from the take-off (within 1 mm; the
-    swarm leaves the ground together once every estimate has settled, at 5.2 s, into a plan that
-    began its climb at 0 s)."""
-    t_p = 16.0
+    partition comes as the move does, as flown: the plan climbs from 0 s, so it is held on the
+    ground until the swarm takes off (at the end of the 3 s warm-up) and flown that much late,
+    while the fault keeps its scenario time (protocols/plan_timing.py)."""
+    move_s = 16.0
     moved = {**HOVER, "centre_ned_m": [2.5, 1.5, -3.0]}
+    then = [{"t_s": move_s, **HOVER}, {"t_s": move_s + 4.0, **moved}]
+    takeoff_s = ReferenceFlight(_scenario([], duration_s=27.0, then=then)).run_until_takeoff(10.0)
+    assert takeoff_s is not None and 2.9 < takeoff_s < 4.0, takeoff_s
+    t_p = move_s + takeoff_s
     fault = {"t_s": t_p, "kind": "partition", "groups": [[0, 1], [2, 3, 4]], "duration_s": 4.0}
-    flight = ReferenceFlight(
-        _scenario(
-            [fault], duration_s=27.0, then=[{"t_s": t_p, **HOVER}, {"t_s": t_p + 4.0, **moved}]
-        )
-    )
+    flight = ReferenceFlight(_scenario([fault], duration_s=27.0 + takeoff_s, then=then))
     arrivals = _arrivals(flight)
     rec = flight.run()
     assert [e.kind for e in flight.events if e.kind.startswith("fault")] == ["fault", "fault_end"]
@@ -223,15 +223,15 @@ def test_agents_get_what_a_swarm_agent_gets() -> None:
     positions and velocities the telemetry's float32, the membership view of tick k the agents
     that finished round k - 1 (a drop-out at k is still a member at k, gone at k + 1); the
     vehicles fly the setpoints in SET_ATTITUDE_TARGET's float32."""
-    dropout_k = 350  # airborne from 5.2 s
+    dropout_k = 350  # airborne from 3 s (the end of the warm-up)
     scenario = _scenario([{"t_s": dropout_k * DT_S, "kind": "dropout", "drone": 4}], 7.5)
     flight = ReferenceFlight(scenario)
     seen: dict[int, tuple[float, Any, Any, frozenset[int]]] = {}
     tick = flight.core.tick_columns
 
-    def spy(rows: Any, k: int, t_s: float, x: Any, v: Any, *rest: Any) -> Any:
+    def spy(rows: Any, k: int, t_s: float, x: Any, v: Any, *rest: Any, **kw: Any) -> Any:
         seen[k] = (t_s, np.array(x), np.array(v), rest[2][0])
-        return tick(rows, k, t_s, x, v, *rest)
+        return tick(rows, k, t_s, x, v, *rest, **kw)
 
     flight.core.tick_columns = spy  # type: ignore[method-assign]
     record = flight.run()

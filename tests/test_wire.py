@@ -28,6 +28,7 @@ from protocols.wire import (
 )
 from protocols.wire_plan import FlightCommand, PlanMessage, decode_plan, encode_plan
 from protocols.wire_status import (
+    STATUS_VERSION,
     AgentMode,
     AgentStatus,
     Health,
@@ -51,12 +52,30 @@ MESSAGE = ConsensusMessage(
     velocity_ned_m_s=np.array([0.5, -3.0, 0.125]),
     incarnation=950,
     edge_incarnations={5: 40, 1: 0},
+    takeoff_round=980,
 )
 POSITION = (1.5, -2.25, -10.0)
 VELOCITY = (0.5, -3.0, 0.125)
-#: Version 3: the sender's incarnation (u32) after the settled level, and one u32 incarnation
-#: per edge neighbour after the ids.
+#: Version 4: the round its swarm took off (u32) after the sender's incarnation.
 CONSENSUS_HEX = (
+    "5104010464656d6fe8030000020003000900b6030000d40300000000c03f000010c0000020c10000"
+    "003f000040c00000003e03000200010005000700010005000000000028000000000000000000f0bf"
+    "000000000000ecbf000000000000e8bf000000000000e4bf000000000000e0bf000000000000d8bf"
+    "000000000000d0bf000000000000c0bf0000000000000000000000000000c03f000000000000d03f"
+    "000000000000d83f000000000000e03f000000000000e43f000000000000e83f000000000000ec3f"
+    "000000000000f03f000000000000f23f0000000000000080000000000000f0bf00000000000000c0"
+    "00000000000008c000000000000010c000000000000014c000000000000018c00000000000001cc0"
+    "00000000000020c000000000000022c000000000000024c000000000000026c000000000000028c0"
+    "0000000000002ac00000000000002cc00000000000002ec000000000000030c000000000000031c0"
+    "000000000000f03f000000000000e03f000000000000d03f000000000000c03f000000000000b03f"
+    "000000000000a03f000000000000903f000000000000803f000000000000703f000000000000603f"
+    "000000000000503f000000000000403f000000000000303f000000000000203f000000000000103f"
+    "000000000000003f000000000000f03e000000000000e03e"
+)
+#: Version 3 (the same message from a sender of an older build: no take-off round): the
+#: sender's incarnation (u32) after the settled level, and one u32 incarnation per edge
+#: neighbour after the ids.
+CONSENSUS_V3_HEX = (
     "5103010464656d6fe8030000020003000900b60300000000c03f000010c0000020c10000003f0000"
     "40c00000003e03000200010005000700010005000000000028000000000000000000f0bf00000000"
     "0000ecbf000000000000e8bf000000000000e4bf000000000000e0bf000000000000d8bf00000000"
@@ -113,8 +132,17 @@ STATUS = AgentStatus(
     neighbours=(1, 5),
     counters=StatusCounters(100, 1, 2, 3, 50, 0),
     plan_seq=7,
+    takeoff_round=980,
 )
+#: Status version 2: the round the swarm took off (u32) after the plan's sequence number.
 STATUS_HEX = (
+    "5102020464656d6f0200e8030000000000000000344003010f07000000d4030000000000000000f0"
+    "3f000000000000004000000000000024c000000000000000000000000000000000000000000000e0"
+    "3f00000000000010400000000000000240000000000000f03f640000000000000001000000000000"
+    "000200000000000000030000000000000032000000000000000000000000000000020001000500"
+)
+#: Status version 1 (the same status from an agent of an older build: no take-off round).
+STATUS_V1_HEX = (
     "5101020464656d6f0200e8030000000000000000344003010f07000000000000000000f03f000000"
     "000000004000000000000024c000000000000000000000000000000000000000000000e03f000000"
     "00000010400000000000000240000000000000f03f64000000000000000100000000000000020000"
@@ -149,6 +177,7 @@ def same_message(a: ConsensusMessage, b: ConsensusMessage) -> bool:
     return (
         (a.sender, a.round, a.heard, a.degree, a.ready_hops, a.incarnation, tags_a)
         == (b.sender, b.round, b.heard, b.degree, b.ready_hops, b.incarnation, tags_b)
+        and a.takeoff_round == b.takeoff_round
         and np.asarray(a.gamma, dtype=np.float64).tobytes() == b.gamma.tobytes()
         and sorted(a.edge_sums) == sorted(b.edge_sums)
         and all(
@@ -171,6 +200,37 @@ def test_consensus_golden_bytes() -> None:
     assert packet.message.position_ned_m.tolist() == list(POSITION)
     assert packet.velocity_ned_m_s is not None and packet.velocity_ned_m_s.tolist() == [*VELOCITY]
     assert not packet.velocity_ned_m_s.flags.writeable
+    assert packet.message.takeoff_round == 980
+
+
+def test_takeoff_round_round_trips_and_none_is_not_said() -> None:
+    """A take-off round (0..0xFFFFFFFE) comes back as sent; None goes as 0xFFFFFFFF and comes
+    back None."""
+    for takeoff in (None, 0, 1, 123_456, 2**32 - 2):
+        data = encode_consensus(replace(MESSAGE, takeoff_round=takeoff), POSITION, SID)
+        assert len(data) == 504
+        assert data[22:26] == struct.pack("<I", 0xFFFF_FFFF if takeoff is None else takeoff)
+        packet = decode_consensus(data, SID)
+        assert packet.message.takeoff_round == takeoff
+        assert same_message(replace(MESSAGE, takeoff_round=takeoff), packet.message)
+        assert consensus_origin(data, SID) == (2, POSITION)
+
+
+@pytest.mark.parametrize("takeoff", [-1, 2**32 - 1, 2**32, True, 1.0])
+def test_encoder_refuses_a_takeoff_round_out_of_range(takeoff: object) -> None:
+    with pytest.raises(ValueError, match="takeoff_round"):
+        encode_consensus(_with(takeoff_round=takeoff), POSITION, SID)
+
+
+def test_version_3_consensus_still_decodes_without_a_takeoff_round() -> None:
+    """A sender of an older build (schema 3) is heard: everything as sent, its take-off round
+    not said (None)."""
+    data = bytes.fromhex(CONSENSUS_V3_HEX)
+    packet = decode_consensus(data, SID)
+    assert packet.message.takeoff_round is None
+    assert same_message(replace(MESSAGE, takeoff_round=None), packet.message)
+    assert packet.velocity_ned_m_s is not None and packet.velocity_ned_m_s.tolist() == [*VELOCITY]
+    assert consensus_origin(data, SID) == (2, POSITION)
 
 
 def test_version_2_consensus_still_decodes_without_incarnations() -> None:
@@ -178,7 +238,7 @@ def test_version_2_consensus_still_decodes_without_incarnations() -> None:
     (no edge incarnations)."""
     data = bytes.fromhex(CONSENSUS_V2_HEX)
     packet = decode_consensus(data, SID)
-    older = replace(MESSAGE, incarnation=0, edge_incarnations=None)
+    older = replace(MESSAGE, incarnation=0, edge_incarnations=None, takeoff_round=None)
     assert same_message(older, packet.message)
     assert packet.velocity_ned_m_s is not None and packet.velocity_ned_m_s.tolist() == [*VELOCITY]
     assert consensus_origin(data, SID) == (2, POSITION)
@@ -200,7 +260,9 @@ def test_version_1_consensus_still_decodes_without_a_velocity() -> None:
     """A sender of an older build (schema 1, no velocity) is heard; its velocity is unknown."""
     data = bytes.fromhex(CONSENSUS_V1_HEX)
     packet = decode_consensus(data, SID)
-    older = replace(MESSAGE, ready_hops=0, incarnation=0, edge_incarnations=None)
+    older = replace(
+        MESSAGE, ready_hops=0, incarnation=0, edge_incarnations=None, takeoff_round=None
+    )
     assert same_message(older, packet.message)  # v1: no settled level, no incarnations
     assert packet.position_ned_m.tolist() == list(POSITION)
     assert packet.message.position_ned_m is not None
@@ -226,15 +288,24 @@ def test_consensus_layout_by_hand() -> None:
     expected = (
         bytes([0x51, CONSENSUS_VERSION, Kind.CONSENSUS, 4])
         + b"demo"
-        + struct.pack("<IHHHI3f3fHH", 1000, 2, 3, 9, 950, *POSITION, *VELOCITY, 3, 2)
+        + struct.pack("<IHHHII3f3fHH", 1000, 2, 3, 9, 950, 980, *POSITION, *VELOCITY, 3, 2)
         + ids
         + struct.pack("<2I", 0, 40)  # edge neighbours 1 and 5: their incarnations
         + floats
     )
-    assert CONSENSUS_VERSION == 3
+    assert CONSENSUS_VERSION == 4
     assert encode_consensus(MESSAGE, POSITION, SID) == expected
-    assert len(expected) == 500  # 488 at version 2, + 4 (incarnation) + 2 x 4 (edges)
+    assert len(expected) == 504  # 500 at version 3, + 4 (take-off round)
     assert expected.hex() == CONSENSUS_HEX
+    version_3 = (
+        bytes([0x51, 3, Kind.CONSENSUS, 4])
+        + b"demo"
+        + struct.pack("<IHHHI3f3fHH", 1000, 2, 3, 9, 950, *POSITION, *VELOCITY, 3, 2)
+        + ids
+        + struct.pack("<2I", 0, 40)
+        + floats
+    )
+    assert version_3.hex() == CONSENSUS_V3_HEX
     version_2 = (
         bytes([0x51, 2, Kind.CONSENSUS, 4])
         + b"demo"
@@ -252,8 +323,36 @@ def test_consensus_layout_by_hand() -> None:
 
 
 def test_status_golden_bytes() -> None:
+    assert STATUS_VERSION == 2
     assert encode_status(STATUS, SID).hex() == STATUS_HEX
     assert decode_status(bytes.fromhex(STATUS_HEX), SID) == STATUS
+    # drone, round, t_s, mode FLYING, armed, health, plan_seq, take-off round, estimate,
+    # counters, 2 neighbours
+    fields = (2, 1000, 20.0, 3, 1, 15, 7, 980, *STATUS.estimate, 100, 1, 2, 3, 50, 0, 2)
+    by_hand = (
+        bytes([0x51, STATUS_VERSION, Kind.STATUS, 4])
+        + b"demo"
+        + struct.pack("<HIdBBBII9d6QH", *fields)
+        + struct.pack("<2H", 1, 5)
+    )
+    assert by_hand.hex() == STATUS_HEX
+
+
+def test_status_takeoff_round_round_trips_and_version_1_decodes_without_one() -> None:
+    for takeoff in (None, 0, 980, 2**32 - 2):
+        status = replace(STATUS, takeoff_round=takeoff)
+        decoded = decode_status(encode_status(status, SID), SID)
+        assert decoded == status and decoded.takeoff_round == takeoff
+    assert decode_status(encode_status(STATUS, SID), SID) != replace(STATUS, takeoff_round=None)
+    older = decode_status(bytes.fromhex(STATUS_V1_HEX), SID)  # an agent of an older build
+    assert older.takeoff_round is None and older == replace(STATUS, takeoff_round=None)
+    for bad in (-1, 2**32 - 1, 2**32, True):
+        with pytest.raises(ValueError, match="takeoff_round"):
+            replace(STATUS, takeoff_round=bad)
+    forced = replace(STATUS)
+    object.__setattr__(forced, "takeoff_round", 2**32 - 1)  # set around AgentStatus's check
+    with pytest.raises(ValueError, match="takeoff_round"):
+        encode_status(forced, SID)
 
 
 def test_plan_golden_bytes() -> None:
@@ -272,7 +371,7 @@ def test_eight_neighbour_message_is_compact_and_decodes_read_only() -> None:
         degree=8,
     )
     data = encode_consensus(msg, (0.0, 0.0, 0.0), SID)
-    assert len(data) == 8 + 42 + 2 * 16 + 4 * 8 + 8 * 18 * 9  # 1410 bytes
+    assert len(data) == 8 + 46 + 2 * 16 + 4 * 8 + 8 * 18 * 9  # 1414 bytes
     packet = decode_consensus(data, SID)
     assert not packet.message.gamma.flags.writeable
     assert not packet.message.edge_sums[3].flags.writeable
@@ -299,6 +398,7 @@ def consensus_messages(draw: st.DrawFn) -> ConsensusMessage:
         heard=draw(st.frozensets(ids, max_size=20)),
         degree=draw(ids),
         velocity_ned_m_s=np.array(draw(f32x3)),
+        takeoff_round=draw(st.none() | st.integers(0, 2**32 - 2)),
     )
 
 
@@ -332,6 +432,7 @@ def test_consensus_round_trip_is_exact(
     neighbours=st.frozensets(ids, max_size=30),
     counters=st.lists(st.integers(0, 2**64 - 1), min_size=6, max_size=6),
     plan_seq=st.none() | st.integers(0, 2**32 - 2),
+    takeoff=st.none() | st.integers(0, 2**32 - 2),
 )
 def test_status_round_trip(
     drone: int,
@@ -344,10 +445,11 @@ def test_status_round_trip(
     neighbours: frozenset[int],
     counters: list[int],
     plan_seq: int | None,
+    takeoff: int | None,
 ) -> None:
     status = AgentStatus(
         drone, round_, t_s, mode, armed, health, np.array(estimate), tuple(neighbours),
-        StatusCounters(*counters), plan_seq,
+        StatusCounters(*counters), plan_seq, takeoff,
     )  # fmt: skip
     assert decode_status(encode_status(status, SID), SID) == status
 
@@ -428,14 +530,15 @@ def raw_consensus(
     floats: list[float] | None = None,
     n_heard: int | None = None,
     n_edges: int | None = None,
+    takeoff: int = 12,
     tail: bytes = b"",
 ) -> bytes:
     """A consensus payload packed by hand, without any validation (version 1: no velocity;
-    before version 3: no incarnations)."""
+    before version 3: no incarnations; before version 4: no take-off round)."""
     floats = [0.25] * 18 * (1 + len(edge_ids)) if floats is None else floats
     velocity = () if version == 1 else velocity
     ready = () if version == 1 else (0,)
-    incarnation = (5,) if version >= 3 else ()
+    incarnation = (5, takeoff) if version >= 4 else (5,) if version == 3 else ()
     tags = struct.pack(f"<{len(edge_ids)}I", *range(len(edge_ids))) if version >= 3 else b""
     return (
         bytes([magic, version, kind, len(sid) if sid_len is None else sid_len])
@@ -491,6 +594,12 @@ MALFORMED_CONSENSUS = [
     ("version 1 NaN", raw_consensus(version=1, position=(math.nan, 0, 0)), Reason.NOT_FINITE),
     ("version 2 one byte short", raw_consensus(version=2)[:-1], Reason.TRUNCATED),
     ("version 2 with tags", raw_consensus(version=2, tail=bytes(8)), Reason.TRAILING),
+    ("version 3 one byte short", raw_consensus(version=3)[:-1], Reason.TRUNCATED),
+    ("version 3 with a takeoff", raw_consensus(version=3, tail=bytes(4)), Reason.TRAILING),
+    # version 4 cut in its take-off round, and at the end of its fixed fields
+    ("version 4 cut in its takeoff", raw_consensus(version=4)[: 8 + 16], Reason.TRUNCATED),
+    ("version 4 fields only", raw_consensus(version=4)[: 8 + 46], Reason.TRUNCATED),
+    ("version 4 one byte short", raw_consensus(version=4)[:-1], Reason.TRUNCATED),
     ("duplicate heard id", raw_consensus(heard=(3, 3)), Reason.BAD_VALUE),
     ("unsorted edge ids", raw_consensus(edge_ids=(3, 1)), Reason.BAD_VALUE),
     ("oversized", raw_consensus(tail=bytes(MAX_CONSENSUS_BYTES)), Reason.OVERSIZED),
@@ -506,11 +615,12 @@ def test_malformed_consensus_is_rejected_with_its_reason(data: bytes, reason: Re
     assert str(info.value).startswith(reason.value)
 
 
-@pytest.mark.parametrize("version", [1, 2, 3])
+@pytest.mark.parametrize("version", [1, 2, 3, 4])
 def test_hand_packed_reference_payload_decodes(version: int) -> None:
     packet = decode_consensus(raw_consensus(version=version, velocity=(1.0, 2.0, 3.0)), SID)
     assert packet.message.heard == frozenset({1, 3}) and sorted(packet.message.edge_sums) == [1, 3]
     assert packet.message.incarnation == (5 if version >= 3 else 0)
+    assert packet.message.takeoff_round == (12 if version >= 4 else None)
     tags = packet.message.edge_incarnations
     assert tags == ({1: 0, 3: 1} if version >= 3 else None)
     velocity = packet.velocity_ned_m_s
@@ -525,15 +635,32 @@ def test_size_limit_is_configurable() -> None:
     decode_consensus(data, SID, max_bytes=len(data))
 
 
-def _status_bytes(mode: int = 3, armed: int = 1, health: int = 15, t_s: float = 1.0) -> bytes:
-    fixed = struct.pack("<HIdBBBI9d6QH", 2, 9, t_s, mode, armed, health, 7, *[0.0] * 9,
-                        *[0] * 6, 2)  # fmt: skip
-    return bytes([0x51, WIRE_VERSION, Kind.STATUS, 4]) + b"demo" + fixed + struct.pack("<2H", 1, 5)
+def _status_bytes(
+    mode: int = 3,
+    armed: int = 1,
+    health: int = 15,
+    t_s: float = 1.0,
+    version: int = STATUS_VERSION,
+) -> bytes:
+    takeoff = (40,) if version >= 2 else ()
+    fixed = struct.pack(f"<HIdBBBI{len(takeoff)}I9d6QH", 2, 9, t_s, mode, armed, health, 7,
+                        *takeoff, *[0.0] * 9, *[0] * 6, 2)  # fmt: skip
+    return bytes([0x51, version, Kind.STATUS, 4]) + b"demo" + fixed + struct.pack("<2H", 1, 5)
+
+
+def test_hand_packed_statuses_of_either_version_decode() -> None:
+    assert decode_status(_status_bytes(), SID).takeoff_round == 40
+    assert decode_status(_status_bytes(version=1), SID).takeoff_round is None
 
 
 @pytest.mark.parametrize(
     ("data", "reason"),
     [
+        (_status_bytes(version=1)[:-2], Reason.TRUNCATED),
+        (_status_bytes(version=1) + b"\0", Reason.TRAILING),
+        (_status_bytes(version=3), Reason.BAD_VERSION),
+        (_status_bytes(version=0), Reason.BAD_VERSION),
+        (_status_bytes()[: 8 + 20], Reason.TRUNCATED),  # cut in its take-off round
         (_status_bytes(mode=99), Reason.BAD_VALUE),
         (_status_bytes(armed=2), Reason.BAD_VALUE),
         (_status_bytes(health=0x80), Reason.BAD_VALUE),
@@ -589,6 +716,8 @@ DECODERS: list[Callable[[bytes, str], object]] = [
     decode_plan,
     consensus_origin,
     decode_consensus,
+    decode_consensus,
+    decode_status,
 ]
 VALID = [
     bytes.fromhex(CONSENSUS_HEX),
@@ -596,6 +725,8 @@ VALID = [
     bytes.fromhex(PLAN_HEX),
     bytes.fromhex(CONSENSUS_HEX),
     bytes.fromhex(CONSENSUS_V1_HEX),
+    bytes.fromhex(CONSENSUS_V3_HEX),
+    bytes.fromhex(STATUS_V1_HEX),
 ]
 
 
@@ -633,3 +764,4 @@ def test_consensus_head_reads_sender_round_and_origin_of_every_version() -> None
     data = encode_consensus(MESSAGE, POSITION, SID)
     assert consensus_head(data, SID) == (MESSAGE.sender, MESSAGE.round, POSITION)
     assert consensus_head(bytes.fromhex(CONSENSUS_V1_HEX), SID) == (2, 1000, POSITION)
+    assert consensus_head(bytes.fromhex(CONSENSUS_V3_HEX), SID) == (2, 1000, POSITION)

@@ -36,6 +36,7 @@ from protocols.wire_batch import (
 )
 from protocols.wire_status import (
     STATUS_BATCH_VERSION,
+    STATUS_VERSION,
     AgentMode,
     AgentStatus,
     Health,
@@ -61,17 +62,41 @@ def _message(sender: int, round_: int = 7) -> ConsensusMessage:
     )
 
 
-#: drone 3's and drone 4's round-7 messages (consensus schema version 3, no edges)
+#: drone 3's and drone 4's round-7 messages (consensus schema version 4, no edges, take-off
+#: round not said)
 INNER_3 = (
+    "5104010464656d6f0700000003000000000000000000ffffffff0000803f00000040000040c00000"
+    "0000000000000000000000000000" + "000000000000f83f" * 18
+)
+INNER_4 = (
+    "5104010464656d6f0700000004000000000000000000ffffffff0000003f00000000000080bf0000"
+    "0000000000000000000000000000" + "0000000000000040" * 18
+)
+#: magic, batch schema 1, kind 6, swarm "demo"; 2 messages; their lengths (198 bytes each)
+BATCH_HEX = "5101060464656d6f" + "0200" + "c6000000" + "c6000000" + INNER_3 + INNER_4
+#: the same messages at consensus schema version 3 (no take-off round), as an older build's
+#: version-1 batch carries them (194 bytes each)
+INNER_3_V3 = (
     "5103010464656d6f07000000030000000000000000000000803f00000040000040c0000000000000"
     "00000000000000000000" + "000000000000f83f" * 18
 )
-INNER_4 = (
+INNER_4_V3 = (
     "5103010464656d6f07000000040000000000000000000000003f00000000000080bf000000000000"
     "00000000000000000000" + "0000000000000040" * 18
 )
-#: magic, batch schema 1, kind 6, swarm "demo"; 2 messages; their lengths (194 bytes each)
-BATCH_HEX = "5101060464656d6f" + "0200" + "c2000000" + "c2000000" + INNER_3 + INNER_4
+BATCH_V3_INNER_HEX = "5101060464656d6f0200c2000000c2000000" + INNER_3_V3 + INNER_4_V3
+
+
+def test_a_version_1_batch_of_version_3_messages_still_opens() -> None:
+    entries = split_batch(bytes.fromhex(BATCH_V3_INNER_HEX), SID)
+    assert [(e.sender, e.round, e.origin) for e in entries] == [
+        (3, 7, (1.0, 2.0, -3.0)),
+        (4, 7, (0.5, 0.0, -1.0)),
+    ]
+    batch = open_batch(bytes.fromhex(BATCH_V3_INNER_HEX), SID)
+    for k in range(2):
+        message = batch.packet(k, SID, 16 * 1024).message
+        assert message.takeoff_round is None and message.sender == 3 + k
 
 
 def test_batch_golden_bytes() -> None:
@@ -97,7 +122,7 @@ def test_batch_golden_bytes() -> None:
         (bytes.fromhex("5101060465656d6f") + bytes.fromhex(BATCH_HEX)[8:], Reason.WRONG_SWARM),
         (bytes.fromhex(INNER_3), Reason.WRONG_KIND),
         # one message only: a batch holds two or more
-        (bytes.fromhex("5101060464656d6f0100c2000000" + INNER_3), Reason.BAD_VALUE),
+        (bytes.fromhex("5101060464656d6f0100c6000000" + INNER_3), Reason.BAD_VALUE),
         # senders out of order
         (bytes.fromhex(BATCH_HEX[:36] + INNER_4 + INNER_3), Reason.BAD_VALUE),
     ],
@@ -124,11 +149,57 @@ def test_random_bytes_raise_only_wire_errors(data: bytes) -> None:
             split_batch(blob, SID)
 
 
-# -- version 2: the messages in columns (what hosting processes send) ---------------------------
+# -- versions 2 and 3: the messages in columns (what hosting processes send) --------------------
 
-#: drone 3's (one edge, to 4, made with its incarnation 2) and drone 4's (no edge, moving)
-#: round-7 messages
+#: drone 3's (one edge, to 4, made with its incarnation 2; its swarm took off at round 5) and
+#: drone 4's (no edge, moving, take-off round not said) round-7 messages
 COLUMNS_HEX = (
+    "5103060464656d6f"  # magic, batch schema 3, kind 6, swarm "demo"
+    "0200"  # 2 messages
+    # drone 3: round 7, sender 3, degree 1, ready 2, incarnation 1, take-off round 5,
+    # position (1, 2, -3), velocity 0, 1 heard, 1 edge
+    "07000000"
+    "0300"
+    "0100"
+    "0200"
+    "01000000"
+    "05000000"
+    "0000803f"
+    "00000040"
+    "000040c0"
+    "00000000"
+    "00000000"
+    "00000000"
+    "0100"
+    "0100"
+    # drone 4: round 7, sender 4, degree 2, ready 0, incarnation 9, take-off round not said,
+    # position (0.5, 0, -1), velocity (0.5, 0, 0), 2 heard, no edge
+    "07000000"
+    "0400"
+    "0200"
+    "0000"
+    "09000000"
+    "ffffffff"
+    "0000003f"
+    "00000000"
+    "000080bf"
+    "0000003f"
+    "00000000"
+    "00000000"
+    "0200"
+    "0000"
+    "0400"
+    "0400"
+    "0300"
+    "0500"  # ids: 3 heard {4}, its edge 4; 4 heard {3, 5}
+    "02000000"  # the edge incarnations: 3's edge to 4 made with 4's incarnation 2
+    + "000000000000f83f" * 18  # 3's gamma
+    + "000000000000d03f" * 18  # 3's edge sum to 4
+    + "0000000000000040" * 18  # 4's gamma
+)
+#: the same messages in a version-2 batch (an older build's: consensus version 3's fixed
+#: fields, no take-off round)
+COLUMNS_V2_HEX = (
     "5102060464656d6f"  # magic, batch schema 2, kind 6, swarm "demo"
     "0200"  # 2 messages
     # drone 3: round 7, sender 3, degree 1, ready 2, incarnation 1, position (1, 2, -3),
@@ -183,6 +254,7 @@ def _pair() -> tuple[ConsensusMessage, ConsensusMessage]:
         ready_hops=2,
         incarnation=1,
         edge_incarnations={4: 2},
+        takeoff_round=5,
     )
     b = ConsensusMessage(
         sender=4,
@@ -199,13 +271,22 @@ def _pair() -> tuple[ConsensusMessage, ConsensusMessage]:
 
 def _same(got: ConsensusMessage, want: ConsensusMessage) -> None:
     """Field by field (arrays bit for bit; mappings as dicts)."""
-    assert (got.sender, got.round, got.degree, got.ready_hops, got.incarnation, got.heard) == (
+    assert (
+        got.sender,
+        got.round,
+        got.degree,
+        got.ready_hops,
+        got.incarnation,
+        got.heard,
+        got.takeoff_round,
+    ) == (
         want.sender,
         want.round,
         want.degree,
         want.ready_hops,
         want.incarnation,
         want.heard,
+        want.takeoff_round,
     )
     for name in ("gamma", "position_ned_m", "velocity_ned_m_s"):
         g, w = getattr(got, name), getattr(want, name)
@@ -222,7 +303,7 @@ def _same(got: ConsensusMessage, want: ConsensusMessage) -> None:
 def test_columns_golden_bytes() -> None:
     a, b = _pair()
     parts = [consensus_parts(a, (1.0, 2.0, -3.0), SID), consensus_parts(b, (0.5, 0.0, -1.0), SID)]
-    assert BATCH_VERSION == 2
+    assert BATCH_VERSION == 3
     assert encode_columns(parts, SID).hex() == COLUMNS_HEX
     batch = open_batch(bytes.fromhex(COLUMNS_HEX), SID)
     assert (batch.senders, batch.rounds) == ([3, 4], [7, 7])
@@ -232,6 +313,31 @@ def test_columns_golden_bytes() -> None:
         want = decode_consensus(encode_consensus(m, pos, SID), SID)
         _same(packet.message, want.message)
         assert packet.position_ned_m.tobytes() == want.position_ned_m.tobytes()
+    assert [batch.packet(k, SID, 16 * 1024).message.takeoff_round for k in (0, 1)] == [5, None]
+
+
+def test_a_version_2_batch_still_opens_without_takeoff_rounds() -> None:
+    """An older build's batch in columns (consensus version 3's fixed fields) decodes to what
+    its messages decode to alone at that version: each as sent, its take-off round None."""
+    from dataclasses import replace
+
+    a, b = _pair()
+    batch = open_batch(bytes.fromhex(COLUMNS_V2_HEX), SID)
+    assert (batch.senders, batch.rounds) == ([3, 4], [7, 7])
+    assert batch.origins == [(1.0, 2.0, -3.0), (0.5, 0.0, -1.0)]
+    for k, (m, pos) in enumerate(((a, (1.0, 2.0, -3.0)), (b, (0.5, 0.0, -1.0)))):
+        packet = batch.packet(k, SID, 16 * 1024)
+        assert packet.message.takeoff_round is None
+        want = decode_consensus(encode_consensus(replace(m, takeoff_round=None), pos, SID), SID)
+        _same(packet.message, want.message)
+    # its messages' size is checked as the version-3 payloads they were: 8 + 42 + 4 + 4 + 288
+    open_batch(bytes.fromhex(COLUMNS_V2_HEX), SID, max_consensus_bytes=346)
+    with pytest.raises(WireError) as err:
+        open_batch(bytes.fromhex(COLUMNS_V2_HEX), SID, max_consensus_bytes=345)
+    assert err.value.reason == Reason.OVERSIZED
+    with pytest.raises(WireError) as err:
+        open_batch(bytes.fromhex(COLUMNS_V2_HEX)[:-1], SID)
+    assert err.value.reason == Reason.TRUNCATED
 
 
 def test_a_version_1_batch_still_opens() -> None:
@@ -254,11 +360,12 @@ NAN_F64 = "000000000000f87f"
         (_columns(lambda h: h + "00"), Reason.TRAILING),
         (_columns(lambda h: h[:40]), Reason.TRUNCATED),
         (_columns(lambda h: h[:20]), Reason.TRUNCATED),
-        (_columns(lambda h: "5103" + h[4:]), Reason.BAD_VERSION),
+        (_columns(lambda h: "5104" + h[4:]), Reason.BAD_VERSION),
+        (_columns(lambda h: h[: 20 + 2 * 46 + 30]), Reason.TRUNCATED),  # in 4's take-off round
         (_columns(lambda h: h[:8] + "65" + h[10:]), Reason.WRONG_SWARM),
         (_columns(lambda h: h[:16] + "0100" + h[20:]), Reason.BAD_VALUE),  # a batch of one
         # drone 4's message first: senders out of order
-        (_columns(lambda h: h[:20] + h[104:188] + h[20:104] + h[188:]), Reason.BAD_VALUE),
+        (_columns(lambda h: h[:20] + h[112:204] + h[20:112] + h[204:]), Reason.BAD_VALUE),
         # 4's heard ids {5, 3}: not increasing
         (_columns(lambda h: h.replace("0400040003000500", "0400040005000300")), Reason.BAD_VALUE),
         # NaN in 4's gamma, in 3's edge sum, in 3's position
@@ -275,17 +382,22 @@ def test_malformed_columns_are_rejected_with_their_reason(data: bytes, reason: R
 
 def test_a_batched_message_over_the_receivers_limit_rejects_the_batch() -> None:
     data = bytes.fromhex(COLUMNS_HEX)
-    # drone 3's message alone would be 8 + 42 + 4 + 4 + 2 x 144 = 346 bytes
-    open_batch(data, SID, max_consensus_bytes=346)
+    # drone 3's message alone would be 8 + 46 + 4 + 4 + 2 x 144 = 350 bytes
+    open_batch(data, SID, max_consensus_bytes=350)
     with pytest.raises(WireError) as err:
-        open_batch(data, SID, max_consensus_bytes=345)
+        open_batch(data, SID, max_consensus_bytes=349)
     assert err.value.reason == Reason.OVERSIZED
 
 
 @settings(max_examples=200, deadline=None)
 @given(st.binary(max_size=600))
 def test_random_bytes_raise_only_wire_errors_from_either_version(data: bytes) -> None:
-    heads = (b"", bytes.fromhex(COLUMNS_HEX)[:10], bytes.fromhex(BATCH_HEX)[:10])
+    heads = (
+        b"",
+        bytes.fromhex(COLUMNS_HEX)[:10],
+        bytes.fromhex(COLUMNS_V2_HEX)[:10],
+        bytes.fromhex(BATCH_HEX)[:10],
+    )
     for blob in (head + data for head in heads):
         with contextlib.suppress(WireError):
             open_batch(blob, SID)
@@ -310,6 +422,7 @@ def _random_message(rng: np.random.Generator, sender: int) -> ConsensusMessage:
         ready_hops=int(rng.integers(0, 9)),
         velocity_ned_m_s=None if rng.random() < 0.3 else rng.normal(size=3),
         incarnation=int(rng.integers(0, 10**6)),
+        takeoff_round=None if rng.random() < 0.3 else int(rng.integers(0, 2**32 - 1)),
         edge_incarnations=(
             EdgeIncarnations(ids, tags)
             if mode == 0
@@ -402,7 +515,7 @@ def test_a_bad_batch_is_counted_by_each_agent_that_hears_it() -> None:
 
 def test_batch_lengths_are_little_endian_u32() -> None:
     data = bytes.fromhex(BATCH_HEX)
-    assert struct.unpack_from("<H2I", data, 8) == (2, 194, 194)
+    assert struct.unpack_from("<H2I", data, 8) == (2, 198, 198)
 
 
 def test_messages_of_the_batched_core_encode_to_the_same_bytes_as_plain_ones() -> None:
@@ -455,7 +568,7 @@ def test_messages_of_the_batched_core_encode_to_the_same_bytes_as_plain_ones() -
 # -- the status batch (protocols/wire_status.py, Kind.STATUS_BATCH) ----------------------------
 
 
-def _status(drone: int) -> AgentStatus:
+def _status(drone: int, takeoff_round: int | None = None) -> AgentStatus:
     return AgentStatus(
         drone=drone,
         round=1000,
@@ -467,17 +580,35 @@ def _status(drone: int) -> AgentStatus:
         neighbours=(1, 5),
         counters=StatusCounters(100, 1, 2, 3, 50, 0),
         plan_seq=7,
+        takeoff_round=takeoff_round,
     )
 
 
 def test_status_batch_golden_bytes_and_round_trip() -> None:
     a, b = encode_status(_status(2), SID), encode_status(_status(6), SID)
-    assert len(a) == len(b) == 155 and STATUS_BATCH_VERSION == 1
+    assert len(a) == len(b) == 159 and STATUS_BATCH_VERSION == 1
     batch = encode_status_batch([(2, a), (6, b)], SID)
-    # magic, status batch schema 1, kind 7, swarm "demo"; 2 statuses of 155 bytes each
-    assert batch.hex() == "5101070464656d6f" + "0200" + "9b000000" * 2 + a.hex() + b.hex()
+    # magic, status batch schema 1, kind 7, swarm "demo"; 2 statuses of 159 bytes each
+    assert batch.hex() == "5101070464656d6f" + "0200" + "9f000000" * 2 + a.hex() + b.hex()
     assert decode_statuses(batch, SID) == [_status(2), _status(6)]
     assert decode_statuses(a, SID) == [_status(2)]  # one status alone: the single schema
+
+
+def test_status_batch_carries_take_off_rounds_and_statuses_of_either_version() -> None:
+    """The batch's statuses are complete payloads: each with its take-off round (or None), and
+    a version-1 status (an older agent's, no take-off round) decodes in it as alone."""
+    statuses = [_status(2, 1234), _status(6), _status(9, 0)]
+    batch = encode_status_batch([(s.drone, encode_status(s, SID)) for s in statuses], SID)
+    decoded = decode_statuses(batch, SID)
+    assert decoded == statuses and [s.takeoff_round for s in decoded] == [1234, None, 0]
+    current = encode_status(_status(6, 77), SID)
+    assert current[1] == STATUS_VERSION == 2
+    # the same status at version 1: no u32 take-off round after the plan's sequence number
+    older = bytes([0x51, 1]) + current[2:27] + current[31:]
+    assert len(older) == len(current) - 4
+    mixed = encode_status_batch([(2, encode_status(_status(2, 5), SID)), (6, older)], SID)
+    assert decode_statuses(mixed, SID) == [_status(2, 5), _status(6)]
+    assert decode_statuses(older, SID) == [_status(6)]
 
 
 @pytest.mark.parametrize(
@@ -572,7 +703,15 @@ def test_a_steps_messages_are_laid_out_in_columns_as_one_by_one() -> None:
             first = 0 if b == 0 else 3
             box = inboxes[first : first + len(rows)]
             _, out, _, _ = batch.step_outgoing(rows, round_, zeta, box, [None] * len(rows), motion)
-            made += out.messages([round_ % 3] * len(rows))
+            # take-off rounds: none said (before take-off), said by some, or by each
+            takeoffs = (
+                None
+                if round_ < 3
+                else [None if (round_ + r) % 3 == 0 else 2 + r for r in rows]
+                if round_ < 7
+                else [2] * len(rows)
+            )
+            made += out.messages([round_ % 3] * len(rows), takeoffs)
         levels = [replace(m, ready_hops=m.ready_hops + 1) for m in made]  # as a host publishes
         hand = replace(levels[2], edge_sums=dict(levels[2].edge_sums))  # no longer a step's
         sent = [*levels[:2], hand, *levels[3:]]
@@ -602,6 +741,60 @@ def test_a_steps_messages_are_laid_out_in_columns_as_one_by_one() -> None:
     assert laid == [None, None, None]
     laid = column_parts(cols._replace(gamma=gamma), SID)
     assert laid[0] is None and laid[1:] == [consensus_parts(m, (0, 0, 0), SID) for m in levels[1:3]]
+    # a take-off round out of range (0xFFFFFFFF is None's) is left to consensus_parts, which
+    # refuses it; negative is None (not said)
+    laid = column_parts(cols._replace(takeoffs=[2**32 - 1, -1, 2**32]), SID)
+    assert laid[0] is None and laid[2] is None
+    assert laid[1] == consensus_parts(replace(levels[1], takeoff_round=None), (0, 0, 0), SID)
+    for bad in (2**32 - 1, 2**32, -1):
+        with pytest.raises(ValueError, match="takeoff_round"):
+            consensus_parts(replace(levels[0], takeoff_round=bad), (0, 0, 0), SID)
+    laid = column_parts(cols._replace(takeoffs=[0, 2**32 - 2, 17]), SID)
+    for m, got, takeoff in zip(levels[:3], laid, (0, 2**32 - 2, 17), strict=True):
+        assert got == consensus_parts(replace(m, takeoff_round=takeoff), (0, 0, 0), SID)
+
+
+def test_a_steps_messages_carry_their_take_off_rounds_to_the_wire() -> None:
+    """Outgoing.messages puts each row's take-off round on its message (None: None each), and
+    consensus_batch.with_level puts a level and a take-off round on one (the same message when
+    both are already its): what the columns and the single payloads then carry."""
+    import dataclasses
+
+    from drone_agent.consensus import ConsensusParams
+    from drone_agent.consensus_batch import BatchConsensus, with_level
+    from drone_agent.transport_link import wire_parts
+
+    ids = (0, 1, 2)
+    batch = BatchConsensus(ids, ConsensusParams())
+    motion = (np.ones((3, 3)), np.zeros((3, 3)))
+    _, out, _, _ = batch.step_outgoing(ids, 0, np.ones((3, 18)), [[], [], []], [None] * 3, motion)
+    assert [m.takeoff_round for m in out.messages()] == [None] * 3
+    made = out.messages([1, 2, 3], [40, None, 0])
+    assert [(m.ready_hops, m.takeoff_round) for m in made] == [(1, 40), (2, None), (3, 0)]
+    with pytest.raises(ValueError):
+        out.messages(None, [1, 2])  # one per row
+    where = [(0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (2.0, 0.0, 0.0)]
+    parts = wire_parts(made, where, SID)
+    assert parts == [consensus_parts(m, p, SID) for m, p in zip(made, where, strict=True)]
+    opened = open_batch(encode_columns(parts, SID), SID)
+    assert [opened.packet(k, SID, 16 * 1024).message.takeoff_round for k in range(3)] == [
+        40,
+        None,
+        0,
+    ]
+    message = out.messages()[1]
+    leveled = with_level(message, 4, takeoff_round=12)
+    expected = dataclasses.replace(message, ready_hops=4, takeoff_round=12)
+    for f in dataclasses.fields(expected):
+        assert getattr(leveled, f.name) is getattr(expected, f.name) or (
+            getattr(leveled, f.name) == getattr(expected, f.name)
+        ), f.name
+    assert with_level(leveled, 4, takeoff_round=12) is leveled
+    assert with_level(message, message.ready_hops) is message
+    assert with_level(leveled, 4).takeoff_round is None  # both set: None is not flying
+    assert with_level(message, 0, takeoff_round=3).takeoff_round == 3
+    packet = decode_consensus(encode_consensus(leveled, (0, 0, 0), SID), SID)
+    assert (packet.message.ready_hops, packet.message.takeoff_round) == (4, 12)
 
 
 def test_a_sole_hub_hands_its_agents_messages_over_and_sends_them_to_other_sessions_only() -> None:

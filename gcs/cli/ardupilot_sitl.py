@@ -185,4 +185,3 @@ def wait_ready(
     finally:
         for link in links:
             link.close()
-

@@ -184,7 +184,7 @@ def _as_flag(message: str) -> str:
 
 
 def _check(path: Path) -> int:
-    from gcs.report.scenario_summary import envelope_problem, summary_lines
+    from gcs.report.scenario_summary import envelope_problem, summary_lines, takeoff_lines
     from protocols.scenario import ScenarioError, load_scenario
 
     try:
@@ -197,5 +197,10 @@ def _check(path: Path) -> int:
             f"{path}: trajectory.waypoints: the plan leaves the ground station's envelope {problem}"
         )
     for line in summary_lines(scenario):
+        print(line)
+    print("take-off   measuring when the swarm is ready (flying it in process) ...", flush=True)
+    from gcs.reference.simulate import READY_LIMIT_S, ready_time_s
+
+    for line in takeoff_lines(scenario, ready_time_s(scenario), READY_LIMIT_S):
         print(line)
     return 0

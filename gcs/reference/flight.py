@@ -19,13 +19,21 @@ from drone_agent.agent_core import AgentCore, BatchAgentCore, BatchOutputs, Setp
 from drone_agent.config import agent_config
 from drone_agent.consensus_batch import frozen_factory
 from drone_agent.fault_timeline import TimedAction, timeline
-from drone_agent.flight_phase import BatchReadiness, FlightPhase, Request, VehicleView
+from drone_agent.flight_phase import (
+    BatchReadiness,
+    BatchTakeoff,
+    FlightPhase,
+    Request,
+    VehicleView,
+)
 from drone_agent.link_faults import LinkFaults, PairRandom
 from gcs.reference.network import InProcessNetwork
 from gcs.report.flight_record import FlightRecord, scenario_link_cuts
 from protocols.collector import flight_collector
 from protocols.frames import FloatArray, quat_from_zyx
+from protocols.plan_timing import flown_plan, flown_time_s, shift_s, tick_time_s
 from protocols.scenario import Scenario
+from protocols.trajectory import DescriptorTrajectory
 from protocols.wire_plan import FlightCommand
 from sitl_sim.attitude_control import euler_from_quat_batch, yaw_from_quat_batch
 from sitl_sim.config import attitude_gains, vehicle_params
@@ -132,6 +140,10 @@ class ReferenceFlight:
         }
         self.readiness = BatchReadiness(self.n, self.config)
         self.phases = [FlightPhase(self.config.limits) for _ in range(self.n)]
+        self.takeoff = BatchTakeoff(self.n, self.config.consensus.heard_timeout_ticks)
+        self._period_ms = round(self.dt * 1000)
+        #: when the swarm left the ground (s; None: not yet): the plan is flown re-timed to it
+        self.takeoff_s: float | None = None
         #: the separation layer changes the drone's command (events on each change)
         self.separating = [False] * self.n
         delay = max(1, scenario.consensus.delay_ticks)
@@ -221,6 +233,18 @@ class ReferenceFlight:
             neighbour_ids=rec.neighbour_ids,
         )
 
+    def run_until_takeoff(self, limit_s: float) -> float | None:
+        """Fly until the swarm leaves the ground (at most ``limit_s`` simulated seconds);
+        when it did (s), None if it did not by then. Nothing is recorded."""
+        n_ticks = round(limit_s / self.dt) + 1
+        rec = _Recorder(n_ticks, self.n, 0)
+        with flight_collector():
+            for k in range(n_ticks):
+                self._tick(k, n_ticks, rec, None)
+                if self.takeoff_s is not None:
+                    return self.takeoff_s
+        return None
+
     def _tick(
         self, k: int, n_ticks: int, rec: _Recorder, progress: Callable[[float], None] | None
     ) -> None:
@@ -281,6 +305,7 @@ class ReferenceFlight:
             [self.plan] * len(live),
             inboxes,
             [members] * len(live),
+            plan_t_s=self._plan_times(live, t_s),
         )
         rec.estimate[k, live] = cols.estimate
         rec.neighbours[k, live] = [len(ids) for ids in cols.active_neighbours]
@@ -294,8 +319,6 @@ class ReferenceFlight:
         phases = self.phases
         committed = [phases[i].committed for i in live]
         ready_all = self._ready(live, cols, members, committed)
-        levels = self.readiness.level[live].tolist()
-        messages = cols.outgoing.messages(levels)
         armed_now, failsafe_now = self.armed.tolist(), self.in_failsafe.tolist()
         commanded_altitude = (-cols.desired[:, 2]).tolist()
         for i, now_separating, setpoint, up_m, ready, flies in zip(
@@ -319,6 +342,13 @@ class ReferenceFlight:
             if sp is not None:
                 flying.append(i)
                 commands.append(sp)
+        # the swarm's take-off round, agreed over the messages (flight_phase.TakeoffClock)
+        takeoffs = self.takeoff.update(
+            live, k, [phases[i].committed for i in live], self.network.arrivals
+        )
+        if self.takeoff_s is None and (said := [t for t in takeoffs if t is not None]):
+            self._took_off(min(said))
+        messages = cols.outgoing.messages(self.readiness.level[live].tolist(), takeoffs)
         if flying:
             flown, attitude, thrust = received(flying, commands)
             self.attitude_sp[:, flown] = attitude
@@ -330,8 +360,35 @@ class ReferenceFlight:
 
     def _fly_none(self, k: int, rec: _Recorder) -> None:
         """Control tick ``k`` with no live agent: no message, no setpoint, only the record."""
-        rec.desired[k] = self.plan.evaluate(self.t_s)[0]
+        rec.desired[k] = self.plan.evaluate(flown_time_s(self.plan, self.t_s, self.takeoff_s))[0]
         self._record_vehicles(k, rec)
+
+    def _plan_times(self, live: list[int], t_s: float) -> list[float]:
+        """Each live agent's plan time (protocols/plan_timing.py) on its take-off round."""
+        times: dict[int | None, float] = {}
+        out = []
+        for takeoff in self.takeoff.rounds(live):
+            t = times.get(takeoff)
+            if t is None:
+                start = None if takeoff is None else tick_time_s(takeoff, self._period_ms)
+                t = times[takeoff] = flown_time_s(self.plan, t_s, start)
+            out.append(t)
+        return out
+
+    def _took_off(self, takeoff_round: int) -> None:
+        """The swarm left the ground at ``takeoff_round``: the plan is flown re-timed to it."""
+        self.takeoff_s = tick_time_s(takeoff_round, self._period_ms)
+        self.events.append(
+            FlightEvent(
+                self.takeoff_s,
+                "takeoff",
+                {"retimed_by_s": round(shift_s(self.plan, self.takeoff_s), 6)},
+            )
+        )
+
+    def flown_plan(self) -> DescriptorTrajectory:
+        """The plan as flown: re-timed to the take-off (protocols/plan_timing.py)."""
+        return flown_plan(self.plan, self.t_s if self.takeoff_s is None else self.takeoff_s)
 
     def _record_vehicles(self, k: int, rec: _Recorder) -> None:
         """The vehicles' samples of control tick ``k``."""

@@ -41,7 +41,7 @@ class InProcessNetwork:
         self.base_delay_ticks = base_delay_ticks
         self.conditions = LinkFaults()
         # arrival round -> batches of (receivers, index into messages, messages, the messages'
-        # (3, len) senders, rounds and levels), in send order
+        # (4, len) senders, rounds, levels and take-off rounds (-1: none)), in send order
         self._in_flight: dict[int, list[_Batch]] = defaultdict(list)
         #: the messages that arrived at the last :meth:`receive`, as arrays
         self.arrivals = _NO_ARRIVALS
@@ -74,7 +74,16 @@ class InProcessNetwork:
         if not messages:
             return
         meta = np.array(
-            [(m.sender, m.round, m.ready_hops) for m in messages], dtype=np.int64
+            [
+                (
+                    m.sender,
+                    m.round,
+                    m.ready_hops,
+                    -1 if m.takeoff_round is None else m.takeoff_round,
+                )
+                for m in messages
+            ],
+            dtype=np.int64,
         ).T.copy()
         senders = meta[0].astype(np.intp)
         reach = np.array(in_range, dtype=bool)[senders]
@@ -217,7 +226,9 @@ class InProcessNetwork:
         bounds = np.searchsorted(receivers, np.arange(self.n + 1)).tolist()
         flat = list(map(msgs.__getitem__, which.tolist()))
         lists = [flat[bounds[i] : bounds[i + 1]] for i in drones]
-        self.arrivals = Arrivals(receivers, meta[0, which], meta[1, which], meta[2, which])
+        self.arrivals = Arrivals(
+            receivers, meta[0, which], meta[1, which], meta[2, which], meta[3, which]
+        )
         if len(set(map(id, msgs))) < len(msgs):  # one object sent twice: the agents find them
             return Inboxes(lists)
         if len(drones) < self.n:  # the values of these drones' inboxes, in turn

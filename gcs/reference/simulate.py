@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,7 @@ from gcs.report.plots import write_plots
 from gcs.report.tlog import TlogWriter
 from gcs.report.trajectory_file import write_trajectory
 from gcs.view.recording import write_recording
+from protocols.plan_timing import takeoff_metrics
 from protocols.scenario import Scenario
 
 #: MAVLink MAV_STATE values used in heartbeats.
@@ -73,7 +74,7 @@ def simulate(
             record, flight.events, report_dir / "flight.tlog", tlog_hz, _silent_from(flight)
         ),
         _write_events(flight.events, report_dir / "events.jsonl"),
-        write_trajectory(flight.plan, report_dir / "trajectory.json"),
+        write_trajectory(flight.flown_plan(), report_dir / "trajectory.json"),
     ]
     faults = [
         (e.t_s, str(e.fields.get("description", e.kind)))
@@ -93,6 +94,7 @@ def simulate(
             "wall_time_s": round(wall, 3),
             "real_time_factor": round(scenario.duration_s / wall, 3) if wall > 0 else None,
             "settle_s": scenario.settle_s,
+            "takeoff": takeoff_metrics(flight.takeoff_s, flight.plan),
             "messages": {
                 "sent": flight.network.sent,
                 "delivered": flight.network.delivered,
@@ -190,3 +192,16 @@ def _write_events(events: list[FlightEvent], path: Path) -> Path:
         for e in events:
             log.record(e.t_s, e.kind, **e.fields)
     return path
+
+
+#: How long ``swarm scenario check`` waits for a scenario's swarm to be ready (simulated s).
+READY_LIMIT_S = 60.0
+
+
+def ready_time_s(scenario: Scenario, limit_s: float = READY_LIMIT_S) -> float | None:
+    """When the scenario's swarm is ready to leave the ground (s): measured by flying it in
+    process, without its faults, until its agents agree to take off (the one readiness rule,
+    drone_agent/flight_phase.py); None if not within ``limit_s``. The plan does not change it:
+    a plan that starts on the ground is held until then (protocols/plan_timing.py)."""
+    calm = replace(scenario, faults=(), duration_s=max(scenario.duration_s, limit_s))
+    return ReferenceFlight(calm).run_until_takeoff(limit_s)

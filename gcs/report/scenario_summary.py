@@ -15,6 +15,7 @@ import numpy as np
 from gcs.station.planner import Envelope, PlanRefused, check_target, envelope_of
 from protocols.faults import Crash, Dropout, Fault, LinkCut, LinkDelay, PacketLoss, Partition
 from protocols.formation_fit import closest_pair, formation_positions
+from protocols.plan_timing import hold_end_s
 from protocols.scenario import Scenario, WaypointConfig
 from protocols.scenario_layout import radio_graph
 
@@ -126,5 +127,38 @@ def summary_lines(scenario: Scenario) -> list[str]:
         spreads = ", ".join(f"{math.sqrt(max(v, 0.0)):.2f}" for v in w.variance_m2)
         lines.append(
             f"  {w.t_s:<8g}  {n:7.2f}, {e:7.2f}  {0.0 - z:7.2f}  {w.yaw_deg:9.1f}  {spreads}"
+        )
+    return lines
+
+
+def takeoff_lines(scenario: Scenario, ready_s: float | None, limit_s: float) -> list[str]:
+    """What ``swarm scenario check`` says of the take-off, given when the swarm was measured
+    ready to leave the ground (``ready_s``; None: not within ``limit_s``): the time, and a
+    warning when the plan moves before it (it is then flown late: protocols/plan_timing.py)."""
+    plan = scenario.trajectory()
+    hold = hold_end_s(plan)
+    if ready_s is None:
+        return [
+            f"take-off   WARNING: the swarm was not ready to leave the ground within "
+            f"{limit_s:g} s (measured in process): its estimates do not settle (radio graph, "
+            "consensus gains)"
+        ]
+    lines = [
+        f"take-off   the swarm is ready to leave the ground at t = {ready_s:.2f} s (measured "
+        f"in process: {scenario.n_drones} drones, this radio graph, warm-up "
+        f"{scenario.consensus.warmup_s:g} s)"
+    ]
+    if hold is None:
+        altitude = -float(plan.evaluate(plan.start_s)[0][2])
+        lines.append(
+            f"  WARNING: the plan starts {altitude:.1f} m up: the drones leave the ground "
+            f"at t = {ready_s:.2f} s towards it; start it on the ground to climb with it"
+        )
+    elif hold < ready_s:
+        lines.append(
+            f"  WARNING: the plan starts moving at t = {hold:g} s, before the swarm can be "
+            f"ready: it will be flown about {ready_s - hold:.2f} s late (held on the ground "
+            f"and re-timed to the take-off). To fly it on the scenario's clock, rest on the "
+            f"ground until t = {math.ceil(ready_s):g} s"
         )
     return lines

@@ -54,6 +54,15 @@ def summary_lines(metrics: dict[str, Any], files: Sequence[Path]) -> list[str]:
         f" (drones {sep.get('pair')} at t = {_fmt(sep.get('t_s'), ' s', 1)})",
         f"  collisions                   {metrics.get('collisions', {}).get('count', 'n/a')}",
     ]
+    takeoff = metrics.get("takeoff")
+    if takeoff:
+        late = takeoff.get("retimed_by_s") or 0.0
+        lines.insert(
+            1,
+            f"take-off at t = {_fmt(takeoff.get('t_s'), ' s', 2)}, plan re-timed by "
+            f"{_fmt(late, ' s', 2)}"
+            + (" (the plan waited on the ground for the swarm)" if late > 0 else ""),
+        )
     for lost in metrics.get("drones_lost", []):
         lines.append(
             f"  drone {lost['index']} (sysid {lost['sysid']}) lost at {_fmt(lost['t_s'], ' s', 1)}"

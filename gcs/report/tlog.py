@@ -447,7 +447,6 @@ class TlogReader:
                 }
         return TlogTrack(vehicles, list(self._texts), self._bad)
 
-
     def _ardupilot_rows(self, sysid: int) -> tuple[_Rows, _Rows]:
         """An ArduCopter vehicle's position rows (record ms, NED about the origin, velocity) and
         attitude rows on record times (module doc)."""

@@ -58,7 +58,9 @@ from gcs.station.planner import Envelope, PlanRefused
 from gcs.station.swarm_watch import SwarmWatch
 from gcs.station.telemetry import TelemetryReceiver
 from protocols.keys import SwarmKeys
+from protocols.plan_timing import flown_plan, shift_s, takeoff_metrics, tick_time_s
 from protocols.scenario import Scenario
+from protocols.trajectory import DescriptorTrajectory
 from protocols.wire import WireError
 from protocols.wire_plan import FlightCommand, PlanMessage, decode_plan
 from protocols.wire_status import decode_statuses
@@ -131,6 +133,10 @@ class GroundStation:
         #: the newest simulated time of an agent status (kept as they come: not a loop over all
         #: drones each time the time is asked, several times a pass)
         self._t_status_s = 0.0
+        #: each agent's newest word of the swarm's take-off round (flight_phase.TakeoffClock)
+        self._takeoff_of: dict[int, int | None] = {}
+        self._takeoff_round: int | None = None
+        self._period_ms = round(options.scenario.rates.dt_control_s * 1000)
         self._liveliness: deque[tuple[str, bool]] = deque()
         self.watch = SwarmWatch(range_m=options.scenario.comms.range_m)
         options.report_dir.mkdir(parents=True, exist_ok=True)
@@ -227,6 +233,39 @@ class GroundStation:
         """The newest simulated time (s) heard from a vehicle or an agent."""
         return max(self.telemetry.sim_time_s, self._t_status_s, self._t_floor_s)
 
+    @property
+    def takeoff_s(self) -> float | None:
+        """When the swarm left the ground (s), as its agents agreed it; None: not yet."""
+        t = self._takeoff_round
+        return None if t is None else tick_time_s(t, self._period_ms)
+
+    def flown(self, now_s: float | None = None) -> DescriptorTrajectory:
+        """The plan in force as the swarm flies it (protocols/plan_timing.py): re-timed to the
+        take-off; before it, held until ``now_s`` (default: now)."""
+        takeoff = self.takeoff_s
+        when = takeoff if takeoff is not None else (self.now_s if now_s is None else now_s)
+        return flown_plan(self.plan.trajectory, when)
+
+    def _flown_plan(self, now_s: float) -> PlanMessage:
+        """The plan in force as flown, as the plan message the planner continues from."""
+        return replace(self.plan, trajectory=self.flown(now_s))
+
+    def _track_takeoff(self) -> None:
+        """The swarm's take-off round: the least the live agents report. A new one is an event
+        ("takeoff", with how late the plan is flown) and rewrites trajectory.json as flown."""
+        alive = self.watch.alive
+        said = [t for d, t in self._takeoff_of.items() if t is not None and d in alive]
+        takeoff = min(said) if said else None
+        if takeoff is None or takeoff == self._takeoff_round:
+            return
+        self._takeoff_round = takeoff
+        t_s = tick_time_s(takeoff, self._period_ms)
+        late = shift_s(self.plan.trajectory, t_s)
+        self.events.record(
+            t_s, "takeoff", round=takeoff, retimed_by_s=round(late, 6), plan_seq=self.plan.seq
+        )
+        write_trajectory(self.flown(), self._o.report_dir / "trajectory.json")
+
     def _on_status(self, _key: str, payload: bytes) -> None:  # Zenoh thread: enqueue only
         self._statuses.append(payload)
 
@@ -236,8 +275,8 @@ class GroundStation:
     def _publish(self, plan: PlanMessage, why: str) -> None:
         self.plans.publish(plan)
         self.plan = plan
-        # the plan in force, for a live view of the report folder (swarm view)
-        write_trajectory(plan.trajectory, self._o.report_dir / "trajectory.json")
+        # the plan in force, as flown, for a live view of the report folder (swarm view)
+        write_trajectory(self.flown(), self._o.report_dir / "trajectory.json")
         self.events.record(
             self.now_s, "plan_published", seq=plan.seq, command=plan.command.name, reason=why
         )
@@ -307,10 +346,11 @@ class GroundStation:
         n = self._o.scenario.n_drones
         report = self._o.report_dir
         track = read_tlog(report / "flight.tlog")
+        flown = self.flown()
         record = build_record(
             report / "flight.tlog",
             report / "events.jsonl",
-            self.plan.trajectory,
+            flown,
             n,
             self._o.telemetry_hz,
             end_s,
@@ -323,6 +363,7 @@ class GroundStation:
             "mode": "distributed (swarm gcs)",
             "plan_seq": self.plan.seq,
             "settle_s": self._o.scenario.settle_s,
+            "takeoff": takeoff_metrics(self.takeoff_s, self.plan.trajectory),
             "wall_time_s": round(wall, 3),
             "real_time_factor": round(self.now_s / wall, 3) if wall > 0 else None,
             "agent_timing": timing_metrics(track, read_events(report / "events.jsonl")),
@@ -330,7 +371,7 @@ class GroundStation:
         return write_report(
             self._o.report_dir,
             record,
-            self.plan.trajectory,
+            flown,
             self._o.scenario.settle_s,
             extra,
             self._o.plots,
@@ -354,6 +395,8 @@ class GroundStation:
                 if kind:
                     self.events.record(status.t_s, kind, drone=status.drone)
                 self.telemetry.log_agent_status(status)
+                self._takeoff_of[status.drone] = status.takeoff_round
+        self._track_takeoff()
         while self._liveliness:
             key, alive = self._liveliness.popleft()
             drone = self._keys.drone_of(key)
@@ -408,7 +451,9 @@ class GroundStation:
         """A plan-changing command: publish the next plan, or say why not."""
         try:
             positions = self.watch.positions(self.telemetry.vehicles)
-            plan, when = plan_command(request, self.plan, now_s, self._o.envelope, positions)
+            plan, when = plan_command(
+                request, self._flown_plan(now_s), now_s, self._o.envelope, positions
+            )
         except PlanRefused as exc:
             return Reply(False, str(exc), self.plan.seq)
         self._publish(plan, request.name)
@@ -433,7 +478,7 @@ class GroundStation:
         if self.plan.command == FlightCommand.FLY:
             positions = self.watch.positions(self.telemetry.vehicles)
             landing, when = plan_command(
-                Request("land", {}), self.plan, now_s, self._o.envelope, positions
+                Request("land", {}), self._flown_plan(now_s), now_s, self._o.envelope, positions
             )
             self._publish(landing, f"shutdown ({why}): land first")
             what = f"landing ({when}), then the run ends and the report is written"
