@@ -1,30 +1,42 @@
-"""When the plan runs: a plan that starts on the ground waits for the swarm to leave it. Pure.
+"""When the plan runs: a plan that leaves the ground waits for the swarm to leave it. Pure.
 
 The shared plan ``a_d(t)`` (protocols/trajectory.py) is written on the scenario's clock. The swarm
 can leave the ground only once its estimates have settled (drone_agent/flight_phase.py,
 :class:`~drone_agent.flight_phase.Readiness`), which takes longer on a larger or sparser radio
 graph. A plan that starts climbing before then would be chased: the swarm would leave the
 ground towards a plan already metres up and overshoot it. So every runner (``swarm simulate``,
-every ``swarm agent``, the ground station and the report) flies the plan on one re-timed clock:
+every ``swarm agent``, the ground station and the report) flies the plan on one re-timed clock.
 
-- a plan that **starts on the ground** (its centre at most :data:`GROUND_START_M` up at its first
-  knot) is held at the end of its initial rest (``first_motion_s``: the plan's first value, at
-  rest) until the swarm takes off;
-- from the **take-off round** (the round the swarm's first agent armed, agreed by the agents
-  over their consensus messages: :class:`drone_agent.flight_phase.TakeoffClock`), the plan's
-  time runs from there: it is flown ``shift = max(0, t_takeoff - first_motion_s)`` seconds late;
-- a plan that starts airborne, or whose initial rest lasts past the take-off, is flown as
-  written (shift 0). Plans published while the swarm flies (operator commands) start after the
-  take-off: they are flown as written.
+The plan is on the ground where its centre is at most :data:`GROUND_START_M` up (judged at
+its knots; before its first knot it rests at its first value, after its last at its last). Each
+stretch on the ground has a **departure**: the last knot where it is lowest (the end of a rest,
+the start of a climb, the bottom of a landing a ``takeoff`` cut short). The plan's departure at
+time ``t`` is that of the last stretch on the ground begun at or before ``t`` (None if none was:
+the plan is airborne from its start).
+
+- Before the swarm has taken off, the plan is flown as written until its departure and **held**
+  there (its value at rest), however long the swarm needs.
+- From the **take-off** (the round the swarm's first agent armed, agreed by the agents over their
+  consensus messages: :class:`drone_agent.flight_phase.TakeoffClock`) the plan runs from there:
+  ``shift = max(0, t_takeoff - departure(t_takeoff))`` seconds late.
+- A plan airborne from its start, or whose rest on the ground lasts past the take-off, is flown
+  as written (shift 0). The operator's plans continue the plan as flown (their history re-timed),
+  so they depart at the take-off or later: they are flown as written too, and a ``takeoff`` after
+  a landing departs from the landed rest, not from the history before it.
 
 Only the plan is re-timed: the scenario's other events (faults, the end time) keep their times.
 """
 
 from __future__ import annotations
 
+import math
+import weakref
+
+import numpy as np
+
 from protocols.trajectory import DescriptorTrajectory
 
-#: A plan whose centre starts at most this high (m, up) starts on the ground: it waits for the
+#: A plan's centre at most this high (m, up) is on the ground: the plan waits there for the
 #: swarm's take-off.
 GROUND_START_M = 0.5
 
@@ -35,32 +47,66 @@ def tick_time_s(tick: int, control_period_ms: int) -> float:
     return tick * control_period_ms / 1000.0
 
 
-def hold_end_s(plan: DescriptorTrajectory) -> float | None:
-    """Until when a plan that starts on the ground is held for the take-off (its first motion,
-    s); None for a plan that starts airborne (never held)."""
-    if -float(plan.coeffs[0, 2, 0]) > GROUND_START_M:
-        return None
-    return plan.first_motion_s
+#: Altitudes (m) this close to a stretch's lowest count as lowest (a rest held at one value).
+_LEVEL_M = 1e-3
+
+_stretches: weakref.WeakKeyDictionary[DescriptorTrajectory, list[tuple[float, float]]] = (
+    weakref.WeakKeyDictionary()
+)
+
+
+def ground_stretches(plan: DescriptorTrajectory) -> list[tuple[float, float]]:
+    """The plan's stretches on the ground (module doc), as (begin, departure) times (s), in
+    order; the first may begin at -inf."""
+    found = _stretches.get(plan)
+    if found is not None:
+        return found
+    knots = plan.t_knots_s.tolist()
+    up = (-np.concatenate((plan.coeffs[:, 2, 0], plan.evaluate(plan.end_s)[0][2:3]))).tolist()
+    found = []
+    k = 0
+    while k < len(knots):
+        if up[k] > GROUND_START_M:
+            k += 1
+            continue
+        first = k
+        while k + 1 < len(knots) and up[k + 1] <= GROUND_START_M:
+            k += 1
+        lowest = min(up[first : k + 1])
+        leaves = max(i for i in range(first, k + 1) if up[i] <= lowest + _LEVEL_M)
+        found.append((-math.inf if first == 0 else knots[first], knots[leaves]))
+        k += 1
+    _stretches[plan] = found
+    return found
+
+
+def departure_s(plan: DescriptorTrajectory, t_s: float) -> float | None:
+    """When the plan leaves the ground, as of time ``t_s`` (module doc): the departure of its
+    last stretch on the ground begun at or before ``t_s``; None if it is airborne from its
+    start."""
+    last = None
+    for begin, leaves in ground_stretches(plan):
+        if begin > t_s:
+            break
+        last = leaves
+    return last
 
 
 def shift_s(plan: DescriptorTrajectory, takeoff_s: float | None) -> float:
     """How late (s) ``plan`` is flown for a take-off at ``takeoff_s`` (None: not yet)."""
-    hold = hold_end_s(plan)
-    if hold is None or takeoff_s is None:
+    if takeoff_s is None:
         return 0.0
-    return max(0.0, takeoff_s - hold)
+    leaves = departure_s(plan, takeoff_s)
+    return 0.0 if leaves is None else max(0.0, takeoff_s - leaves)
 
 
 def flown_time_s(plan: DescriptorTrajectory, t_s: float, takeoff_s: float | None) -> float:
     """The plan's own time at simulated time ``t_s``: before the take-off (``takeoff_s`` None)
-    a plan that starts on the ground is held at the end of its initial rest; after it, the plan
-    runs :func:`shift_s` late."""
-    hold = hold_end_s(plan)
-    if hold is None:
-        return t_s
-    if takeoff_s is None:
-        return min(t_s, hold)
-    return t_s - max(0.0, takeoff_s - hold)
+    the plan is held at its departure; after it, it runs :func:`shift_s` late."""
+    if takeoff_s is not None:
+        return t_s - shift_s(plan, takeoff_s)
+    leaves = departure_s(plan, t_s)
+    return t_s if leaves is None else min(t_s, leaves)
 
 
 def flown_plan(plan: DescriptorTrajectory, takeoff_s: float) -> DescriptorTrajectory:

@@ -139,20 +139,6 @@ class DescriptorTrajectory:
         """Number of quintic segments, K - 1."""
         return int(self.coeffs.shape[0])
 
-    @cached_property
-    def first_motion_s(self) -> float:
-        """When the plan first moves (s): the end of its leading segments that hold its first
-        value at rest (:attr:`start_s` if the first segment moves; :attr:`end_s` if none does)."""
-        first = self.coeffs[0, :, 0]
-        k = 0
-        while (
-            k < self.n_segments
-            and not self.coeffs[k, :, 1:].any()
-            and np.array_equal(self.coeffs[k, :, 0], first)
-        ):
-            k += 1
-        return float(self.t_knots_s[k])
-
     def retimed(self, shift_s: float) -> DescriptorTrajectory:
         """The same plan ``shift_s`` seconds later (every knot moved; same ``seq``): what
         ``evaluate(t - shift_s)`` flies, as a plan of its own (protocols/plan_timing.py)."""

@@ -13,6 +13,7 @@ import numpy as np
 from sitl_client import free_port_block, free_udp_port
 
 from gcs.report.tlog import TlogTrack, read_tlog
+from gcs.report.trajectory_file import read_trajectory
 from protocols.scenario import Crash, load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,12 +59,14 @@ def run_demo(out: Path) -> tuple[Path, str]:
 
 def paper_flight(report: Path) -> dict[str, np.ndarray]:
     """``t`` (T,), ``positions`` (T, N, 3), ``member`` (T, N), ``desired`` (T, 9) of the paper's
-    flight from ``report/flight.tlog``."""
-    return flight_of(read_tlog(report / "flight.tlog"))
+    flight from ``report/flight.tlog``; the commanded descriptors are the plan as flown (the
+    report's trajectory.json: the paper's plan starts on the ground, so it waits for the swarm's
+    take-off, protocols/plan_timing.py)."""
+    return flight_of(read_tlog(report / "flight.tlog"), report)
 
 
-def flight_of(track: TlogTrack) -> dict[str, np.ndarray]:
-    """As :func:`paper_flight`, from an already read tlog."""
+def flight_of(track: TlogTrack, report: Path) -> dict[str, np.ndarray]:
+    """As :func:`paper_flight`, from an already read tlog of the report in ``report``."""
     scenario = load_scenario(PAPER)
     t = np.arange(0.0, scenario.duration_s + 1e-9, 1.0 / TLOG_GRID_HZ)
     positions = track.resample(t, scenario.n_drones)
@@ -71,7 +74,7 @@ def flight_of(track: TlogTrack) -> dict[str, np.ndarray]:
     for fault in scenario.faults:
         if isinstance(fault, Crash):
             member[t >= fault.t_s, fault.drone] = False
-    desired = scenario.trajectory().evaluate_many(t)[0]
+    desired = read_trajectory(report / "trajectory.json").evaluate_many(t)[0]
     return {"t": t, "positions": positions, "member": member, "desired": desired}
 
 

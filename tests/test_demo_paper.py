@@ -62,8 +62,8 @@ def track(demo: tuple[Path, str]) -> TlogTrack:
 
 
 @pytest.fixture(scope="module")
-def flight(track: TlogTrack) -> dict[str, np.ndarray]:
-    return flight_of(track)
+def flight(demo: tuple[Path, str], track: TlogTrack) -> dict[str, np.ndarray]:
+    return flight_of(track, demo[0])
 
 
 def test_tracking_from_the_ground_stations_tlog(flight: dict[str, np.ndarray]) -> None:

@@ -48,7 +48,6 @@ def test_a_queue_depth_out_of_range_is_refused(batches: int) -> None:
         ZenohSettings(tx_queue_batches=batches)
 
 
-
 def test_a_sessions_queued_and_express_samples_arrive_in_send_order() -> None:
     """The round gate's premise (drone_agent/round_gate.py): a lockstep session's consensus
     messages (QUEUED) reach another session before the round-done marker (express) put after
@@ -59,9 +58,10 @@ def test_a_sessions_queued_and_express_samples_arrive_in_send_order() -> None:
         "tx_queue_batches": LOCKSTEP_TX_QUEUE_BATCHES,
         "drop_wait_us": LOCKSTEP_DROP_WAIT_US,
     }
-    with ZenohBus.open(ZenohSettings(listen=(endpoint,), **lockstep)) as a, ZenohBus.open(
-        ZenohSettings(connect=(endpoint,), **lockstep)
-    ) as b:
+    with (
+        ZenohBus.open(ZenohSettings(listen=(endpoint,), **lockstep)) as a,
+        ZenohBus.open(ZenohSettings(connect=(endpoint,), **lockstep)) as b,
+    ):
         inbox = b.subscribe("t/**", 1024)
         queued = a.publisher("t/q", Congestion.QUEUED)
         express = a.publisher("t/e", Congestion.DROP)

@@ -173,7 +173,7 @@ def test_paper_flight_across_four_hosts(
 
 
 def _first_60_s(report: Path) -> dict[str, np.ndarray]:
-    flight = flight_of(read_tlog(report / "flight.tlog"))
+    flight = flight_of(read_tlog(report / "flight.tlog"), report)
     keep = flight["t"] <= DURATION_S - 0.5
     return {k: v[keep] for k, v in flight.items()}
 

@@ -5,8 +5,16 @@ is flown as written."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from protocols.plan_timing import flown_plan, flown_time_s, hold_end_s, shift_s, tick_time_s
+from protocols.plan_timing import (
+    departure_s,
+    flown_plan,
+    flown_time_s,
+    ground_stretches,
+    shift_s,
+    tick_time_s,
+)
 from protocols.trajectory import DescriptorTrajectory, Waypoint
 
 
@@ -19,7 +27,7 @@ def _plan(*points: tuple[float, float]) -> DescriptorTrajectory:
 
 def test_a_climb_from_the_ground_waits_for_the_take_off() -> None:
     climb = _plan((0.0, 0.0), (10.0, 5.0))
-    assert hold_end_s(climb) == 0.0
+    assert departure_s(climb, 0.0) == 0.0 and departure_s(climb, 7.0) == 0.0
     # before the take-off: held at its start, whatever the time
     assert flown_time_s(climb, 7.0, None) == 0.0
     # after a take-off at 10.48 s: flown 10.48 s late
@@ -37,7 +45,7 @@ def test_a_climb_from_the_ground_waits_for_the_take_off() -> None:
 
 def test_a_rest_on_the_ground_is_held_only_past_its_end() -> None:
     rest = _plan((0.0, 0.0), (4.0, 0.0), (14.0, 5.0))
-    assert rest.first_motion_s == 4.0 and hold_end_s(rest) == 4.0
+    assert departure_s(rest, 0.0) == 4.0 and departure_s(rest, 6.0) == 4.0
     assert flown_time_s(rest, 2.0, None) == 2.0  # inside the rest: as written
     assert flown_time_s(rest, 6.0, None) == 4.0  # past it, not taken off: held
     assert shift_s(rest, 3.0) == 0.0  # left during the rest: on time
@@ -47,7 +55,7 @@ def test_a_rest_on_the_ground_is_held_only_past_its_end() -> None:
 
 def test_an_airborne_plan_is_flown_as_written() -> None:
     hover = _plan((0.0, 3.0), (10.0, 3.0), (20.0, 6.0))
-    assert hold_end_s(hover) is None
+    assert departure_s(hover, 5.0) is None and ground_stretches(hover) == []
     assert shift_s(hover, 12.0) == 0.0
     assert flown_time_s(hover, 7.0, None) == 7.0 and flown_time_s(hover, 7.0, 5.0) == 7.0
     assert flown_plan(hover, 12.0) is hover
@@ -62,3 +70,27 @@ def test_a_plan_published_after_the_take_off_is_flown_as_written() -> None:
     later = flown.append([Waypoint(30.0, [0.0, 0.0, -6.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0])])
     assert shift_s(later, takeoff_s) == 0.0
     assert flown_time_s(later, 25.0, takeoff_s) == 25.0
+
+
+def test_a_takeoff_after_a_landing_departs_from_the_landed_rest() -> None:
+    """A plan that flew, landed and rests on the ground, then climbs again (an operator's
+    ``takeoff`` after ``land``: the history is kept): the swarm, landed, is held at the new
+    departure, not sent back to the history's first one."""
+    again = _plan((0.0, 0.0), (10.0, 5.0), (30.0, 5.0), (40.0, 0.0), (60.0, 0.0), (66.0, 3.0))
+    assert ground_stretches(again) == [(-np.inf, 0.0), (40.0, 60.0)]
+    assert departure_s(again, 50.0) == 60.0
+    assert flown_time_s(again, 50.0, None) == 50.0  # on the ground, at rest: as written
+    assert flown_time_s(again, 61.0, None) == 60.0  # not left yet: held at the departure
+    assert shift_s(again, 61.5) == 1.5
+    # while the first flight's take-off (3 s) still holds, the plan is flown as written
+    assert shift_s(flown_plan(again, 3.0), 3.0) == 0.0
+
+
+def test_a_takeoff_that_cuts_a_landing_short_departs_from_its_bottom() -> None:
+    """The swarm is down before its landing plan is (the autopilots land the last metre): a
+    ``takeoff`` then turns the plan's final approach into a climb. It departs from that bottom,
+    not from the start of the history."""
+    cut = _plan((0.0, 0.0), (10.0, 5.0), (30.0, 5.0), (40.0, 0.3), (41.0, 0.05), (47.0, 3.0))
+    assert ground_stretches(cut) == [(-np.inf, 0.0), (40.0, 41.0)]
+    assert flown_time_s(cut, 42.0, None) == 41.0
+    assert shift_s(cut, 41.2) == pytest.approx(0.2)

@@ -378,13 +378,8 @@ class ReferenceFlight:
     def _took_off(self, takeoff_round: int) -> None:
         """The swarm left the ground at ``takeoff_round``: the plan is flown re-timed to it."""
         self.takeoff_s = tick_time_s(takeoff_round, self._period_ms)
-        self.events.append(
-            FlightEvent(
-                self.takeoff_s,
-                "takeoff",
-                {"retimed_by_s": round(shift_s(self.plan, self.takeoff_s), 6)},
-            )
-        )
+        late = round(shift_s(self.plan, self.takeoff_s), 6)
+        self._event("takeoff", takeoff_s=self.takeoff_s, round=takeoff_round, retimed_by_s=late)
 
     def flown_plan(self) -> DescriptorTrajectory:
         """The plan as flown: re-timed to the take-off (protocols/plan_timing.py)."""

@@ -15,7 +15,7 @@ import numpy as np
 from gcs.station.planner import Envelope, PlanRefused, check_target, envelope_of
 from protocols.faults import Crash, Dropout, Fault, LinkCut, LinkDelay, PacketLoss, Partition
 from protocols.formation_fit import closest_pair, formation_positions
-from protocols.plan_timing import hold_end_s
+from protocols.plan_timing import departure_s
 from protocols.scenario import Scenario, WaypointConfig
 from protocols.scenario_layout import radio_graph
 
@@ -136,7 +136,7 @@ def takeoff_lines(scenario: Scenario, ready_s: float | None, limit_s: float) -> 
     ready to leave the ground (``ready_s``; None: not within ``limit_s``): the time, and a
     warning when the plan moves before it (it is then flown late: protocols/plan_timing.py)."""
     plan = scenario.trajectory()
-    hold = hold_end_s(plan)
+    hold = departure_s(plan, plan.start_s)
     if ready_s is None:
         return [
             f"take-off   WARNING: the swarm was not ready to leave the ground within "

@@ -135,7 +135,10 @@ class GroundStation:
         self._t_status_s = 0.0
         #: each agent's newest word of the swarm's take-off round (flight_phase.TakeoffClock)
         self._takeoff_of: dict[int, int | None] = {}
-        self._takeoff_round: int | None = None
+        # a restarted station carries on with the take-off its predecessor logged
+        self._takeoff_round = (
+            _last_takeoff(options.report_dir / "events.jsonl") if options.resume else None
+        )
         self._period_ms = round(options.scenario.rates.dt_control_s * 1000)
         self._liveliness: deque[tuple[str, bool]] = deque()
         self.watch = SwarmWatch(range_m=options.scenario.comms.range_m)
@@ -262,7 +265,12 @@ class GroundStation:
         t_s = tick_time_s(takeoff, self._period_ms)
         late = shift_s(self.plan.trajectory, t_s)
         self.events.record(
-            t_s, "takeoff", round=takeoff, retimed_by_s=round(late, 6), plan_seq=self.plan.seq
+            self.now_s,
+            "takeoff",
+            takeoff_s=t_s,
+            round=takeoff,
+            retimed_by_s=round(late, 6),
+            plan_seq=self.plan.seq,
         )
         write_trajectory(self.flown(), self._o.report_dir / "trajectory.json")
 
@@ -556,6 +564,16 @@ def _last_event_time(path: Path) -> float:
     except (OSError, ValueError):
         return 0.0
     return max((float(e.get("t_s", 0.0)) for e in events), default=0.0)
+
+
+def _last_takeoff(path: Path) -> int | None:
+    """The take-off round the events log ``path`` last recorded; None if none."""
+    try:
+        events = read_events(path)
+    except (OSError, ValueError):
+        return None
+    rounds = [e.get("round") for e in events if e.get("kind") == "takeoff"]
+    return rounds[-1] if rounds and isinstance(rounds[-1], int) else None
 
 
 def _run_started(path: Path) -> float | None:
