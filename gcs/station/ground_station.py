@@ -209,6 +209,9 @@ class GroundStation:
                     newest = plan
             if newest is not None or time.monotonic() >= deadline:
                 return newest
+            # the telemetry meanwhile (a restarted station: the swarm flies on)
+            for text in self.telemetry.poll():
+                self._vehicle_text(text.t_s, text.drone, text.severity, text.text)
             time.sleep(0.2)
 
     def __enter__(self) -> GroundStation:

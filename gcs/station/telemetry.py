@@ -19,6 +19,7 @@ ArduCopter instance each).
 
 from __future__ import annotations
 
+import contextlib
 import socket
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -93,6 +94,7 @@ class TelemetryReceiver:
         try:
             self._sock.bind((self.host, self.port))
             self._sock.setblocking(False)
+            _large_receive_buffer(self._sock)
             # ArduPilot's own messages (EKF_STATUS_REPORT, ...) are logged too
             self._codec = ardupilotmega.MAVLink(None)
             self._out = common.MAVLink(None, srcSystem=255, srcComponent=190)  # a GCS
@@ -216,3 +218,23 @@ class TelemetryReceiver:
             text = raw.split(b"\x00", 1)[0].decode("utf-8", "replace") if raw else str(msg.text)
             return VehicleText(state.t_s, sysid - 1, int(msg.severity), text)
         return None
+
+
+#: The telemetry socket's receive buffer (bytes): seconds of a large swarm's telemetry at
+#: several times real time, so that a station busy for a moment (starting again after the
+#: gcs-restart drill, answering a command) loses none of it.
+RECEIVE_BUFFER_BYTES = 16 * 1024 * 1024
+
+
+def _large_receive_buffer(sock: socket.socket) -> None:
+    """Ask for :data:`RECEIVE_BUFFER_BYTES` (beyond the kernel's rmem_max where allowed: as
+    root; else as much as it grants)."""
+    force = getattr(socket, "SO_RCVBUFFORCE", None)
+    if force is not None:
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, force, RECEIVE_BUFFER_BYTES)
+            return
+        except OSError:
+            pass
+    with contextlib.suppress(OSError):
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
