@@ -89,6 +89,7 @@ DEFAULT_PORT_MODULES = frozenset(
         "test_ardupilot_sitl",  # real ArduCopter SITL on the default ports (skipped without it)
         "test_drill_flight",
         "test_drills_run",
+        "test_late_takeoff",
         "test_operator_flight",
         "test_operator_session",
         "test_ports",
