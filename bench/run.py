@@ -27,6 +27,7 @@ from bench.messaging_floor import messaging_floor
 from bench.physics import physics_step
 from bench.physics_tick import physics_tick
 from bench.runners_gap import runners_gap
+from bench.session import session
 from bench.settling import settling
 from bench.simulate_rtf import simulate_rtf
 from bench.sitl import sitl_rtf
@@ -51,12 +52,14 @@ BENCHMARKS: dict[str, Benchmark] = {
     "runners_gap": runners_gap,
     "autopilots": autopilots,
     "layouts": layouts,
+    "session": session,
 }
 #: Run only with ``--only NAME``: ``swarm up --clock lockstep`` at N = 9 and 100 (about 10 min);
 #: the 100-drone flight distributed and in process, compared (about 5 min on a quiet machine).
 #: the same flight on our simulator in both dialects and on ArduCopter SITL (about 4 min).
 #: swarm up with its agents in one process, two, or one per drone (about 4 min).
-ON_REQUEST = {"up_lockstep", "runners_gap", "messaging_floor", "autopilots", "layouts"}
+#: the README's 16-drone operator session, three times (about 1 min; default ports).
+ON_REQUEST = {"up_lockstep", "runners_gap", "messaging_floor", "autopilots", "layouts", "session"}
 
 
 def machine_info() -> dict[str, Any]:
