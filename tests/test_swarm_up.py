@@ -99,6 +99,10 @@ def test_swarm_up_flies_and_reports(tmp_path: Path) -> None:
     assert metrics["n_drones"] == 4
     assert metrics["tracking_steady"]["centroid_m"]["rms"] < 0.05
     assert metrics["collisions"]["count"] == 0
+    # the report says how the agents were laid out in processes (the start line's words)
+    layout = "4 drones, 2 agent processes of up to 2 drones each, lockstep clock"
+    assert metrics["layout"] == layout, metrics["layout"]
+    assert f"layout: {layout}" in text
     track = read_tlog(report / "flight.tlog")
     assert set(track.vehicles) == {1, 2, 3, 4}
     assert all(-v.position_ned_m[-1, 2] > 1.5 for v in track.vehicles.values())

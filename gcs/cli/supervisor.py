@@ -124,6 +124,8 @@ class RunPlan:
     router: Child | None = None
     #: an operator session: a Ctrl-C asks the ground station to land and end the run
     session: bool = False
+    #: how the agents are laid out in processes, and why (the run file carries it to the report)
+    layout: str = ""
     #: session: how long (wall s) to wait for the ground station to end the run after a Ctrl-C
     shutdown_wait_s: float = 180.0
     #: how long (wall s) the ground station may take to write the report once stopped
@@ -156,8 +158,8 @@ class RunPlan:
         self.zenoh_endpoint = endpoint
 
     def write_run_file(self) -> None:
-        """``{"zenoh": endpoint, "agents": {"<drone>": pid}}``: the run's Zenoh endpoint and the
-        agent processes started so far."""
+        """``{"zenoh": endpoint, "agents": {"<drone>": pid}, "layout": text}``: the run's Zenoh
+        endpoint, the agent processes started so far and how they host the agents, and why."""
         if self.run_file is None:
             return
         pids = {
@@ -167,7 +169,8 @@ class RunPlan:
             for d in drones
         }
         tmp = self.run_file.with_suffix(".tmp")
-        tmp.write_text(json.dumps({"zenoh": self.zenoh_endpoint, "agents": pids}) + "\n")
+        about = {"zenoh": self.zenoh_endpoint, "agents": pids, "layout": self.layout}
+        tmp.write_text(json.dumps(about) + "\n")
         tmp.replace(self.run_file)  # atomic: the ground station never reads half a file
 
 

@@ -500,9 +500,11 @@ def run(args: argparse.Namespace) -> int:
     if args.agents_per_process > 1 and len(plan.agents) > 1:
         hosting = f" of up to {args.agents_per_process} drones each"
     processes = f"{len(plan.agents)} agent process{'es' if len(plan.agents) != 1 else ''}"
+    plan.layout = (
+        f"{n} drones, {processes}{hosting}{getattr(args, 'layout_why', '')}, {args.clock} clock"
+    )
     print(
-        f"swarm up: {n} drones, {processes}{hosting}{getattr(args, 'layout_why', '')}, "
-        f"{args.clock} clock; "
+        f"swarm up: {plan.layout}; "
         f"here: {', '.join(dict.fromkeys(parts))}; logs in {args.report / 'logs'}",
         file=sys.stderr,
     )

@@ -54,6 +54,8 @@ def summary_lines(metrics: dict[str, Any], files: Sequence[Path]) -> list[str]:
         f" (drones {sep.get('pair')} at t = {_fmt(sep.get('t_s'), ' s', 1)})",
         f"  collisions                   {metrics.get('collisions', {}).get('count', 'n/a')}",
     ]
+    if metrics.get("layout"):
+        lines.insert(1, f"layout: {metrics['layout']}")
     takeoff = metrics.get("takeoff")
     if takeoff:
         late = takeoff.get("retimed_by_s") or 0.0

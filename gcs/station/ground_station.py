@@ -25,6 +25,7 @@ FIFO channel drained by the loop. Use as a context manager; :meth:`stop` is sign
 
 from __future__ import annotations
 
+import json
 import math
 import select
 import time
@@ -375,6 +376,7 @@ class GroundStation:
             "plan_seq": self.plan.seq,
             "settle_s": self._o.scenario.settle_s,
             "takeoff": takeoff_metrics(self.takeoff_s, self.plan.trajectory),
+            "layout": _run_layout(self._o.run_file),
             "wall_time_s": round(wall, 3),
             "real_time_factor": round(self.now_s / wall, 3) if wall > 0 else None,
             "agent_timing": timing_metrics(track, read_events(report / "events.jsonl")),
@@ -567,6 +569,17 @@ def _last_event_time(path: Path) -> float:
     except (OSError, ValueError):
         return 0.0
     return max((float(e.get("t_s", 0.0)) for e in events), default=0.0)
+
+
+def _run_layout(run_file: Path | None) -> str | None:
+    """How ``swarm up`` laid the agents out, and why (its run file); None if not said."""
+    if run_file is None:
+        return None
+    try:
+        layout = json.loads(run_file.read_text()).get("layout")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return layout if isinstance(layout, str) and layout else None
 
 
 def _last_takeoff(path: Path) -> int | None:
