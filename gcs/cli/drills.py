@@ -447,14 +447,18 @@ def _run_drill(swarm: Swarm, spec: DrillSpec, gone: set[int]) -> DrillResult:
         if extra.get("move_accepted") is False:  # the move refused, the stretch accepted: refused
             facts.pop("move_accepted", None)
         extra |= facts
-    swarm.wait_until_sim(t0 + spec.length_s)
+    # a drill that stops the ground station is judged from its return (back_at_s)
+    back = extra.get("back_at_s")
+    t_recover = max(t0 + spec.fault_s, back if back is not None else t0)
+    t_end = max(t0 + spec.length_s, t_recover + spec.length_s - spec.fault_s)
+    swarm.wait_until_sim(t_end)
     procs1 = swarm.processes()
     ended = sorted(set(procs0.values()) - set(procs1.values()))
     if "gcs" not in procs1.values():
         ended.append("gcs (not back)")
     rejected = _rejected(counters0, swarm.counters())
-    w, events = _window(swarm, t0 - LEAD_S, t0 + spec.length_s, t0, t0 + spec.fault_s)
-    rejected |= _gcs_rejections(events, t0, t0 + spec.length_s)
+    w, events = _window(swarm, t0 - LEAD_S, t_end, t0, t_recover)
+    rejected |= _gcs_rejections(events, t0, t_end)
     if spec.criteria.rejoin is not None:
         back = [t for t in joins(events, spec.criteria.rejoin) if t > t0]
         extra |= rejoin_facts(w, spec.criteria.rejoin, back[0] if back else None)
@@ -504,7 +508,10 @@ def _do(swarm: Swarm, step: Step) -> dict[str, Any]:
     if step.kind == "gcs":
         args = {"drone": step.args["drone"]} if "drone" in step.args else {}
         reply = swarm.command(step.args["name"], args)
-        return {"action": f"{step.args['name']}: {reply.reason}", "accepted": reply.accepted}
+        facts = {"action": f"{step.args['name']}: {reply.reason}", "accepted": reply.accepted}
+        if step.args["name"] == "gcs-restart" and reply.accepted:
+            facts["back_at_s"] = _station_back(swarm)
+        return facts
     if step.kind in ("move", "scale"):
         reply = swarm.command(step.kind, dict(step.args))
         return {"action": f"{step.kind}: {reply.reason}", "move_accepted": reply.accepted}
@@ -513,6 +520,26 @@ def _do(swarm: Swarm, step: Step) -> dict[str, Any]:
     if step.kind == "flood":
         return _flood(swarm, int(step.args["count"]))
     raise ValueError(f"unknown step {step.kind}")
+
+
+#: How long (wall s) the drills wait for a restarted ground station to answer again.
+STATION_BACK_WAIT_S = 60.0
+
+
+def _station_back(swarm: Swarm) -> float | None:
+    """Wait until the restarted ground station answers ``status`` again; the simulated time
+    then (None: not within STATION_BACK_WAIT_S). Its telemetry log has a hole until then: the
+    drill is judged from there (at several times real time the swarm flies on for seconds of
+    simulated time while the station starts)."""
+    deadline = time.monotonic() + STATION_BACK_WAIT_S
+    time.sleep(0.5)  # the old station stops first
+    while time.monotonic() < deadline:
+        try:
+            swarm.command("status", {}, timeout_s=2.0)
+            return swarm.now()
+        except DrillsError:
+            time.sleep(0.2)
+    return None
 
 
 def _garbage(swarm: Swarm, count: int, spread_s: float) -> dict[str, Any]:
