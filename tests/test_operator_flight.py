@@ -24,11 +24,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from agent_harness import GRID, SwarmObserver, observer, truth_of, write_scenario
+from map_telemetry import map_agreement
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
 
 from gcs.report.events import read_events
 from gcs.report.tlog import TlogTrack, VehicleTrack, read_tlog
 from protocols.descriptors import descriptors
+from protocols.scenario import load_scenario
 from protocols.wire_status import AgentMode
 
 pytestmark = pytest.mark.slow
@@ -328,3 +330,11 @@ def test_every_operator_command_flies_as_typed(tmp_path: Path) -> None:
         a, (a2[0], a2[1], -TAKEOFF_AGAIN_ALTITUDE_M), 0.0, (3.6, 2.4), "takeoff after landing"
     )
     assert all(_armed_at(v, v.t_s[-1]) for v in track.vehicles.values())
+    # the map's view of this flight (GLOBAL_POSITION_INT) agrees with the swarm's own while it
+    # moves and turns: position about the scenario's home (lat/lon in 1e-7 deg: ~1 cm), velocity
+    # (cm/s), heading (cdeg)
+    home = load_scenario(scenario).home
+    seen = map_agreement(report / "flight.tlog", home)
+    assert seen.top_speed_m_s > 0.5 and seen.heading_span_deg > 25.0, seen  # it moved, turned
+    assert seen.position_m < 0.03 and seen.altitude_m < 0.01, seen
+    assert seen.velocity_m_s < 0.05 and seen.heading_deg < 0.5, seen
