@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import settings
@@ -31,11 +33,16 @@ def demo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     return run_demo(tmp_path_factory.mktemp("demo"))
 
 
+#: when the session started (monotonic s): the part's wall time in test-times/
+_session_start = [0.0]
+
+
 def pytest_sessionstart(session: pytest.Session) -> None:
     """Compile the simulator's and agents' compiled loops (numba), or load them from the cache,
     once before any test: the processes the tests start then load them instead of each compiling
     them at the same moment on a fresh checkout (seconds of CPU each, which timing-sensitive
     realtime flights would feel)."""
+    _session_start[0] = time.monotonic()
     from drone_agent.agent_core import warm_up
     from drone_agent.config import agent_config
     from protocols.scenario import load_scenario
@@ -119,3 +126,38 @@ def pytest_collection_modifyitems(
         if worker:
             item.add_marker(pytest.mark.xdist_group(_SHARED_GROUPS.get(module, module)))
     yield
+
+
+# -- the suite's times ------------------------------------------------------------------------
+#: Where ``make test`` leaves each part's wall time and slowest tests (README: "The two
+#: commands"); one file per part, rewritten by each run of it.
+TIMES_DIR = Path(__file__).parents[1] / "test-times"
+
+
+def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pytest.Config) -> None:
+    """The part's wall time and its 15 slowest test phases, in test-times/PART.txt (the part is
+    named by ``-m``: "serial" or "not serial"; a run without ``-m`` writes nothing)."""
+    if hasattr(config, "workerinput"):
+        return
+    part = {"serial": "serial", "not serial": "parallel"}.get(config.getoption("markexpr") or "")
+    if part is None:
+        return
+    reports = [
+        r
+        for kind in ("passed", "failed", "error", "skipped")
+        for r in terminalreporter.stats.get(kind, [])
+        if hasattr(r, "duration") and getattr(r, "when", None) in ("setup", "call", "teardown")
+    ]
+    slowest = sorted(reports, key=lambda r: r.duration, reverse=True)[:15]
+    wall = time.monotonic() - _session_start[0]
+    counts = {k: len(terminalreporter.stats.get(k, [])) for k in ("passed", "failed", "skipped")}
+    lines = [
+        f"make test, {part} part: {wall:.0f} s wall, exit status {int(exitstatus)}, "
+        f"{counts['passed']} passed, {counts['failed']} failed, {counts['skipped']} skipped",
+        f"at {time.strftime('%Y-%m-%d %H:%M:%S')}; load average "
+        + " ".join(f"{x:.2f}" for x in os.getloadavg()),
+        "slowest 15:",
+        *(f"  {r.duration:7.2f} s  {r.when:<8} {r.nodeid}" for r in slowest),
+    ]
+    TIMES_DIR.mkdir(exist_ok=True)
+    (TIMES_DIR / f"{part}.txt").write_text("\n".join(lines) + "\n")
