@@ -96,10 +96,33 @@ def open_error(endpoint: str, secrets: RoleSecrets | None) -> str:
             f"{endpoint} answers but refused the session: a secured swarm needs --secrets DIR "
             "(TLS certificate and user/password of a role)"
         )
+    why = certificate_problem(secrets) or "certificate not signed by its CA, or wrong user/password"
     return (
         f"the router at {endpoint} refused the {secrets.role!r} credential of {secrets.folder} "
-        "(certificate not signed by its CA, or wrong user/password)"
+        f"({why})"
     )
+
+
+def certificate_problem(secrets: RoleSecrets) -> str | None:
+    """What is wrong with the role's certificate file on its own (expired, not yet valid,
+    unreadable), as a reason; None if nothing is."""
+    import datetime
+
+    from cryptography import x509
+
+    try:
+        cert = x509.load_pem_x509_certificate(secrets.certificate.read_bytes())
+    except (OSError, ValueError) as exc:
+        return f"its certificate {secrets.certificate} cannot be read: {exc}"
+    now = datetime.datetime.now(datetime.UTC)
+    if cert.not_valid_after_utc < now:
+        return (
+            f"its certificate expired on {cert.not_valid_after_utc:%Y-%m-%d %H:%M} UTC: make new "
+            "secrets with swarm keys init"
+        )
+    if cert.not_valid_before_utc > now:
+        return f"its certificate is valid only from {cert.not_valid_before_utc:%Y-%m-%d %H:%M} UTC"
+    return None
 
 
 def describe(secrets: RoleSecrets | None) -> str:

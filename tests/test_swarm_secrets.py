@@ -2,9 +2,10 @@
 control, and what an operator sees when something is refused.
 
 Against a real router (``swarm router --secrets``) on loopback: a client without credentials, a
-certificate of another CA and a wrong password cannot connect; an agent's credential cannot send
-``land`` or publish a plan (the ground-station-role session never sees them, even when the
-CLI's own check is bypassed); the operator's can. A secured ``swarm up`` flies, and ``swarm
+certificate of another CA, a wrong password and an expired certificate cannot connect (the last
+says it expired); an agent's credential cannot send ``land``, publish a plan or put a fault (the
+sessions that would receive them never do, even when the CLI's own check is bypassed); a
+password presented with another role's certificate gets no right at all; the operator's can. A secured ``swarm up`` flies, and ``swarm
 status`` says the network is secured.
 """
 
@@ -251,3 +252,99 @@ def test_secured_swarm_up_flies_and_status_says_secured(secrets: Path, tmp_path:
     logged = "".join(p.read_text(errors="replace") for p in (report / "logs").glob("*.log"))
     for name in ("agent.password", "gcs.password", "mavlink.key"):
         assert (secrets / name).read_text().strip() not in logged + text
+
+
+def _forged(secrets: Path, folder: Path) -> Path:
+    """A copy of the swarm's secrets folder, to tamper with."""
+    folder.mkdir(mode=0o700)
+    for f in secrets.iterdir():
+        (folder / f.name).write_bytes(f.read_bytes())
+        (folder / f.name).chmod(0o600)
+    return folder
+
+
+def test_the_router_refuses_faults_and_borrowed_passwords(
+    secrets: Path, router: str, tmp_path: Path
+) -> None:
+    """At the router, with nothing of the CLI in between: an agent's credential putting a fault
+    (the drills' key) reaches no agent, though the operator's does; a session presenting the
+    agent's certificate with the operator's user name and password (a password without its
+    certificate) gets no right at all: its commands go unanswered and its faults nowhere."""
+    borrowed = _forged(secrets, tmp_path / "borrowed")
+    (borrowed / "operator.pem").write_bytes((secrets / "agent.pem").read_bytes())
+    (borrowed / "operator.key").write_bytes((secrets / "agent.key").read_bytes())
+    faults: list[bytes] = []
+    commands: list[bytes] = []
+    with (
+        _session(secrets, "gcs", router) as gcs,
+        _session(secrets, "agent", router) as listener,
+        _session(secrets, "agent", router) as agent,
+        _session(secrets, "operator", router) as operator,
+        _session(borrowed, "operator", router) as impostor,
+    ):
+
+        def answer(query: object) -> None:
+            commands.append(b"q")
+            query.reply(f"swarm/{SWARM_ID}/command", b"ok")  # type: ignore[attr-defined]
+
+        gcs.session.declare_queryable(f"swarm/{SWARM_ID}/command", answer)
+        listener.subscribe_callback(f"swarm/{SWARM_ID}/fault", lambda _k, p: faults.append(p))
+        time.sleep(1.0)
+        agent.publisher(f"swarm/{SWARM_ID}/fault", Congestion.BLOCK).put(b"agent fault")
+        impostor.publisher(f"swarm/{SWARM_ID}/fault", Congestion.BLOCK).put(b"impostor fault")
+        replies = list(impostor.session.get(f"swarm/{SWARM_ID}/command", timeout=1.5))
+        assert [r for r in replies if r.ok is not None] == []
+        operator.publisher(f"swarm/{SWARM_ID}/fault", Congestion.BLOCK).put(b"drill")
+        deadline = time.monotonic() + 5.0
+        while not faults and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+    assert faults == [b"drill"]  # the operator's only
+    assert commands == []  # the impostor's command never reached the ground station
+
+
+def test_an_expired_certificate_is_refused_in_one_line(
+    secrets: Path, router: str, tmp_path: Path
+) -> None:
+    """The operator's certificate, signed by the swarm's own CA but expired yesterday."""
+    import datetime
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+    expired = _forged(secrets, tmp_path / "expired")
+    ca_key = serialization.load_pem_private_key((secrets / "ca.key").read_bytes(), None)
+    ca_cert = x509.load_pem_x509_certificate((secrets / "ca.pem").read_bytes())
+    key = ec.generate_private_key(ec.SECP256R1())
+    now = datetime.datetime.now(datetime.UTC)
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "operator")]))
+        .issuer_name(ca_cert.subject)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(days=30))
+        .not_valid_after(now - datetime.timedelta(days=1))
+        .add_extension(x509.SubjectAlternativeName([x509.DNSName("operator")]), critical=False)
+        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+        .add_extension(
+            x509.ExtendedKeyUsage(
+                [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
+            ),
+            critical=False,
+        )
+        .sign(ca_key, hashes.SHA256())  # type: ignore[arg-type]
+    )
+    (expired / "operator.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    (expired / "operator.key").write_bytes(
+        key.private_bytes(
+            serialization.Encoding.PEM,
+            serialization.PrivateFormat.PKCS8,
+            serialization.NoEncryption(),
+        )
+    )
+    out = _swarm("status", "--swarm-id", SWARM_ID, "--zenoh-connect", router,
+                 "--secrets", str(expired))  # fmt: skip
+    _one_line_error(out, "refused the 'operator' credential", "certificate expired on", "keys init")
