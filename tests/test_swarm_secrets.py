@@ -5,8 +5,8 @@ Against a real router (``swarm router --secrets``) on loopback: a client without
 certificate of another CA, a wrong password and an expired certificate cannot connect (the last
 says it expired); an agent's credential cannot send ``land``, publish a plan or put a fault (the
 sessions that would receive them never do, even when the CLI's own check is bypassed); a
-password presented with another role's certificate gets no right at all; the operator's can. A secured ``swarm up`` flies, and ``swarm
-status`` says the network is secured.
+password presented with another role's certificate gets no right at all; the operator's can.
+A secured ``swarm up`` flies, and ``swarm status`` says the network is secured.
 """
 
 from __future__ import annotations
