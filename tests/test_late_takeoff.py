@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from large_swarm import judge
 from sitl_client import ENV
 from test_drill_flight import _default_ports_lock, _swarm_exe
 from test_operator_session import Session
@@ -131,6 +132,12 @@ def test_swarm_up_lockstep_flies_the_same_retimed_plan(tmp_path: Path, side: int
     _run("simulate", str(path), cwd=sim)
     t0, error, overshoot = judge_takeoff(up / "report", n)
     assert t0 < 5.0 and error < CENTRE_BAR_M and overshoot < OVERSHOOT_BAR_M, (t0, error)
+    # the large-swarm bars (tests/large_swarm.py) on the hold at 5 m: every drone airborne at the
+    # end, no two closer than 1.5 m, the centroid within 5 cm and every spread within 2 %
+    verdict = judge(up / "report", path)
+    assert verdict.not_airborne_at_end == () and verdict.hold_samples > 0, verdict
+    assert verdict.min_separation_m > 1.5, verdict
+    assert verdict.centroid_error_m < 0.05 and verdict.spread_error < 0.02, verdict
     events = read_events(up / "report" / "events.jsonl")
     takeoff = next(e for e in events if e["kind"] == "takeoff")
     assert takeoff["retimed_by_s"] == pytest.approx(t0)
