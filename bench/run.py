@@ -26,6 +26,7 @@ from bench.layouts import layouts
 from bench.messaging_floor import messaging_floor
 from bench.physics import physics_step
 from bench.physics_tick import physics_tick
+from bench.provenance import commit, load_average
 from bench.runners_gap import runners_gap
 from bench.session import session
 from bench.settling import settling
@@ -74,27 +75,9 @@ def machine_info() -> dict[str, Any]:
         "python": sys.version.split()[0],
         "numpy": np.__version__,
         "utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "commit": _commit(),
-        "load_average": [round(x, 2) for x in os.getloadavg()],
+        "commit": commit(),
+        "load_average": load_average(),
     }
-
-
-def _commit() -> str | None:
-    """The checkout's commit (with "+changes" when it has uncommitted changes); None outside git."""
-    import subprocess
-
-    root = Path(__file__).resolve().parents[1]
-    try:
-        head = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=root, capture_output=True, text=True,
-        ).stdout.strip()  # fmt: skip
-    except OSError:
-        return None
-    return None if not head else head + ("+changes" if dirty else "")
 
 
 def format_rows(name: str, rows: Sequence[dict[str, Any]]) -> str:

@@ -26,6 +26,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from bench.provenance import commit, load_average
+
 ROOT = Path(__file__).resolve().parents[1]
 N_DRONES = 16
 SESSION_S = 60.0
@@ -96,17 +98,14 @@ def session(repeats: int = 3) -> dict[str, Any]:
             rows.append(one_session(Path(tmp)))
             print(rows[-1], flush=True)
     good = [r for r in rows if "error" not in r]
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
-    ).stdout.strip()
     median = {
         key: statistics.median(r[key] for r in good)
         for key in ("real_time_factor_flying", "shutdown_to_exit_s", "started_to_ready_s")
     } if good else {}  # fmt: skip
     return {
         "what": f"swarm up --drones {N_DRONES}, takeoff, shutdown at t = {SESSION_S:g} s",
-        "commit": commit,
-        "load_average": [round(x, 2) for x in os.getloadavg()],
+        "commit": commit(),
+        "load_average": load_average(),
         "cores": os.cpu_count(),
         "median": median,
         "rows": rows,

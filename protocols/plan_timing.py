@@ -15,7 +15,9 @@ time ``t`` is that of the last stretch on the ground begun at or before ``t`` (N
 the plan is airborne from its start).
 
 - Before the swarm has taken off, the plan is flown as written until its departure and **held**
-  there (its value at rest), however long the swarm needs.
+  there (the plan's state at that time, its rate included: a plan that moves from its start,
+  as the paper's does, is held at its first value with its first rate), however long the
+  swarm needs.
 - From the **take-off** (the round the swarm's first agent armed, agreed by the agents over their
   consensus messages: :class:`drone_agent.flight_phase.TakeoffClock`) the plan runs from there:
   ``shift = max(0, t_takeoff - departure(t_takeoff))`` seconds late.

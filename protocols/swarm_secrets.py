@@ -333,10 +333,15 @@ def _ca(swarm_id: str) -> tuple[object, object]:
 
 
 def _issue(
-    ca_key: object, ca_cert: object, role: str, hosts: Iterable[str]
+    ca_key: object,
+    ca_cert: object,
+    role: str,
+    hosts: Iterable[str],
+    valid: tuple[datetime.datetime, datetime.datetime] | None = None,
 ) -> tuple[object, object]:
     """A key and a certificate for ``role`` (common name = role) signed by the CA; ``hosts`` as
-    DNS / IP subject alternative names (the router's)."""
+    DNS / IP subject alternative names (the router's); ``valid``: from, until (default: from 5
+    minutes ago for CERT_DAYS)."""
     from cryptography import x509
     from cryptography.hazmat.primitives import hashes
     from cryptography.hazmat.primitives.asymmetric import ec
@@ -350,14 +355,18 @@ def _issue(
         except ValueError:
             sans.append(x509.DNSName(h))
     now = datetime.datetime.now(datetime.UTC)
+    since, until = valid or (
+        now - datetime.timedelta(minutes=5),
+        now + datetime.timedelta(days=CERT_DAYS),
+    )
     cert = (
         x509.CertificateBuilder()
         .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, role)]))
         .issuer_name(ca_cert.subject)  # type: ignore[attr-defined]
         .public_key(key.public_key())
         .serial_number(x509.random_serial_number())
-        .not_valid_before(now - datetime.timedelta(minutes=5))
-        .not_valid_after(now + datetime.timedelta(days=CERT_DAYS))
+        .not_valid_before(since)
+        .not_valid_after(until)
         .add_extension(x509.SubjectAlternativeName(sans), critical=False)
         .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
         .add_extension(

@@ -73,6 +73,17 @@ def _session(secrets: Path, role: str, endpoint: str) -> ZenohBus:
     )
 
 
+def _serve_commands(gcs: ZenohBus, commands: list[bytes]) -> None:
+    """A ground station's command queryable on ``gcs`` that answers "ok" and notes each query
+    that reached it in ``commands``."""
+
+    def answer(query: object) -> None:
+        commands.append(b"q")
+        query.reply(f"swarm/{SWARM_ID}/command", b"ok")  # type: ignore[attr-defined]
+
+    gcs.session.declare_queryable(f"swarm/{SWARM_ID}/command", answer)
+
+
 def _one_line_error(out: subprocess.CompletedProcess[str], *words: str) -> None:
     assert out.returncode == 2, out.stdout + out.stderr
     lines = out.stderr.strip().splitlines()
@@ -120,12 +131,7 @@ def test_the_router_enforces_the_rights(secrets: Path, router: str) -> None:
         _session(secrets, "agent", router) as other_agent,
         _session(secrets, "operator", router) as operator,
     ):
-
-        def answer(query: object) -> None:
-            commands.append(b"q")
-            query.reply(f"swarm/{SWARM_ID}/command", b"ok")  # type: ignore[attr-defined]
-
-        gcs.session.declare_queryable(f"swarm/{SWARM_ID}/command", answer)
+        _serve_commands(gcs, commands)
         gcs.subscribe_callback(f"swarm/{SWARM_ID}/plan", lambda _k, p: plans.append(p))
         other_agent.subscribe_callback(
             f"swarm/{SWARM_ID}/consensus/**", lambda _k, p: (consensus.append(p), got.set())
@@ -282,12 +288,7 @@ def test_the_router_refuses_faults_and_borrowed_passwords(
         _session(secrets, "operator", router) as operator,
         _session(borrowed, "operator", router) as impostor,
     ):
-
-        def answer(query: object) -> None:
-            commands.append(b"q")
-            query.reply(f"swarm/{SWARM_ID}/command", b"ok")  # type: ignore[attr-defined]
-
-        gcs.session.declare_queryable(f"swarm/{SWARM_ID}/command", answer)
+        _serve_commands(gcs, commands)
         listener.subscribe_callback(f"swarm/{SWARM_ID}/fault", lambda _k, p: faults.append(p))
         time.sleep(1.0)
         agent.publisher(f"swarm/{SWARM_ID}/fault", Congestion.BLOCK).put(b"agent fault")
@@ -310,41 +311,18 @@ def test_an_expired_certificate_is_refused_in_one_line(
     import datetime
 
     from cryptography import x509
-    from cryptography.hazmat.primitives import hashes, serialization
-    from cryptography.hazmat.primitives.asymmetric import ec
-    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+    from cryptography.hazmat.primitives import serialization
+
+    from protocols.swarm_secrets import _cert_pem, _issue, _key_pem
 
     expired = _forged(secrets, tmp_path / "expired")
     ca_key = serialization.load_pem_private_key((secrets / "ca.key").read_bytes(), None)
     ca_cert = x509.load_pem_x509_certificate((secrets / "ca.pem").read_bytes())
-    key = ec.generate_private_key(ec.SECP256R1())
     now = datetime.datetime.now(datetime.UTC)
-    cert = (
-        x509.CertificateBuilder()
-        .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "operator")]))
-        .issuer_name(ca_cert.subject)
-        .public_key(key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(now - datetime.timedelta(days=30))
-        .not_valid_after(now - datetime.timedelta(days=1))
-        .add_extension(x509.SubjectAlternativeName([x509.DNSName("operator")]), critical=False)
-        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-        .add_extension(
-            x509.ExtendedKeyUsage(
-                [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
-            ),
-            critical=False,
-        )
-        .sign(ca_key, hashes.SHA256())  # type: ignore[arg-type]
-    )
-    (expired / "operator.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-    (expired / "operator.key").write_bytes(
-        key.private_bytes(
-            serialization.Encoding.PEM,
-            serialization.PrivateFormat.PKCS8,
-            serialization.NoEncryption(),
-        )
-    )
+    valid = (now - datetime.timedelta(days=30), now - datetime.timedelta(days=1))
+    key, cert = _issue(ca_key, ca_cert, "operator", [], valid)
+    (expired / "operator.pem").write_bytes(_cert_pem(cert))
+    (expired / "operator.key").write_bytes(_key_pem(key))
     out = _swarm("status", "--swarm-id", SWARM_ID, "--zenoh-connect", router,
                  "--secrets", str(expired))  # fmt: skip
     _one_line_error(out, "refused the 'operator' credential", "certificate expired on", "keys init")

@@ -266,7 +266,7 @@ class GroundStation:
         if takeoff is None or takeoff == self._takeoff_round:
             return
         self._takeoff_round = takeoff
-        t_s = tick_time_s(takeoff, self._period_ms)
+        t_s = self.takeoff_s
         late = shift_s(self.plan.trajectory, t_s)
         self.events.record(
             self.now_s,
