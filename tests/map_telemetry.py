@@ -2,7 +2,7 @@
 own: every GLOBAL_POSITION_INT a vehicle sent agrees with the LOCAL_POSITION_NED and ATTITUDE it
 sent around the same ``time_boot_ms`` (position about the scenario's home, velocity, heading;
 the local samples carried to the global one's time: position by its velocity, velocity and
-heading linearly). A map ground station (QGroundControl, Mission Planner, MAVSDK) draws a drone
+heading linearly; a velocity across a touch-down against the nearer local sample). A map ground station (QGroundControl, Mission Planner, MAVSDK) draws a drone
 from those fields alone."""
 
 from __future__ import annotations
@@ -19,6 +19,11 @@ from pymavlink import mavutil
 from protocols.geodesy import GeoPoint, ned_of_global_int
 
 
+# the longest gap between two LOCAL_POSITION_NED samples a GLOBAL_POSITION_INT is compared across
+# (they come at 25 Hz)
+LOCAL_GAP_S = 0.05
+
+
 @dataclass(frozen=True)
 class MapAgreement:
     """The worst disagreements over the pairs compared: horizontal and vertical position (m),
@@ -32,6 +37,8 @@ class MapAgreement:
     heading_deg: float
     top_speed_m_s: float
     heading_span_deg: float
+    #: where the worst velocity disagreement was: (system id, time_boot_ms in s)
+    velocity_worst_at: tuple[int, float] = (0, 0.0)
 
 
 def map_agreement(tlog: Path, home: GeoPoint, t_from_s: float = 0.0) -> MapAgreement:
@@ -55,6 +62,7 @@ def map_agreement(tlog: Path, home: GeoPoint, t_from_s: float = 0.0) -> MapAgree
             att.setdefault(sysid, []).append((t, msg.yaw))
     worst = np.zeros(4)
     pairs, top_speed, span = 0, 0.0, 0.0
+    worst_at = (0, 0.0)
     for sysid, rows in glob.items():
         g = np.array(rows, dtype=float)
         n = np.unique(np.array(local[sysid], dtype=float), axis=0)
@@ -63,19 +71,35 @@ def map_agreement(tlog: Path, home: GeoPoint, t_from_s: float = 0.0) -> MapAgree
         g = g[inside & (g[:, 0] <= a[-1, 0])]
         if g.shape[0] == 0:
             continue
-        k = np.clip(np.searchsorted(n[:, 0], g[:, 0], side="right") - 1, 0, n.shape[0] - 1)
+        k = np.clip(np.searchsorted(n[:, 0], g[:, 0], side="right") - 1, 0, n.shape[0] - 2)
+        # only where the local samples on both sides arrived: a loaded machine's ground station
+        # drops datagrams, and a velocity drawn across a missing stretch (a touch-down, the start
+        # of a climb) is not what the vehicle sent
+        dense = n[k + 1, 0] - n[k, 0] <= LOCAL_GAP_S
+        g, k = g[dense], k[dense]
+        if g.shape[0] == 0:
+            continue
         dt = (g[:, 0] - n[k, 0])[:, None]
         pos = n[k, 1:4] + n[k, 4:7] * dt
         vel = np.stack([np.interp(g[:, 0], n[:, 0], n[:, c]) for c in (4, 5, 6)], axis=1)
         yaw = np.interp(g[:, 0], a[:, 0], np.unwrap(a[:, 1]))
         ned = ned_of_global_int(home, g[:, 1], g[:, 2], g[:, 3])
         heading_err = (g[:, 7] / 100.0 - np.degrees(yaw) + 180.0) % 360.0 - 180.0
+        # the velocity the map shows against the local one carried to its time, or, across a
+        # touch-down (the ground stops a 0.7 m/s descent between two local samples), against the
+        # local sample on either side of it: whichever is nearer
+        v_map = g[:, 4:7] / 100.0
+        vel_err = np.min(
+            [np.abs(v_map - v).max(axis=1) for v in (vel, n[k, 4:7], n[k + 1, 4:7])], axis=0
+        )
+        if vel_err.max() > worst[2]:
+            worst_at = (sysid, float(g[vel_err.argmax(), 0]))
         worst = np.maximum(
             worst,
             [
                 np.linalg.norm(ned[:, :2] - pos[:, :2], axis=1).max(),
                 np.abs(ned[:, 2] - pos[:, 2]).max(),
-                np.abs(g[:, 4:7] / 100.0 - vel).max(),
+                vel_err.max(),
                 np.abs(heading_err).max(),
             ],
         )
@@ -84,4 +108,4 @@ def map_agreement(tlog: Path, home: GeoPoint, t_from_s: float = 0.0) -> MapAgree
         turned = np.degrees(np.unwrap(a[:, 1]))
         span = max(span, float(turned.max() - turned.min()))
     assert pairs, "no GLOBAL_POSITION_INT within the vehicles' local samples"
-    return MapAgreement(pairs, *(float(x) for x in worst), top_speed, span)
+    return MapAgreement(pairs, *(float(x) for x in worst), top_speed, span, worst_at)
