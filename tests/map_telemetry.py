@@ -2,8 +2,8 @@
 own: every GLOBAL_POSITION_INT a vehicle sent agrees with the LOCAL_POSITION_NED and ATTITUDE it
 sent around the same ``time_boot_ms`` (position about the scenario's home, velocity, heading;
 the local samples carried to the global one's time: position by its velocity, velocity and
-heading linearly; a velocity across a touch-down against the nearer local sample). A map ground station (QGroundControl, Mission Planner, MAVSDK) draws a drone
-from those fields alone."""
+heading linearly; a velocity across a touch-down against the nearer local sample). A map
+ground station (QGroundControl, Mission Planner, MAVSDK) draws a drone from those fields alone."""
 
 from __future__ import annotations
 
@@ -17,7 +17,6 @@ import numpy as np
 from pymavlink import mavutil
 
 from protocols.geodesy import GeoPoint, ned_of_global_int
-
 
 # the longest gap between two LOCAL_POSITION_NED samples a GLOBAL_POSITION_INT is compared across
 # (they come at 25 Hz)
