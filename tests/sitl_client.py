@@ -143,9 +143,24 @@ def sim_process(tmp_path: Path, *args: str, base_port: int | None = None) -> Ite
         )
     sim = SimProcess(proc, out, err, base)
     try:
+        if "--quiet" not in args:
+            _wait_started(sim)
         yield sim
     finally:
         sim.stop()
+
+
+def _wait_started(sim: SimProcess, timeout_s: float = 60.0) -> None:
+    """Until the simulator says it started (its ports are bound) or ends: a peer socket opened
+    before that may be given one of the block's ports by the kernel (an ephemeral port), and the
+    simulator would then fail to bind it."""
+    from sitl_sim.launch import START_LINE_PREFIX
+
+    end = time.monotonic() + timeout_s
+    while sim.alive() and time.monotonic() < end:
+        if START_LINE_PREFIX in sim.stdout():
+            return
+        time.sleep(0.05)
 
 
 def _drones(args: tuple[str, ...]) -> int:

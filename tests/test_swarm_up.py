@@ -81,7 +81,7 @@ def _up(
 
 
 def _assert_nothing_left(report: Path, base: int, gcs_port: int) -> None:
-    deadline = time.monotonic() + 5.0
+    deadline = time.monotonic() + 30.0  # a cap for a loaded machine, not a bound
     while _processes_mentioning(str(report.parent)) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert _processes_mentioning(str(report.parent)) == []
@@ -114,16 +114,20 @@ def test_swarm_up_flies_and_reports(tmp_path: Path) -> None:
 def test_ctrl_c_stops_everything(tmp_path: Path) -> None:
     # long enough not to end on its own first (hosted agents fly 4 drones at several x)
     proc, report, base, gcs_port = _up(tmp_path, duration_s=600.0)
-    deadline = time.monotonic() + 60
-    while not (report / "logs" / "sim.log").exists() and time.monotonic() < deadline:
-        time.sleep(0.2)
-    time.sleep(4.0)
+    # every process started and the run began (however slowly a loaded machine starts them)
+    assert _wait(lambda: _run_started(report), 120.0), "the run never started"
     assert len(_processes_mentioning(str(tmp_path))) >= 4  # up, gcs, sim, agents
     proc.send_signal(signal.SIGINT)
     out, _ = proc.communicate(timeout=60)
     assert "interrupted" in out.decode(errors="replace")
     assert proc.returncode == 1
     _assert_nothing_left(report, base, gcs_port)
+
+
+def _run_started(report: Path) -> bool:
+    """The ground station logged the run's start (the simulator and the agents are up)."""
+    events = report / "events.jsonl"
+    return events.exists() and '"kind":"run_start"' in events.read_text(errors="replace")
 
 
 def _wait(condition: object, timeout_s: float) -> bool:
@@ -139,9 +143,7 @@ def test_a_dead_simulator_ends_the_run_and_everything_is_stopped(tmp_path: Path)
     """A child that dies (here the simulator, SIGKILLed) ends swarm up with exit code 1 and the
     reason; no process of the run is left and its ports are free."""
     proc, report, base, gcs_port = _up(tmp_path, duration_s=600.0)
-    run_file = report / "logs" / "run.json"
-    assert _wait(run_file.exists, 60.0)
-    time.sleep(3.0)
+    assert _wait(lambda: _run_started(report), 120.0), "the run never started"
     sims = [p for p in _processes_mentioning(str(tmp_path)) if _cmdline(p).find(" sim ") > 0]
     assert len(sims) == 1, [_cmdline(p) for p in _processes_mentioning(str(tmp_path))]
     os.kill(sims[0], signal.SIGKILL)

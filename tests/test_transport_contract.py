@@ -400,6 +400,8 @@ while True:
 """
 
 
+# wall-clock bounds: with the tests that run alone (make test's serial part), not beside flights
+@pytest.mark.serial
 @pytest.mark.parametrize(("sig", "limit_s"), [(signal.SIGKILL, 0.5), (signal.SIGSTOP, 2.5)])
 def test_peer_process_killed_or_frozen_leaves_the_members(
     sig: signal.Signals, limit_s: float
