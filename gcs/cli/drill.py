@@ -25,21 +25,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import time
-from typing import TYPE_CHECKING
+from typing import Any
 
 from gcs.cli.operator import add_operator_flags
-from gcs.cli.secured import refusal, secrets_of
-
-if TYPE_CHECKING:  # numpy, imported when a drill is sent, not by the parser
-    from protocols.swarm_secrets import RoleSecrets
-    from protocols.wire_fault import FaultCommand
-
-#: Drills carried out by the ground station (its command queryable) rather than the agents.
-GCS_DRILLS = ("crash", "dropout", "gcs-restart")
-#: Time given to the session to reach its peers before publishing, and to flush after (s).
-CONNECT_WAIT_S = 0.5
-FLUSH_WAIT_S = 0.2
 
 
 class DrillError(Exception):
@@ -136,91 +124,55 @@ def _link(text: str | None) -> tuple[int, int] | None:
     return ids[0], ids[1]
 
 
-def command_of(args: argparse.Namespace) -> FaultCommand:
-    """The fault command of parsed ``args``; DrillError for a bad value."""
-    from protocols.wire_fault import Clear, Delay, LinkCut, Loss, Partition, Restart
-
+def drill_args(args: argparse.Namespace) -> dict[str, Any]:
+    """The keyword arguments of :meth:`gcs.api.Swarm.drill` for parsed ``args``."""
     name = args.drill
     if name == "link-cut":
-        return LinkCut(args.i, args.j, args.one_way, args.for_s)
+        return {"i": args.i, "j": args.j, "for_s": args.for_s, "one_way": args.one_way}
     if name == "loss":
-        return Loss(args.probability, _link(args.link), args.for_s)
+        return {"probability": args.probability, "link": _link(args.link), "for_s": args.for_s}
     if name == "delay":
-        return Delay(args.delay_ms, _link(args.link))
+        return {"delay_ms": args.delay_ms, "link": _link(args.link)}
     if name == "partition":
         if args.heal:
-            return Partition(None)
-        return Partition(tuple(_ids(g, "--groups") for g in args.groups.split("/")))
+            return {"heal": True}
+        return {"groups": [_ids(g, "--groups") for g in args.groups.split("/")]}
     if name == "restart":
-        if not args.gap_s > 0:
-            raise DrillError(f"--gap-s must be a positive number of seconds, got {args.gap_s:g}")
-        return Restart(args.drone, args.gap_s)
-    return Clear()
-
-
-def publish(
-    swarm_id: str, endpoint: str, payload: bytes, secrets: RoleSecrets | None = None
-) -> None:
-    """Publish ``payload`` once on the swarm's fault key (BLOCK congestion, reliable)."""
-    from drone_agent.transport import Congestion
-    from drone_agent.zenoh_transport import open_client
-    from protocols.keys import SwarmKeys
-
-    try:
-        key = SwarmKeys(swarm_id, 1.0).fault
-        bus = open_client(endpoint, secrets)
-    except ValueError as exc:
-        raise DrillError(str(exc)) from None
-    except ConnectionError as exc:
-        raise DrillError(f"no swarm: {exc}") from None
-    with bus:
-        publisher = bus.publisher(key, Congestion.BLOCK)
-        time.sleep(CONNECT_WAIT_S)  # let the router learn the subscribers before the put
-        publisher.put(payload)
-        time.sleep(FLUSH_WAIT_S)
-        publisher.close()
+        return {"drone": args.drone, "gap_s": args.gap_s}
+    if name in ("crash", "dropout"):
+        return {"drone": args.drone}
+    return {}
 
 
 def run(args: argparse.Namespace) -> int:
-    """Carry out the drill of ``args``; 0 done, 1 refused by the ground station."""
+    """Carry out the drill of ``args`` through :meth:`gcs.api.Swarm.drill`; 0 done, 1 refused
+    by the ground station."""
+    from gcs.api import CommandRefused, SwarmError
+    from gcs.cli.operator import OperatorError, connect
+
+    kwargs = drill_args(args)
     try:
-        secrets = secrets_of(args)
-    except ValueError as exc:
+        with connect(args) as swarm:
+            done = swarm.drill(args.drill, **kwargs)
+    except CommandRefused as exc:
+        return _said(args, False, exc.reason)
+    except (SwarmError, OperatorError) as exc:
         raise DrillError(str(exc)) from None
-    if args.drill in GCS_DRILLS:
-        from gcs.cli.operator import OperatorError, send
-        from gcs.station.commands import Request, encode_request
-
-        request = Request(args.drill, {"drone": args.drone} if "drone" in args else {})
-        try:
-            reply = send(
-                args.swarm_id, args.zenoh_connect, encode_request(request), secrets=secrets
-            )
-        except OperatorError as exc:
-            raise DrillError(str(exc)) from None
-        if getattr(args, "json", False):
-            out = {"drill": args.drill, "accepted": reply.accepted, "reason": reply.reason}
-            print(json.dumps(out))
-        else:
-            verdict = "accepted" if reply.accepted else "refused"
-            print(f"drill {args.drill}: {verdict}: {reply.reason}")
-        return 0 if reply.accepted else 1
-    from protocols.wire_fault import encode_fault
-
-    try:
-        command = command_of(args)
-        payload = encode_fault(command, args.swarm_id)
-    except ValueError as exc:
-        raise DrillError(str(exc)) from None
-    denied = refusal(secrets, "put", "fault", "send drills")
-    if denied is not None:
-        raise DrillError(denied)
-    publish(args.swarm_id, args.zenoh_connect, payload, secrets)
-    from drone_agent.fault_drills import describe
-
+    if done.fault is None:
+        return _said(args, True, done.what)
     if getattr(args, "json", False):
-        fields = dataclasses.asdict(command)
-        print(json.dumps({"drill": args.drill, "sent": True, "what": describe(command), **fields}))
+        fields = dataclasses.asdict(done.fault)
+        what = done.what.removeprefix("sent ")
+        print(json.dumps({"drill": args.drill, "sent": True, "what": what, **fields}))
     else:
-        print(f"drill {args.drill}: sent {describe(command)}")
+        print(f"drill {args.drill}: {done.what}")
     return 0
+
+
+def _said(args: argparse.Namespace, accepted: bool, reason: str) -> int:
+    """Print a ground station's drill answer; 0 accepted, 1 refused."""
+    if getattr(args, "json", False):
+        print(json.dumps({"drill": args.drill, "accepted": accepted, "reason": reason}))
+    else:
+        print(f"drill {args.drill}: {'accepted' if accepted else 'refused'}: {reason}")
+    return 0 if accepted else 1

@@ -1,6 +1,6 @@
 """Operator commands to a running ground station: ``swarm takeoff|formation|move|rotate|scale|hold|
-land|status|shutdown``. Each sends one request to ``swarm/<sid>/command`` over Zenoh and prints the
-answer.
+land|status|shutdown``. Each is the same call of :class:`gcs.api.Swarm` a script makes: one
+request to ``swarm/<sid>/command`` over Zenoh; this module parses the flags and prints the answer.
 
 The first line says how long the ground station took to answer, from the request leaving to the
 reply arriving (opening the Zenoh session is not counted): ``hold: accepted (0.004 s): ...``.
@@ -11,14 +11,13 @@ Exit codes: 0 accepted, 1 refused, 2 usage error or no ground station answering 
 from __future__ import annotations
 
 import argparse
-import math
-import time
 from typing import TYPE_CHECKING, Any
 
 from drone_agent.agent_cli import RENDEZVOUS_PORT
-from gcs.cli.secured import add_secrets_flags, refusal, secrets_of
+from gcs.cli.secured import add_secrets_flags
 
 if TYPE_CHECKING:  # numpy (the planner), imported when a command is sent, not by the parser
+    from gcs.api import Swarm
     from gcs.station.commands import Reply, Request
     from protocols.swarm_secrets import RoleSecrets
 
@@ -88,36 +87,44 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 
 
 def request_of(args: argparse.Namespace) -> Request:
-    """The request for parsed ``args``; OperatorError for a malformed value."""
-    from gcs.station.commands import Request
+    """The request for parsed ``args`` (built by :func:`gcs.api.requests.command_request`, as the
+    API builds it); OperatorError for a malformed value."""
+    from gcs.api.errors import UsageError
+    from gcs.api.requests import command_request
 
-    out: dict[str, Any] = {}
     keys = {
-        "takeoff": ("altitude_m",),
-        "formation": ("heading_deg", "length_m", "width_m", "height_m"),
-        "move": ("north_m", "east_m", "up_m"),
-        "rotate": ("delta_deg",),
-        "scale": ("factor",),
-    }.get(args.command, ())
-    for key in keys:
-        if getattr(args, key, None) is not None:
-            out[key] = getattr(args, key)
-    if args.command == "formation":
-        if args.centre_ned_m is not None:
-            out["centre_ned_m"] = list(args.centre_ned_m)
-        elif args.centre is not None:
-            try:
-                n, e, alt = (float(x) for x in args.centre.split(","))
-            except ValueError:
-                raise OperatorError("--centre must look like N,E,ALT (metres)") from None
-            out["centre_ned_m"] = [n, e, -alt]
-    if getattr(args, "duration_s", None) is not None:
-        out["duration_s"] = args.duration_s
-    for key, value in out.items():
-        values = value if isinstance(value, list) else [value]
-        if not all(math.isfinite(v) for v in values):
-            raise OperatorError(f"--{key.replace('_', '-')} must be finite")
-    return Request(args.command, out)
+        "takeoff": ("altitude_m", "duration_s"),
+        "formation": (
+            "centre_ned_m", "heading_deg", "length_m", "width_m", "height_m", "duration_s"
+        ),
+        "move": ("north_m", "east_m", "up_m", "duration_s"),
+        "rotate": ("delta_deg", "duration_s"),
+        "scale": ("factor", "duration_s"),
+    }.get(args.command, ())  # fmt: skip
+    kwargs: dict[str, Any] = {key: getattr(args, key, None) for key in keys}
+    if args.command == "formation" and args.centre is not None:
+        try:
+            kwargs["centre"] = [float(x) for x in args.centre.split(",")]
+        except ValueError:
+            raise OperatorError("--centre must look like N,E,ALT (metres)") from None
+    try:
+        return command_request(args.command, **kwargs)
+    except UsageError as exc:
+        raise OperatorError(str(exc)) from None
+
+
+def connect(args: argparse.Namespace) -> Swarm:
+    """The swarm of ``args`` (``--swarm-id``, ``--zenoh-connect``, ``--secrets``, ``--role``),
+    through :meth:`gcs.api.Swarm.connect`; OperatorError (one line) if it cannot be reached."""
+    from gcs.api import Swarm, SwarmError
+
+    try:
+        return Swarm.connect(
+            args.zenoh_connect, args.swarm_id, getattr(args, "secrets", None),
+            getattr(args, "role", "operator"),
+        )  # fmt: skip
+    except SwarmError as exc:
+        raise OperatorError(str(exc)) from None
 
 
 def send(
@@ -138,39 +145,16 @@ def send_timed(
     timeout_s: float = ANSWER_TIMEOUT_S,
     secrets: RoleSecrets | None = None,
 ) -> tuple[Reply, float]:
-    """As :func:`send`, with the seconds from sending the request to its reply's arrival.
+    """As :func:`send`, with the seconds from sending the request to its reply's arrival (a raw
+    payload: tests send malformed ones). With ``secrets``: TLS and the role's credential; a role
+    without the right to send commands is refused here, in one line, before anything is sent."""
+    from gcs.api import Swarm, SwarmError
 
-    With ``secrets``: TLS and the role's credential; a role without the right to send commands
-    is refused here, in one line, before anything is sent."""
-    from drone_agent.zenoh_transport import open_client
-    from gcs.station.commands import CommandError, decode_reply
-    from protocols.keys import SwarmKeys
-
-    denied = refusal(secrets, "query", "command", "send operator commands and drills")
-    if denied is not None:
-        raise OperatorError(denied)
     try:
-        key = SwarmKeys(swarm_id, 1.0).command
-        bus = open_client(endpoint, secrets)
-    except ValueError as exc:
+        with Swarm.connect(endpoint, swarm_id, secrets) as swarm:
+            return swarm.link.ask_payload(payload, timeout_s)
+    except SwarmError as exc:
         raise OperatorError(str(exc)) from None
-    except ConnectionError as exc:
-        raise OperatorError(f"no ground station: {exc}") from None
-    with bus:
-        sent = time.monotonic()
-        replies = bus.session.get(key, payload=payload, timeout=timeout_s)
-        for reply in replies:
-            if reply.ok is not None:
-                elapsed = time.monotonic() - sent
-                try:
-                    return decode_reply(reply.ok.payload.to_bytes()), elapsed
-                except CommandError as exc:
-                    raise OperatorError(str(exc)) from None
-    hint = "" if secrets is None else f" (or the router refused the {secrets.role!r} credential)"
-    raise OperatorError(
-        f"no ground station of swarm {swarm_id!r} answered within {timeout_s:g} s at {endpoint}"
-        + hint
-    )
 
 
 def format_reply(name: str, reply: Reply, elapsed_s: float | None = None) -> list[str]:
@@ -208,17 +192,23 @@ def format_reply(name: str, reply: Reply, elapsed_s: float | None = None) -> lis
 
 
 def run(args: argparse.Namespace) -> int:
-    """Send the command of ``args``, print the answer; 0 accepted, 1 refused."""
-    from gcs.station.commands import encode_request
+    """Send the command of ``args`` through :class:`gcs.api.Swarm`, print the answer; 0
+    accepted, 1 refused."""
+    from gcs.api import CommandRefused, SwarmError
 
     request = request_of(args)
-    try:
-        secrets = secrets_of(args)
-    except ValueError as exc:
-        raise OperatorError(str(exc)) from None
-    reply, elapsed_s = send_timed(
-        args.swarm_id, args.zenoh_connect, encode_request(request), secrets=secrets
-    )
+    with connect(args) as swarm:
+        try:
+            if args.command in ("status", "shutdown"):
+                reply, elapsed_s = swarm.ask(request)
+            else:
+                command = swarm.command(args.command, **request.args)
+                reply, elapsed_s = command.reply, command.elapsed_s
+        except CommandRefused as exc:
+            reply, elapsed_s = exc.reply, exc.elapsed_s
+        except SwarmError as exc:
+            raise OperatorError(str(exc)) from None
+        secrets = swarm.link.secrets
     for line in format_reply(args.command, reply, elapsed_s):
         print(line)
     if args.command == "status":

@@ -1,6 +1,5 @@
-"""``--secrets DIR`` and ``--role`` for the commands that join a swarm's Zenoh network, and the
-one-line refusal when a credential lacks a right (checked before anything is sent: the router
-would drop the message silently, protocols/swarm_secrets.RIGHTS)."""
+"""``--secrets DIR`` and ``--role`` for the commands that join a swarm's Zenoh network (the
+one-line refusal when a credential lacks a right is :func:`gcs.api.link.refusal`)."""
 
 from __future__ import annotations
 
@@ -8,7 +7,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from protocols.swarm_secrets import ROLES, may
+from protocols.swarm_secrets import ROLES
 
 if TYPE_CHECKING:
     from protocols.swarm_secrets import RoleSecrets
@@ -37,15 +36,4 @@ def secrets_of(args: argparse.Namespace) -> RoleSecrets | None:
 
     return role_secrets(
         getattr(args, "secrets", None), getattr(args, "role", "operator"), args.swarm_id
-    )
-
-
-def refusal(secrets: RoleSecrets | None, kind: str, suffix: str, what: str) -> str | None:
-    """Why ``secrets``' role may not send ``kind`` on ``swarm/<sid>/<suffix>`` (None: it may, or
-    the network is open)."""
-    if secrets is None or may(secrets.role, kind, suffix):
-        return None
-    return (
-        f"refused: the {secrets.role!r} credential has no right to {what} "
-        f"({kind} on swarm/{secrets.swarm_id}/{suffix}); only the operator credential has"
     )

@@ -247,6 +247,25 @@ def _link_faults(
     return faults + drill_link_faults(events, end_s)
 
 
+def record_metrics(
+    record: FlightRecord | None,
+    settle_s: float,
+    extra: dict[str, Any],
+    max_thrust_n: float | None = None,
+) -> dict[str, Any]:
+    """``metrics.json`` of a record rebuilt from the logs: :func:`compute_metrics` with the
+    record's losses and returns as its faults (the ground station's report and
+    :func:`gcs.api.load_report` alike)."""
+    if record is None:
+        return {"n_samples": 0, "note": "no telemetry received", **extra}
+    faults = [(t, f"drone {i} lost") for i, t in sorted(record.lost_at_s.items())]
+    for i, left_s, back_s in record.returns:
+        faults += [(left_s, f"drone {i} left"), (back_s, f"drone {i} back")]
+    return compute_metrics(
+        record, settle_s=settle_s, faults=faults, max_thrust_n=max_thrust_n, extra=extra
+    )
+
+
 def write_report(
     report_dir: Path,
     record: FlightRecord | None,
@@ -261,15 +280,7 @@ def write_report(
     metrics' max_thrust_ratio."""
     files = [write_trajectory(plan, report_dir / "trajectory.json")]
     metrics_path = report_dir / "metrics.json"
-    if record is None:
-        metrics: dict[str, Any] = {"n_samples": 0, "note": "no telemetry received", **extra}
-    else:
-        faults = [(t, f"drone {i} lost") for i, t in sorted(record.lost_at_s.items())]
-        for i, left_s, back_s in record.returns:
-            faults += [(left_s, f"drone {i} left"), (back_s, f"drone {i} back")]
-        metrics = compute_metrics(
-            record, settle_s=settle_s, faults=faults, max_thrust_n=max_thrust_n, extra=extra
-        )
+    metrics = record_metrics(record, settle_s, extra, max_thrust_n)
     metrics_path.write_text(json.dumps(metrics, indent=2) + "\n")
     files.append(metrics_path)
     if plots and record is not None:

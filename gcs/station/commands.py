@@ -1,7 +1,10 @@
 """Operator commands: their JSON wire format (request and reply) and their effect on the plan. Pure.
 
 A request is a UTF-8 JSON object ``{"version": 1, "command": NAME, "args": {...}}``; a reply is
-``{"version": 1, "accepted": bool, "reason": str, "seq": int | null, "table": [...]}``.
+``{"version": 1, "accepted": bool, "reason": str, "seq": int | null, "table": [...], "t_s":
+number | null, "arrives_s": number | null, "plan": {...} | null}`` (the last three: the station's
+simulated time, when an accepted plan command's change arrives on the new plan's clock, and for
+``status`` the plan in force, :meth:`GroundStation.plan_summary`; older stations leave them out).
 Units: metres, degrees, seconds; positions NED (north, east, down), or altitude up where named
 ``altitude_m`` / ``up_m``. :func:`parse_request` validates a request and raises
 :class:`CommandError` with the reason for anything malformed; :func:`apply_command` turns a
@@ -82,6 +85,13 @@ class Reply:
     reason: str
     seq: int | None = None
     table: tuple[dict[str, Any], ...] = ()
+    #: the ground station's simulated time when it answered (s)
+    t_s: float | None = None
+    #: an accepted plan command: when its change arrives, on the new plan's clock (s)
+    arrives_s: float | None = None
+    #: ``status``: the plan in force (``seq``, ``command``, ``late_s``: how late it is flown, None
+    #: while it waits on the ground for the swarm's take-off)
+    plan: dict[str, Any] | None = None
 
 
 def encode_request(request: Request) -> bytes:
@@ -152,9 +162,16 @@ def decode_reply(payload: bytes) -> Reply:
             str(data["reason"]),
             data.get("seq"),
             tuple(data.get("table") or ()),
+            _optional_number(data.get("t_s")),
+            _optional_number(data.get("arrives_s")),
+            data.get("plan") if isinstance(data.get("plan"), dict) else None,
         )
     except (UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as exc:
         raise CommandError(f"malformed reply from the ground station: {exc}") from None
+
+
+def _optional_number(value: object) -> float | None:
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
 
 def apply_command(
@@ -181,6 +198,20 @@ def plan_command(
     """As :func:`apply_command`, with a sentence saying when each part of the change arrives
     (each of centre, orientation and shape moves at its own pace; a part the command leaves
     alone keeps its course)."""
+    plan, when, _ = plan_arrival(request, current, now_s, env, positions_ned_m)
+    return plan, when
+
+
+def plan_arrival(
+    request: Request,
+    current: PlanMessage,
+    now_s: float,
+    env: Envelope,
+    positions_ned_m: FloatArray | None = None,
+) -> tuple[PlanMessage, str, float]:
+    """As :func:`plan_command`, with when the change arrives on the new plan's clock (s): the
+    last commanded part's arrival (``now_s`` when nothing changes), the end of a landing's
+    descent, the end of a hold's braking."""
     plan, args = current.trajectory, request.args
     duration = args.get("duration_s")
     goal = goal_of(plan, now_s)
@@ -190,9 +221,8 @@ def plan_command(
         if current.command == FlightCommand.LAND:
             raise PlanRefused("the swarm is already landing")
         landing = land(plan, now_s, env)
-        return PlanMessage(
-            landing, FlightCommand.LAND
-        ), f"on the ground at t = {landing.end_s:.1f} s"
+        when = f"on the ground at t = {landing.end_s:.1f} s"
+        return PlanMessage(landing, FlightCommand.LAND), when, landing.end_s
     if request.name == "hold":
         if current.command == FlightCommand.LAND:
             altitude = -float(plan.evaluate(now_s)[0][2])
@@ -203,9 +233,13 @@ def plan_command(
                 )
             # a hold during the descent stops it: the swarm flies on where it stopped
             held = hold(plan, now_s, env)
-            return PlanMessage(held, FlightCommand.FLY), f"at rest at t = {held.end_s:.1f} s"
+            return (
+                PlanMessage(held, FlightCommand.FLY),
+                f"at rest at t = {held.end_s:.1f} s",
+                held.end_s,
+            )
         held = hold(plan, now_s, env)
-        return PlanMessage(held, current.command), f"at rest at t = {held.end_s:.1f} s"
+        return PlanMessage(held, current.command), f"at rest at t = {held.end_s:.1f} s", held.end_s
     if current.command == FlightCommand.LAND and request.name != "takeoff":
         raise PlanRefused("the swarm is landing: take off first")
     if request.name == "takeoff":
@@ -243,4 +277,5 @@ def plan_command(
         if problem is not None:
             raise PlanRefused(problem)
     move = plan_move(plan, now_s, goal, env, duration)
-    return PlanMessage(move.trajectory, FlightCommand.FLY), move.describe()
+    arrives = max(move.arrivals.values(), default=now_s)
+    return PlanMessage(move.trajectory, FlightCommand.FLY), move.describe(), arrives

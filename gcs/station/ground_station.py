@@ -52,6 +52,7 @@ from gcs.station.commands import (
     Request,
     encode_reply,
     parse_request,
+    plan_arrival,
     plan_command,
 )
 from gcs.station.drills import GcsDrills
@@ -59,7 +60,7 @@ from gcs.station.planner import Envelope, PlanRefused
 from gcs.station.swarm_watch import SwarmWatch
 from gcs.station.telemetry import TelemetryReceiver
 from protocols.keys import SwarmKeys
-from protocols.plan_timing import flown_plan, shift_s, takeoff_metrics, tick_time_s
+from protocols.plan_timing import departure_s, flown_plan, shift_s, takeoff_metrics, tick_time_s
 from protocols.scenario import Scenario
 from protocols.trajectory import DescriptorTrajectory
 from protocols.wire import WireError
@@ -351,9 +352,10 @@ class GroundStation:
         if self.restart_requested:
             self.events.record(self.now_s, "gcs_stopped", reason="restart", plan_seq=self.plan.seq)
             return []
-        self.events.record(self.now_s, "run_end", plan_seq=self.plan.seq)
         if end_s is None or self._o.land_at_end:  # a session, or a landing after the end
             end_s = max(self.now_s, end_s or 0.0)
+        # report_end_s: where the report's record ends (gcs.api.load_report rebuilds it)
+        self.events.record(self.now_s, "run_end", plan_seq=self.plan.seq, report_end_s=end_s)
         self.telemetry.close()
         n = self._o.scenario.n_drones
         report = self._o.report_dir
@@ -419,7 +421,7 @@ class GroundStation:
     def _answer_commands(self) -> None:
         while (query := self._commands.try_recv()) is not None:
             payload = query.payload.to_bytes() if query.payload is not None else None
-            reply = self.execute(payload)
+            reply = replace(self.execute(payload), t_s=self.now_s)
             query.reply(self._keys.command, encode_reply(reply))
             query.drop()
 
@@ -432,7 +434,8 @@ class GroundStation:
             self.events.record(now, "command", command=None, accepted=False, reason=str(exc))
             return Reply(False, str(exc), self.plan.seq)
         if request.name == "status":
-            return Reply(True, f"t = {now:.2f} s", self.plan.seq, tuple(self.status_table()))
+            table = tuple(self.status_table())
+            return Reply(True, f"t = {now:.2f} s", self.plan.seq, table, plan=self.plan_summary())
         n = self._o.scenario.n_drones
         if request.name == "crash":  # drills, recorded by GcsDrills
             return replace(self.drills.crash(request.args["drone"], n, now), seq=self.plan.seq)
@@ -464,13 +467,26 @@ class GroundStation:
         """A plan-changing command: publish the next plan, or say why not."""
         try:
             positions = self.watch.positions(self.telemetry.vehicles)
-            plan, when = plan_command(
+            plan, when, arrives_s = plan_arrival(
                 request, self._flown_plan(now_s), now_s, self._o.envelope, positions
             )
         except PlanRefused as exc:
             return Reply(False, str(exc), self.plan.seq)
         self._publish(plan, request.name)
-        return Reply(True, f"plan {plan.seq}: {when}", plan.seq)
+        return Reply(True, f"plan {plan.seq}: {when}", plan.seq, arrives_s=arrives_s)
+
+    def plan_summary(self) -> dict[str, Any]:
+        """The plan in force, for ``status``: its ``seq``, ``command`` (FLY, GROUND, LAND) and
+        ``late_s``, how many seconds late the swarm flies it (protocols/plan_timing.py); None
+        while a plan that leaves the ground still waits there for the swarm's take-off."""
+        takeoff, trajectory = self.takeoff_s, self.plan.trajectory
+        waiting = (
+            takeoff is None
+            and self.plan.command == FlightCommand.FLY
+            and departure_s(trajectory, self.now_s) is not None
+        )
+        late = None if waiting else shift_s(trajectory, takeoff)
+        return {"seq": self.plan.seq, "command": self.plan.command.name, "late_s": late}
 
     def _landing_at_end(self, end_s: float | None) -> bool:
         """With ``land_at_end``, past the end time: land first (once), True until the swarm is

@@ -162,7 +162,8 @@ class SwarmWatch:
         return None if positions is None else descriptors(positions)
 
     def table(self, vehicles: Mapping[int, VehicleState]) -> list[dict[str, Any]]:
-        """One row per drone heard: mode, armed, position (NED m), centre estimate error (m),
+        """One row per drone heard: mode, armed, position (NED m), centre estimate error (m), its
+        agent's estimate of the descriptors (9, m, rad, m²) and the time of its status (s),
         neighbours, link quality (0..1), failsafes reported by its vehicle, message counters. A
         lost drone keeps its row: mode ``LOST`` and ``lost`` = {t_s, reason}."""
         truth = self.truth(vehicles)
@@ -183,6 +184,8 @@ class SwarmWatch:
                     "armed": v.armed if v is not None else (s.armed if s else None),
                     "position_ned_m": list(v.position_ned_m) if v and v.position_ned_m else None,
                     "estimate_error_m": err if err is None or math.isfinite(err) else None,
+                    "estimate": [float(x) for x in s.estimate] if s is not None else None,
+                    "t_s": s.t_s if s is not None else None,
                     "neighbours": list(s.neighbours) if s is not None else [],
                     "link_quality": self.link_quality.get(i),
                     "failsafes": self.failsafes.get(i, 0),
