@@ -1,7 +1,10 @@
 """Headless Chromium (Debian's package ``chromium``) driven over the DevTools protocol on a pipe
 (``--remote-debugging-pipe``: JSON commands on fd 3, answers on fd 4, each ended by a NUL), so a
 test can screenshot a page served on localhost with nothing from PyPI but Pillow, and no
-browser download. :func:`chromium` is None where no Chromium is installed."""
+browser download. :func:`chromium` is None where no Chromium is installed; :func:`install`
+installs Debian's package where it can (as root, with apt-get) and says why not where it cannot
+(``python tests/headless_chromium.py`` does so: ``make test`` runs it first). :func:`panes` cuts
+a screenshot of Rerun's viewer into its views."""
 
 from __future__ import annotations
 
@@ -11,6 +14,7 @@ import json
 import os
 import shutil
 import subprocess
+import tempfile
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -29,6 +33,76 @@ FLAGS = (
 def chromium() -> str | None:
     """The Chromium executable on PATH, None if there is none."""
     return next((p for name in ("chromium", "chromium-browser") if (p := shutil.which(name))), None)
+
+
+#: Where :func:`install` writes why it could not install Chromium (read by the tests' skip).
+WHY_NOT = Path(tempfile.gettempdir()) / "quadswarm-no-chromium.txt"
+
+
+def install(timeout_s: float = 900.0) -> tuple[str | None, str]:
+    """Chromium's executable, installing Debian's ``chromium`` with apt-get if it is missing
+    (as root; ``apt-get update`` first if the package is unknown); else None and why not."""
+    found = chromium()
+    if found is not None:
+        return found, "installed"
+    if shutil.which("apt-get") is None:
+        return None, "no apt-get here (not Debian or Ubuntu): install a Chromium by hand"
+    if os.geteuid() != 0:
+        return None, "apt-get install chromium needs root: run it as root (sudo)"
+    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+    command = ["apt-get", "install", "-y", "-q", "chromium"]
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, env=env, timeout=timeout_s)
+        if done.returncode != 0:
+            subprocess.run(["apt-get", "update", "-q"], capture_output=True, env=env,
+                           timeout=timeout_s)  # fmt: skip
+            done = subprocess.run(
+                command, capture_output=True, text=True, env=env, timeout=timeout_s
+            )
+    except subprocess.TimeoutExpired:
+        return None, f"apt-get install chromium took over {timeout_s:.0f} s"
+    if done.returncode != 0:
+        last = (done.stderr or done.stdout).strip().splitlines()[-1:] or ["no output"]
+        return None, f"apt-get install chromium failed ({done.returncode}): {last[0]}"
+    found = chromium()
+    return found, "installed" if found else "apt-get installed chromium but it is not on PATH"
+
+
+def why_not() -> str:
+    """Why there is no Chromium here: what :func:`install` last said, or how to install it."""
+    if WHY_NOT.exists():
+        return WHY_NOT.read_text().strip()
+    return "not installed (Debian: apt-get install chromium, or make test, which installs it)"
+
+
+#: Rerun's light theme draws the borders between views as 1-px lines of this grey.
+BORDER_GREY = 223
+
+
+def _long_runs(mask: npt.NDArray[np.bool_], length: int) -> npt.NDArray[np.bool_]:
+    """The pixels of ``mask`` (H, W) in horizontal runs at least ``length`` long."""
+    padded = np.pad(mask, ((0, 0), (1, 1))).astype(np.int8)
+    edges = np.diff(padded, axis=1)
+    out = np.zeros_like(mask)
+    for row, start in zip(*np.nonzero(edges == 1), strict=True):
+        stop = int(np.flatnonzero(edges[row, start:] == -1)[0]) + start
+        if stop - start >= length:
+            out[row, start:stop] = True
+    return out
+
+
+def panes(pixels: npt.NDArray[np.int_], min_line: int = 40) -> npt.NDArray[np.int_]:
+    """(H, W) labels of the regions of a screenshot of Rerun's viewer (H, W, 3) that its views'
+    borders (straight lines of :data:`BORDER_GREY` at least ``min_line`` px, thickened by 1 px to
+    close the gaps at their corners) enclose: 1, 2, ... one per view (a tab bar may join the view
+    under it), 0 on the borders."""
+    from scipy import ndimage
+
+    grey = np.abs(pixels - BORDER_GREY).max(axis=2) <= 2
+    lines = _long_runs(grey, min_line) | _long_runs(grey.T, min_line).T
+    walls = ndimage.binary_dilation(lines, iterations=1)
+    labels, _ = ndimage.label(~walls)
+    return np.asarray(labels, dtype=int)
 
 
 class HeadlessChromium:
@@ -110,3 +184,13 @@ class HeadlessChromium:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+if __name__ == "__main__":
+    executable, why = install()
+    if executable is None:
+        WHY_NOT.write_text(f"no Chromium: {why}\n")
+        print(f"headless Chromium: none, the viewer's screenshot test will be skipped: {why}")
+    else:
+        WHY_NOT.unlink(missing_ok=True)
+        print(f"headless Chromium: {executable}")

@@ -14,7 +14,8 @@ import subprocess
 import sys
 import time
 import urllib.request
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -233,26 +234,36 @@ def _free_tcp_port() -> int:
         return int(s.getsockname()[1])
 
 
-@pytest.fixture(scope="module")
-def replay_url(report: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """``swarm replay`` of the report on free ports, running while the module's tests use it;
-    the web viewer's URL it printed."""
+def _serve(command: str, report: Path, log: Path, *flags: str) -> subprocess.Popen[bytes]:
+    """``swarm replay`` or ``swarm view`` of ``report`` on free ports (its output in ``log``)."""
     web, grpc = _free_tcp_port(), _free_tcp_port()
-    out = tmp_path_factory.mktemp("replay") / "replay.out"
-    with out.open("wb") as f:
-        proc = subprocess.Popen(
-            swarm_command("replay", str(report), "--web-port", str(web), "--grpc-port", str(grpc),
-                          "--duration-s", "300"),
+    with log.open("wb") as f:
+        return subprocess.Popen(
+            swarm_command(command, str(report), "--web-port", str(web), "--grpc-port", str(grpc),
+                          "--duration-s", "300", *flags),
             stdout=f, stderr=subprocess.STDOUT, env=ENV, cwd=ROOT,
         )  # fmt: skip
+
+
+def _viewer_url(proc: subprocess.Popen[bytes], log: Path) -> str:
+    """The web viewer's URL ``swarm replay`` or ``swarm view`` printed into ``log``."""
+    deadline = time.monotonic() + 30
+    while "web viewer at" not in log.read_text() and time.monotonic() < deadline:
+        assert proc.poll() is None, log.read_text()
+        time.sleep(0.1)
+    url = log.read_text().split("web viewer at ", 1)[1].split()[0]
+    assert url.startswith("http://127.0.0.1:") and "/?url=rerun+http://127.0.0.1:" in url
+    return url
+
+
+@pytest.fixture(scope="module")
+def replay_url(report: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """``swarm replay`` of the report on free ports (the swarm layout, the default), running
+    while the module's tests use it; the web viewer's URL it printed."""
+    log = tmp_path_factory.mktemp("replay") / "replay.out"
+    proc = _serve("replay", report, log)
     try:
-        deadline = time.monotonic() + 30
-        while "web viewer at" not in out.read_text() and time.monotonic() < deadline:
-            assert proc.poll() is None, out.read_text()
-            time.sleep(0.1)
-        url = out.read_text().split("web viewer at ", 1)[1].split()[0]
-        assert url.startswith(f"http://127.0.0.1:{web}/?url=rerun+http://127.0.0.1:{grpc}/")
-        yield url
+        yield _viewer_url(proc, log)
     finally:
         proc.terminate()
         proc.wait(15)
@@ -263,38 +274,134 @@ def test_replay_serves_the_web_viewer(replay_url: str) -> None:
         assert page.status == 200 and b"<html" in page.read().lower()
 
 
-def test_headless_chromium_shows_the_recording_in_the_viewer(
-    replay_url: str, tmp_path: Path
-) -> None:
-    """The served web viewer, loaded by headless Chromium (software WebGL), draws the flight:
-    within a minute its screenshot holds the flying drones' colour and the links' colour, which
-    only the recording brings (the viewer's own UI is grey and blue; a page without the
-    recording has neither). Skipped where no Chromium is installed (Debian's package
-    ``chromium``; no browser download)."""
-    from headless_chromium import HeadlessChromium, chromium
-    from PIL import Image
+def _near(pixels: np.ndarray, rgb: tuple[int, int, int], tol: int) -> np.ndarray:
+    return np.asarray(np.abs(pixels - np.array(rgb)).max(axis=2) <= tol)
 
-    from gcs.view.rerun_log import LINK_BOTH_RGB, MODE_RGB
-    from gcs.view.scene import Mode
+
+@dataclass
+class ViewerShot:
+    """What a screenshot of the viewer shows: the pixels, the share of the window of the view
+    that holds the drones and of the largest view, and how many plots (other views) show both
+    the true value and the agents' estimates."""
+
+    pixels: np.ndarray
+    drones: int = 0
+    links: int = 0
+    swarm_share: float = 0.0
+    largest_share: float = 0.0
+    plots_with_estimates: int = 0
+    full_width_below: bool = False
+
+    @staticmethod
+    def of(pixels: np.ndarray) -> ViewerShot:
+        from headless_chromium import panes
+
+        from gcs.view.rerun_log import LINK_BOTH_RGB, MODE_RGB
+        from gcs.view.rerun_series import ACTUAL_RGB, ESTIMATE_RGB
+        from gcs.view.scene import Mode
+
+        shot = ViewerShot(pixels)
+        green = _near(pixels, MODE_RGB[Mode.FLYING], 12)
+        shot.drones = int(green.sum())
+        shot.links = int(_near(pixels, LINK_BOTH_RGB, 20).sum())
+        if not shot.drones:
+            return shot
+        labels = panes(pixels)
+        areas = np.bincount(labels.ravel())
+        areas[0] = 0
+        window = labels.size
+        swarm = int(np.bincount(labels[green], minlength=areas.size)[1:].argmax()) + 1
+        shot.swarm_share = areas[swarm] / window
+        shot.largest_share = areas.max() / window
+        true = np.bincount(labels[_near(pixels, ACTUAL_RGB, 12)], minlength=areas.size)
+        agents = np.bincount(labels[_near(pixels, ESTIMATE_RGB, 25)], minlength=areas.size)
+        plots = (true >= 10) & (agents >= 10)
+        plots[[0, swarm]] = False
+        shot.plots_with_estimates = int(plots.sum())
+        bottom = int(np.nonzero(labels == swarm)[0].max())
+        below = np.unique(labels[min(bottom + 4, labels.shape[0] - 1), :])
+        shot.full_width_below = any(
+            np.ptp(np.nonzero(labels == k)[1]) >= 0.95 * labels.shape[1] for k in below if k
+        )
+        return shot
+
+    def layout_ok(self) -> bool:
+        return (
+            self.drones >= 20 and self.links >= 100 and self.swarm_share >= self.largest_share
+            and self.swarm_share > 0.3 and self.plots_with_estimates >= 3 and self.full_width_below
+        )  # fmt: skip
+
+
+def _screenshot(url: str, profile: Path, until: Callable[[ViewerShot], bool]) -> ViewerShot:
+    """The viewer at ``url`` in headless Chromium (1280 x 800), once ``until`` holds of its
+    screenshot or after 60 s; saved as ``profile``.png to look at."""
+    from headless_chromium import HeadlessChromium, chromium, why_not
+    from PIL import Image
 
     executable = chromium()
     if executable is None:
-        pytest.skip("no headless Chromium here (Debian: apt-get install chromium)")
-    green, blue = np.array(MODE_RGB[Mode.FLYING]), np.array(LINK_BOTH_RGB)
-    with HeadlessChromium(executable, replay_url, tmp_path / "profile") as browser:
+        pytest.skip(f"the viewer's screenshot is not checked here: {why_not()}")
+    with HeadlessChromium(executable, url, profile) as browser:
         deadline = time.monotonic() + 60
         while True:
-            pixels = browser.screenshot()
-            drones = int((np.abs(pixels - green).max(axis=2) <= 12).sum())
-            links = int((np.abs(pixels - blue).max(axis=2) <= 20).sum())
-            if (drones >= 20 and links >= 100) or time.monotonic() > deadline:
+            shot = ViewerShot.of(browser.screenshot())
+            if until(shot) or time.monotonic() > deadline:
                 break
             time.sleep(1.0)
-    Image.fromarray(pixels.astype(np.uint8)).save(tmp_path / "viewer.png")  # to look at
-    assert pixels.shape[1] == 1280
-    assert np.unique(pixels.reshape(-1, 3), axis=0).shape[0] > 500  # a UI, not a blank page
-    assert drones >= 20, f"no drones drawn after 60 s: {tmp_path / 'viewer.png'}"
-    assert links >= 100, f"no links drawn after 60 s: {tmp_path / 'viewer.png'}"
+    Image.fromarray(shot.pixels.astype(np.uint8)).save(profile.with_suffix(".png"))
+    return shot
+
+
+def test_headless_chromium_shows_the_swarm_layout(replay_url: str, tmp_path: Path) -> None:
+    """The served web viewer, loaded by headless Chromium (software WebGL), draws the flight on
+    the swarm layout: within a minute its screenshot holds the flying drones' colour and the
+    links' colour, which only the recording brings (the viewer's own UI is grey and blue); the
+    view that holds the drones is the largest (the views cut apart at their borders) and over
+    30 % of the window, at least three plots beside it show the true value and the agents'
+    estimates together, and a view as wide as the window lies under it (the events). Skipped,
+    saying why, where no Chromium is installed (``make test`` installs Debian's package as
+    root: tests/headless_chromium.py)."""
+    shot = _screenshot(replay_url, tmp_path / "swarm", ViewerShot.layout_ok)
+    where = tmp_path / "swarm.png"
+    assert shot.pixels.shape[1] == 1280
+    assert np.unique(shot.pixels.reshape(-1, 3), axis=0).shape[0] > 500  # a UI, not a blank page
+    assert shot.drones >= 20, f"no drones drawn after 60 s: {where}"
+    assert shot.links >= 100, f"no links drawn after 60 s: {where}"
+    assert shot.swarm_share >= shot.largest_share and shot.swarm_share > 0.3, (shot, where)
+    assert shot.plots_with_estimates >= 3, (shot.plots_with_estimates, where)
+    assert shot.full_width_below, f"no full-width view under the 3-D view: {where}"
+
+
+def test_layout_auto_leaves_it_to_rerun(report: Path, tmp_path: Path) -> None:
+    """``swarm replay --layout auto``: Rerun's own layout, where the 3-D swarm is one tile among
+    many (so the layout test above can fail)."""
+    log = tmp_path / "replay.out"
+    proc = _serve("replay", report, log, "--layout", "auto")
+    try:
+        url = _viewer_url(proc, log)
+        shot = _screenshot(url, tmp_path / "auto", lambda s: s.drones >= 10 and s.links >= 20)
+    finally:
+        proc.terminate()
+        proc.wait(15)
+    assert shot.drones >= 10, f"no drones drawn after 60 s: {tmp_path / 'auto.png'}"
+    assert shot.swarm_share < 0.15 and shot.largest_share > shot.swarm_share, shot
+
+
+def test_live_view_opens_on_the_swarm_layout(report: Path, tmp_path: Path) -> None:
+    """``swarm view`` (as ``swarm up --view`` runs it) of a report folder: the same layout as
+    the replay's, the drones in the largest view, the plots with the agents' estimates."""
+    log = tmp_path / "view.out"
+    proc = _serve("view", report, log)
+    try:
+        url = _viewer_url(proc, log)
+        shot = _screenshot(url, tmp_path / "live", ViewerShot.layout_ok)
+    finally:
+        proc.terminate()
+        proc.wait(15)
+    where = tmp_path / "live.png"
+    assert shot.drones >= 20 and shot.links >= 100, f"no swarm drawn after 60 s: {where}"
+    assert shot.swarm_share >= shot.largest_share and shot.swarm_share > 0.3, (shot, where)
+    assert shot.plots_with_estimates >= 3 and shot.full_width_below, (shot, where)
 
 
 def test_view_help(capsys: pytest.CaptureFixture[str]) -> None:

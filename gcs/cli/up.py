@@ -33,6 +33,7 @@ from gcs.cli.supervisor import (
     swarm_argv,
 )
 from gcs.cli.up_hosts import add_multihost_flags, host_layout, multihost_plan
+from gcs.cli.view import LAYOUTS as VIEW_LAYOUTS
 from gcs.view.recording import INSTALL_HINT, rerun_available
 from protocols.layout_names import LAYOUTS
 from protocols.mavlink_conventions import DEFAULT_GCS_PORT, port_clash, vehicle_ports
@@ -217,6 +218,10 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--view-web-port", type=int, default=9090, help="--view: web viewer port")
     p.add_argument("--view-grpc-port", type=int, default=9876, help="--view: viewer data port")
+    p.add_argument(
+        "--view-layout", choices=VIEW_LAYOUTS, default=VIEW_LAYOUTS[0],
+        help="--view: the viewer's layout, swarm (default; as swarm view's) or auto (Rerun's own)",
+    )  # fmt: skip
 
 
 def build_plan(
@@ -439,6 +444,7 @@ def live_view(args: argparse.Namespace, scenario: Path) -> Iterator[str | None]:
     argv = swarm_argv(
         "view", str(args.report), "--scenario", str(scenario),
         "--web-port", str(args.view_web_port), "--grpc-port", str(args.view_grpc_port),
+        "--layout", getattr(args, "view_layout", VIEW_LAYOUTS[0]),
     )  # fmt: skip
     with log.open("wb") as out:
         proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT)

@@ -1,7 +1,8 @@
 """``swarm view`` (a running swarm, live) and ``swarm replay`` (a report's flight.rrd) in Rerun.
 
 Both serve Rerun's web viewer on this machine and print its URL (``--native`` opens the native
-viewer instead, where a display exists). Rerun is optional (``pip install 'quadswarm[view]'``):
+viewer instead, where a display exists), on the swarm layout of :mod:`gcs.view.layout`
+(``--layout auto``: Rerun's automatic one). Rerun is optional (``pip install 'quadswarm[view]'``):
 without it both commands say how to install it and exit with code 2; this module imports it only
 when a command runs, so ``swarm --help`` and everything else work without it.
 
@@ -29,6 +30,8 @@ Stop = Callable[[], bool]
 DEFAULT_WEB_PORT = 9090
 DEFAULT_GRPC_PORT = 9876
 VIEW_COMMANDS = ("view", "replay")
+#: ``--layout`` choices (gcs.view.layout.LAYOUTS, without importing Rerun).
+LAYOUTS = ("swarm", "auto")
 
 
 class ViewError(Exception):
@@ -89,6 +92,12 @@ def _serving(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--native", action="store_true", help="open Rerun's native viewer (needs a display)"
     )
+    p.add_argument(
+        "--layout", choices=LAYOUTS, default=LAYOUTS[0],
+        help="swarm (default): the 3-D swarm large, one plot per descriptor with its command, "
+        "true value and the agents' estimates, the events log across the bottom; auto: Rerun's "
+        "automatic layout",
+    )  # fmt: skip
 
 
 def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
@@ -112,15 +121,16 @@ def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
 
 def _open(args: argparse.Namespace, recording_id: str, out: TextIO) -> rr.RecordingStream:
     """A recording sent to a viewer (web, served here; or native); prints where to look."""
+    from gcs.view.layout import layout_blueprint
     from gcs.view.rerun_log import recording, serve
 
     rec = recording(recording_id)
     if args.native:
-        rec.spawn()
+        rec.spawn(default_blueprint=layout_blueprint(args.layout))
         print(f"swarm {args.command}: opened Rerun's native viewer", file=out, flush=True)
     else:
         try:
-            url = serve(rec, args.web_port, args.grpc_port)
+            url = serve(rec, args.web_port, args.grpc_port, args.layout)
         except Exception as exc:  # Rerun raises its own errors for a taken port
             raise ViewError(f"swarm {args.command}: cannot serve the viewer: {exc}") from None
         print(f"swarm {args.command}: Rerun web viewer at {url}", file=out, flush=True)

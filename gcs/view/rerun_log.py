@@ -10,6 +10,9 @@ Entities, on the timeline ``sim_time`` (simulated seconds), world frame NED (Rer
   ``swarm/trails``: the last :data:`TRAIL_S` seconds of each drone's path;
 - ``swarm/formation/commanded`` and ``swarm/formation/actual``: the commanded and the true swarm
   ellipsoid (centre, heading, half-axes the spreads ``sqrt(variance)``, 1 sigma);
+  ``swarm/formation/commanded_axes``: the commanded formation's frame, three arrows from its
+  centre along its length, width and height axes (red, green, blue), each as long as that spread
+  (at least :data:`AXIS_MIN_M`);
   ``swarm/estimates``: each agent's estimate of the centre;
 - ``swarm/links``: the radio links that integrated (:func:`gcs.view.scene.link_pairs`), one
   segment per linked pair between the two drones, blue where both directions integrated, yellow
@@ -17,10 +20,11 @@ Entities, on the timeline ``sim_time`` (simulated seconds), world frame NED (Rer
   (a larger swarm's links evenly thinned, e.g. 250 drones in range of 20 each: ~2,500 links), with
   ``links/pairs`` their full count;
 - ``events``: every event of events.jsonl as a text log line;
-- ``descriptors/<name>/commanded`` and ``.../actual`` (angles in degrees), ``separation/min_m``,
-  ``consensus/error_m`` and ``links/neighbours_mean``: time series.
+- the time series of :mod:`gcs.view.rerun_series`: each descriptor's command, true value and
+  agents' estimates, the angles' errors, separation, consensus error, neighbours.
 
-Everything is sent as columns (:func:`rerun.send_columns`): one call per entity and batch.
+Everything is sent as columns (:func:`rerun.send_columns`): one call per entity and batch. The
+recording carries the layout of :mod:`gcs.view.layout` as its default blueprint.
 """
 
 from __future__ import annotations
@@ -31,11 +35,19 @@ import numpy as np
 import numpy.typing as npt
 import rerun as rr
 
-from gcs.view.scene import DESCRIPTORS, Mode, Scene, link_pairs
-from protocols.frames import FloatArray
+from gcs.view.layout import LAYOUTS, blueprint, layout_blueprint
+from gcs.view.rerun_series import (
+    ACTUAL_RGB,
+    ESTIMATE_RGB,
+    TIMELINE,
+    log_series,
+    log_series_setup,
+    scalar_series,
+)
+from gcs.view.scene import Mode, Scene, link_pairs
+from protocols.frames import FloatArray, rot_zyx_batch
 
 APP_ID = "quadswarm"
-TIMELINE = "sim_time"
 TRAIL_S = 2.0
 #: At most this many trail rows and trail points per second of flight.
 TRAIL_HZ = 10.0
@@ -45,7 +57,10 @@ MODE_RGB = {
     Mode.FAILSAFE: (255, 150, 0),
     Mode.LOST: (220, 40, 40),
 }
-_COMMANDED_RGB, _ACTUAL_RGB, _ESTIMATE_RGB = (160, 160, 160), (60, 120, 230), (200, 80, 200)
+_COMMANDED_RGB, _ACTUAL_RGB = (160, 160, 160), ACTUAL_RGB
+#: The commanded frame's arrows: length, width and height axes; the shortest drawn (m).
+AXIS_RGB = ((230, 50, 50), (50, 190, 60), (60, 90, 240))
+AXIS_MIN_M = 0.5
 #: At most this many links drawn per row (each two points; 1.5 UI points wide at any zoom): the
 #: 250-drone scenario's ~1,700 links thinned, its flight.rrd 19 MB instead of 16 MB without links.
 MAX_LINKS = 600
@@ -61,9 +76,10 @@ def recording(recording_id: str) -> rr.RecordingStream:
 
 
 def write_rrd(scene: Scene, path: Path, recording_id: str) -> Path:
-    """Write ``scene`` to the Rerun recording ``path`` (a .rrd file)."""
+    """Write ``scene`` to the Rerun recording ``path`` (a .rrd file), the swarm layout its
+    default blueprint."""
     rec = recording(recording_id)
-    rec.save(str(path))
+    rec.save(str(path), default_blueprint=blueprint())
     log_setup(rec, scene.n_drones)
     log_scene(rec, scene)
     rec.flush()
@@ -74,11 +90,7 @@ def write_rrd(scene: Scene, path: Path, recording_id: str) -> Path:
 def log_setup(rec: rr.RecordingStream, n_drones: int) -> None:
     """The static parts: the NED frame and the series' names and colours."""
     rec.log("swarm", rr.ViewCoordinates.FRD, static=True)
-    for name in DESCRIPTORS:
-        rec.log(f"descriptors/{name}/commanded", rr.SeriesLines(colors=[_COMMANDED_RGB],
-                names=[f"{name} commanded"]), static=True)  # fmt: skip
-        rec.log(f"descriptors/{name}/actual", rr.SeriesLines(colors=[_ACTUAL_RGB],
-                names=[f"{name} actual"]), static=True)  # fmt: skip
+    log_series_setup(rec, n_drones)
 
 
 def log_scene(rec: rr.RecordingStream, scene: Scene, start: int = 0, events_from: int = 0) -> None:
@@ -89,7 +101,7 @@ def log_scene(rec: rr.RecordingStream, scene: Scene, start: int = 0, events_from
         _trails(rec, scene, start)
         _links(rec, scene, start)
         _formations(rec, scene, start)
-        _series(rec, scene, start)
+        log_series(rec, scene, start, _trail_rows(scene, start)[0])
     events = scene.events[events_from:]
     if events:
         rec.send_columns(
@@ -127,7 +139,7 @@ def _drones(rec: rr.RecordingStream, scene: Scene, start: int) -> None:
         indexes=_index(scene.t_s[start:]),
         columns=rr.Points3D.columns(
             positions=est[known],
-            colors=[_ESTIMATE_RGB] * int(known.sum()),
+            colors=[ESTIMATE_RGB] * int(known.sum()),
             radii=[0.06] * int(known.sum()),
         ).partition(known.sum(axis=1)),
     )
@@ -209,7 +221,7 @@ def _links(rec: rr.RecordingStream, scene: Scene, start: int) -> None:
                 strips=strips, colors=colours, radii=[-1.5] * len(strips)
             ).partition(counts),
         )
-        _scalar_series(rec, "links/pairs", scene.t_s[batch], np.asarray(totals, dtype=float))
+        scalar_series(rec, "links/pairs", scene.t_s[batch], np.asarray(totals, dtype=float))
 
 
 def quaternions_xyzw(euler_rad: FloatArray) -> FloatArray:
@@ -243,29 +255,38 @@ def _formations(rec: rr.RecordingStream, scene: Scene, start: int) -> None:
                 fill_mode=["MajorWireframe"] * rows.shape[0],
             ).partition(ok.astype(int)),
         )
+    _commanded_axes(rec, scene, start)
 
 
-def _scalar_series(rec: rr.RecordingStream, path: str, t_s: FloatArray, values: FloatArray) -> None:
-    ok = np.isfinite(values)
-    if ok.any():
-        rec.send_columns(
-            path, indexes=_index(t_s[ok]), columns=rr.Scalars.columns(scalars=values[ok])
-        )
+def formation_axes(descriptors: FloatArray) -> FloatArray:
+    """(T, 3, 3) the arrows of the formation frames of ``descriptors`` (T, 9): row j the vector
+    along principal axis j (length, width, height; NED, m), as long as that axis's spread
+    ``sqrt(variance)`` and at least :data:`AXIS_MIN_M`."""
+    rot = rot_zyx_batch(descriptors[:, 5], descriptors[:, 4], descriptors[:, 3])
+    length = np.maximum(np.sqrt(np.maximum(descriptors[:, 6:9], 0.0)), AXIS_MIN_M)
+    return np.swapaxes(rot, 1, 2) * length[:, :, None]
 
 
-def _series(rec: rr.RecordingStream, scene: Scene, start: int) -> None:
-    t = scene.t_s[start:]
-    for k, name in enumerate(DESCRIPTORS):
-        scale = np.degrees(1.0) if 3 <= k < 6 else 1.0
-        _scalar_series(rec, f"descriptors/{name}/commanded", t, scene.desired[start:, k] * scale)
-        _scalar_series(rec, f"descriptors/{name}/actual", t, scene.actual[start:, k] * scale)
-    _scalar_series(rec, "separation/min_m", t, scene.min_separation_m[start:])
-    _scalar_series(rec, "consensus/error_m", t, scene.consensus_error_m[start:])
-    _scalar_series(rec, "links/neighbours_mean", t, scene.neighbours_mean[start:])
+def _commanded_axes(rec: rr.RecordingStream, scene: Scene, start: int) -> None:
+    values = scene.desired[start:]
+    ok = np.isfinite(values).all(axis=1)
+    rows = values[ok]
+    vectors = formation_axes(rows).reshape(-1, 3)
+    rec.send_columns(
+        "swarm/formation/commanded_axes",
+        indexes=_index(scene.t_s[start:]),
+        columns=rr.Arrows3D.columns(
+            origins=np.repeat(rows[:, :3], 3, axis=0),
+            vectors=vectors,
+            colors=list(AXIS_RGB) * rows.shape[0],
+            radii=[0.03] * vectors.shape[0],
+        ).partition(3 * ok.astype(int)),
+    )
 
 
-def serve(rec: rr.RecordingStream, web_port: int, grpc_port: int) -> str:
-    """Serve ``rec`` to a local web viewer; the viewer's URL (open it in a browser)."""
-    grpc_url = rec.serve_grpc(grpc_port=grpc_port)
+def serve(rec: rr.RecordingStream, web_port: int, grpc_port: int, layout: str = LAYOUTS[0]) -> str:
+    """Serve ``rec`` to a local web viewer, on the swarm layout (or Rerun's with ``layout``
+    ``"auto"``); the viewer's URL (open it in a browser)."""
+    grpc_url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=layout_blueprint(layout))
     rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=grpc_url)
     return f"http://127.0.0.1:{web_port}/?url={grpc_url}"

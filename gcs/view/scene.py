@@ -32,7 +32,7 @@ import numpy.typing as npt
 from gcs.report.events import read_events
 from gcs.report.flight_record import FlightRecord
 from gcs.report.from_logs import MAX_AGE_S, _hold, build_record
-from gcs.report.metrics import true_descriptors
+from gcs.report.metrics import heading_mask, true_descriptors
 from gcs.report.tlog import TlogTrack, read_tlog
 from protocols.frames import FloatArray
 from protocols.trajectory import DescriptorTrajectory
@@ -69,19 +69,23 @@ class Scene:
 
     ``t_s`` (T,) s; ``position_ned_m`` (T, N, 3), NaN where a drone was not heard yet;
     ``mode`` (T, N) :class:`Mode`; ``estimate_centre_ned_m`` (T, N, 3) each agent's estimate of the
-    swarm centre (NaN where none); ``desired`` and ``actual`` (T, 9) the commanded and the true
-    descriptors (NaN where fewer than 2 members); ``min_separation_m`` (T,) between airborne
-    drones (NaN with fewer than 2); ``consensus_error_m`` (T,) the worst distance of an agent's
-    centre estimate from the true centre; ``neighbours_mean`` (T,) the agents' mean number of
-    neighbours; ``events`` in time order; ``links`` the neighbours each agent integrated (None:
+    swarm centre (NaN where none); ``estimate`` (T, N, 9) each member agent's estimate of the
+    descriptors (NaN where none, or not a member); ``desired`` and ``actual`` (T, 9) the commanded
+    and the true descriptors (NaN where fewer than 2 members); ``heading_ok`` (T,) where the true
+    orientation is defined (length and width spreads apart); ``min_separation_m`` (T,) between
+    airborne drones (NaN with fewer than 2); ``consensus_error_m`` (T,) the worst distance of an
+    agent's centre estimate from the true centre; ``neighbours_mean`` (T,) the agents' mean number
+    of neighbours; ``events`` in time order; ``links`` the neighbours each agent integrated (None:
     unknown, nothing drawn): :func:`link_pairs`."""
 
     t_s: FloatArray
     position_ned_m: FloatArray
     mode: npt.NDArray[np.int8]
     estimate_centre_ned_m: FloatArray
+    estimate: FloatArray
     desired: FloatArray
     actual: FloatArray
+    heading_ok: npt.NDArray[np.bool_]
     min_separation_m: FloatArray
     consensus_error_m: FloatArray
     neighbours_mean: FloatArray
@@ -225,8 +229,10 @@ def scene_from_record(
         position_ned_m=pos,
         mode=modes(record, events),
         estimate_centre_ned_m=est,
+        estimate=np.where(record.member[..., None], record.estimate, np.nan),
         desired=record.desired,
         actual=actual,
+        heading_ok=heading_mask(actual),
         min_separation_m=min_separation(pos, record.airborne),
         consensus_error_m=consensus,
         neighbours_mean=neighbours,
