@@ -1,4 +1,4 @@
-"""Large swarms fly safely (issue 10): the library's 25- and 100-drone grids (2.5 m apart, radio
+"""Large swarms fly safely: the library's 25-, 100- and 250-drone grids (2.5 m apart, radio
 range 6 m; take-off, a 20 m move with a 30° turn and a 15 % stretch, an agent drop-out, a
 vehicle crash, 20 % loss on every link), flown as a newcomer types it, ``swarm simulate FILE``,
 and judged from flight.tlog alone (tests/large_swarm.py): every drone not lost airborne at the
@@ -20,7 +20,7 @@ from gcs.report.events import read_events
 pytestmark = pytest.mark.slow
 
 
-@pytest.mark.parametrize("name", ["large_grid25", "large_grid100"])
+@pytest.mark.parametrize("name", ["large_grid25", "large_grid100", "large_grid250"])
 def test_large_grid_flies_to_the_bars(tmp_path: Path, name: str) -> None:
     scenario = ROOT / "scenarios" / f"{name}.toml"
     done = subprocess.run(
