@@ -166,7 +166,7 @@ class Swarm:
         if scenario is not None:
             path = Path(scenario)
             n = n_drones_of(path)
-            given = [k for k, v in session.items() if v is not None and k != "seed"]
+            given = [k for k, v in session.items() if v is not None]
             if given:
                 raise UsageError(f"{given[0]} goes with drones=N; a scenario file has its own")
             what = [str(path.resolve())]
@@ -179,7 +179,7 @@ class Swarm:
                     "duration_s (--duration-s): an operator session has no fixed duration"
                 )
         for key, value in session.items():
-            if value is not None and (scenario is None or key == "seed"):
+            if value is not None:
                 what += [f"--{key.replace('_', '-')}", str(value)]
         if duration_s is not None:
             what += ["--duration-s", str(duration_s)]
