@@ -331,7 +331,10 @@ def run(args: argparse.Namespace) -> int:
     comm_range = args.comm_range_m or (scenario.comms.range_m if scenario else 10.0)
     if not comm_range > 0:
         raise AgentCliError("--comm-range-m must be positive")
-    config = agent_config(scenario) if scenario else _default_config()
+    try:
+        config = agent_config(scenario) if scenario else _default_config()
+    except ScenarioError as exc:  # its [agent] controller cannot fly
+        raise AgentCliError(str(exc)) from None
     plan = scenario.trajectory() if scenario and not args.wait_for_plan else None
     lockstep = bool(getattr(args, "lockstep", False))
     settings = LinkSettings(
@@ -427,10 +430,17 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
 
+    said: list[str | None] = [None]  # the controller's last failure said
+
     def each_loop() -> None:
         live.poll()
         if drills is not None:  # the scenario's timeline, applied as soon as it is due
             drills.apply()
+        error = host.controller_error
+        if error is not None and error != said[0]:  # always said, --quiet or not
+            said[0] = error
+            print(f"agents: {error}; its drones get no setpoint (they hold)", file=sys.stderr,
+                  flush=True)  # fmt: skip
 
     def report(h: AgentHost) -> None:
         print(_status_line(h, config.consensus.dt_s), file=sys.stderr, flush=True)

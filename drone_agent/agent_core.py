@@ -19,14 +19,24 @@ The per-drone arithmetic of those steps runs as compiled loops over the rows
 from __future__ import annotations
 
 import weakref
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from drone_agent.consensus import ConsensusParams
 from drone_agent.consensus_batch import BatchConsensus, Outgoing, frozen_factory
+from drone_agent.controller import (
+    ControllerInputs,
+    ControllerSetup,
+    CooperativeController,
+    FormationController,
+    call_acceleration,
+    call_thrust_attitude,
+    controller_name,
+)
 from drone_agent.cooperative import (
     CooperativeGains,
     euler_rate_matrix_batch,
@@ -50,7 +60,9 @@ class AgentConfig:
     """What one agent needs to know: gains, limits, the warm-up before it may arm, and when its
     estimate counts as settled: disagreement with its neighbours (ConsensusOutput) below
     ``settle_tolerance`` for ``settle_ticks`` ticks in a row with the same membership; the
-    separation layer (drone_agent/separation_layer.py; None: off)."""
+    separation layer (drone_agent/separation_layer.py; None: off); the formation controller
+    (``controller``, built with a :class:`~drone_agent.controller.ControllerSetup` carrying
+    ``controller_options``; drone_agent/controller.py)."""
 
     consensus: ConsensusParams
     gains: CooperativeGains
@@ -59,6 +71,8 @@ class AgentConfig:
     settle_ticks: int = 25
     settle_tolerance: float = 0.02
     separation: SeparationConfig | None = None
+    controller: Callable[[ControllerSetup], FormationController] = CooperativeController
+    controller_options: tuple[tuple[str, Any], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -202,6 +216,15 @@ class BatchAgentCore:
         self.config = config
         self.consensus = BatchConsensus(self.agent_ids, config.consensus)
         self.rejected_setpoints = [0] * len(self.agent_ids)
+        self.controller = config.controller(
+            ControllerSetup(
+                config.gains, config.limits, config.consensus.dt_s, dict(config.controller_options)
+            )
+        )
+        #: the controller's calls that failed (raised, wrong shape, rows not finite) and what
+        #: the last one did, for the adapter to report
+        self.controller_failures = 0
+        self.controller_error: str | None = None
         self.separation = (
             None
             if config.separation is None
@@ -303,7 +326,7 @@ class BatchAgentCore:
                 moments,
                 (a_d, ad_dot, ad_ddot),
                 (r_d, axes, s),
-                (round_, inboxes),
+                (round_, t_s, inboxes),
                 climb_to,
             )
         return BatchOutputs(
@@ -353,18 +376,20 @@ class BatchAgentCore:
         moments: SwarmMoments,
         reference: StateTriple,
         frame: tuple[FloatArray, FloatArray, FloatArray],
-        heard: tuple[int, Sequence[Iterable[ConsensusMessage]]],
+        heard: tuple[int, float, Sequence[Iterable[ConsensusMessage]]],
         climb_to: Sequence[float | None] | None = None,
     ) -> tuple[list[Setpoint | None], list[bool]]:
         """The checked setpoints of the rows ready to fly (None for the others, and for any
-        command not finite or out of range, which is counted against its row), and whether the
-        separation layer changed each row's command; ``heard``: the round and the rows'
-        inboxes (where their neighbours are)."""
+        command the controller failed to give, not finite or out of range, which is counted
+        against its row), and whether the separation layer changed each row's command;
+        ``heard``: the round, the simulated time and the rows' inboxes (where their
+        neighbours are)."""
+        round_, t_s, inboxes = heard
         idx = np.flatnonzero(ready)
         if idx.shape[0] == ready.shape[0]:  # all ready (the usual case): no gathering
-            accel = virtual_acceleration_batch(x, v, moments, reference, self.config.gains, frame)
-            ref = reference
+            xs, vs, pick, ref, fr = x, v, moments, reference, frame
         else:
+            xs, vs = x[idx], v[idx]
             pick = SwarmMoments(
                 moments.centre_ned_m[idx],
                 moments.centre_rate_ned_m_s[idx],
@@ -372,49 +397,68 @@ class BatchAgentCore:
                 moments.sigma_rate_m2_s[idx],
             )
             ref = (reference[0][idx], reference[1][idx], reference[2][idx])
-            accel = virtual_acceleration_batch(
-                x[idx],
-                v[idx],
-                pick,
-                ref,
-                self.config.gains,
-                (frame[0][idx], frame[1][idx], frame[2][idx]),
-            )
+            fr = (frame[0][idx], frame[1][idx], frame[2][idx])
+        inputs = ControllerInputs(
+            tuple(self.agent_ids[rows[k]] for k in idx.tolist()),
+            t_s, xs, vs, pick, fr[1], fr[2], ref[0], ref[1], ref[2], fr[0],
+        )  # fmt: skip
+        accel, good = self._accelerations(inputs)
         if climb_to is not None and any(z is not None for z in climb_to):
             accel = np.array(accel, dtype=float)
             for k, i in enumerate(idx.tolist()):
                 target = climb_to[i]
                 if target is not None:
                     accel[k] = climb_acceleration(x[i], v[i], target)
+                    good[k] = True
         changed = [False] * len(ready)
         if self.separation is not None:
-            round_, inboxes = heard
             filtered = self.separation.filter(
                 [self.agent_ids[rows[k]] for k in idx.tolist()],
                 round_,
-                x[idx],
-                v[idx],
+                xs,
+                vs,
                 accel,
                 inboxes if idx.shape[0] == len(inboxes) else [inboxes[k] for k in idx.tolist()],
                 common_accel_ned_m_s2=ref[2][:, CENTRE],
             )
             accel = filtered.accel_ned_m_s2
-            for k in np.flatnonzero(filtered.active).tolist():
+            for k in np.flatnonzero(filtered.active & good).tolist():
                 changed[int(idx[k])] = True
-        yaw = ref[0][:, I_YAW]
-        limits = self.config.limits
-        roll, pitch, thrust_n, limited = attitude_thrust_batch(accel, yaw, limits)
-        command = np.array([roll, pitch, yaw, thrust_n / limits.max_thrust_n])  # (4, K)
-        ok = np.isfinite(command).all(axis=0) & (command[3] >= 0.0) & (command[3] <= 1.0)
+        command, limited = self._commands(accel, inputs)
+        ok = np.isfinite(command).all(axis=0) & (command[3] >= 0.0) & (command[3] <= 1.0) & good
         out: list[Setpoint | None] = [None] * len(ready)
-        for k, (r, p, y, t), lim, good in zip(
+        for k, (r, p, y, t), lim, fine in zip(
             idx.tolist(), command.T.tolist(), limited.tolist(), ok.tolist(), strict=True
         ):
-            if good:
+            if fine:
                 out[k] = _new_setpoint(r, p, y, t, lim)
             else:
                 self.rejected_setpoints[rows[k]] += 1
         return out, changed
+
+    def _accelerations(self, inputs: ControllerInputs) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+        """The controller's accelerations and the usable rows (:func:`call_acceleration`);
+        a failure counted and said (:attr:`controller_error`)."""
+        accel, good, error = call_acceleration(self.controller, inputs)
+        if error is not None:
+            self._fault(error)
+        return accel, good
+
+    def _commands(
+        self, accel: FloatArray, inputs: ControllerInputs
+    ) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+        """The controller's commands (:func:`call_thrust_attitude`); a failure counted and
+        said (:attr:`controller_error`)."""
+        command, limited, error = call_thrust_attitude(
+            self.controller, accel, inputs, self.config.limits.max_thrust_n
+        )
+        if error is not None:
+            self._fault(error)
+        return command, limited
+
+    def _fault(self, message: str) -> None:
+        self.controller_failures += 1
+        self.controller_error = f"controller {controller_name(self.controller)}: {message}"
 
 
 _new_output = frozen_factory(AgentOutput)

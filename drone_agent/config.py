@@ -1,4 +1,5 @@
-"""An agent's configuration from a scenario's [gains], [consensus] and [rates] sections."""
+"""An agent's configuration from a scenario's [gains], [consensus], [rates], [safety] and
+[agent] sections."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ import math
 
 from drone_agent.agent_core import AgentConfig
 from drone_agent.consensus import ConsensusParams
+from drone_agent.controller import ControllerSetup
+from drone_agent.controller_load import check_controller, controller_class
 from drone_agent.cooperative import CooperativeGains
 from drone_agent.separation_layer import SeparationConfig
 from drone_agent.thrust_attitude import ThrustLimits
@@ -14,7 +17,12 @@ from protocols.scenario import Scenario
 
 
 def agent_config(scenario: Scenario) -> AgentConfig:
-    """Gains, limits and consensus parameters every agent of the scenario uses."""
+    """Gains, limits, consensus parameters and the controller every agent of the scenario uses.
+
+    Raises:
+        ControllerError: the scenario's ``[agent] controller`` cannot fly
+            (drone_agent/controller_load.py): one line naming the file and the field.
+    """
     g, c, v = scenario.gains, scenario.consensus, scenario.vehicle
     consensus = ConsensusParams(
         rho=c.rho,
@@ -52,10 +60,18 @@ def agent_config(scenario: Scenario) -> AgentConfig:
         geofence_m=safety.geofence_m,
         ceiling_m=safety.ceiling_m,
     )
+    cls = controller_class(scenario)
+    options = scenario.agent.options
+    if scenario.agent.controller is not None:  # a user's: built and tried once, before flying
+        check_controller(
+            scenario, cls, ControllerSetup(gains, limits, consensus.dt_s, dict(options))
+        )
     return AgentConfig(
         consensus=consensus,
         gains=gains,
         limits=limits,
         warmup_s=c.warmup_s,
         separation=separation,
+        controller=cls,
+        controller_options=options,
     )

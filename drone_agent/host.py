@@ -322,6 +322,12 @@ class AgentHost:
         slot = self._slot_of.get(drone)
         return -1 if slot is None or slot.agent is None else slot.agent.round_now
 
+    @property
+    def controller_error(self) -> str | None:
+        """What the formation controller's last failed call did (None: none failed;
+        drone_agent/controller.py)."""
+        return self._core.controller_error
+
     def _run_cores(self, group: list[tuple[HostedAgent, DueTick]]) -> None:
         """The cores of the agents due at one tick (same tick, same vehicle time), in one
         batched call; each agent then finishes its own tick: all answer their vehicles, then all

@@ -13,6 +13,7 @@ centre, m) or a variance (m²) per swarm axis in the file, always a variance in 
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +29,7 @@ from protocols.scenario_schema import ScenarioError, Table
 from protocols.trajectory import DescriptorTrajectory, Waypoint
 
 __all__ = [
+    "AgentSection",
     "Crash",
     "Dropout",
     "Fault",
@@ -152,6 +154,21 @@ class SafetyConfig:
 
 
 @dataclass(frozen=True)
+class AgentSection:
+    """[agent]: the formation controller every agent flies (docs/controllers.md).
+
+    ``controller``: ``"package.module:Name"``, a class implementing the controller interface
+    (drone_agent/controller.py); None: the paper's cooperative controller. ``path``: folders its
+    module is looked for in before ``sys.path``, relative to the scenario file (default: the
+    scenario's own folder). ``options``: the ``[agent.options]`` table, handed to the
+    controller as it is (its own gains, say)."""
+
+    controller: str | None = None
+    path: tuple[str, ...] = (".",)
+    options: tuple[tuple[str, Any], ...] = ()
+
+
+@dataclass(frozen=True)
 class DroneConfig:
     """One [[drones]] entry: initial position (NED, m; z <= 0) and heading (deg)."""
 
@@ -225,6 +242,8 @@ class Scenario:
     #: [home]: where the NED origin is on the map (protocols/geodesy.py)
     home: GeoPoint = field(default_factory=GeoPoint)
     version: int = 1
+    #: [agent]: the formation controller (None: the paper's)
+    agent: AgentSection = field(default_factory=AgentSection)
 
     @property
     def n_drones(self) -> int:
@@ -273,7 +292,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         raise top.error(f"{version} is not supported (supported: {_supported()})", "version")
     top.allow(
         ("version", "name", "duration_s", "seed", "settle_s", "vehicle", "rates", "gains",
-         "consensus", "comms", "safety", "drones", "trajectory", "faults", "home")
+         "consensus", "comms", "safety", "drones", "trajectory", "faults", "home", "agent")
     )  # fmt: skip
     drones = _drones(top)
     waypoints = _waypoints(top.table("trajectory", ("waypoints",)))
@@ -305,6 +324,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         faults=tuple(_fault(t, len(drones), duration_s) for t in top.tables("faults")),
         home=top.table("home").section(GeoPoint, HOME_BOUNDS),
         version=version,
+        agent=_agent(top.table("agent", ("controller", "path", "options"))),
     )
 
 
@@ -323,6 +343,28 @@ def _check_formations(
         problem = fit_problem(start, w.waypoint().value, safety.min_separation_m)
         if problem is not None:
             raise top.error(f"at t = {w.t_s:g} s {problem}", f"trajectory.waypoints[{k}]")
+
+
+#: ``package.module:Name``: dotted identifiers, a colon, an identifier
+_REFERENCE = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*")
+
+
+def _agent(t: Table) -> AgentSection:
+    controller = t.string("controller") if t.has("controller") else None
+    if controller is not None and not _REFERENCE.fullmatch(controller):
+        raise t.error(
+            f'{controller!r} is not a controller reference ("package.module:ClassName")',
+            "controller",
+        )
+    path: tuple[str, ...] = (".",)
+    if t.has("path"):
+        items = t.array("path")
+        for k, item in enumerate(items):
+            if not isinstance(item, str) or not item:
+                raise t.error("must be a non-empty string (a folder)", f"path[{k}]")
+        path = tuple(items)
+    options = t.table("options")
+    return AgentSection(controller, path, tuple(sorted(options.data.items())))
 
 
 def _supported() -> str:

@@ -1,6 +1,8 @@
 """Write scenarios/paper.toml: the paper's flight as ALGORITHM.md §7 defines it.
 
-Usage: ``python scripts/make_paper_scenario.py [OUT.toml]`` (prints to stdout without OUT).
+Usage: ``python scripts/make_paper_scenario.py [--controller MODULE:NAME] [OUT.toml]`` (prints to
+stdout without OUT). ``--controller`` writes the same flight with an ``[agent] controller``
+(examples/pd_paper.toml: ``--controller pd_controller:PDFormation``).
 The reference is analytic; waypoints carry its exact value, rate and acceleration, so the quintic
 plan through them matches it to well under a millimetre.
 """
@@ -79,10 +81,14 @@ def vec(xs: Sequence[float]) -> str:
     return "[" + ", ".join(fmt(x) for x in xs) + "]"
 
 
-def render() -> str:
-    """The whole scenarios/paper.toml text."""
-    lines = [HEADER, "version = 1", 'name = "paper"', f"duration_s = {fmt(DURATION_S)}"]
+def render(controller: str | None = None) -> str:
+    """The whole scenarios/paper.toml text; with ``controller``, flown by that controller."""
+    name = "paper" if controller is None else "paper-" + controller.rpartition(":")[2]
+    lines = [HEADER, "version = 1", f'name = "{name}"', f"duration_s = {fmt(DURATION_S)}"]
     lines += ["seed = 0", "", "[comms]", "range_m = 10.0", ""]
+    if controller is not None:
+        lines += ["[agent]  # the formation controller (docs/controllers.md)"]
+        lines += [f'controller = "{controller}"', ""]
     for x in GRID_M:
         for y in GRID_M:
             lines += ["[[drones]]", f"position_ned_m = {vec((x, y, 0.0))}", ""]
@@ -104,7 +110,11 @@ def render() -> str:
 
 def main(argv: Sequence[str]) -> int:
     """Write the scenario to ``argv[0]``, or print it when no path is given."""
-    text = render()
+    argv = list(argv)
+    controller = None
+    if argv[:1] == ["--controller"] and len(argv) >= 2:
+        controller, argv = argv[1], argv[2:]
+    text = render(controller)
     if argv:
         Path(argv[0]).write_text(text, encoding="utf-8")
     else:

@@ -148,6 +148,7 @@ def _up(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
+    from drone_agent.config import agent_config
     from gcs.cli.compiled import warm_compiled
     from gcs.reference.simulate import simulate
     from gcs.report.summary import summary_lines
@@ -155,6 +156,7 @@ def _simulate(args: argparse.Namespace) -> int:
 
     try:
         scenario = load_scenario(args.scenario)
+        agent_config(scenario)  # its [agent] controller found and tried once
     except ScenarioError as exc:
         raise CliError(str(exc)) from None
     if args.duration_s is not None:

@@ -184,11 +184,13 @@ def _as_flag(message: str) -> str:
 
 
 def _check(path: Path) -> int:
+    from drone_agent.config import agent_config
     from gcs.report.scenario_summary import envelope_problem, summary_lines, takeoff_lines
     from protocols.scenario import ScenarioError, load_scenario
 
     try:
         scenario = load_scenario(path)
+        agent_config(scenario)  # its [agent] controller found and tried once
     except ScenarioError as exc:
         raise ScenarioCliError(str(exc)) from None
     problem = envelope_problem(scenario)

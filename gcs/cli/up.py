@@ -229,6 +229,7 @@ def build_plan(
 ) -> tuple[RunPlan, int]:
     """The children of the run and the number of drones. With ``session``, the session's
     scenario is generated and written to ``scenario_path`` (in the report's logs folder)."""
+    from drone_agent.config import agent_config
     from gcs.cli.session import session_scenario, write_text
     from gcs.station.drills import RUN_FILE
     from protocols.scenario import ScenarioError, load_scenario
@@ -236,6 +237,7 @@ def build_plan(
     if session is None:
         try:
             scenario = load_scenario(scenario_path)
+            agent_config(scenario)  # its [agent] controller found and tried once
         except ScenarioError as exc:
             raise SupervisorError(str(exc)) from None
         text = None

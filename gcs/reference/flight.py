@@ -146,6 +146,8 @@ class ReferenceFlight:
         self.takeoff_s: float | None = None
         #: the separation layer changes the drone's command (events on each change)
         self.separating = [False] * self.n
+        #: the formation controller's last failure, as said in an event (None: none)
+        self._controller_error: str | None = None
         delay = max(1, scenario.consensus.delay_ticks)
         # the radio's losses per directed link, seeded by the scenario, as the agents of swarm up
         # draw them: the in-process and distributed flights lose the same messages
@@ -307,6 +309,9 @@ class ReferenceFlight:
             [members] * len(live),
             plan_t_s=self._plan_times(live, t_s),
         )
+        if self.core.controller_error != self._controller_error:  # a user's controller failed
+            self._controller_error = self.core.controller_error
+            self._event("controller_error", message=self._controller_error)
         rec.estimate[k, live] = cols.estimate
         rec.neighbours[k, live] = [len(ids) for ids in cols.active_neighbours]
         if rec.links_every and k % rec.links_every == 0:
