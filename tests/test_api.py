@@ -197,3 +197,15 @@ def test_mistakes_before_anything_flies(tmp_path: Path) -> None:
         load_report(tmp_path)
     with pytest.raises(NoGroundStation, match="no ground station"):
         Swarm.connect("tcp/127.0.0.1:1")
+
+
+def test_a_reply_carries_its_time_arrival_and_plan_and_older_replies_still_decode() -> None:
+    import json
+
+    from gcs.station.commands import Reply, decode_reply, encode_reply
+
+    reply = Reply(True, "plan 2", 2, (), t_s=5.5, arrives_s=9.25,
+                  plan={"seq": 2, "command": "FLY", "late_s": None})  # fmt: skip
+    assert decode_reply(encode_reply(reply)) == reply
+    old = {"version": 1, "accepted": False, "reason": "no", "seq": 1, "table": []}
+    assert decode_reply(json.dumps(old).encode()) == Reply(False, "no", 1)
