@@ -209,3 +209,23 @@ def test_a_reply_carries_its_time_arrival_and_plan_and_older_replies_still_decod
     assert decode_reply(encode_reply(reply)) == reply
     old = {"version": 1, "accepted": False, "reason": "no", "seq": 1, "table": []}
     assert decode_reply(json.dumps(old).encode()) == Reply(False, "no", 1)
+
+
+def test_start_says_swarm_up_s_words_and_refuses_what_it_would() -> None:
+    from gcs.api.launch import up_words
+
+    words, n = up_words(None, 4, "lockstep", seed=3, layout="line", duration_s=None)
+    assert (words, n) == (["--drones", "4", "--seed", "3", "--layout", "line"], 4)
+    tilt9 = ROOT / "scenarios" / "tilt9.toml"
+    assert up_words(tilt9, None, "realtime", duration_s=5.0) == (
+        [str(tilt9), "--duration-s", "5.0"],
+        9,
+    )
+    with pytest.raises(UsageError, match="seed goes with drones=N"):
+        up_words(tilt9, None, "lockstep", seed=1)
+    with pytest.raises(UsageError, match="no fixed duration"):
+        up_words(None, 4, "lockstep", duration_s=10.0)
+    with pytest.raises(UsageError, match=r"clock \(--clock\)"):
+        up_words(None, 4, "fast")
+    with pytest.raises(UsageError, match=r"nowhere\.toml"):
+        up_words(ROOT / "nowhere.toml", None, "lockstep")

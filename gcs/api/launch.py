@@ -89,6 +89,38 @@ def n_drones_of(scenario: Path) -> int:
         raise UsageError(str(exc)) from None
 
 
+def up_words(
+    scenario: str | Path | None,
+    drones: int | None,
+    clock: str,
+    **flags: object,
+) -> tuple[list[str], int]:
+    """The words of ``swarm up`` that say what to fly (a scenario file, or ``--drones N`` with
+    a session's ``seed``, ``layout``, ``spacing_m``, ``range_m``), plus ``duration_s`` and
+    ``agents_per_process``, and the number of drones. UsageError, naming the argument as the API
+    and the flag do, for what ``swarm up`` would refuse."""
+    if (scenario is None) == (drones is None):
+        raise UsageError("give a scenario file or drones=N (an operator session), not both")
+    if clock not in ("lockstep", "realtime"):
+        raise UsageError(f"clock (--clock) must be lockstep or realtime, got {clock!r}")
+    given = {k: v for k, v in flags.items() if v is not None}
+    session = [k for k in ("seed", "layout", "spacing_m", "range_m") if k in given]
+    if scenario is not None:
+        if session:
+            raise UsageError(f"{session[0]} goes with drones=N; a scenario file has its own")
+        path = Path(scenario)
+        what, n = [str(path.resolve())], n_drones_of(path)
+    else:
+        if isinstance(drones, bool) or not isinstance(drones, int):
+            raise UsageError(f"drones (--drones) must be a number of drones, got {drones!r}")
+        if "duration_s" in given:
+            raise UsageError("duration_s (--duration-s): an operator session has no fixed duration")
+        what, n = ["--drones", str(drones)], drones
+    for key, value in given.items():
+        what += [f"--{key.replace('_', '-')}", str(value)]
+    return what, n
+
+
 def launch(
     what: list[str], n: int, report_dir: Path, endpoint: str, swarm_id: str, clock: str
 ) -> Launched:

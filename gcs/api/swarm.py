@@ -156,35 +156,12 @@ class Swarm:
         answers; use it as a context manager, which ends the run (a session lands first) and
         reads the report into :attr:`report`, also when the block raises."""
         from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
-        from gcs.api.launch import launch, n_drones_of, stop, wait_started
+        from gcs.api.launch import launch, stop, up_words, wait_started
 
-        if (scenario is None) == (drones is None):
-            raise UsageError("give a scenario file or drones=N (an operator session), not both")
-        if clock not in ("lockstep", "realtime"):
-            raise UsageError(f"clock (--clock) must be lockstep or realtime, got {clock!r}")
-        session = {"seed": seed, "layout": layout, "spacing_m": spacing_m, "range_m": range_m}
-        if scenario is not None:
-            path = Path(scenario)
-            n = n_drones_of(path)
-            given = [k for k, v in session.items() if v is not None]
-            if given:
-                raise UsageError(f"{given[0]} goes with drones=N; a scenario file has its own")
-            what = [str(path.resolve())]
-        else:
-            if isinstance(drones, bool) or not isinstance(drones, int):
-                raise UsageError(f"drones (--drones) must be a number of drones, got {drones!r}")
-            n, what = drones, ["--drones", str(drones)]
-            if duration_s is not None:
-                raise UsageError(
-                    "duration_s (--duration-s): an operator session has no fixed duration"
-                )
-        for key, value in session.items():
-            if value is not None:
-                what += [f"--{key.replace('_', '-')}", str(value)]
-        if duration_s is not None:
-            what += ["--duration-s", str(duration_s)]
-        if agents_per_process is not None:
-            what += ["--agents-per-process", str(agents_per_process)]
+        what, n = up_words(
+            scenario, drones, clock, seed=seed, layout=layout, spacing_m=spacing_m,
+            range_m=range_m, duration_s=duration_s, agents_per_process=agents_per_process,
+        )  # fmt: skip
         folder = Path(report) if report is not None else Path(tempfile.mkdtemp(prefix="swarm-"))
         endpoint = free_loopback_endpoint()
         bus = ZenohBus.open(ZenohSettings(listen=(endpoint,)))
