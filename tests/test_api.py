@@ -229,3 +229,9 @@ def test_start_says_swarm_up_s_words_and_refuses_what_it_would() -> None:
         up_words(None, 4, "fast")
     with pytest.raises(UsageError, match=r"nowhere\.toml"):
         up_words(ROOT / "nowhere.toml", None, "lockstep")
+
+
+def test_every_public_name_resolves() -> None:
+    import gcs.api
+
+    assert all(getattr(gcs.api, name) is not None for name in gcs.api.__all__)

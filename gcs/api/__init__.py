@@ -24,20 +24,44 @@ docs/api.md describes it all.
 
 from __future__ import annotations
 
-from gcs.api.aio import AsyncCommand, AsyncSwarm
-from gcs.api.errors import (
-    CommandRefused,
-    Failsafe,
-    NoGroundStation,
-    StartError,
-    Superseded,
-    SwarmError,
-    UsageError,
-    WaitTimeout,
-)
-from gcs.api.report import FlightReport, load_report
-from gcs.api.state import Descriptors, Status
-from gcs.api.swarm import Command, Drill, Swarm
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from gcs.api.aio import AsyncCommand, AsyncSwarm
+    from gcs.api.errors import (
+        CommandRefused,
+        Failsafe,
+        NoGroundStation,
+        StartError,
+        Superseded,
+        SwarmError,
+        UsageError,
+        WaitTimeout,
+    )
+    from gcs.api.report import FlightReport, load_report
+    from gcs.api.state import Descriptors, Status
+    from gcs.api.swarm import Command, Drill, Swarm
+
+#: Where each name lives: imported when first used, so that ``swarm takeoff`` (which imports
+#: ``gcs.api.swarm`` alone) does not pay for asyncio or the report readers.
+_HOMES = {
+    "AsyncCommand": "aio", "AsyncSwarm": "aio",
+    "CommandRefused": "errors", "Failsafe": "errors", "NoGroundStation": "errors",
+    "StartError": "errors", "Superseded": "errors", "SwarmError": "errors",
+    "UsageError": "errors", "WaitTimeout": "errors",
+    "FlightReport": "report", "load_report": "report",
+    "Descriptors": "state", "Status": "state",
+    "Command": "swarm", "Drill": "swarm", "Swarm": "swarm",
+}  # fmt: skip
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'gcs.api' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"gcs.api.{home}"), name)
+
 
 __all__ = [
     "AsyncCommand",

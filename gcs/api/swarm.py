@@ -16,7 +16,14 @@ from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
-from gcs.api.errors import CommandRefused, NoGroundStation, StartError, UsageError, WaitTimeout
+from gcs.api.errors import (
+    CommandRefused,
+    NoGroundStation,
+    StartError,
+    SwarmError,
+    UsageError,
+    WaitTimeout,
+)
 from gcs.api.link import ANSWER_TIMEOUT_S, Link, role_secrets
 from gcs.api.requests import (
     AGENT_DRILLS,
@@ -41,6 +48,8 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 WAIT_TIMEOUT_S = 120.0
 #: How long :meth:`Swarm.start` waits for the swarm to come up (wall s).
 START_TIMEOUT_S = 120.0
+#: How long a swarm :meth:`Swarm.start` brought up gets to answer a request (wall s).
+STARTED_ANSWER_S = 10.0
 #: How long :meth:`Swarm.close` gives a session to land and write its report (wall s).
 LAND_TIMEOUT_S = 300.0
 
@@ -81,7 +90,9 @@ class Command:
         one."""
         deadline = time.monotonic() + timeout_s
         while True:
-            status = self.swarm.status()
+            status = self.swarm.poll(deadline)
+            if status is None:
+                continue
             if arrived(self.sent, status):
                 return status
             if time.monotonic() > deadline:
@@ -112,6 +123,10 @@ class Swarm:
     def __init__(self, link: Link, launched: Launched | None = None) -> None:
         self.link = link
         self.launched = launched
+        #: how long a request waits for the ground station's answer (wall s): the CLI's 2 s for
+        #: a joined swarm; :meth:`start` gives its own swarm, on this machine, 10 s (only a
+        #: loaded machine keeps it silent that long)
+        self.answer_timeout_s = ANSWER_TIMEOUT_S if launched is None else STARTED_ANSWER_S
         #: the report read back once a swarm this object started has ended (:meth:`close`)
         self.report: FlightReport | None = None
         #: why the run ended, as ``swarm up`` said it (a started swarm, after :meth:`close`)
@@ -239,9 +254,10 @@ class Swarm:
             self.launched = None
 
     # -- requests ----------------------------------------------------------------------------
-    def ask(self, request: Request, timeout_s: float = ANSWER_TIMEOUT_S) -> tuple[Reply, float]:
-        """Send one request; the reply (accepted or not) and how long it took (s)."""
-        return self.link.ask(request, timeout_s)
+    def ask(self, request: Request, timeout_s: float | None = None) -> tuple[Reply, float]:
+        """Send one request; the reply (accepted or not) and how long it took (s).
+        NoGroundStation after ``timeout_s`` (default :attr:`answer_timeout_s`) without one."""
+        return self.link.ask(request, self.answer_timeout_s if timeout_s is None else timeout_s)
 
     def _accepted(self, request: Request) -> tuple[Reply, float]:
         reply, elapsed = self.ask(request)
@@ -249,14 +265,23 @@ class Swarm:
             raise CommandRefused(request.name, reply, elapsed)
         return reply, elapsed
 
+    def _plan_request(self, name: str, kwargs: dict[str, Any]) -> Request:
+        if name not in PLAN_COMMANDS:
+            known = ", ".join(PLAN_COMMANDS)
+            raise UsageError(f"{name!r} is not a plan command; those are {known}")
+        return command_request(name, **kwargs)
+
+    def send(self, name: str, **kwargs: Any) -> tuple[Reply, float]:
+        """Send plan command ``name`` without following it (what ``swarm NAME`` does): the
+        accepted reply and how long it took (s); CommandRefused with the ground station's
+        reason."""
+        return self._accepted(self._plan_request(name, kwargs))
+
     def command(self, name: str, **kwargs: Any) -> Command:
         """Send plan command ``name`` (takeoff, formation, move, rotate, scale, hold, land) with
-        the ``swarm`` flags' arguments; CommandRefused with the ground station's reason."""
-        if name not in PLAN_COMMANDS:
-            raise UsageError(
-                f"{name!r} is not a plan command; those are {', '.join(PLAN_COMMANDS)}"
-            )
-        request = command_request(name, **kwargs)
+        the ``swarm`` flags' arguments; CommandRefused with the ground station's reason. The
+        :class:`Command` follows it from the swarm's state just before."""
+        request = self._plan_request(name, kwargs)
         before = self.status()
         reply, elapsed = self._accepted(request)
         seq = reply.seq if reply.seq is not None else (before.plan_seq or 0) + 1
@@ -346,6 +371,19 @@ class Swarm:
         reply, _ = self.ask(command_request("status"))
         return status_of(reply.t_s, reply.plan, reply.seq, reply.table)
 
+    def poll(self, deadline: float | None = None) -> Status | None:
+        """:meth:`status`, or None when the ground station did not answer in time (a loaded
+        machine) and the monotonic ``deadline`` (None: none) has not passed; NoGroundStation
+        after it, SwarmError if the run this object started has ended."""
+        try:
+            return self.status()
+        except NoGroundStation:
+            if not self.running and self.launched is not None:
+                raise SwarmError(f"the run ended: {self.launched.end_reason()}") from None
+            if deadline is not None and time.monotonic() > deadline:
+                raise
+            return None
+
     def descriptors(self) -> Descriptors:
         """The swarm's true descriptors (from the vehicles' positions) and every agent's
         estimate of them, now."""
@@ -360,8 +398,8 @@ class Swarm:
         while end is None or time.monotonic() < end:
             if not self.running:
                 return
-            status = self.status()
-            if status.t_s > last:
+            status = self.poll(end)
+            if status is not None and status.t_s > last:
                 last = status.t_s
                 yield status
             time.sleep(period_s)
@@ -374,7 +412,9 @@ class Swarm:
         )  # fmt: skip
         deadline = time.monotonic() + timeout_s
         while True:
-            status = self.status()
+            status = self.poll(deadline)
+            if status is None:
+                continue
             ready = [
                 m for m, a in zip(status.mode, status.alive, strict=True) if a and m == "READY"
             ]

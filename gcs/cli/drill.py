@@ -147,7 +147,7 @@ def drill_args(args: argparse.Namespace) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     """Carry out the drill of ``args`` through :meth:`gcs.api.Swarm.drill`; 0 done, 1 refused
     by the ground station."""
-    from gcs.api import CommandRefused, SwarmError
+    from gcs.api.errors import CommandRefused, SwarmError
     from gcs.cli.operator import OperatorError, connect
 
     kwargs = drill_args(args)

@@ -19,7 +19,6 @@ import argparse
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -257,7 +256,9 @@ class Swarm:
             time.sleep(0.05)
 
     def _tail(self) -> str:
-        lines = (self.dir.parent / "swarm-up.log").read_text(errors="replace").splitlines()
+        from gcs.api.launch import UP_LOG
+
+        lines = (self.dir / "logs" / UP_LOG).read_text(errors="replace").splitlines()
         return lines[-1] if lines else "(no output)"
 
     # -- what the drills send ------------------------------------------------------------------
@@ -349,81 +350,45 @@ def _role(argv: Sequence[str]) -> str | None:
     return {"gcs": "gcs", "sim": "simulator"}.get(argv[0])
 
 
-def _free_udp_block(n: int) -> int:
-    """First of ``n`` consecutive free UDP ports of 127.0.0.1."""
-    for _ in range(50):
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            s.bind(("127.0.0.1", 0))
-            base = int(s.getsockname()[1])
-        if base + n + 1 > 65000:
-            continue
-        socks = []
-        try:
-            for port in range(base, base + n + 1):  # the vehicles and the ground station
-                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-                socks.append(s)
-                s.bind(("127.0.0.1", port))
-            return base
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
-    raise DrillsError("no free block of UDP ports for the vehicles")
-
-
 @contextmanager
 def _swarm(args: argparse.Namespace, n: int, folder: Path) -> Iterator[Swarm]:
     """``swarm up`` on free ports with its report in ``folder``, meeting at a Zenoh peer of this
     process on a free port (never the default rendezvous port, which another swarm on the
     machine may hold or take at the same moment)."""
     from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
+    from gcs.api.errors import SwarmError
+    from gcs.api.launch import launch, stop, wait_started
     from gcs.station.commands import Request, encode_request
     from protocols.keys import SwarmKeys
 
-    base = _free_udp_block(n)
     what = [str(args.scenario)] if args.scenario else ["--drones", str(n)]
     if args.scenario is None and args.seed is not None:
         what += ["--seed", str(args.seed)]
-    argv = [
-        sys.executable, "-m", "gcs.cli", "up", *what, "--report", str(folder),
-        "--clock", args.clock, "--base-port", str(base), "--gcs-port", str(base + n),
-        "--swarm-id", args.swarm_id,
-    ]  # fmt: skip
     endpoint = free_loopback_endpoint()
     bus = ZenohBus.open(ZenohSettings(listen=(endpoint,)))
-    argv += ["--zenoh-connect", endpoint]
-    run_file = folder / "logs" / "run.json"
-    with suppress(FileNotFoundError):
-        run_file.unlink()
-    folder.mkdir(parents=True, exist_ok=True)
-    with (folder.parent / "swarm-up.log").open("wb") as out:
-        proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT)
-    swarm = Swarm(proc, folder, n, args.swarm_id, bus)
     try:
-        deadline = time.monotonic() + 60.0
-        while not run_file.exists():
-            if proc.poll() is not None or time.monotonic() > deadline:
-                raise DrillsError(f"swarm up did not start: {swarm._tail()}")
-            time.sleep(0.2)
+        run = launch(what, n, folder, endpoint, args.swarm_id, args.clock)
+    except SwarmError as exc:
+        bus.close()
+        raise DrillsError(str(exc)) from None
+    swarm = Swarm(run.proc, folder, n, args.swarm_id, bus)
+    try:
+        try:
+            wait_started(run, 60.0)
+        except SwarmError as exc:
+            raise DrillsError(f"swarm up did not start: {exc}") from None
         bus.subscribe_callback(SwarmKeys(args.swarm_id, 1.0).status_all(), swarm.on_status)
         deadline = time.monotonic() + 120.0
         while len(swarm.latest) < n:
-            if proc.poll() is not None or time.monotonic() > deadline:
+            if run.proc.poll() is not None or time.monotonic() > deadline:
                 raise DrillsError(f"the agents did not all report: {swarm._tail()}")
             time.sleep(0.2)
         while swarm.requests([encode_request(Request("status", {}))], 2.0)[0] is None:
-            if proc.poll() is not None or time.monotonic() > deadline:
+            if run.proc.poll() is not None or time.monotonic() > deadline:
                 raise DrillsError(f"the ground station does not answer: {swarm._tail()}")
         yield swarm
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(60)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(10)
+        stop(run, 60.0, 10.0)
         if swarm.bus is not None:
             swarm.bus.close()
 

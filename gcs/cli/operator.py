@@ -17,7 +17,7 @@ from drone_agent.agent_cli import RENDEZVOUS_PORT
 from gcs.cli.secured import add_secrets_flags
 
 if TYPE_CHECKING:  # numpy (the planner), imported when a command is sent, not by the parser
-    from gcs.api import Swarm
+    from gcs.api.swarm import Swarm
     from gcs.station.commands import Reply, Request
     from protocols.swarm_secrets import RoleSecrets
 
@@ -116,7 +116,8 @@ def request_of(args: argparse.Namespace) -> Request:
 def connect(args: argparse.Namespace) -> Swarm:
     """The swarm of ``args`` (``--swarm-id``, ``--zenoh-connect``, ``--secrets``, ``--role``),
     through :meth:`gcs.api.Swarm.connect`; OperatorError (one line) if it cannot be reached."""
-    from gcs.api import Swarm, SwarmError
+    from gcs.api.errors import SwarmError
+    from gcs.api.swarm import Swarm
 
     try:
         return Swarm.connect(
@@ -148,7 +149,8 @@ def send_timed(
     """As :func:`send`, with the seconds from sending the request to its reply's arrival (a raw
     payload: tests send malformed ones). With ``secrets``: TLS and the role's credential; a role
     without the right to send commands is refused here, in one line, before anything is sent."""
-    from gcs.api import Swarm, SwarmError
+    from gcs.api.errors import SwarmError
+    from gcs.api.swarm import Swarm
 
     try:
         with Swarm.connect(endpoint, swarm_id, secrets) as swarm:
@@ -194,7 +196,7 @@ def format_reply(name: str, reply: Reply, elapsed_s: float | None = None) -> lis
 def run(args: argparse.Namespace) -> int:
     """Send the command of ``args`` through :class:`gcs.api.Swarm`, print the answer; 0
     accepted, 1 refused."""
-    from gcs.api import CommandRefused, SwarmError
+    from gcs.api.errors import CommandRefused, SwarmError
 
     request = request_of(args)
     with connect(args) as swarm:
@@ -202,8 +204,7 @@ def run(args: argparse.Namespace) -> int:
             if args.command in ("status", "shutdown"):
                 reply, elapsed_s = swarm.ask(request)
             else:
-                command = swarm.command(args.command, **request.args)
-                reply, elapsed_s = command.reply, command.elapsed_s
+                reply, elapsed_s = swarm.send(args.command, **request.args)
         except CommandRefused as exc:
             reply, elapsed_s = exc.reply, exc.elapsed_s
         except SwarmError as exc:
