@@ -66,6 +66,7 @@ def test_a_session_flown_through_the_api(swarm) -> None:  # type: ignore[no-unty
             ),
             capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=60,
         )  # fmt: skip
+        cut = s.drill("link-cut", i=0, j=1, for_s=3.0)
         start = s.descriptors()
         moved = s.move(north_m=2).wait()
         after = s.descriptors()
@@ -99,6 +100,17 @@ def test_a_session_flown_through_the_api(swarm) -> None:  # type: ignore[no-unty
     assert np.abs(end[:, 2]).max() < 0.05
     assert not any(_armed(track, i, down.t_s) for i in range(1, N + 1))
     assert not [e for e in events if e["kind"] in ("crash", "failsafe", "dropout_detected")]
+    # the drill reached the agents: the ground station logged it, and while it lasted neither
+    # end of the cut link integrated the other (the agents' statuses in flight.tlog)
+    assert cut.what == "sent link_cut 0<->1 for 3 s" and cut.fault is not None
+    drills = [e for e in events if e["kind"] == "drill" and e.get("drill") == "link_cut"]
+    assert len(drills) == 1 and drills[0]["link"] == [0, 1]
+    t_cut = float(drills[0]["t_s"])
+    for me, other in ((1, 2), (2, 1)):
+        v = track.vehicles[me]
+        during = [k for k, t in enumerate(v.status_t_s) if t_cut + 0.5 < t < t_cut + 2.5]
+        heard = [v.neighbour_ids(k) for k in during]
+        assert during and all(h is not None and other - 1 not in h for h in heard), heard
     # the report read back on leaving the block: arrays and the metrics of metrics.json
     report = s.report
     assert report is not None and s.end_reason == "shut down"
