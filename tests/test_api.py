@@ -247,3 +247,27 @@ def test_every_public_name_resolves() -> None:
     import gcs.api
 
     assert all(getattr(gcs.api, name) is not None for name in gcs.api.__all__)
+
+
+def test_a_swarm_simulate_report_reads_back_with_its_losses(tmp_path: Path) -> None:
+    """``swarm simulate`` logs no joins: load_report counts the drones as it does (members from
+    the start until the scenario's drop-out and crash), so the figures agree with its
+    metrics.json, computed in the process at the control rate, to the 25 Hz log's sampling."""
+    scenario = tmp_path / "drop.toml"
+    for words in (
+        ("scenario", "new", "--drones", "5", "--template", "hover", "--faults", "dropout,crash",
+         "--duration-s", "30", "-o", str(scenario)),
+        ("simulate", str(scenario), "--report", str(tmp_path / "r"), "--no-plots"),
+    ):  # fmt: skip
+        done = subprocess.run(swarm_command(*words), capture_output=True, text=True, env=ENV)
+        assert done.returncode == 0, done.stdout + done.stderr
+    report = load_report(tmp_path / "r", scenario=scenario)
+    computed, written = report.metrics(), report.metrics_file
+    assert computed["drones_lost"] == written["drones_lost"] and len(written["drones_lost"]) == 2
+    assert report.member[-1].sum() == 3 and report.member[0].all()
+    for part in ("tracking", "tracking_steady"):
+        for key in ("centroid_m", "shape_m2"):
+            assert computed[part][key]["rms"] == pytest.approx(written[part][key]["rms"], rel=0.02)
+    assert computed["separation"]["min_m"] == pytest.approx(
+        written["separation"]["min_m"], abs=1e-3
+    )

@@ -105,6 +105,7 @@ def build_record(
     end_s: float,
     scenario: Scenario | None = None,
     track: TlogTrack | None = None,
+    events: list[dict[str, Any]] | None = None,
 ) -> FlightRecord | None:
     """The flight as the ground station logged it, or None if no vehicle was heard.
 
@@ -114,7 +115,8 @@ def build_record(
     ``events_path``; the commanded descriptors from ``plan``, the final plan (a plan keeps the
     segments already flown). ``scenario`` gives the vehicle parameters that turn rotor forces
     into thrust and moments (default: :class:`VehicleParams`) and its own link cuts. ``track``:
-    the tlog already read (else it is read from ``tlog_path``).
+    the tlog already read (else it is read from ``tlog_path``); ``events``: the events to read
+    membership and drills from (else those of ``events_path``).
     """
     if track is None:
         track = read_tlog(tlog_path)
@@ -144,7 +146,8 @@ def build_record(
         status = _hold(t, v.status_t_s, v.status, MAX_AGE_S)
         est[:, i] = status[:, :9]
         nbrs[:, i] = np.nan_to_num(status[:, 9]).astype(int)
-    events = read_events(events_path) if events_path.exists() else []
+    if events is None:
+        events = read_events(events_path) if events_path.exists() else []
     alive, lost_at_s = membership(events, t, n)
     returns = [g for g in absences(events, n) if g["back_s"] is not None]
     known = ~np.isnan(pos[..., 0])
