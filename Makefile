@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
 export MAVLINK20 := 1
 export MPLBACKEND := Agg
 
-.PHONY: demo test lint typecheck bytecode bench scenarios venv clean
+.PHONY: demo test lint typecheck bytecode browser bench scenarios venv clean
 
 venv: $(STAMP)
 
@@ -34,11 +34,17 @@ typecheck: $(STAMP)
 # Two parts (tests/conftest.py): the tests that do not depend on the machine's load on two
 # workers at once (a module's tests stay together), then the serial ones (realtime clock, default
 # ports) one at a time. Both parts run; the target fails if either failed.
-test: lint typecheck bytecode
+test: lint typecheck bytecode browser
 	@status=0; \
 	$(BIN)/python -m pytest -q -n 2 --dist loadgroup -m "not serial" --durations=15 || status=$$?; \
 	$(BIN)/python -m pytest -q -m serial --durations=10 || status=$$?; \
 	exit $$status
+
+# Headless Chromium for the viewer's screenshot tests (tests/test_view.py): Debian's package,
+# installed with apt-get where it is missing and this runs as root (as CI does); elsewhere it
+# prints why not, and those tests are skipped saying so.
+browser: $(STAMP)
+	@$(BIN)/python tests/headless_chromium.py
 
 # The project's modules compiled once: the suite and a flight start hundreds of processes, each
 # of which would otherwise compile them from source again where PYTHONDONTWRITEBYTECODE is set

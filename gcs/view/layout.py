@@ -5,7 +5,7 @@ coloured by mode, trails, radio links, the commanded and the true formation elli
 commanded formation's frame, the agents' centre estimates). Right, the descriptor panel: one plot
 per descriptor (centre north, east, altitude; heading, pitch, roll, each with its error on its own
 plot below it; the length, width and height variances), each with the command, the true value and
-the agents' estimates on the same axes, their time axes linked; behind it, a tab with the minimum
+the agents' estimates on the same axes, over the whole flight; behind it, a tab with the minimum
 separation, the consensus error and the radio links. Across the bottom, full width, the events log
 (time, level, text). The time panel shows the simulated time (``sim_time``).
 
@@ -21,6 +21,11 @@ from gcs.view.rerun_series import ANGLES, DESCRIPTOR_PLOTS, TIMELINE
 
 #: ``--layout`` choices: this module's layout, or Rerun's automatic one.
 LAYOUTS = ("swarm", "auto")
+#: The plots' time axis: the whole flight (so far), as descriptors.png (Rerun's default range
+#: shows only about the last 40 s of a 200-s replay); each plot zooms on its own.
+_WHOLE_FLIGHT = rrb.TimeRange(
+    start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite()
+)
 #: Width of the 3-D view and of the plots, and height of the views and of the events log.
 COLUMN_SHARES = (3.0, 2.0)
 ROW_SHARES = (4.0, 1.0)
@@ -64,8 +69,8 @@ def _plot(name: str, contents: list[str]) -> rrb.TimeSeriesView:
         name=name,
         origin="/",
         contents=contents,
-        axis_x=rrb.TimeAxis(link="LinkToGlobal"),
         plot_legend=rrb.PlotLegend(visible=False),
+        axis_x=rrb.TimeAxis(view_range=_WHOLE_FLIGHT),
     )
 
 
