@@ -1,4 +1,4 @@
-"""One drone's brain, pure: consensus estimate of the swarm descriptors and the cooperative
+"""One drone's brain, pure: consensus estimate of the swarm descriptors and the formation
 controller, from its own state, the shared plan and the neighbour messages of this round.
 
 The same core runs in the in-process reference flight (``swarm simulate``) and inside each agent
@@ -8,10 +8,13 @@ the vehicle's simulated time.
 Batched: :class:`BatchAgentCore` holds K agents (one row each) and advances any subset of them
 in one call, as array operations over the rows: plan evaluation (once per distinct plan), the
 channels, the consensus step (drone_agent/consensus.py), moments, one stacked eigen-decomposition
-with the axes assigned to each row's desired axes, the cooperative field, thrust and attitude with
-their limits, and the setpoint checks. Rows never mix: each uses only its own vehicle state, plan,
-inbox, membership view and estimator state, so a row gives the same output whichever rows share
-its call. :class:`AgentCore` is one row of it (alone, the K = 1 case): there is one implementation.
+with the axes assigned to each row's desired axes, the formation controller's acceleration
+(drone_agent/controller.py; the paper's cooperative field unless the scenario names another),
+the rejoin climb and the separation layer acting on it, the controller's thrust and attitude, and
+the setpoint checks (a controller's failure leaves its rows without a setpoint). Rows never
+mix: each uses only its own vehicle state, plan, inbox, membership view and estimator state, so a
+row gives the same output whichever rows share its call. :class:`AgentCore` is one row of it
+(alone, the K = 1 case): there is one implementation.
 The per-drone arithmetic of those steps runs as compiled loops over the rows
 (drone_agent/jit_math.py), loaded once per process by :func:`warm_up`.
 """

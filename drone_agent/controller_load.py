@@ -12,6 +12,7 @@ scenario's start (every drone where it starts, the true descriptors, the plan at
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import sys
 from pathlib import Path
@@ -63,7 +64,9 @@ def controller_class(scenario: Scenario) -> ControllerClass:
     cls = getattr(module, name, None)
     origin = getattr(module, "__file__", None) or module_name
     if cls is None:
-        raise ControllerError(f"{where}: {origin} has no {name!r}")
+        close = difflib.get_close_matches(name, [n for n in dir(module) if not n.startswith("_")])
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ControllerError(f"{where}: {origin} has no {name!r}{hint}")
     if not isinstance(cls, type):
         raise ControllerError(f"{where}: {ref} is a {type(cls).__name__}, not a class")
     missing = [m for m in METHODS if not callable(getattr(cls, m, None))]

@@ -6,6 +6,8 @@ while the others of the batch fly on."""
 
 from __future__ import annotations
 
+import dataclasses
+import importlib.util
 import math
 import textwrap
 from pathlib import Path
@@ -293,3 +295,19 @@ def test_a_drone_without_a_setpoint_in_the_air_holds() -> None:
     order = phase.decide(FlightCommand.FLY, True, True, None, 3.0, flying, 0.0)
     assert (order.mode, order.request) == (AgentMode.HOLDING, Request.HOLD_MODE)
     assert order.setpoint.thrust_normalised >= phase.min_thrust_normalised
+
+
+def test_the_example_scenario_is_the_papers_flight_flown_by_the_pd_example() -> None:
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location(
+        "make_paper", root / "scripts/make_paper_scenario.py"
+    )
+    assert spec is not None and spec.loader is not None
+    make_paper = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(make_paper)
+    example = root / "examples" / "pd_paper.toml"
+    assert example.read_text() == make_paper.render("pd_controller:PDFormation")
+    assert (root / "scenarios" / "paper.toml").read_text() == make_paper.render()
+    pd, paper = load_scenario(example), load_scenario(root / "scenarios" / "paper.toml")
+    assert dataclasses.replace(pd, source=paper.source, name=paper.name, agent=paper.agent) == paper
+    assert agent_config(pd).controller.__name__ == "PDFormation"

@@ -14,12 +14,13 @@ import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 from large_swarm import judge
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
 
 from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
-from gcs.report.tlog import vehicle_samples
+from gcs.report.tlog import read_tlog, vehicle_samples
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
@@ -143,3 +144,38 @@ def test_the_papers_controller_named_is_the_default(tmp_path: Path) -> None:
     metrics = [json.loads((r / "metrics.json").read_text()) for r in (default, explicit)]
     for key in ("tracking", "consensus", "separation", "max_tilt_deg"):
         assert metrics[0][key] == metrics[1][key]
+
+
+#: the example, failing for a second in the hold: it raises from 16 s to 17 s (simulated)
+FAILING = """\
+from pd_controller import PDFormation
+
+
+class Failing(PDFormation):
+    def acceleration(self, inputs):
+        if 16.0 <= inputs.t_s < 17.0:
+            raise RuntimeError("diverged")
+        return super().acceleration(inputs)
+"""
+
+
+def test_a_controller_that_fails_in_flight_leaves_the_swarm_holding(tmp_path: Path) -> None:
+    (tmp_path / "failing_controller.py").write_text(FAILING)
+    scenario = _write(tmp_path, "fail4", "failing_controller:Failing")
+    report = _simulate(tmp_path, scenario, "fail")
+    events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
+    said = [e for e in events if e["kind"] == "controller_error"]
+    assert [e["message"] for e in said] == [
+        "controller failing_controller:Failing: acceleration raised RuntimeError: diverged"
+    ]
+    assert 16.0 <= said[0]["t_s"] < 16.1
+    # every drone, every tick of that second, refused: held by its autopilot, not dropped
+    metrics = json.loads((report / "metrics.json").read_text())
+    assert metrics["rejected_setpoints"] == 4 * 50
+    assert metrics["collisions"]["count"] == 0
+    track = read_tlog(report / "flight.tlog")
+    t = np.arange(15.0, 22.0, 0.1)
+    heights = -track.resample(t, 4, max_age_s=1.0)[..., 2]
+    assert heights.min() > 2.5, heights.min()  # held at the hold's 3 m
+    verdict = judge(report, scenario)  # and back in formation at the end
+    assert verdict.not_airborne_at_end == ()
