@@ -7,7 +7,7 @@ figure is each run's consensus error on the formation's shape: the RMS error of 
 estimates of the three variances after the settling time, from the run's report
 (:class:`gcs.api.FlightReport`, metrics computed as ``metrics.json``'s).
 
-    .venv/bin/python examples/gain_sweep.py --out sweep      # ~1 min on two cores
+    .venv/bin/python examples/gain_sweep.py --out sweep      # ten flights, ~2 min on two cores
 """
 
 from __future__ import annotations
