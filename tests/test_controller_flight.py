@@ -159,10 +159,28 @@ class Failing(PDFormation):
 """
 
 
-def test_a_controller_that_fails_in_flight_leaves_the_swarm_holding(tmp_path: Path) -> None:
+def test_a_controller_that_fails_in_flight_leaves_the_swarm_holding(
+    tmp_path: Path, rendezvous: str
+) -> None:
     (tmp_path / "failing_controller.py").write_text(FAILING)
     scenario = _write(tmp_path, "fail4", "failing_controller:Failing")
     report = _simulate(tmp_path, scenario, "fail")
+    # swarm up: the agents say it in their log, their vehicles hold in the simulator's autopilot
+    base, gcs_port = free_port_block(4), free_udp_port()
+    _run(
+        *swarm_command("up", str(scenario), "--clock", "lockstep", "--agents-per-process", "4"),
+        *("--report", "up", "--base-port", str(base), "--gcs-port", str(gcs_port)),
+        *("--swarm-id", "pdfail", "--zenoh-connect", rendezvous),
+        cwd=tmp_path,
+    )
+    log = "".join(p.read_text() for p in (tmp_path / "up" / "logs").glob("agent-*.log"))
+    line = "controller failing_controller:Failing: acceleration raised RuntimeError: diverged"
+    assert log.count(line) == 1, log[-2000:]
+    held = read_tlog(tmp_path / "up" / "flight.tlog").resample(
+        np.arange(15.0, 22.0, 0.1), 4, max_age_s=1.0
+    )
+    assert (-held[..., 2]).min() > 2.5
+    assert judge(tmp_path / "up", scenario).not_airborne_at_end == ()
     events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
     said = [e for e in events if e["kind"] == "controller_error"]
     assert [e["message"] for e in said] == [
