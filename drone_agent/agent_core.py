@@ -401,8 +401,9 @@ class BatchAgentCore:
             )
             ref = (reference[0][idx], reference[1][idx], reference[2][idx])
             fr = (frame[0][idx], frame[1][idx], frame[2][idx])
-        inputs = ControllerInputs(
-            tuple(self.agent_ids[rows[k]] for k in idx.tolist()),
+        ids = self.agent_ids
+        inputs = _new_inputs(
+            tuple([ids[rows[k]] for k in idx.tolist()]),
             t_s, xs, vs, pick, fr[1], fr[2], ref[0], ref[1], ref[2], fr[0],
         )  # fmt: skip
         accel, good = self._accelerations(inputs)
@@ -427,8 +428,8 @@ class BatchAgentCore:
             accel = filtered.accel_ned_m_s2
             for k in np.flatnonzero(filtered.active & good).tolist():
                 changed[int(idx[k])] = True
-        command, limited = self._commands(accel, inputs)
-        ok = np.isfinite(command).all(axis=0) & (command[3] >= 0.0) & (command[3] <= 1.0) & good
+        command, limited, usable = self._commands(accel, inputs)
+        ok = usable & good
         out: list[Setpoint | None] = [None] * len(ready)
         for k, (r, p, y, t), lim, fine in zip(
             idx.tolist(), command.T.tolist(), limited.tolist(), ok.tolist(), strict=True
@@ -449,15 +450,15 @@ class BatchAgentCore:
 
     def _commands(
         self, accel: FloatArray, inputs: ControllerInputs
-    ) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
-        """The controller's commands (:func:`call_thrust_attitude`); a failure counted and
-        said (:attr:`controller_error`)."""
-        command, limited, error = call_thrust_attitude(
+    ) -> tuple[FloatArray, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+        """The controller's commands, ``limited`` and the usable ones
+        (:func:`call_thrust_attitude`); a failure counted and said (:attr:`controller_error`)."""
+        command, limited, usable, error = call_thrust_attitude(
             self.controller, accel, inputs, self.config.limits.max_thrust_n
         )
         if error is not None:
             self._fault(error)
-        return command, limited
+        return command, limited, usable
 
     def _fault(self, message: str) -> None:
         self.controller_failures += 1
@@ -467,6 +468,7 @@ class BatchAgentCore:
 _new_output = frozen_factory(AgentOutput)
 _new_moments = frozen_factory(SwarmMoments)
 _new_setpoint = frozen_factory(Setpoint)
+_new_inputs = frozen_factory(ControllerInputs)
 
 
 class AgentCore:

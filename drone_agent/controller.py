@@ -164,9 +164,9 @@ def call_acceleration(
     if accel.shape != (n, 3):
         error = f"acceleration gave shape {accel.shape}, not ({n}, 3)"
         return np.zeros((n, 3)), np.zeros(n, dtype=bool), error
+    if np.isfinite(accel).all():  # (the usual case: one reduction)
+        return accel, np.ones(n, dtype=bool), None
     good = np.isfinite(accel).all(axis=1)
-    if good.all():
-        return accel, good, None
     bad = [inputs.agent_ids[k] for k in np.flatnonzero(~good).tolist()]
     return np.where(good[:, None], accel, 0.0), good, f"acceleration not finite for drones {bad}"
 
@@ -176,13 +176,13 @@ def call_thrust_attitude(
     accel_ned_m_s2: FloatArray,
     inputs: ControllerInputs,
     max_thrust_n: float,
-) -> tuple[FloatArray, BoolArray, str | None]:
+) -> tuple[FloatArray, BoolArray, BoolArray, str | None]:
     """``controller.thrust_attitude(...)`` checked: the commands as rows (roll, pitch, yaw,
-    thrust normalised to ``max_thrust_n``) (4, K), ``limited`` (K,) and what went wrong (None:
-    nothing). A call that raises or gives other shapes gives NaN commands; a command not finite
-    or whose thrust is outside 0..``max_thrust_n`` is said (the caller refuses it)."""
+    thrust normalised to ``max_thrust_n``) (4, K), ``limited`` (K,), which are usable (K,: finite,
+    thrust within 0..``max_thrust_n``) and what went wrong (None: nothing). A call that raises
+    or gives other shapes gives NaN commands, none usable."""
     n = len(inputs.agent_ids)
-    failed = np.full((4, n), np.nan), np.zeros(n, dtype=bool)
+    failed = np.full((4, n), np.nan), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
     try:
         roll, pitch, yaw, thrust_n, limited = controller.thrust_attitude(accel_ned_m_s2, inputs)
         command = np.array([roll, pitch, yaw, thrust_n / max_thrust_n], dtype=float)
@@ -193,21 +193,18 @@ def call_thrust_attitude(
         shapes = [np.shape(c) for c in (roll, pitch, yaw, thrust_n, limited)]
         return *failed, f"thrust_attitude gave shapes {shapes}, not ({n},) each"
     fine = np.isfinite(command).all(axis=0)
+    usable = fine & (command[3] >= 0.0) & (command[3] <= 1.0)
+    if usable.all():
+        return command, flags, usable, None
     if not fine.all():
         bad = [inputs.agent_ids[k] for k in np.flatnonzero(~fine).tolist()]
-        return command, flags, f"thrust_attitude not finite for drones {bad}"
-    if not ((command[3] >= 0.0) & (command[3] <= 1.0)).all():
-        worst = float(command[3][np.argmax(np.abs(command[3] - 0.5))]) * max_thrust_n
-        error = f"thrust_attitude gave a thrust of {worst:.3g} N, outside 0..{max_thrust_n:.3g} N"
-        return command, flags, error
-    return command, flags, None
+        return command, flags, usable, f"thrust_attitude not finite for drones {bad}"
+    worst = float(command[3][np.argmax(np.abs(command[3] - 0.5))]) * max_thrust_n
+    error = f"thrust_attitude gave a thrust of {worst:.3g} N, outside 0..{max_thrust_n:.3g} N"
+    return command, flags, usable, error
 
 
 def raised(exc: BaseException) -> str:
     """``raised KeyError: 'x'``: the exception, on one line."""
     text = str(exc).strip().splitlines()
     return f"raised {type(exc).__name__}" + (f": {text[0]}" if text else "")
-
-
-#: The reference of the default controller, as a scenario's ``[agent] controller`` names it.
-DEFAULT_CONTROLLER = "drone_agent.controller:CooperativeController"

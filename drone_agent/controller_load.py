@@ -93,7 +93,7 @@ def check_controller(
     inputs = start_inputs(scenario)
     accel, _, error = call_acceleration(controller, inputs)
     if error is None:
-        _, _, error = call_thrust_attitude(controller, accel, inputs, setup.limits.max_thrust_n)
+        *_, error = call_thrust_attitude(controller, accel, inputs, setup.limits.max_thrust_n)
     if error is not None:
         raise ControllerError(f"{where}: on the scenario's start, {error}")
     return controller
