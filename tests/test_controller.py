@@ -220,11 +220,16 @@ def test_the_section_is_checked_at_load(tmp_path: Path, agent: str, says: str) -
     assert says in str(info.value)
 
 
-def test_scenario_check_and_simulate_say_it_in_one_line(
+def test_check_simulate_up_and_agent_say_it_in_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     path = _scenario(tmp_path, '[agent]\ncontroller = "my_controllers:Missing"\n')
-    for argv in (["scenario", "check", str(path)], ["simulate", str(path), "--no-plots"]):
+    for argv in (
+        ["scenario", "check", str(path)],
+        ["simulate", str(path), "--no-plots", "--report", str(tmp_path / "sim")],
+        ["up", str(path), "--report", str(tmp_path / "up")],  # before any process starts
+        ["agent", "--scenario", str(path), "--drone-id", "0"],
+    ):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and "agent.controller:" in err and "has no 'Missing'" in err
