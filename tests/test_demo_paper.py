@@ -14,9 +14,9 @@ bar is closer:
   < 2 mm / 0.008 m^2 in steady flight (0.6 mm / 0.0032-0.0034 m^2);
 - no two airborne drones closer than 1.9 m (2.02 m);
 - drone 1 (system id 2) crashes at 30 s: the survivors' formation is back within 5 cm / 0.1 m^2
-  within 7 s (5.2 s), every surviving agent's estimate within the agent issue's bound 1 s after
-  the crash (0.12-0.16 s); agents' centroid estimate error in steady flight < 2.5 mm RMS
-  (0.8-0.9 mm);
+  within 7 s (5.2 s), every surviving agent's estimate within the agent issue's bound 0.4 s after
+  the crash (0.12-0.16 s; docs/measured.md: within 0.2 s); agents' centroid estimate error in
+  steady flight < 2.5 mm RMS (0.8-0.9 mm);
 - against ``swarm simulate``: tracking RMS within 1 mm / 0.003 m^2 of each other (0.1-0.2 mm /
   0.0006-0.0009 m^2), flights < 2 mm / 0.008 m^2 RMS apart in steady flight (0.6 mm /
   0.0017-0.0033 m^2) and < 2 mm / 0.01 m^2 with the crash (0.6 mm / 0.002-0.004 m^2).
@@ -47,7 +47,7 @@ SURVIVORS = [i for i in range(9) if i != CRASHED]
 SETTLE_S = 20.0
 HEADING = 3  # index of yaw in the checked rows below
 #: Simulated time after the crash by which every surviving agent's estimate is within the bound.
-ESTIMATES_BACK_S = 1.0
+ESTIMATES_BACK_S = 0.4
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +82,7 @@ def test_no_two_airborne_drones_closer_than_1_9_metres(flight: dict[str, np.ndar
     assert separation > 1.9, separation  # docs/measured.md: 2.0 m
 
 
-def test_drop_out_survived_and_every_estimate_back_within_1_s(
+def test_drop_out_survived_and_every_estimate_back_within_0_4_s(
     flight: dict[str, np.ndarray], track: TlogTrack
 ) -> None:
     t, pos, member, desired = flight["t"], flight["positions"], flight["member"], flight["desired"]

@@ -1,4 +1,4 @@
-"""Rejoin (issue 14 item 2): agents killed and started again in a flying swarm come back.
+"""Rejoin: agents killed and started again in a flying swarm come back.
 
 One ``swarm up`` run (lockstep, one agent process per drone) of five drones hovering at 3 m:
 
@@ -10,11 +10,12 @@ One ``swarm up`` run (lockstep, one agent process per drone) of five drones hove
    (held by its failsafe, or descending) or, when the new process took longer to start than the
    failsafe took to land it (a loaded machine), from the ground.
 
-Judged from the ground station's flight.tlog and events.jsonl, each against the issue's bars:
+Judged from the ground station's flight.tlog and events.jsonl, with bars at about 2x the figures
+docs/processes.md quotes (4.2 / 9.3 s after the restart, 3.7 / 8.7 s after the retyped agent):
 the drone's ``dropout_detected`` and its return (``agent_joined``), the restarted agent's
 estimate within the agents' bound (2 %, or 0.05 near zero: agent_harness.within_bound) within
-10 s of its return, and the formation back (centre within 5 cm, variances within 2 %, issue 14's
-formation bar) with the drone in it, within 0.2 m of the formation's altitude, within 30 s. Not a
+8 s of its return, and the formation back (centre within 5 cm, variances within 2 %) with the
+drone in it, within 0.2 m of the formation's altitude, within 18 s. Not a
 fixed slot: the formation is defined by its descriptors, so while a drone is away the others
 spread to keep the variances and the returning drone is taken in where the formation has room
 (measured 0.7-1.3 m from the place it left after a landed gap, 0.17 m after a 1.3 s one in the
@@ -58,8 +59,8 @@ VARIANCES = np.array([4.0, 2.25])  # the plan's: spread 2 m x 1.5 m
 RESTARTED, RETYPED = 1, 3
 GAP_S = 8.0
 DURATION_S = 80.0
-ESTIMATE_WITHIN_S = 10.0
-SLOT_WITHIN_S = 30.0
+ESTIMATE_WITHIN_S = 8.0
+SLOT_WITHIN_S = 18.0
 SLOT_TOL_M = 0.2
 #: Wall-clock cap per simulated second while waiting (a loaded machine slows lockstep).
 WALL_PER_SIM_S = 15.0
@@ -243,7 +244,7 @@ def _judge(
         f"drone {drone}: left {t_left:.2f} s, back {t_back:.2f} s, estimate within the bound "
         f"{None if t_est is None else round(t_est - t_back, 2)} s after, in its slot "
         f"{None if t_slot is None else round(t_slot - t_back, 2)} s after; from the place it "
-        f"left {off[window][-1]:.2f} m after 30 s; lowest {lowest:.2f} m"
+        f"left {off[window][-1]:.2f} m after {SLOT_WITHIN_S:g} s; lowest {lowest:.2f} m"
     )
     print(summary)
     with (tmp_path.parent / "rejoin_figures.txt").open("a") as f:
