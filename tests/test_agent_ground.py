@@ -70,23 +70,28 @@ def test_nine_agents_converge_on_the_ground_and_survive_a_sigkill(tmp_path: Path
         # start-up (9 interpreters importing zenoh on 2 cores) is not the estimator's time:
         # the clock starts once every agent has joined and reported
         assert obs.wait_until(lambda: len(obs.statuses()) == 9, 30.0)
-        joined = time.monotonic()
-        assert obs.wait_until(lambda: _all_within(obs, list(range(9)), TRUTH), 10.0), {
+        joined_s = max(s.t_s for s in obs.statuses().values())
+        # converged within 10 s of the vehicles' (simulated) time: the estimator's rounds run on
+        # it; the wall-clock wait is only a cap for a loaded machine
+        assert obs.wait_until(lambda: _all_within(obs, list(range(9)), TRUTH), 60.0), {
             d: np.round(s.estimate, 3) for d, s in obs.statuses().items()
         }
-        assert time.monotonic() - joined <= 10.0
+        assert min(s.t_s for s in obs.statuses().values()) - joined_s <= 10.0
         assert all(s.counters.rx > 0 for s in obs.statuses().values())
         # SIGKILL drone 4's agent: everyone drops it at once and re-converges on the survivors
-        killed_at = time.monotonic()
+        killed_at, killed_s = time.monotonic(), max(s.t_s for s in obs.statuses().values())
         procs[4].kill()
-        assert obs.wait_until(lambda: obs.alive.get(4) is False, 2.0)
+        assert obs.wait_until(lambda: obs.alive.get(4) is False, 5.0)
         dropped_at = next(t for t, d, alive in obs.changes if d == 4 and not alive)
-        assert dropped_at - killed_at < 0.5
+        # its closed connection, not the liveliness lease (1 s) running out; a loaded machine
+        # may take a few hundred ms to notice
+        assert dropped_at - killed_at < 1.0
         survivors = [d for d in range(9) if d != 4]
         truth = truth_of([GRID[d] for d in survivors])
-        assert obs.wait_until(lambda: _all_within(obs, survivors, truth), 10.0), {
+        assert obs.wait_until(lambda: _all_within(obs, survivors, truth), 30.0), {
             d: np.round(s.estimate, 3) for d, s in obs.statuses().items()
         }
+        assert min(obs.statuses()[d].t_s for d in survivors) - killed_s <= 10.0
         assert all(4 not in obs.statuses()[d].neighbours for d in survivors)
 
 
