@@ -50,6 +50,7 @@ def test_gcs_modules_live_in_their_concern() -> None:
     flat = sorted(p.name for p in (ROOT / "gcs").glob("*.py") if p.name != "__init__.py")
     assert not flat
     assert {p.name for p in (ROOT / "gcs").iterdir() if (p / "__init__.py").exists()} == {
+        "api",  # the public Python API (docs/api.md)
         "cli",
         "station",
         "reference",
