@@ -163,23 +163,10 @@ def _cpu_seconds(pid: int) -> float | None:
 
 
 def _free_block(n: int) -> int:
-    for _ in range(100):
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-            probe.bind((HOST, 0))
-            base = int(probe.getsockname()[1])
-        socks = []
-        try:
-            for port in range(base, base + n):
-                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-                socks.append(s)
-                s.bind((HOST, port))
-            return base
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
-    raise RuntimeError(f"no {n} free consecutive UDP ports")
+    """First of ``n`` consecutive free UDP ports (gcs.api.launch.free_udp_block)."""
+    from gcs.api.launch import free_udp_block
+
+    return free_udp_block(n, HOST, attempts=100)
 
 
 # -- the client process --------------------------------------------------------------------------

@@ -51,24 +51,11 @@ def free_udp_port() -> int:
 
 
 def free_port_block(n: int, attempts: int = 50) -> int:
-    """First of ``n`` consecutive UDP ports of 127.0.0.1 that are all free right now."""
-    for _ in range(attempts):
-        base = free_udp_port()
-        if base + n > 65000:
-            continue
-        socks: list[socket.socket] = []
-        try:
-            for port in range(base, base + n):
-                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-                socks.append(s)
-                s.bind((HOST, port))
-            return base
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
-    raise RuntimeError(f"no block of {n} free UDP ports found")
+    """First of ``n`` consecutive UDP ports of 127.0.0.1 that are all free right now (the API's
+    search, gcs.api.launch.free_udp_block)."""
+    from gcs.api.launch import free_udp_block
+
+    return free_udp_block(n, HOST, attempts)
 
 
 @dataclass
