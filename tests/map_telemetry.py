@@ -18,10 +18,6 @@ from pymavlink import mavutil
 
 from protocols.geodesy import GeoPoint, ned_of_global_int
 
-# the longest gap between two LOCAL_POSITION_NED samples a GLOBAL_POSITION_INT is compared across
-# (they come at 25 Hz)
-LOCAL_GAP_S = 0.05
-
 
 @dataclass(frozen=True)
 class MapAgreement:
@@ -71,13 +67,6 @@ def map_agreement(tlog: Path, home: GeoPoint, t_from_s: float = 0.0) -> MapAgree
         if g.shape[0] == 0:
             continue
         k = np.clip(np.searchsorted(n[:, 0], g[:, 0], side="right") - 1, 0, n.shape[0] - 2)
-        # only where the local samples on both sides arrived: a loaded machine's ground station
-        # drops datagrams, and a velocity drawn across a missing stretch (a touch-down, the start
-        # of a climb) is not what the vehicle sent
-        dense = n[k + 1, 0] - n[k, 0] <= LOCAL_GAP_S
-        g, k = g[dense], k[dense]
-        if g.shape[0] == 0:
-            continue
         dt = (g[:, 0] - n[k, 0])[:, None]
         pos = n[k, 1:4] + n[k, 4:7] * dt
         vel = np.stack([np.interp(g[:, 0], n[:, 0], n[:, c]) for c in (4, 5, 6)], axis=1)
