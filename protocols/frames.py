@@ -4,10 +4,29 @@ Conventions (SPEC.md):
 - World frame NED (x north, y east, z down), metres, seconds, radians.
 - Body frame FRD. ``R_b = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` maps body vectors to world.
 - Quaternions are ``(w, x, y, z)`` (MAVLink order), body FRD -> world NED.
+- ZYX angles go in and come out in one order everywhere here: ``(yaw, pitch, roll)``, the order
+  the rotations compose in. (Arrays that *store* the three, as the simulator's ``euler_rad``
+  rows and the descriptor vector, keep MAVLink ATTITUDE's ``(roll, pitch, yaw)``: a layout, read
+  by the callers, e.g. ``quat_from_zyx(e[2], e[1], e[0])``.)
 - Gravity is ``+G_M_S2 * E3`` in NED.
+
+Each quaternion formula is written once, on plain floats with :mod:`math`'s functions
+(:func:`zyx_from_wxyz`, :func:`yaw_from_wxyz`, :func:`wxyz_from_zyx`): the C library's, which
+CPython and numba both call, so numba compiles them as they are (sitl_sim/setpoint_jit.py) and the
+compiled values are the plain ones to the last bit. The numpy versions (:func:`quat_from_zyx`,
+:func:`zyx_from_quat`, :func:`zyx_from_quat_batch`, :func:`yaw_from_quat_batch`) run the same code
+with numpy's functions bound in place of math's (:func:`same_code`), operation for operation. Their
+values can still differ from the float versions' in the last bit (numpy's ``arctan2`` and
+``arcsin`` use SIMD code on some CPUs), so where two runs are compared bit for bit (``swarm
+simulate`` against the lockstep flight) both sides convert with the same version.
 """
 
 from __future__ import annotations
+
+import math
+import types
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -18,18 +37,24 @@ G_M_S2 = 9.81
 E3: FloatArray = np.array([0.0, 0.0, 1.0])
 
 
+def same_code(fn: Callable[..., Any], **names: Any) -> Any:
+    """``fn``'s own code (the same formula, operation for operation) with the global ``names``
+    bound to other objects: numpy's functions in place of math's, or compiled helpers (numba)
+    in place of the plain functions ``fn`` calls. Not a copy of the formula: another scope."""
+    scope = dict(fn.__globals__, **names)
+    same = types.FunctionType(fn.__code__, scope, fn.__name__, fn.__defaults__)
+    same.__qualname__ = fn.__qualname__
+    same.__doc__ = fn.__doc__
+    return same
+
+
+# -- rotation matrices --------------------------------------------------------------------------
+
+
 def rot_zyx(yaw: float, pitch: float, roll: float) -> FloatArray:
     """Rotation matrix (3, 3) body -> world, ``Rz(yaw) Ry(pitch) Rx(roll)``."""
-    cy, sy = np.cos(yaw), np.sin(yaw)
-    cp, sp = np.cos(pitch), np.sin(pitch)
-    cr, sr = np.cos(roll), np.sin(roll)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
+    out: FloatArray = rot_zyx_batch(np.array([yaw]), np.array([pitch]), np.array([roll]))[0]
+    return out
 
 
 def rot_zyx_batch(yaw: FloatArray, pitch: FloatArray, roll: FloatArray) -> FloatArray:
@@ -52,10 +77,8 @@ def rot_zyx_batch(yaw: FloatArray, pitch: FloatArray, roll: FloatArray) -> Float
 
 def zyx_from_rot(r: FloatArray) -> tuple[float, float, float]:
     """ZYX angles ``(yaw, pitch, roll)`` in radians of a rotation matrix (3, 3) body -> world."""
-    pitch = float(np.arcsin(np.clip(-r[2, 0], -1.0, 1.0)))
-    yaw = float(np.arctan2(r[1, 0], r[0, 0]))
-    roll = float(np.arctan2(r[2, 1], r[2, 2]))
-    return yaw, pitch, roll
+    yaw, pitch, roll = zyx_from_rot_batch(np.asarray(r)[None])
+    return float(yaw[0]), float(pitch[0]), float(roll[0])
 
 
 def zyx_from_rot_batch(r: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -66,28 +89,76 @@ def zyx_from_rot_batch(r: FloatArray) -> tuple[FloatArray, FloatArray, FloatArra
     return yaw, pitch, roll
 
 
-def quat_from_zyx(yaw: float, pitch: float, roll: float) -> FloatArray:
-    """Quaternion ``(w, x, y, z)`` body -> world of ZYX angles in radians."""
-    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
-    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
-    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
-    return np.array(
-        [
-            cr * cp * cy + sr * sp * sy,
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-        ]
+# -- quaternions: the formulas, on plain floats (numba compiles them as they are) ---------------
+
+
+def wxyz_from_zyx(yaw: float, pitch: float, roll: float) -> tuple[float, float, float, float]:
+    """Quaternion ``(w, x, y, z)`` body FRD -> world NED of ZYX angles (rad); plain floats."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
     )
 
 
+def yaw_from_wxyz(w: float, x: float, y: float, z: float) -> float:
+    """The yaw (rad) of :func:`zyx_from_wxyz`, alone."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def zyx_from_wxyz(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """ZYX angles ``(yaw, pitch, roll)`` rad of a unit quaternion ``(w, x, y, z)``; plain floats
+    (one vehicle: cheaper than the numpy versions). Pitch is clamped to +-pi/2 (round-off)."""
+    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    return yaw_from_wxyz(w, x, y, z), pitch, roll
+
+
+# -- the same formulas over numpy arrays ---------------------------------------------------------
+
+#: numpy's functions under math's names, for :func:`same_code`.
+_NUMPY_MATH = types.SimpleNamespace(cos=np.cos, sin=np.sin, atan2=np.arctan2, asin=np.arcsin)
+_wxyz_from_zyx_np = same_code(wxyz_from_zyx, math=_NUMPY_MATH)
+_yaw_from_wxyz_np = same_code(yaw_from_wxyz, math=_NUMPY_MATH)
+_zyx_from_wxyz_np = same_code(
+    zyx_from_wxyz,
+    math=_NUMPY_MATH,
+    max=np.maximum,
+    min=np.minimum,
+    yaw_from_wxyz=_yaw_from_wxyz_np,
+)
+
+
+def quat_from_zyx(
+    yaw: FloatArray | float, pitch: FloatArray | float, roll: FloatArray | float
+) -> FloatArray:
+    """Quaternion ``(w, x, y, z)`` (4,) body -> world of ZYX angles in radians, or quaternions
+    (4, N) of angle arrays (N,): :func:`wxyz_from_zyx` with numpy's functions."""
+    return np.array(_wxyz_from_zyx_np(yaw, pitch, roll))
+
+
 def zyx_from_quat(q: FloatArray) -> tuple[float, float, float]:
-    """ZYX angles ``(yaw, pitch, roll)`` in radians of a quaternion ``(w, x, y, z)``."""
+    """ZYX angles ``(yaw, pitch, roll)`` in radians of a quaternion ``(w, x, y, z)`` (4,):
+    :func:`zyx_from_wxyz` with numpy's functions."""
     w, x, y, z = (float(v) for v in q)
-    roll = float(np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)))
-    pitch = float(np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0)))
-    yaw = float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+    yaw, pitch, roll = _zyx_from_wxyz_np(w, x, y, z)
+    return float(yaw), float(pitch), float(roll)
+
+
+def zyx_from_quat_batch(q: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """:func:`zyx_from_quat` of quaternions (4, N): ``(yaw, pitch, roll)``, (N,) each."""
+    yaw, pitch, roll = _zyx_from_wxyz_np(q[0], q[1], q[2], q[3])
     return yaw, pitch, roll
+
+
+def yaw_from_quat_batch(q: FloatArray) -> FloatArray:
+    """The yaw (N,) rad of :func:`zyx_from_quat_batch`, alone."""
+    out: FloatArray = _yaw_from_wxyz_np(q[0], q[1], q[2], q[3])
+    return out
 
 
 def wrap_pi(angle: FloatArray | float) -> FloatArray | float:

@@ -20,12 +20,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocols.frames import FloatArray
+from protocols.frames import FloatArray, zyx_from_quat_batch
+from protocols.frames import yaw_from_quat_batch as yaw_from_quat_batch  # (callers' old import)
 from sitl_sim.dynamics import QUAT, RATES
 from sitl_sim.vehicle_params import VehicleParams
 
 #: Smallest cos(pitch) used in ``W``: keeps the controller finite at +-90 deg pitch.
-_MIN_COS_PITCH = 1e-6
+MIN_COS_PITCH = 1e-6
+#: The old name, imported by sitl_sim/physics_jit.py (until it imports MIN_COS_PITCH).
+_MIN_COS_PITCH = MIN_COS_PITCH
 
 
 @dataclass(frozen=True)
@@ -53,41 +56,18 @@ class AttitudeGains:
 
 
 def euler_from_quat_batch(quat: FloatArray) -> FloatArray:
-    """ZYX angles (3, N) ``(roll, pitch, yaw)`` rad of quaternions (4, N) ``(w, x, y, z)``."""
-    w, x, y, z = quat[0], quat[1], quat[2], quat[3]
+    """The controller's ``eta`` (3, N): ZYX angles as rows ``(roll, pitch, yaw)`` rad, of
+    quaternions (4, N) ``(w, x, y, z)`` (:func:`protocols.frames.zyx_from_quat_batch`)."""
+    yaw, pitch, roll = zyx_from_quat_batch(quat)
     out = np.empty((3, quat.shape[1]))
-    out[0] = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    out[1] = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
-    out[2] = yaw_from_quat_batch(quat)
+    out[0], out[1], out[2] = roll, pitch, yaw
     return out
-
-
-def yaw_from_quat_batch(quat: FloatArray) -> FloatArray:
-    """The yaw (N,) rad of :func:`euler_from_quat_batch`, alone."""
-    w, x, y, z = quat[0], quat[1], quat[2], quat[3]
-    out: FloatArray = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return out
-
-
-def quat_from_euler_batch(euler_rad: FloatArray) -> FloatArray:
-    """Quaternions (4, N) ``(w, x, y, z)`` body -> world of ZYX angles (3, N) (roll, pitch, yaw)."""
-    cr, sr = np.cos(0.5 * euler_rad[0]), np.sin(0.5 * euler_rad[0])
-    cp, sp = np.cos(0.5 * euler_rad[1]), np.sin(0.5 * euler_rad[1])
-    cy, sy = np.cos(0.5 * euler_rad[2]), np.sin(0.5 * euler_rad[2])
-    return np.stack(
-        [
-            cr * cp * cy + sr * sp * sy,
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-        ]
-    )
 
 
 def euler_rates_from_body_rates(euler_rad: FloatArray, rates_rad_s: FloatArray) -> FloatArray:
     """Euler-angle rates (3, N) rad/s from body rates (3, N) rad/s at angles (3, N) (eq. 20)."""
     sphi, cphi = np.sin(euler_rad[0]), np.cos(euler_rad[0])
-    ctheta = np.maximum(np.cos(euler_rad[1]), _MIN_COS_PITCH)
+    ctheta = np.maximum(np.cos(euler_rad[1]), MIN_COS_PITCH)
     ttheta = np.sin(euler_rad[1]) / ctheta
     p, q, r = rates_rad_s[0], rates_rad_s[1], rates_rad_s[2]
     qr_roll = sphi * q + cphi * r

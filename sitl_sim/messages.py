@@ -38,7 +38,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from protocols.frames import FloatArray
+from protocols.frames import FloatArray, wxyz_from_zyx
 from protocols.mavlink_conventions import (
     ACTUATOR_ROTORS,
     ACTUATOR_ROTORS_ACTIVE,
@@ -49,7 +49,6 @@ from protocols.mavlink_conventions import (
 )
 from sitl_sim.autopilot import Autopilot, Mode
 from sitl_sim.battery import Battery
-from sitl_sim.setpoint import quat_from_euler
 from sitl_sim.world import Snapshot, World
 
 CUSTOM_MODE = {Mode.HOLD: MODE_HOLD, Mode.OFFBOARD: MODE_OFFBOARD, Mode.LAND: MODE_LAND}
@@ -193,7 +192,7 @@ def attitude_target(world: World, i: int) -> Any:
     """ATTITUDE_TARGET: the attitude (quaternion w, x, y, z) and normalised thrust the
     autopilot last gave vehicle ``i``'s inner loop (zero thrust when disarmed)."""
     euler, thrust = world.commanded()
-    q = quat_from_euler(float(euler[0, i]), float(euler[1, i]), float(euler[2, i]))
+    q = wxyz_from_zyx(float(euler[2, i]), float(euler[1, i]), float(euler[0, i]))
     flown = float(thrust[i]) if world.autopilot.armed[i] else 0.0
     return mavlink.MAVLink_attitude_target_message(
         world.time_boot_ms(), IGNORE_BODY_RATES, q, 0.0, 0.0, 0.0, flown

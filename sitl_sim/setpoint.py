@@ -17,9 +17,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import Enum
+from typing import Any
 
-import numpy as np
-import numpy.typing as npt
+from protocols.frames import wxyz_from_zyx, zyx_from_wxyz
 
 #: Largest accepted deviation of the quaternion norm from 1 (sender round-off, float32 on the wire).
 QUAT_NORM_TOLERANCE = 0.05
@@ -65,24 +65,6 @@ def validate_attitude_target(
     return AttitudeSetpoint((qw, qx, qy, qz), (roll, pitch, yaw), thrust)
 
 
-def validate_attitude_targets(
-    quats_wxyz: npt.ArrayLike, thrusts: npt.ArrayLike
-) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """:func:`validate_attitude_target` (type mask 0) of K setpoints at once, quaternions
-    (K, 4) and thrusts (K,): each one's code (K,; 0 valid, else the index of its
-    :data:`REJECTIONS`), normalised quaternion (K, 4) and ZYX angles (K, 3) rad (zeros where
-    rejected). The same rule (:func:`checked_setpoint`), compiled (sitl_sim/setpoint_jit.py:
-    numba is imported on the first call)."""
-    from sitl_sim import setpoint_jit
-
-    q = np.ascontiguousarray(quats_wxyz, dtype=np.float64).reshape(-1, 4)
-    t = np.ascontiguousarray(thrusts, dtype=np.float64).reshape(-1)
-    codes = np.zeros(t.shape[0], dtype=np.int64)
-    unit, euler = np.zeros((t.shape[0], 4)), np.zeros((t.shape[0], 3))
-    setpoint_jit.check_all(q, t, codes, unit, euler)
-    return codes, unit, euler
-
-
 #: The rejections of :func:`checked_setpoint` by code (0: none, the setpoint may be flown).
 REJECTIONS = {1: Rejection.NOT_FINITE, 2: Rejection.QUAT_NORM, 3: Rejection.THRUST_RANGE}
 
@@ -92,7 +74,8 @@ def checked_setpoint(
 ) -> tuple[int, float, float, float, float, float, float, float]:
     """The checks of a setpoint's quaternion ``(w, x, y, z)`` and thrust (floats): ``(0, the
     unit quaternion, roll, pitch, yaw)`` if it may be flown, else ``(code, 0.0, ...)``
-    (:data:`REJECTIONS`). Plain arithmetic that numba compiles as it is (setpoint_jit.py)."""
+    (:data:`REJECTIONS`). Plain arithmetic that numba compiles as it is (setpoint_jit.py), with
+    :func:`protocols.frames.zyx_from_wxyz` compiled too."""
     if not (
         math.isfinite(w)
         and math.isfinite(x)
@@ -107,33 +90,20 @@ def checked_setpoint(
     if not 0.0 <= thrust <= 1.0:
         return 3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     qw, qx, qy, qz = w / norm, x / norm, y / norm, z / norm
-    roll, pitch, yaw = euler_zyx(qw, qx, qy, qz)
+    yaw, pitch, roll = zyx_from_wxyz(qw, qx, qy, qz)
     return 0, qw, qx, qy, qz, roll, pitch, yaw
 
 
-def euler_from_quat(q: tuple[float, float, float, float]) -> tuple[float, float, float]:
-    """ZYX angles ``(roll, pitch, yaw)`` rad of a unit quaternion ``(w, x, y, z)``; plain floats
-    (one vehicle: cheaper than the numpy batch version)."""
-    w, x, y, z = q
-    return euler_zyx(w, x, y, z)
-
-
-def euler_zyx(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
-    """:func:`euler_from_quat` of the quaternion's four floats (numba compiles it too)."""
-    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
-    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return roll, pitch, yaw
-
-
 def quat_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """Quaternion ``(w, x, y, z)`` body FRD -> world NED of ZYX angles (rad)."""
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return (
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    )
+    """Deprecated, the old argument order: :func:`protocols.frames.wxyz_from_zyx` ``(yaw, pitch,
+    roll)``. Kept until bench/physics_tick.py, tests/test_physics_kernel.py and
+    tests/test_sitl_world.py call that (then remove it)."""
+    return wxyz_from_zyx(yaw, pitch, roll)
+
+
+def validate_attitude_targets(quats_wxyz: Any, thrusts: Any) -> Any:
+    """Moved: :func:`sitl_sim.setpoint_jit.validate_attitude_targets`. This forward (and the
+    import cycle it makes) stays until gcs/reference/autopilot_link.py imports it from there."""
+    from sitl_sim import setpoint_jit
+
+    return setpoint_jit.validate_attitude_targets(quats_wxyz, thrusts)

@@ -16,7 +16,6 @@ from sitl_sim.attitude_control import (
     attitude_moments,
     euler_from_quat_batch,
     euler_rates_from_body_rates,
-    quat_from_euler_batch,
 )
 from sitl_sim.inner_loop import inner_loop
 from sitl_sim.vehicle_params import VehicleParams
@@ -54,9 +53,8 @@ def rise_time_90(trace: FloatArray, target: float) -> float:
 
 @settings(max_examples=100, deadline=None)
 @given(roll=angle, pitch=angle, yaw=yaw_angle)
-def test_euler_quat_batch_helpers_match_frames(roll: float, pitch: float, yaw: float) -> None:
-    q = quat_from_euler_batch(np.array([[roll], [pitch], [yaw]]))
-    np.testing.assert_allclose(q[:, 0], quat_from_zyx(yaw, pitch, roll), atol=1e-15)
+def test_eta_is_frames_angles_as_rows(roll: float, pitch: float, yaw: float) -> None:
+    q = quat_from_zyx(np.array([yaw]), np.array([pitch]), np.array([roll]))
     eta = euler_from_quat_batch(q)
     np.testing.assert_allclose(eta[:, 0], [roll, pitch, yaw], atol=1e-9)
     assert zyx_from_quat(q[:, 0]) == pytest.approx((yaw, pitch, roll), abs=1e-9)
@@ -182,7 +180,7 @@ def test_quaternion_and_euler_setpoints_agree() -> None:
     s = dyn.initial_state(np.zeros((2, 3)) - [0, 0, 5])
     s[dyn.RATES] = [[0.1, -0.2], [0.3, 0.0], [0.0, 0.5]]
     euler_des = np.array([[0.2, -0.3], [0.1, 0.0], [2.0, -1.0]])
-    quat_des = quat_from_euler_batch(euler_des)
+    quat_des = quat_from_zyx(euler_des[2], euler_des[1], euler_des[0])
     thrust = np.array([0.4, 0.6])
     np.testing.assert_allclose(
         inner_loop(s, quat_des, thrust, P), inner_loop(s, euler_des, thrust, P), atol=1e-9
