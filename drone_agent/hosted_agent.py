@@ -59,13 +59,12 @@ from drone_agent.vehicle_link import VehicleLink, VehicleSample
 from protocols.consensus_message import ConsensusMessage
 from protocols.descriptor_vector import CENTRE
 from protocols.frames import quat_from_zyx
+from protocols.mavlink_conventions import LOST_STATES
 from protocols.plan_timing import flown_time_s, tick_time_s
 from protocols.trajectory import DescriptorTrajectory
 from protocols.wire_plan import FlightCommand
 from protocols.wire_status import AgentMode, AgentStatus, Health
 
-#: MAV_STATE values meaning the vehicle is lost (EMERGENCY, FLIGHT_TERMINATION).
-LOST_STATES = frozenset({6, 8})
 #: Agent modes in which the vehicle flies the agent's setpoints: disarmed under it = lost.
 _FLYING_MODES = frozenset({AgentMode.FLYING, AgentMode.HOLDING})
 #: Neighbours above this altitude (m) fly: an agent that first hears them so is a late joiner.
@@ -129,7 +128,9 @@ class DueTick:
 
 
 class HostedAgent:
-    """Drone ``core.agent_id``'s agent. Feed it vehicle samples; call :meth:`service` often."""
+    """Drone ``core.agent_id``'s agent. Feed it vehicle samples; its host calls :meth:`prepare`
+    often, runs the core of a due tick (batched with its other agents due then) and hands the
+    output to :meth:`finish`."""
 
     def __init__(
         self,
@@ -219,24 +220,6 @@ class HostedAgent:
         return all(r >= tick - 1 for r in recent)
 
     # -- the loop ------------------------------------------------------------------------------
-    def service(self) -> None:
-        """Do what is due now: heartbeat, leaving on vehicle loss, the tick, arming, status."""
-        due = self.prepare()
-        if due is not None:
-            s = due.sample
-            out = self.core.tick(
-                due.tick,
-                due.t_s,
-                s.position_ned_m,
-                s.velocity_ned_m_s,
-                due.plan,
-                due.inbox,
-                due.members,
-                due.climb_to,
-                due.plan_t_s,
-            )
-            self.finish(due, out)
-
     def prepare(self) -> DueTick | None:
         """Everything before the core: heartbeat, leaving on vehicle loss, collecting messages,
         and whether a tick is due (a newer vehicle sample, and every recent neighbour's message

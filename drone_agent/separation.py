@@ -2,28 +2,30 @@
 that it keeps ``min_separation_m`` from every neighbour it hears, stays above an altitude floor
 and inside the geofence (issue 10 item 3). Pure and I/O-free, batched over K agents.
 
-How to integrate (not wired in yet)
------------------------------------
-- *Where*: after the cooperative controller's virtual acceleration ``v_i`` (plus the flat-axis
-  PD and null-space damping), before thrust/attitude (drone_agent/thrust_attitude): the filter
-  returns an acceleration inside what thrust/attitude can realise, so the limiter there does not
-  undo it. From arming (take-off included: that is where a dense grid collides) to touchdown.
-- *Inputs*: own position and velocity (telemetry of this tick); the neighbours heard this tick:
-  the newest consensus message of each sender within the heard timeout, position and velocity
-  extrapolated to now (drone_agent/neighbours.py: ``latest_by_sender`` keeps the store,
-  ``neighbours_from_inbox`` / ``neighbour_arrays`` make the arrays). Senders publish their
+Where it is wired in
+--------------------
+- *Where*: :class:`~drone_agent.agent_core.BatchAgentCore` filters the cooperative
+  controller's acceleration (or the rejoin climb's) through its
+  :class:`~drone_agent.separation_layer.SeparationLayer`, before thrust/attitude
+  (drone_agent/thrust_attitude): the filter returns an acceleration inside what thrust/attitude
+  can realise, so the limiter there does not undo it. Every tick an agent
+  computes a setpoint, take-off included (that is where a dense grid collides); off when
+  ``AgentConfig.separation`` is None.
+- *Inputs*: own position and velocity (telemetry of this tick); the neighbours heard: the newest
+  consensus message of each sender within the layer's age limit, position and velocity
+  extrapolated to now (drone_agent/neighbours.py, one implementation). Senders publish their
   velocity in ``ConsensusMessage.velocity_ned_m_s`` (wire schema 2).
-- *Parameters*: ``SeparationParams(min_separation_m=scenario.safety.min_separation_m,
-  accel=AccelBox.from_thrust_limits(limits), fence_* = the envelope's geofence)``; pass
-  ``floor_on`` for the agents flying the formation (climbed past the floor) and switch the floor
-  off (``params.without_floor()``) while the plan lands. ``common_accel_ned_m_s2``: the plan's
-  centre acceleration (exactly shared); not the controller's ``w_μ``, which depends on each
-  agent's estimate and would void the reciprocal guarantee exactly when estimates disagree.
-  Neighbours known not to avoid (a failed vehicle, a version-1 sender?): ``nb_share`` 1.
-- *What to log*: count the ticks in which ``result.active`` (per agent, in the status counters),
-  write an event to events.jsonl when an agent's filter starts and stops acting (with
-  ``closest_m``, ``n_constraints`` and which kinds acted: ``separation`` / ``floor`` /
-  ``fence``), and a distinct event when ``infeasible`` (best effort: the constraints conflict).
+- *Parameters*: :meth:`~drone_agent.separation_layer.SeparationConfig.params`:
+  ``min_separation_m`` and the geofence from the scenario's ``[safety]``, the altitude floor
+  (0.5 m, below the 1 m LAND hand-over), ``accel=AccelBox.from_thrust_limits(limits)``;
+  ``common_accel_ned_m_s2``: the plan's centre acceleration (exactly shared); not the
+  controller's ``w_μ``, which depends on each agent's estimate and would void the reciprocal
+  guarantee exactly when estimates disagree.
+- *What is logged*: an agent whose command the filter changed this tick says so in its status
+  (``Health.SEPARATING``, protocols/wire_status.py); the ground station writes a ``separation``
+  event to events.jsonl when an agent's filter starts acting and ``separation_end`` when it stops
+  (gcs/station/swarm_watch.py). ``closest_m``, ``n_constraints``, which kinds acted and
+  ``infeasible`` are in each :class:`SeparationResult` but not logged.
 
 The barrier (per pair of agents i, j; Wang, Ames and Egerstedt, "Safety barrier certificates for
 collisions-free multi-robot systems", 2017)

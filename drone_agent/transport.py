@@ -137,8 +137,8 @@ class Bus(Closeable, Protocol):
 
 
 @dataclass(frozen=True)
-class LinkCounters:
-    """Cumulative message counts of one agent's transport.
+class SwarmMessageCounters:
+    """Cumulative counts of the swarm messages (consensus, plans) of one agent's transport.
 
     ``rx``: consensus payloads received from other drones (before any check). Dropped:
     ``malformed`` (any WireError but the two below, or a key/sender mismatch), ``wrong_swarm``,
@@ -170,6 +170,10 @@ class LinkCounters:
             tx=self.tx,
             rejected_setpoints=rejected_setpoints,
         )
+
+
+#: The old name, kept until drone_agent/link_faults.py and tests/test_link_faults.py use the new.
+LinkCounters = SwarmMessageCounters
 
 
 class AgentTransport(Protocol):
@@ -212,7 +216,7 @@ class AgentTransport(Protocol):
         subscription; None until one arrived."""
         ...
 
-    def counters(self) -> LinkCounters:
+    def counters(self) -> SwarmMessageCounters:
         """A snapshot of the message counters."""
         ...
 

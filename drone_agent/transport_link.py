@@ -45,9 +45,9 @@ from drone_agent.transport import (
     ClosesOnExit,
     Congestion,
     Inbox,
-    LinkCounters,
     Position,
     Publisher,
+    SwarmMessageCounters,
 )
 from protocols.consensus_message import ConsensusMessage
 from protocols.keys import Cell, SwarmKeys, cell_size_for, neighbourhood, track_cell
@@ -674,9 +674,9 @@ class AgentLink(ClosesOnExit):
                 self._plan, self._plan_payload = plan, payload
         return self._plan
 
-    def counters(self) -> LinkCounters:
+    def counters(self) -> SwarmMessageCounters:
         """A snapshot of the message counters."""
-        return LinkCounters(**self._counts)
+        return SwarmMessageCounters(**self._counts)
 
     def close(self) -> None:
         """Drop the token first (peers remove this drone at once), then undeclare the rest."""

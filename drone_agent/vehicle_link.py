@@ -39,6 +39,7 @@ from protocols.mavlink_conventions import (
     AGENT_COMPID,
     AUTOPILOT_COMPID,
     Dialect,
+    MavSeverity,
     dialect_of_autopilot,
     sysid_of,
     vehicle_port,
@@ -86,8 +87,9 @@ class VehicleStatus:
 
 
 @dataclass
-class LinkCounters:
-    """Per-link counters: datagrams and messages in/out, what was dropped and why."""
+class MavlinkCounters:
+    """Counts of the MAVLink traffic of one vehicle link: datagrams and messages in/out, what
+    was dropped and why."""
 
     rx_datagrams: int = 0
     rx_messages: int = 0
@@ -141,7 +143,7 @@ class VehicleLink:
         self.origin = origin if origin is not None else GeoPoint()
         self.clock = clock
         self.status = VehicleStatus()
-        self.counters = LinkCounters()
+        self.counters = MavlinkCounters()
         #: half samples by time_boot_ms: (time_boot_ms, x, y, z, vx, vy, vz) and
         #: (time_boot_ms, roll, pitch, yaw, ...)
         self._pos: dict[int, tuple[Any, ...]] = {}
@@ -283,7 +285,7 @@ class VehicleLink:
         elif kind == "STATUSTEXT":
             self.status.texts.append(str(msg.text))
             del self.status.texts[:-50]
-            if int(msg.severity) == common.MAV_SEVERITY_EMERGENCY:
+            if int(msg.severity) == MavSeverity.EMERGENCY:
                 self.status.emergency = True  # e.g. motors failed: the vehicle is going down
         elif not self.dialect_known:
             return []  # which frame a position is in is not known yet

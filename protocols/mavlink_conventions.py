@@ -95,6 +95,56 @@ LOCKSTEP_DROP_TIMEOUT_S = 10.0
 #: MAVLink 2 signing: link id used by the simulator's outgoing telemetry.
 SIGNING_LINK_ID = 0
 
+#: Above this altitude (m) a vehicle counts as airborne: the agents' flight phase (never sent less
+#: than the minimum thrust), the ground station and ``swarm simulate``'s record.
+AIRBORNE_ALTITUDE_M = 0.1
+#: MAV_CMD_COMPONENT_ARM_DISARM ``param2`` that forces a disarm in flight.
+FORCE_DISARM_MAGIC = 21196.0
+
+
+class MavState(IntEnum):
+    """HEARTBEAT ``system_status`` (MAV_STATE)."""
+
+    UNINIT = 0
+    BOOT = 1
+    CALIBRATING = 2
+    STANDBY = 3
+    ACTIVE = 4
+    CRITICAL = 5
+    EMERGENCY = 6
+    POWEROFF = 7
+    FLIGHT_TERMINATION = 8
+
+
+#: The states in which a vehicle is lost to its agent (crashed, or terminated).
+LOST_STATES = frozenset({MavState.EMERGENCY, MavState.FLIGHT_TERMINATION})
+
+
+class MavSeverity(IntEnum):
+    """STATUSTEXT ``severity`` (MAV_SEVERITY). EMERGENCY: the vehicle is lost (motors off,
+    crashed); the agents leave the swarm on it and the ground station logs a crash."""
+
+    EMERGENCY = 0
+    ALERT = 1
+    CRITICAL = 2
+    ERROR = 3
+    WARNING = 4
+    NOTICE = 5
+    INFO = 6
+    DEBUG = 7
+
+
+class MavResult(IntEnum):
+    """COMMAND_ACK ``result`` (MAV_RESULT)."""
+
+    ACCEPTED = 0
+    TEMPORARILY_REJECTED = 1
+    DENIED = 2
+    UNSUPPORTED = 3
+    FAILED = 4
+    IN_PROGRESS = 5
+
+
 #: ACTUATOR_OUTPUT_STATUS: rotors in ``actuator[0..ACTUATOR_ROTORS-1]`` (forces, N), their bits.
 ACTUATOR_ROTORS = 4
 ACTUATOR_ROTORS_ACTIVE = (1 << ACTUATOR_ROTORS) - 1

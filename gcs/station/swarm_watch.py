@@ -15,9 +15,9 @@ import numpy as np
 
 from gcs.station.telemetry import VehicleState
 from protocols.descriptors import descriptors
+from protocols.mavlink_conventions import MavSeverity
 from protocols.wire_status import AgentStatus, Health
 
-_SEVERITY_EMERGENCY = 0
 _CRASH_WORDS = ("crash", "destroyed", "all motors off")
 #: Smoothing of the link quality: weight of the newest status (about ten statuses).
 _LINK_SMOOTHING = 0.1
@@ -28,7 +28,7 @@ def text_kind(severity: int, text: str) -> str:
     destroyed), ``failsafe``, ``overload`` (its agent answers too few ticks in time, realtime:
     sitl_sim/tick_answers.py) or ``vehicle_text``."""
     lower = text.lower()
-    if severity == _SEVERITY_EMERGENCY or any(w in lower for w in _CRASH_WORDS):
+    if severity == MavSeverity.EMERGENCY or any(w in lower for w in _CRASH_WORDS):
         return "crash"
     if lower.startswith("agent late"):
         return "overload"
