@@ -69,11 +69,19 @@ class Result(IntEnum):
 
 @dataclass(frozen=True)
 class VehicleEvent:
-    """Something vehicle ``vehicle`` (0-based) reports as a STATUSTEXT."""
+    """Something vehicle ``vehicle`` (0-based) reports as a STATUSTEXT; ``kind`` says what, for
+    a log (:data:`EVENT_KINDS`; ``text`` for anything else)."""
 
     vehicle: int
     severity: Severity
     text: str
+    kind: str = "text"
+
+
+#: The kinds of :class:`VehicleEvent` this autopilot reports: armed, disarmed (on a command or on
+#: touchdown), a mode entered on a command, a failsafe step, a motor failure injected or cleared,
+#: a touchdown too fast (a vehicle destroyed, or a wreck hitting the ground).
+EVENT_KINDS = ("armed", "disarmed", "mode", "failsafe", "motor_failure", "hard_landing")
 
 
 @dataclass(frozen=True)
@@ -162,7 +170,7 @@ class Autopilot:
             return Outcome(Result.DENIED, "Arming denied: no offboard setpoints"), []
         self.armed[i] = True
         self.failsafe[i] = False
-        return ACCEPTED, [VehicleEvent(i, Severity.INFO, "Armed")]
+        return ACCEPTED, [VehicleEvent(i, Severity.INFO, "Armed", "armed")]
 
     def disarm(self, i: int, force: bool = False) -> tuple[Outcome, list[VehicleEvent]]:
         """MAV_CMD_COMPONENT_ARM_DISARM param1 = 0 (param2 = 21196 forces it in flight)."""
@@ -172,7 +180,7 @@ class Autopilot:
             return Outcome(Result.DENIED, "Disarming denied: not landed"), []
         self._disarm(i)
         text = "Disarmed (forced in flight)" if not self.landed[i] else "Disarmed"
-        return ACCEPTED, [VehicleEvent(i, Severity.INFO, text)]
+        return ACCEPTED, [VehicleEvent(i, Severity.INFO, text, "disarmed")]
 
     def set_mode(self, i: int, mode: Mode, t_s: float) -> tuple[Outcome, list[VehicleEvent]]:
         """Switch vehicle ``i`` to ``mode``; OFFBOARD needs fresh setpoints."""
@@ -184,7 +192,7 @@ class Autopilot:
             return ACCEPTED, []
         self.failsafe[i] = False
         self._enter(i, mode)
-        return ACCEPTED, [VehicleEvent(i, Severity.INFO, f"Mode {mode.name}")]
+        return ACCEPTED, [VehicleEvent(i, Severity.INFO, f"Mode {mode.name}", "mode")]
 
     def setpoint(self, i: int, sp: AttitudeSetpoint, t_s: float) -> None:
         """Store a validated offboard setpoint received at ``t_s``."""
@@ -193,6 +201,22 @@ class Autopilot:
         self.sp_thrust[i] = sp.thrust
         self.last_setpoint_s[i] = t_s
 
+    def setpoints(
+        self,
+        vehicles: npt.NDArray[np.intp],
+        quat_wxyz: FloatArray,
+        euler_rad: FloatArray,
+        thrust: FloatArray,
+        t_s: float,
+    ) -> None:
+        """:meth:`setpoint` of K validated setpoints at once, received at ``t_s``: vehicles
+        (K,) distinct, unit quaternions (4, K), their ZYX angles (3, K) rad and normalised thrusts
+        (K,) (an in-process swarm hands every vehicle its setpoint of the tick in one call)."""
+        self.sp_quat[:, vehicles] = quat_wxyz
+        self.sp_euler_rad[:, vehicles] = euler_rad
+        self.sp_thrust[vehicles] = thrust
+        self.last_setpoint_s[vehicles] = t_s
+
     def motor_failure(self, i: int, motor: int | None, off: bool) -> list[VehicleEvent]:
         """Motor ``motor`` (0..3, None: all) off (``off``) or working again. All off = crash."""
         if self.crashed[i]:
@@ -200,12 +224,14 @@ class Autopilot:
         if motor is None and off:
             self.crashed[i] = True
             self._disarm(i)
-            return [VehicleEvent(i, Severity.EMERGENCY, "Failure injected: all motors off")]
+            text = "Failure injected: all motors off"
+            return [VehicleEvent(i, Severity.EMERGENCY, text, "motor_failure")]
         motors = slice(None) if motor is None else slice(motor, motor + 1)
         self.motor_ok[motors, i] = not off
         which = "all motors" if motor is None else f"motor {motor + 1}"
         text = f"Failure injected: {which} off" if off else f"Failure cleared: {which}"
-        return [VehicleEvent(i, Severity.CRITICAL if off else Severity.NOTICE, text)]
+        severity = Severity.CRITICAL if off else Severity.NOTICE
+        return [VehicleEvent(i, severity, text, "motor_failure")]
 
     # -- time ----------------------------------------------------------------------------------
     def update(
@@ -222,7 +248,7 @@ class Autopilot:
         for i in np.flatnonzero(self.armed & (self.mode == Mode.LAND) & self.landed):
             text = "Failsafe: landed, disarmed" if self.failsafe[i] else "Landed, disarmed"
             self._disarm(int(i))
-            events.append(VehicleEvent(int(i), Severity.NOTICE, text))
+            events.append(VehicleEvent(int(i), Severity.NOTICE, text, "disarmed"))
         return events
 
     def _failsafes(self, t_s: float, events: list[VehicleEvent]) -> None:
@@ -236,12 +262,13 @@ class Autopilot:
             self._enter(int(i), Mode.HOLD)
             timeout = float(self.offboard_timeout_s[i])
             text = f"Failsafe: offboard lost ({timeout:g} s), level hold"
-            events.append(VehicleEvent(int(i), Severity.CRITICAL, text))
+            events.append(VehicleEvent(int(i), Severity.CRITICAL, text, "failsafe"))
         descend = self.failsafe & (self.mode == Mode.HOLD)
         descend &= t_s - self.failsafe_since_s >= self.failsafe_hold_s
         for i in np.flatnonzero(descend):
             self._enter(int(i), Mode.LAND)
-            events.append(VehicleEvent(int(i), Severity.CRITICAL, "Failsafe: descending to land"))
+            text = "Failsafe: descending to land"
+            events.append(VehicleEvent(int(i), Severity.CRITICAL, text, "failsafe"))
 
     def _impacts(self, impact_m_s: FloatArray, events: list[VehicleEvent]) -> None:
         for i in np.flatnonzero(impact_m_s > self.config.hard_landing_m_s):
@@ -252,7 +279,7 @@ class Autopilot:
                 self.crashed[i] = True
                 self._disarm(int(i))
                 text = f"Hard landing at {speed:.1f} m/s: vehicle destroyed"
-            events.append(VehicleEvent(int(i), Severity.EMERGENCY, text))
+            events.append(VehicleEvent(int(i), Severity.EMERGENCY, text, "hard_landing"))
 
     def _enter(self, i: int, mode: Mode) -> None:
         self.mode[i] = int(mode)

@@ -11,7 +11,9 @@ Per vehicle, by state (see :mod:`sitl_sim.autopilot`):
 
 :meth:`Guidance.prepare` runs once per control period (modes only change between periods);
 :meth:`Guidance.command` runs every physics step and recomputes only the vehicles whose command
-depends on the state within the period (airborne HOLD/LAND).
+depends on the state within the period (airborne HOLD/LAND). While there are none
+(:attr:`Guidance.steady`) the period's command is one for all its physics steps, which the world
+then takes in one kernel call.
 """
 
 from __future__ import annotations
@@ -59,6 +61,12 @@ class Guidance:
         ap.hold_z_m[unlatched] = state[2, unlatched]
         self._auto_idx = auto_idx[~ap.landed[auto_idx]]
         self._hold = ap.mode[self._auto_idx] == Mode.HOLD
+
+    @property
+    def steady(self) -> bool:
+        """No vehicle's command depends on the state within the period (none airborne in HOLD
+        or LAND): :meth:`command` gives the same command at every physics step of it."""
+        return not self._auto_idx.size
 
     def command(self, state: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Attitude (3, N) and thrust (N,) for one physics step at ``state`` (13, N)."""

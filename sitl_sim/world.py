@@ -5,7 +5,8 @@ physics step (``physics_hz``) each vehicle's autopilot command (:mod:`sitl_sim.g
 through its inner loop (attitude controller + mixer, :func:`sitl_sim.inner_loop.inner_loop`), dead
 motors are stopped, and the vectorised 6-DOF dynamics with ground contact advance the state
 (:func:`sitl_sim.dynamics.step_with_contact`): :class:`sitl_sim.physics_kernel.PhysicsKernel` does
-the three in one fused call, with the same arithmetic. Then the autopilots update (failsafes,
+the three in one fused call, with the same arithmetic (and a whole period's steps in one call
+while no vehicle's command depends on the state within it). Then the autopilots update (failsafes,
 touchdowns, crashes) and scheduled crashes (a scenario's fault timeline) fire.
 
 Each control period also drains each vehicle's battery by the current its rotors drew
@@ -118,6 +119,10 @@ class World:
         self.autopilot, self.guidance = _flight_core(
             config, self.n, np.asarray(yaw_rad, float), params, self.dt_physics_s
         )
+        #: a period whose command is steady (:attr:`Guidance.steady`) runs its physics steps in
+        #: one kernel call (the same numbers as one call each); PX4's guidance only (ArduCopter's
+        #: commands depend on the state in more ways: sitl_sim/copter.py)
+        self._fused = config.dialect == Dialect.PX4
         self.tick = 0
         #: rotor speeds (4, N) rad/s applied in the last physics step (0 before the first)
         self.rotor_speed_rad_s = np.zeros((4, self.n))
@@ -151,11 +156,17 @@ class World:
         enable = ap.armed & ap.motor_ok  # (4, N): disarmed vehicles and dead motors stopped
         impact = np.zeros(self.n)
         state, rotor = self.state, self.rotor_speed_rad_s
-        for _ in range(self.substeps):
+        if self._fused and self.guidance.steady:  # one command for the period: one kernel call
             euler, thrust = self.guidance.command(state)
-            state, rotor, touchdown = kernel.substep(state, euler, thrust, enable)
-            if touchdown is not None:
+            state, rotor, touchdowns = kernel.substeps(state, euler, thrust, enable, self.substeps)
+            for touchdown in touchdowns:
                 np.maximum(impact, touchdown, out=impact)
+        else:
+            for _ in range(self.substeps):
+                euler, thrust = self.guidance.command(state)
+                state, rotor, touched = kernel.substep(state, euler, thrust, enable)
+                if touched is not None:
+                    np.maximum(impact, touched, out=impact)
         self.rotor_speed_rad_s = rotor
         self.state = state
         thrust_n = self.params.thrust_coeff * np.einsum("rn,rn->n", rotor, rotor)

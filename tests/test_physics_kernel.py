@@ -5,8 +5,9 @@ The reference is ``inner_loop`` (attitude controller + mixer) followed by the ro
 kernel must give the same states, rotor forces and touchdown speeds to 1e-9 over hundreds of steps
 that go through take-off from the ground, touchdowns and hard landings, vehicles resting tilted,
 saturated mixers (full roll commands, thrust 0 and 1, a NaN thrust), disarming, dead motors,
-per-vehicle gains and the yaw wrap; and a World and a ReferenceFlight stepped with it must fly as
-they did with the reference step.
+per-vehicle gains and the yaw wrap; and a World stepped with it must fly as it did with the
+reference step, and ``swarm simulate`` (a World whose steady periods take their sub-steps in one
+kernel call) as one sub-step at a time.
 """
 
 from __future__ import annotations
@@ -15,13 +16,12 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from gcs.reference.flight import HARD_LANDING_M_S, ReferenceFlight
+from gcs.reference.flight import ReferenceFlight
 from protocols.frames import FloatArray
 from protocols.scenario import parse_scenario
 from sitl_sim.attitude_control import AttitudeGains
-from sitl_sim.autopilot import Mode, VehicleEvent
+from sitl_sim.autopilot import AutopilotConfig, Mode, VehicleEvent
 from sitl_sim.dynamics import initial_state, step_with_contact
-from sitl_sim.failsafe import failsafe_command
 from sitl_sim.inner_loop import inner_loop
 from sitl_sim.physics_kernel import PhysicsKernel
 from sitl_sim.setpoint import AttitudeSetpoint, quat_from_euler, validate_attitude_target
@@ -119,7 +119,7 @@ def test_kernel_matches_inner_loop_and_step_with_contact(n: int, seed: int) -> N
         )
         np.testing.assert_allclose(impact_fast, impact_ref, rtol=0.0, atol=TOL)
         touchdowns += int(np.count_nonzero(impact_ref))
-        hard += int(np.count_nonzero(impact_ref > HARD_LANDING_M_S))
+        hard += int(np.count_nonzero(impact_ref > AutopilotConfig().hard_landing_m_s))
         saturated += int(np.count_nonzero(rotor_ref >= params.rotor_speed_max_rad_s))
         resting += int(np.count_nonzero(ref[2] == 0.0))
     # the run went through what it is meant to test
@@ -236,37 +236,7 @@ def test_world_steps_as_with_the_reference_functions() -> None:
     assert ap.mode[2] == Mode.HOLD and ap.mode[3] == Mode.LAND
 
 
-# --- swarm simulate flies as it did with the reference functions -------------------------------
-
-
-def _reference_physics_step(self: ReferenceFlight, t_s: float) -> None:
-    """ReferenceFlight._physics_step as it was before the kernel."""
-    attitude, thrust = self.attitude_sp, self.thrust_sp
-    stale = self.armed & (t_s - self.last_setpoint_s > self.failsafe.offboard_timeout_s)
-    if np.any(stale):
-        attitude, thrust = attitude.copy(), thrust.copy()
-        for i in np.flatnonzero(stale & ~self.in_failsafe):
-            self.in_failsafe[i] = True
-            self._event("failsafe", drone=int(i), reason="stale")
-        since = t_s - self.last_setpoint_s[stale] - self.failsafe.offboard_timeout_s
-        yaw = np.arctan2(
-            2.0 * (self.state[6] * self.state[9] + self.state[7] * self.state[8]),
-            1.0 - 2.0 * (self.state[8] ** 2 + self.state[9] ** 2),
-        )[stale]
-        hover = self.params.hover_thrust_n / self.params.max_thrust_n
-        att, thr = failsafe_command(self.state[5, stale], yaw, since, hover, self.failsafe)
-        attitude[:, stale], thrust[stale] = att, thr
-    self.rotor_speed = inner_loop(
-        self.state, attitude, thrust, self.params, self.att_gains, self.armed
-    )
-    result = step_with_contact(self.state, self.rotor_speed, self.params, self.dt / self.substeps)
-    self.state = result.state
-    for i in np.flatnonzero(result.impact_speed_m_s > HARD_LANDING_M_S):
-        self._event("hard_landing", drone=int(i), impact_m_s=0.0)
-    landed = self.in_failsafe & self.armed & (self.state[2] >= -1e-6)
-    for i in np.flatnonzero(landed):
-        self.armed[i] = False
-        self._event("disarmed", drone=int(i), reason="failsafe landing complete")
+# --- swarm simulate flies as the world one sub-step at a time ------------------------------------
 
 
 SCENARIO = """
@@ -304,23 +274,42 @@ drone = 2
 """
 
 
-def test_swarm_simulate_flies_as_with_the_reference_functions(
+def test_swarm_simulate_flies_as_with_one_substep_at_a_time(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
+    """``swarm simulate``'s World takes a period's sub-steps in one kernel call while no
+    vehicle's command depends on the state (World.step); the flight is the one of one call per
+    sub-step to the last bit, through take-off, a crash (a wreck falling, a hard landing), a
+    drop-out's failsafe (altitude hold, then LAND: sub-step by sub-step) and its disarm."""
     import tomllib
 
     scenario = parse_scenario(tomllib.loads(SCENARIO), "kernel.toml")
     fast = ReferenceFlight(scenario)
     record_fast = fast.run()
-    monkeypatch.setattr(ReferenceFlight, "_physics_step", _reference_physics_step)
-    ref = ReferenceFlight(scenario)
-    record_ref = ref.run()
+    substeps = PhysicsKernel.substeps
+    calls = {"fused": 0}
+
+    def counted(self: PhysicsKernel, *args: object, **kwargs: object) -> object:
+        calls["fused"] += 1
+        return substeps(self, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(PhysicsKernel, "substeps", counted)
+    fused = ReferenceFlight(scenario)
+    fused.run()
+    # most periods in one call; those of the failsafe's hold and landing sub-step by sub-step
+    periods = round(scenario.duration_s * scenario.rates.control_hz)
+    assert 0.5 * periods < calls["fused"] < periods - 100, calls
+    calls["fused"] = 0
+    one_by_one = ReferenceFlight(scenario)
+    one_by_one.world._fused = False
+    record_ref = one_by_one.run()
+    assert calls["fused"] == 0
     for name in ("position_ned_m", "velocity_ned_m_s", "euler_rad", "thrust_n", "moments_nm"):
-        np.testing.assert_allclose(
-            getattr(record_fast, name), getattr(record_ref, name), rtol=0.0, atol=TOL, err_msg=name
+        np.testing.assert_array_equal(
+            getattr(record_fast, name), getattr(record_ref, name), err_msg=name
         )
     kinds = [(e.t_s, e.kind, e.fields.get("drone")) for e in fast.events]
-    assert kinds == [(e.t_s, e.kind, e.fields.get("drone")) for e in ref.events]
+    assert kinds == [(e.t_s, e.kind, e.fields.get("drone")) for e in one_by_one.events]
     # the flight went through a crash (hard landing), a failsafe landing and a disarm
     assert {"hard_landing", "failsafe", "disarmed"} <= {k for _, k, _ in kinds}
 

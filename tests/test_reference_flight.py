@@ -1,7 +1,8 @@
-"""The in-process flight with faults: a drone's agent dies (its vehicle failsafes, lands and
-disarms; the others re-converge on the survivors), loss, delay and a partition. Each fault is
-shown to take effect (messages lost at its rate, delivered late by its delay, the partitioned
-groups' estimates splitting) before the flight is shown to shrug it off."""
+"""The in-process flight with faults: a drone's agent dies (its vehicle's autopilot, the
+simulator's, fails safe, holds, lands and disarms; the others re-converge on the survivors), loss,
+delay and a partition. Each fault is shown to take effect (messages lost at its rate, delivered
+late by its delay, the partitioned groups' estimates splitting) before the flight is shown to
+shrug it off."""
 
 from __future__ import annotations
 
@@ -51,13 +52,28 @@ def _events(flight: ReferenceFlight, kind: str) -> list[Any]:
 
 
 def test_dropout_failsafe_lands_and_survivors_reconverge() -> None:
+    """The dropped drone's vehicle is the simulator's (sitl_sim/autopilot.py): no setpoint for
+    0.5 s, it holds its altitude for 1 s, then lands at 0.7 m/s and disarms on touchdown, intact."""
     flight = ReferenceFlight(_scenario([{"t_s": 12.0, "kind": "dropout", "drone": 3}]))
     rec = flight.run()
-    assert [e.fields["drone"] for e in _events(flight, "failsafe")] == [3]
+    failsafes = _events(flight, "failsafe")
+    assert [(e.fields["drone"], e.fields["text"]) for e in failsafes] == [
+        (3, "Failsafe: offboard lost (0.5 s), level hold"),
+        (3, "Failsafe: descending to land"),
+    ]
+    # the last setpoint answered tick 11.98 s: stale after 0.5 s, at the period ending 12.5 s
+    assert [e.t_s for e in failsafes] == [12.5, 13.5]
     disarmed = _events(flight, "disarmed")
-    assert [e.fields["drone"] for e in disarmed] == [3]
-    assert 12.5 < disarmed[0].t_s < 22.0
+    assert [(e.fields["drone"], e.fields["text"]) for e in disarmed] == [
+        (3, "Failsafe: landed, disarmed")
+    ]
+    assert 13.5 < disarmed[0].t_s < 22.0
+    assert not _events(flight, "hard_landing") and not flight.crashed.any()
+    hold = (rec.t_s >= 12.52) & (rec.t_s <= 13.5)
+    z_hold = rec.position_ned_m[hold, 3, 2]
+    assert np.ptp(z_hold) < 0.05, np.ptp(z_hold)  # the altitude held, not just the climb rate
     assert -rec.position_ned_m[-1, 3, 2] < 0.01  # on the ground
+    assert not rec.armed[-1, 3] and rec.armed[-1, [0, 1, 2, 4]].all()
     survivors = [0, 1, 2, 4]
     assert np.all(-rec.position_ned_m[-1, survivors, 2] > 2.5)
     assert not rec.member[-1, 3] and rec.member[-1, survivors].all()
@@ -244,5 +260,6 @@ def test_agents_get_what_a_swarm_agent_gets() -> None:
     # the record keeps the truth (float64)
     assert not np.array_equal(xs, record.position_ned_m[:dropout_k])
     assert 4 in seen[dropout_k][3] and 4 not in seen[dropout_k + 1][3]
-    assert flight.thrust_sp[:4].min() > 0.0  # flying
-    assert np.array_equal(flight.thrust_sp, flight.thrust_sp.astype(np.float32))
+    thrust = flight.world.autopilot.sp_thrust  # the vehicles' last setpoints
+    assert thrust[:4].min() > 0.0  # flying
+    assert np.array_equal(thrust, thrust.astype(np.float32))

@@ -34,13 +34,11 @@ MAV_STATE_STANDBY, MAV_STATE_ACTIVE, MAV_STATE_EMERGENCY = 3, 4, 6
 SEVERITY_CRITICAL, SEVERITY_WARNING, SEVERITY_INFO = 2, 4, 6
 #: Rate (Hz) of the agents' statuses in the tlog (the ground station logs what they publish).
 STATUS_HZ = 5.0
+#: The flight's own events about a drone that go into the tlog as a STATUSTEXT, by severity (the
+#: vehicles' events carry theirs, and their text, as the simulator sends them).
 _EVENT_SEVERITY = {
     "fault": SEVERITY_WARNING,
-    "failsafe": SEVERITY_CRITICAL,
-    "hard_landing": SEVERITY_CRITICAL,
     "agent_left": SEVERITY_WARNING,
-    "armed": SEVERITY_INFO,
-    "disarmed": SEVERITY_INFO,
 }
 
 
@@ -70,9 +68,7 @@ def simulate(
     record = flight.run(progress, links_every=status_stride(scenario.rates.dt_control_s))
     wall = time.perf_counter() - wall0
     files = [
-        _write_tlog(
-            record, flight.events, report_dir / "flight.tlog", tlog_hz, _silent_from(flight)
-        ),
+        _write_tlog(record, flight.events, report_dir / "flight.tlog", tlog_hz, flight.silent_from),
         _write_events(flight.events, report_dir / "events.jsonl"),
         write_trajectory(flight.flown_plan(), report_dir / "trajectory.json"),
     ]
@@ -118,16 +114,6 @@ def status_stride(dt_s: float) -> int:
     return max(1, round(1.0 / (STATUS_HZ * dt_s)))
 
 
-def _silent_from(flight: ReferenceFlight) -> dict[int, float]:
-    """A crashed vehicle stops answering once it has hit the ground."""
-    out: dict[int, float] = {}
-    for e in flight.events:
-        drone = e.fields.get("drone")
-        if e.kind == "hard_landing" and isinstance(drone, int) and flight.crashed[drone]:
-            out.setdefault(drone, e.t_s)
-    return out
-
-
 def _write_tlog(
     record: FlightRecord,
     events: list[FlightEvent],
@@ -137,8 +123,8 @@ def _write_tlog(
 ) -> Path:
     """Telemetry of every vehicle at ``hz`` (system id = index + 1), heartbeats at 1 Hz, each
     live agent's status (estimate, neighbour count and ids; as the ground station logs it, mode
-    unknown: NaN) at :data:`STATUS_HZ`, and a STATUSTEXT for each event about a drone. Vehicles in
-    ``silent_from`` stop after that time."""
+    unknown: NaN) at :data:`STATUS_HZ`, and a STATUSTEXT for each event about a drone (a
+    vehicle's own, as it sent it). Vehicles in ``silent_from`` stop after that time."""
     t = record.t_s
     stride = max(1, round(1.0 / (hz * (t[1] - t[0])))) if t.size > 1 else 1
     status_every = status_stride(t[1] - t[0]) if t.size > 1 else 1
@@ -151,9 +137,9 @@ def _write_tlog(
             while pending and pending[0].t_s <= t[k]:
                 ev = pending.pop(0)
                 drone = ev.fields.get("drone")
-                if isinstance(drone, int) and ev.kind in _EVENT_SEVERITY:
-                    text = f"{ev.kind}: {ev.fields.get('reason', ev.fields.get('description', ''))}"
-                    log.write_statustext(ev.t_s, drone + 1, _EVENT_SEVERITY[ev.kind], text[:150])
+                said = _statustext(ev)
+                if isinstance(drone, int) and said is not None:
+                    log.write_statustext(ev.t_s, drone + 1, *said)
             if k % stride and k % hb_stride and k % status_every:
                 continue
             for i in range(record.n_drones):
@@ -185,6 +171,18 @@ def _write_tlog(
                     ids = record.neighbour_ids.get(k, {}).get(i)  # None: not kept
                     log.write_agent_status(float(t[k]), i + 1, np.array(values, dtype=float), ids)
     return path
+
+
+def _statustext(event: FlightEvent) -> tuple[int, str] | None:
+    """The (severity, text) of ``event``'s STATUSTEXT, None if it has none: a vehicle's event
+    as its vehicle said it, a fault or an agent leaving as the flight says it."""
+    severity, text = event.fields.get("severity"), event.fields.get("text")
+    if isinstance(severity, int) and isinstance(text, str):
+        return severity, text[:150]
+    if event.kind not in _EVENT_SEVERITY:
+        return None
+    why = event.fields.get("reason", event.fields.get("description", ""))
+    return _EVENT_SEVERITY[event.kind], f"{event.kind}: {why}"[:150]
 
 
 def _write_events(events: list[FlightEvent], path: Path) -> Path:
