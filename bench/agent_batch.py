@@ -162,8 +162,7 @@ _PARTS = (
     ("readiness and flight phase", "gcs.reference.flight", "ReferenceFlight", "_decide"),
     ("radio (in-memory, send + receive)", "gcs.reference.network", "InProcessNetwork", "send"),
     ("radio (in-memory, send + receive)", "gcs.reference.network", "InProcessNetwork", "receive"),
-    ("physics (10 sub-steps)", "gcs.reference.flight", "ReferenceFlight", "_physics_step"),
-    ("physics (10 sub-steps)", "gcs.reference.flight", "ReferenceFlight", "_physics_steps"),
+    ("vehicles (World.step: 10 sub-steps, autopilots)", "sitl_sim.world", "World", "step"),
 )
 
 

@@ -43,13 +43,11 @@ from typing import Any
 
 import numpy as np
 
-import sitl_sim.inner_loop as inner_loop_module
 from protocols.frames import FloatArray
-from sitl_sim import dynamics, physics_kernel
-from sitl_sim.attitude_control import AttitudeGains, euler_from_quat_batch
+from sitl_sim import physics_kernel
+from sitl_sim.attitude_control import AttitudeGains
 from sitl_sim.autopilot import Mode, VehicleEvent
 from sitl_sim.dynamics import initial_state, step_with_contact
-from sitl_sim.failsafe import failsafe_command
 from sitl_sim.inner_loop import inner_loop
 from sitl_sim.physics_kernel import PhysicsKernel
 from sitl_sim.setpoint import AttitudeSetpoint, quat_from_euler, validate_attitude_target
@@ -274,35 +272,6 @@ def tick_costs() -> dict[str, Any]:
 
 
 # -- swarm simulate, per part ---------------------------------------------------------------------
-def _reference_physics_step(self: Any, t_s: float) -> None:
-    """ReferenceFlight._physics_step before the kernel: inner_loop + step_with_contact."""
-    attitude, thrust = self.attitude_sp, self.thrust_sp
-    stale = self.armed & (t_s - self.last_setpoint_s > self.failsafe.offboard_timeout_s)
-    if np.any(stale):
-        attitude, thrust = attitude.copy(), thrust.copy()
-        for i in np.flatnonzero(stale & ~self.in_failsafe):
-            self.in_failsafe[i] = True
-            self._event("failsafe", drone=int(i), reason="no setpoint")
-        since = t_s - self.last_setpoint_s[stale] - self.failsafe.offboard_timeout_s
-        yaw = euler_from_quat_batch(self.state[6:10][:, stale])[2]
-        hover = self.params.hover_thrust_n / self.params.max_thrust_n
-        att, thr = failsafe_command(self.state[5, stale], yaw, since, hover, self.failsafe)
-        attitude[:, stale], thrust[stale] = att, thr
-    # looked up in their modules at each call, so that the profile can time them
-    self.rotor_speed = inner_loop_module.inner_loop(
-        self.state, attitude, thrust, self.params, self.att_gains, self.armed
-    )
-    dt = self.dt / self.substeps
-    result = dynamics.step_with_contact(self.state, self.rotor_speed, self.params, dt)
-    self.state = result.state
-    for i in np.flatnonzero(result.impact_speed_m_s > 2.0):
-        self._event("hard_landing", drone=int(i), impact_m_s=0.0)
-    landed = self.in_failsafe & self.armed & (self.state[2] >= -1e-6)
-    for i in np.flatnonzero(landed):
-        self.armed[i] = False
-        self._event("disarmed", drone=int(i), reason="failsafe landing complete")
-
-
 def hover_scenario_text(n: int, duration_s: float) -> str:
     """N drones on a grid 2.5 m apart hovering at 3 m, range 6 m (as bench/end_to_end.py)."""
     from bench.end_to_end import scenario_text
@@ -332,14 +301,13 @@ def _profile_flight(scenario: Any, reference: bool) -> dict[str, float]:
         setattr(owner, name, timed)
 
     flight_cls = rf.ReferenceFlight
-    if reference:
-        undo.append((flight_cls, "_physics_step", flight_cls.__dict__["_physics_step"]))
-        flight_cls._physics_step = _reference_physics_step  # type: ignore[method-assign]
-        wrap(dynamics, "step_with_contact", _RK4)
-        wrap(inner_loop_module, "inner_loop", _INNER)
+    if reference:  # the vehicles' period as World.step ran it before the kernel
+        undo.append((World, "step", World.__dict__["step"]))
+        World.step = reference_world_step  # type: ignore[method-assign, assignment]
     else:
         wrap(physics_kernel.PhysicsKernel, "substep", _KERNEL)
-    wrap(flight_cls, "_physics_step", _PHYSICS)
+        wrap(physics_kernel.PhysicsKernel, "substeps", _KERNEL)
+    wrap(World, "step", _PHYSICS)
     wrap(agent_core.AgentCore, "tick", _AGENTS)
     wrap(flight_cls, "_control_tick", _CONTROL)
     try:
@@ -354,7 +322,8 @@ def _profile_flight(scenario: Any, reference: bool) -> dict[str, float]:
     out = {key: value / ticks * 1e6 for key, value in parts.items()}
     out[_WHOLE] = wall / ticks * 1e6
     out[_REST] = out[_WHOLE] - out[_CONTROL] - out[_PHYSICS]
-    out[_BOOKKEEPING] = out[_PHYSICS] - sum(out.get(k, 0.0) for k in (_RK4, _INNER, _KERNEL))
+    if _KERNEL in out:
+        out[_BOOKKEEPING] = out[_PHYSICS] - out[_KERNEL]
     out[_RTF] = scenario.duration_s / wall
     return out
 
@@ -362,14 +331,12 @@ def _profile_flight(scenario: Any, reference: bool) -> dict[str, float]:
 _WHOLE = "one control tick, all of it"
 _CONTROL = "control tick: agents, radio, recording"
 _AGENTS = "  of which the agents (AgentCore.tick, N calls)"
-_PHYSICS = "physics: the 10 sub-steps"
-_INNER = "  of which inner_loop (attitude PD + mixer)"
-_RK4 = "  of which step_with_contact (wrench, RK4, contact)"
-_KERNEL = "  of which PhysicsKernel.substep (all of that)"
-_BOOKKEEPING = "  of which failsafe checks and events"
+_PHYSICS = "vehicles: World.step (10 sub-steps, autopilots)"
+_KERNEL = "  of which PhysicsKernel.substep(s) (all of that)"
+_BOOKKEEPING = "  of which the autopilots (guidance, update, events)"
 _REST = "the rest (fault timeline, loop)"
 _RTF = "real-time factor"
-_ROWS = (_WHOLE, _CONTROL, _AGENTS, _PHYSICS, _INNER, _RK4, _KERNEL, _BOOKKEEPING, _REST)
+_ROWS = (_WHOLE, _CONTROL, _AGENTS, _PHYSICS, _KERNEL, _BOOKKEEPING, _REST)
 
 
 def profile() -> str:

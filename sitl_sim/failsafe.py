@@ -1,9 +1,9 @@
-"""The vehicle's offboard-loss failsafe, pure: level hold, then descend and disarm on touchdown.
+"""The vehicle's offboard-loss failsafe, pure: its tunables and the vertical-speed loop it flies.
 
-When a vehicle armed in offboard mode receives no valid setpoint for ``offboard_timeout_s`` it
-levels (roll = pitch = 0, yaw held), holds altitude for ``hold_s``, then descends at
-``descent_rate_m_s`` with a vertical-speed loop on collective thrust, and disarms once it rests on
-the ground.
+When a vehicle armed in offboard mode receives no valid setpoint for ``offboard_timeout_s`` its
+autopilot (sitl_sim/autopilot.py) levels it (roll = pitch = 0, yaw held) and holds its altitude
+for ``hold_s``, then lands it at ``descent_rate_m_s``, and disarms it once it rests on the ground;
+sitl_sim/guidance.py flies the hold and the descent through :func:`vertical_speed_hold`.
 """
 
 from __future__ import annotations
@@ -23,25 +23,6 @@ class FailsafeConfig:
     hold_s: float = 1.0
     descent_rate_m_s: float = 0.7
     vertical_speed_gain_per_s: float = 2.0
-
-
-def failsafe_command(
-    velocity_down_m_s: FloatArray,
-    yaw_rad: FloatArray,
-    time_in_failsafe_s: FloatArray,
-    hover_thrust_normalised: float,
-    config: FailsafeConfig,
-) -> tuple[FloatArray, FloatArray]:
-    """Attitude (3, N) ZYX rad and normalised thrust (N,) for vehicles in failsafe.
-
-    ``velocity_down_m_s`` (N,): NED vertical speed (positive down); ``time_in_failsafe_s`` (N,):
-    time since the failsafe started. Levels, holds (zero vertical speed), then descends.
-    """
-    vz = np.asarray(velocity_down_m_s, dtype=float)
-    target = np.where(np.asarray(time_in_failsafe_s) < config.hold_s, 0.0, config.descent_rate_m_s)
-    return vertical_speed_hold(
-        vz, yaw_rad, target, hover_thrust_normalised, config.vertical_speed_gain_per_s
-    )
 
 
 def vertical_speed_hold(
