@@ -9,12 +9,13 @@ them. Orientation is the ZYX angles of ``R``.
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from protocols.compiled import compiled as dispatcher_of
+from protocols.compiled import jit, loaded
 from protocols.descriptor_vector import CENTRE, I_PITCH, I_ROLL, I_YAW, SHAPE
 from protocols.frames import FloatArray, rot_zyx, rot_zyx_batch, zyx_from_rot, zyx_from_rot_batch
 
@@ -58,7 +59,7 @@ def align_axes(sigma: FloatArray, desired_axes: FloatArray) -> tuple[FloatArray,
     first use costs ~0.6 s of CPU, more than they would ever save).
     """
     axes, s = align_axes_batch(
-        np.asarray(sigma, dtype=float)[None], desired_axes[None], compiled="numba" in sys.modules
+        np.asarray(sigma, dtype=float)[None], desired_axes[None], compiled=loaded()
     )
     return axes[0], s[0]
 
@@ -86,7 +87,7 @@ def align_axes_batch(
             evecs[finite] = np.linalg.eigh(sym[finite])[1]
     overlap = np.abs(np.swapaxes(desired_axes, 1, 2) @ evecs)  # [K, desired k, eigen j]
     axes = np.empty((k_n, 3, 3))
-    assign = _compiled() if compiled else _assign_axes
+    assign = _assign_axes_compiled if compiled else _assign_axes
     assign(overlap, evecs, np.ascontiguousarray(desired_axes, dtype=np.float64), axes)
     s = (axes * (sym @ axes)).sum(axis=1)
     return axes, s
@@ -96,10 +97,10 @@ def _assign_axes(
     overlap: FloatArray, evecs: FloatArray, desired_axes: FloatArray, axes: FloatArray
 ) -> None:
     """:func:`align_axes_batch`'s assignment (its doc), a loop over the K rows compiled by
-    numba (:func:`_compiled`): from the overlaps ``|d_k . e_j|`` (K, 3, 3) of the desired axes
-    with the eigenvectors (the columns of ``evecs`` (K, 3, 3)), the axes into ``axes`` (K, 3, 3):
-    the two chosen eigenvectors signed along their desired axes, then their cross product. The
-    choices are ``np.argmax``'s (the first largest; the first NaN, if any)."""
+    numba (:data:`_assign_axes_compiled`): from the overlaps ``|d_k . e_j|`` (K, 3, 3) of the
+    desired axes with the eigenvectors (the columns of ``evecs`` (K, 3, 3)), the axes into
+    ``axes`` (K, 3, 3): the two chosen eigenvectors signed along their desired axes, then their
+    cross product. The choices are ``np.argmax``'s (the first largest; the first NaN, if any)."""
     for k in range(overlap.shape[0]):
         first, top = 0, overlap[k, 0, 0]
         if top == top:
@@ -136,19 +137,16 @@ def _assign_axes(
         axes[k, 2, 2] = axes[k, 0, 0] * axes[k, 1, 1] - axes[k, 1, 0] * axes[k, 0, 1]
 
 
-_assign_jit: Callable[..., None] | None = None
+#: :func:`_assign_axes` compiled (protocols/compiled.py: on first use, cached), its arithmetic
+#: IEEE's term by term as written (no ``fastmath``), so the axes are those of the plain function
+#: to the last bit; the plain function stays callable (the tests' reference).
+_assign_axes_compiled = jit(_assign_axes, error_model="numpy")
 
 
 def _compiled() -> Callable[..., None]:
-    """:func:`_assign_axes` compiled by numba on first use (``cache=True``: once per install),
-    its arithmetic IEEE's term by term as written (no ``fastmath``), so the axes are those of
-    the plain function to the last bit; the plain function stays callable (the tests' reference)."""
-    global _assign_jit
-    if _assign_jit is None:
-        import numba
-
-        _assign_jit = numba.njit(cache=True, error_model="numpy")(_assign_axes)
-    return _assign_jit
+    """numba's dispatcher of :func:`_assign_axes` (compiled on first use)."""
+    out: Callable[..., None] = dispatcher_of(_assign_axes_compiled)
+    return out
 
 
 def frame_from_moments(

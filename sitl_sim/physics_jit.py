@@ -5,18 +5,19 @@ other (each vehicle's state stays in registers through its sub-steps; vehicles n
 attitude controller (attitude_control.attitude_moments), the mixer (mixer.mix), the rotor wrench
 (dynamics.wrench_from_rotor_speeds), RK4 (dynamics._rk4) and ground contact
 (dynamics._ground_contact_inplace), each with the same operations in the same order as the
-readable reference. Compiled on first use and cached beside this file (``__pycache__``), so that
-later processes load it (~0.3 s of CPU with numba's import) instead of compiling it (~3 s).
+readable reference. Compiled on first use (protocols/compiled.py) and cached beside this file
+(``__pycache__``), so that later processes load it (~0.3 s of CPU with numba's import) instead
+of compiling it (~3 s).
 """
 
 from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
+from protocols.compiled import jit
 from protocols.frames import G_M_S2, FloatArray
 from sitl_sim.attitude_control import _MIN_COS_PITCH
 from sitl_sim.dynamics import _euler_coeffs
@@ -48,7 +49,7 @@ def constants(params: VehicleParams, dt_s: float) -> FloatArray:
     return c
 
 
-@numba.njit(cache=True, inline="always")
+@jit(inline="always")
 def _derivative_into(
     out: FloatArray,
     st: FloatArray,
@@ -76,7 +77,7 @@ def _derivative_into(
     out[12] = c[_E2] * (p * q) + a2
 
 
-@numba.njit(cache=True, inline="always")
+@jit(inline="always")
 def _room(
     base: float, share: float, f_min: float, f_max: float, tol: float
 ) -> float:  # pragma: no cover - compiled
@@ -88,7 +89,7 @@ def _room(
     return (f_max - base if share > 0.0 else base - f_min) / mag
 
 
-@numba.njit(cache=True)
+@jit
 def advance(
     state: FloatArray,
     euler_des: FloatArray,

@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from protocols.compiled import compiled
 from protocols.frames import FloatArray
 from sitl_sim.attitude_control import AttitudeGains
 from sitl_sim.vehicle_params import VehicleParams
@@ -51,7 +52,7 @@ class PhysicsKernel:
         from sitl_sim import physics_jit
 
         physics_jit.ready()
-        self._advance = physics_jit.advance
+        self._advance = compiled(physics_jit.advance)
         self._constants = physics_jit.constants(params, dt_s)
         self._kp = np.empty((3, n))
         self._kd = np.empty((3, n))
