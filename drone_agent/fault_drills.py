@@ -2,9 +2,11 @@
 :class:`~drone_agent.link_faults.LinkFaults`.
 
 The bus callback only queues the raw payload (it runs on the bus's thread); :meth:`FaultDrills.
-poll`, called from the agents' loop thread, decodes and applies them and undoes timed faults
-(``duration_s``) once the simulated time (control round x period) has passed their end.
-Malformed payloads are counted and ignored.
+poll`, called from the agents' loop thread, decodes them and starts each as a scenario starts its
+faults (:meth:`LinkFaults.apply <drone_agent.link_faults.LinkFaults.apply>`), and ends timed
+ones (``duration_s``, :meth:`LinkFaults.end <drone_agent.link_faults.LinkFaults.end>`) once the
+simulated time (control round x period) has passed their end. Malformed payloads are counted
+and ignored.
 """
 
 from __future__ import annotations
@@ -16,22 +18,23 @@ import threading
 from collections import deque
 from collections.abc import Callable
 
-from drone_agent.link_faults import LinkFaults, delay_ticks
+from drone_agent.link_faults import LinkFaults
 from drone_agent.transport import Bus, Closeable
-from protocols.keys import SwarmKeys
-from protocols.wire import WireError
-from protocols.wire_fault import (
+from protocols.faults import (
     Clear,
     Delay,
     Dropout,
     FaultCommand,
     LinkCut,
+    LinkFault,
     LinkRestore,
     Loss,
     Partition,
     Restart,
-    decode_fault,
 )
+from protocols.keys import SwarmKeys
+from protocols.wire import WireError
+from protocols.wire_fault import decode_fault
 
 #: Most payloads kept between two polls; older ones are dropped (and counted as malformed).
 MAX_QUEUED = 256
@@ -55,15 +58,17 @@ def describe(command: FaultCommand) -> str:
         return f"loss {command.probability:g}{where}{until}"
     if isinstance(command, Delay):
         where = f" on {command.link[0]}<->{command.link[1]}" if command.link else ""
-        return f"delay {command.delay_ms:g} ms{where}"
+        until = f" for {command.duration_s:g} s" if command.duration_s else ""
+        return f"delay {command.delay_ms:g} ms{where}{until}"
     if isinstance(command, Restart):
         return f"restart drone {command.drone} after {command.gap_s:g} s"
     if isinstance(command, Dropout):
         return f"dropout of drone {command.drone}'s agent"
     if isinstance(command, Partition):
-        if command.groups is None:
+        if command.heals:
             return "partition healed"
-        return "partition " + "/".join(",".join(map(str, g)) for g in command.groups)
+        until = f" for {command.duration_s:g} s" if command.duration_s else ""
+        return "partition " + "/".join(",".join(map(str, g)) for g in command.groups) + until
     return "clear"
 
 
@@ -92,7 +97,8 @@ class FaultDrills:
         self._swarm_id = swarm_id
         self._queue: deque[bytes] = deque()
         self._lock = threading.Lock()
-        self._undo: list[tuple[float, int, FaultCommand]] = []
+        #: timed faults to end: (end time s, arrival order, command)
+        self._undo: list[tuple[float, int, LinkFault]] = []
         self._order = itertools.count()
         self.applied = 0
         self.malformed = 0
@@ -111,7 +117,7 @@ class FaultDrills:
         """Decode and apply the queued commands; undo the timed faults that have ended."""
         t_s = self._clock() * self._period_s
         while self._undo and self._undo[0][0] <= t_s:
-            self._apply(heapq.heappop(self._undo)[2], t_s)
+            self._faults.end(heapq.heappop(self._undo)[2])
         if not self._queue:  # the usual case: nothing to do, no lock taken
             return
         with self._lock:
@@ -131,31 +137,18 @@ class FaultDrills:
             self._apply(command, t_s)
 
     def _apply(self, command: FaultCommand, t_s: float) -> None:
-        faults = self._faults
-        if isinstance(command, LinkCut):
-            faults.cut_link(command.i, command.j, one_way=command.one_way)
-            if command.duration_s:
-                self._later(t_s + command.duration_s, LinkRestore(command.i, command.j))
-        elif isinstance(command, LinkRestore):
-            faults.restore_link(command.i, command.j)
-        elif isinstance(command, Loss):
-            faults.set_loss(command.probability, command.link)
-            if command.duration_s:
-                self._later(t_s + command.duration_s, Loss(0.0, command.link))
-        elif isinstance(command, Delay):
-            faults.set_delay_ticks(delay_ticks(command.delay_ms, self._period_s), command.link)
-        elif isinstance(command, Partition):
-            faults.set_partition(command.groups)
-        elif isinstance(command, Clear):
-            faults.clear()
-            self._undo.clear()
-        elif isinstance(command, Restart) and self._restart is not None:
-            self._restart(command.drone, command.gap_s)
-        elif isinstance(command, Dropout) and self._kill is not None:
-            self._kill(command.drone)
-
-    def _later(self, t_s: float, command: FaultCommand) -> None:
-        heapq.heappush(self._undo, (t_s, next(self._order), command))
+        if isinstance(command, Restart):
+            if self._restart is not None:
+                self._restart(command.drone, command.gap_s)
+        elif isinstance(command, Dropout):
+            if self._kill is not None:
+                self._kill(command.drone)
+        else:
+            self._faults.apply(command, self._period_s)
+            if isinstance(command, Clear):
+                self._undo.clear()
+            elif not isinstance(command, LinkRestore) and command.duration_s is not None:
+                heapq.heappush(self._undo, (t_s + command.duration_s, next(self._order), command))
 
     def close(self) -> None:
         """Stop listening for fault commands."""

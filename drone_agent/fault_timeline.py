@@ -1,9 +1,13 @@
 """A scenario's fault timeline as timed actions on the in-process swarm.
 
-Each fault becomes a start action and, when it has a duration, an end action. Actions act on a
-small interface (:class:`FaultTarget`) so the same timeline drives the in-process reference flight
-(gcs/reference/flight.py), the ground station (crashes) and each agent process (drop-outs, link
-faults): it lives beside the agent so every one of them imports it without reaching up.
+A scenario fault is a drill command with a start time (:mod:`protocols.faults`): at ``t_s`` it
+starts, as the operator's drill would (:meth:`~drone_agent.link_faults.LinkFaults.apply` for a
+link fault, the same method drone_agent/fault_drills.py calls), and when it has a
+``duration_s`` it ends that much later (:meth:`~drone_agent.link_faults.LinkFaults.end`). Actions
+act on a small interface (:class:`FaultTarget`) so the same timeline drives the in-process
+reference flight (gcs/reference/flight.py), the ground station (crashes) and each agent process
+(drop-outs, link faults): it lives beside the agent so every one of them imports it without
+reaching up.
 """
 
 from __future__ import annotations
@@ -12,17 +16,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
-from drone_agent.link_faults import LinkFaults
-from protocols.scenario import (
-    Crash,
-    Dropout,
-    Fault,
-    LinkCut,
-    LinkDelay,
-    PacketLoss,
-    Partition,
-    Scenario,
-)
+from drone_agent.link_faults import LinkFaults, delay_ticks
+from protocols.faults import Crash, Delay, Dropout, Fault, LinkCut, Loss, Pair, Partition
+from protocols.scenario import Scenario
 
 
 class FaultTarget(Protocol):
@@ -47,127 +43,57 @@ class TimedAction:
     apply: Callable[[FaultTarget], None]
 
 
-def _pairs(drones: tuple[int, int] | None, one_way: bool = False) -> list[tuple[int, int]]:
-    if drones is None:
-        return []
-    i, j = drones
-    return [(i, j)] if one_way else [(i, j), (j, i)]
+def _where(link: Pair | None) -> str:
+    return "all links" if link is None else f"link {link[0]}-{link[1]}"
 
 
-def _window(
-    fault: Fault,
-    duration_s: float | None,
-    start: Callable[[FaultTarget], None],
-    end: Callable[[FaultTarget], None],
-    text: str,
-) -> list[TimedAction]:
-    actions = [TimedAction(fault.t_s, text, fault.kind, True, start)]
-    if duration_s is not None:
-        actions.append(
-            TimedAction(fault.t_s + duration_s, f"end of {text}", fault.kind, False, end)
-        )
-    return actions
+def describe(fault: Fault, dt_s: float) -> str:
+    """What ``fault`` does, for the events (``end of`` it when it ends)."""
+    if isinstance(fault, Dropout):
+        return f"drone {fault.drone} agent dropped out"
+    if isinstance(fault, Crash):
+        return f"drone {fault.drone} vehicle crashed"
+    if isinstance(fault, LinkCut):
+        way = "one-way " if fault.one_way else ""
+        return f"{way}link cut {fault.i}-{fault.j}"
+    if isinstance(fault, Loss):
+        return f"{fault.probability:.0%} loss on {_where(fault.link)}"
+    if isinstance(fault, Delay):
+        ticks = delay_ticks(fault.delay_ms, dt_s)
+        return f"{fault.delay_ms:g} ms delay ({ticks} ticks) on {_where(fault.link)}"
+    return f"partition {list(map(list, fault.groups))}"
 
 
-def _killer(drone: int) -> Callable[[FaultTarget], None]:
-    def apply(t: FaultTarget) -> None:
-        t.kill_agent(drone)
-
-    return apply
-
-
-def _crasher(drone: int) -> Callable[[FaultTarget], None]:
-    def apply(t: FaultTarget) -> None:
-        t.crash_vehicle(drone)
-
-    return apply
-
-
-def _link_cut(f: LinkCut) -> list[TimedAction]:
-    pairs = _pairs(f.drones, f.one_way)
-    way = "one-way " if f.one_way else ""
-    text = f"{way}link cut {f.drones[0]}-{f.drones[1]}"
-
+def _start(fault: Fault, dt_s: float) -> Callable[[FaultTarget], None]:
     def start(t: FaultTarget) -> None:
-        t.conditions.cut.update(pairs)
-
-    def end(t: FaultTarget) -> None:
-        t.conditions.cut.difference_update(pairs)
-
-    return _window(f, f.duration_s, start, end, text)
-
-
-def _loss(f: PacketLoss) -> list[TimedAction]:
-    pairs = _pairs(f.drones)
-    where = "all links" if f.drones is None else f"link {f.drones[0]}-{f.drones[1]}"
-
-    def start(t: FaultTarget) -> None:
-        if pairs:
-            t.conditions.link_loss.update({p: f.probability for p in pairs})
+        if isinstance(fault, Dropout):
+            t.kill_agent(fault.drone)
+        elif isinstance(fault, Crash):
+            t.crash_vehicle(fault.drone)
         else:
-            t.conditions.loss = f.probability
+            t.conditions.apply(fault, dt_s)
 
+    return start
+
+
+def _end(fault: LinkCut | Loss | Delay | Partition) -> Callable[[FaultTarget], None]:
     def end(t: FaultTarget) -> None:
-        if pairs:
-            for p in pairs:
-                t.conditions.link_loss.pop(p, None)
-        else:
-            t.conditions.loss = 0.0
+        t.conditions.end(fault)
 
-    return _window(f, f.duration_s, start, end, f"{f.probability:.0%} loss on {where}")
+    return end
 
 
-def _delay(f: LinkDelay, dt_s: float) -> list[TimedAction]:
-    pairs = _pairs(f.drones)
-    ticks = round(f.delay_ms / 1000.0 / dt_s)
-    where = "all links" if f.drones is None else f"link {f.drones[0]}-{f.drones[1]}"
-
-    def start(t: FaultTarget) -> None:
-        if pairs:
-            t.conditions.link_delay_ticks.update({p: ticks for p in pairs})
-        else:
-            t.conditions.extra_delay_ticks = ticks
-
-    def end(t: FaultTarget) -> None:
-        if pairs:
-            for p in pairs:
-                t.conditions.link_delay_ticks.pop(p, None)
-        else:
-            t.conditions.extra_delay_ticks = 0
-
-    text = f"{f.delay_ms:g} ms delay ({ticks} ticks) on {where}"
-    return _window(f, f.duration_s, start, end, text)
-
-
-def _partition(f: Partition, n: int) -> list[TimedAction]:
-    groups = dict(enumerate(f.group_ids(n)))
-
-    def start(t: FaultTarget) -> None:
-        t.conditions.partition = groups
-
-    def end(t: FaultTarget) -> None:
-        t.conditions.partition = None
-
-    return _window(f, f.duration_s, start, end, f"partition {list(map(list, f.groups))}")
+def actions(fault: Fault, dt_s: float) -> list[TimedAction]:
+    """The start of ``fault`` at its ``t_s`` and, when it has a duration, its end."""
+    text = describe(fault, dt_s)
+    out = [TimedAction(fault.t_s, text, fault.kind, True, _start(fault, dt_s))]
+    if not isinstance(fault, Dropout | Crash) and fault.duration_s is not None:
+        end_s = fault.t_s + fault.duration_s
+        out.append(TimedAction(end_s, f"end of {text}", fault.kind, False, _end(fault)))
+    return out
 
 
 def timeline(scenario: Scenario) -> list[TimedAction]:
     """Every fault's actions, in time order (stable for equal times)."""
-    actions: list[TimedAction] = []
     dt = scenario.rates.dt_control_s
-    for f in scenario.faults:
-        if isinstance(f, Dropout):
-            text = f"drone {f.drone} agent dropped out"
-            actions.append(TimedAction(f.t_s, text, f.kind, True, _killer(f.drone)))
-        elif isinstance(f, Crash):
-            text = f"drone {f.drone} vehicle crashed"
-            actions.append(TimedAction(f.t_s, text, f.kind, True, _crasher(f.drone)))
-        elif isinstance(f, LinkCut):
-            actions += _link_cut(f)
-        elif isinstance(f, PacketLoss):
-            actions += _loss(f)
-        elif isinstance(f, LinkDelay):
-            actions += _delay(f, dt)
-        elif isinstance(f, Partition):
-            actions += _partition(f, scenario.n_drones)
-    return sorted(actions, key=lambda a: a.t_s)
+    return sorted((a for f in scenario.faults for a in actions(f, dt)), key=lambda a: a.t_s)

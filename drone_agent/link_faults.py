@@ -6,10 +6,14 @@ delay; partitions); :class:`FaultyTransport` wraps any
 its estimator sees exactly what a real radio would deliver. Each agent applies the faults of the
 links *into* it: cutting i-j both ways is agent j dropping i's messages and agent i dropping j's.
 
-``LinkFaults`` keeps the fields the scenario fault timeline sets (directed pairs are
-``(sender, receiver)``, delays in control ticks), so one timeline drives the in-process radio and
-the agents' transports alike. Randomness and time (a clock returning the newest control round
-whose messages are due: ``k - 1`` while tick ``k`` is computed) are injected. With
+``LinkFaults`` holds directed pairs ``(sender, receiver)`` and delays in control ticks, read by the
+in-process radio (gcs/reference/network.py) and the agents' transports alike. A fault command
+(:mod:`protocols.faults`) acts on it through :meth:`LinkFaults.apply` and, when its
+``duration_s`` is over, :meth:`LinkFaults.end`: the one rule by which the scenario fault timeline
+(drone_agent/fault_timeline.py) and the operator's drills (drone_agent/fault_drills.py) act.
+
+Randomness and time (a clock returning the newest control round whose messages are due:
+``k - 1`` while tick ``k`` is computed) are injected. With
 :class:`PairRandom` each directed link draws from its own seeded generator, in the order of the
 rounds of its messages, so which messages a loss drops depends on the seed alone, never on how
 the arrivals of different senders interleave (lockstep runs repeat exactly). A message of round
@@ -34,6 +38,7 @@ from drone_agent.transport import (
     Position,
 )
 from protocols.consensus_message import ConsensusMessage
+from protocols.faults import Clear, Delay, LinkCut, LinkFault, LinkRestore, Loss, Partition
 from protocols.wire import ConsensusPacket
 from protocols.wire_plan import PlanMessage
 from protocols.wire_status import AgentStatus
@@ -85,6 +90,15 @@ class LinkFaults:
         else:
             self.link_loss.update(dict.fromkeys(_both(*link, False), probability))
 
+    def end_loss(self, link: Pair | None = None) -> None:
+        """Undo :meth:`set_loss`: the link ``(i, j)`` loses at the every-link rate again, both
+        ways; without a link, the every-link loss is 0."""
+        if link is None:
+            self.loss = 0.0
+        else:
+            for pair in _both(*link, False):
+                self.link_loss.pop(pair, None)
+
     def set_delay_ticks(self, ticks: int, link: Pair | None = None) -> None:
         """Added delay (control ticks >= 0) on the link ``(i, j)`` both ways, or on every link."""
         if ticks < 0:
@@ -94,11 +108,18 @@ class LinkFaults:
         else:
             self.link_delay_ticks.update(dict.fromkeys(_both(*link, False), ticks))
 
+    def end_delay(self, link: Pair | None = None) -> None:
+        """Undo :meth:`set_delay_ticks`: the link ``(i, j)`` is delayed as every link again, both
+        ways; without a link, the every-link delay is 0."""
+        if link is None:
+            self.extra_delay_ticks = 0
+        else:
+            for pair in _both(*link, False):
+                self.link_delay_ticks.pop(pair, None)
+
     def set_partition(self, groups: Sequence[Sequence[int]] | None) -> None:
-        """Split the swarm into ``groups`` of drone ids (None: heal the partition)."""
-        self.partition = (
-            None if groups is None else {i: g for g, ids in enumerate(groups) for i in ids}
-        )
+        """Split the swarm into ``groups`` of drone ids (None or none: heal the partition)."""
+        self.partition = {i: g for g, ids in enumerate(groups) for i in ids} if groups else None
 
     def clear(self) -> None:
         """No faults any more."""
@@ -106,6 +127,35 @@ class LinkFaults:
         self.link_loss.clear()
         self.link_delay_ticks.clear()
         self.loss, self.extra_delay_ticks, self.partition = 0.0, 0, None
+
+    def apply(self, command: LinkFault, dt_s: float) -> None:
+        """Start ``command`` now (a delay in whole control ticks of ``dt_s`` s); its
+        ``duration_s`` is the caller's to time, then :meth:`end`."""
+        if isinstance(command, LinkCut):
+            self.cut_link(command.i, command.j, one_way=command.one_way)
+        elif isinstance(command, LinkRestore):
+            self.restore_link(command.i, command.j)
+        elif isinstance(command, Loss):
+            self.set_loss(command.probability, command.link)
+        elif isinstance(command, Delay):
+            self.set_delay_ticks(delay_ticks(command.delay_ms, dt_s), command.link)
+        elif isinstance(command, Partition):
+            self.set_partition(command.groups)
+        elif isinstance(command, Clear):
+            self.clear()
+
+    def end(self, command: LinkFault) -> None:
+        """Undo ``command`` at the end of its ``duration_s``: a cut is restored the way it was
+        cut, a link's loss or delay falls back to the every-link one, the every-link loss or
+        delay to 0, a partition heals. Commands without a duration have nothing to undo."""
+        if isinstance(command, LinkCut):
+            self.restore_link(command.i, command.j, one_way=command.one_way)
+        elif isinstance(command, Loss):
+            self.end_loss(command.link)
+        elif isinstance(command, Delay):
+            self.end_delay(command.link)
+        elif isinstance(command, Partition):
+            self.set_partition(None)
 
     def idle(self) -> bool:
         """Whether no fault is set: every message passes at once."""

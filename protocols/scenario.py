@@ -21,7 +21,17 @@ from typing import Any
 
 import numpy as np
 
-from protocols.faults import Crash, Dropout, Fault, LinkCut, LinkDelay, PacketLoss, Partition
+from protocols.faults import (
+    Crash,
+    Delay,
+    Dropout,
+    Fault,
+    LinkCut,
+    LinkDelay,
+    Loss,
+    PacketLoss,
+    Partition,
+)
 from protocols.formation_fit import fit_problem
 from protocols.frames import FloatArray
 from protocols.geodesy import GeoPoint
@@ -31,11 +41,13 @@ from protocols.trajectory import DescriptorTrajectory, Waypoint
 __all__ = [
     "AgentSection",
     "Crash",
+    "Delay",
     "Dropout",
     "Fault",
     "GeoPoint",
     "LinkCut",
     "LinkDelay",
+    "Loss",
     "PacketLoss",
     "Partition",
     "Scenario",
@@ -506,17 +518,19 @@ def _derivative(w: Table, key: str) -> DescriptorDerivative | None:
     return t.section(DescriptorDerivative)
 
 
+#: The keys of each fault kind (the ``kind`` of its class in protocols.faults) besides t_s, kind
 _FAULT_KEYS = {
-    "dropout": ("drone",),
-    "crash": ("drone",),
-    "link_cut": ("drones", "duration_s", "one_way"),
-    "loss": ("probability", "duration_s", "drones"),
-    "delay": ("delay_ms", "duration_s", "drones"),
-    "partition": ("groups", "duration_s"),
+    Dropout.kind: ("drone",),
+    Crash.kind: ("drone",),
+    LinkCut.kind: ("drones", "duration_s", "one_way"),
+    Loss.kind: ("probability", "duration_s", "drones"),
+    Delay.kind: ("delay_ms", "duration_s", "drones"),
+    Partition.kind: ("groups", "duration_s"),
 }
 
 
 def _fault(t: Table, n: int, duration_s: float) -> Fault:
+    """A ``[[faults]]`` table: the command of its ``kind`` with its start time ``t_s``."""
     kind = t.string("kind")
     if kind not in _FAULT_KEYS:
         raise t.error(f"'{kind}' is not a fault kind (one of: {', '.join(_FAULT_KEYS)})", "kind")
@@ -527,14 +541,15 @@ def _fault(t: Table, n: int, duration_s: float) -> Fault:
             f"{t_s:g} is after the end of the scenario (duration_s = {duration_s:g})", "t_s"
         )
     dur = t.optional_number("duration_s", gt=0)
-    if kind in ("dropout", "crash"):
+    if kind in (Dropout.kind, Crash.kind):
         drone = t.index("drone", n)
-        return Dropout(t_s, drone) if kind == "dropout" else Crash(t_s, drone)
-    if kind == "link_cut":
-        return LinkCut(t_s, t.pair("drones", n), dur, t.boolean("one_way", False))
+        return Dropout(drone, t_s=t_s) if kind == Dropout.kind else Crash(drone, t_s=t_s)
+    if kind == LinkCut.kind:
+        i, j = t.pair("drones", n)
+        return LinkCut(i, j, t.boolean("one_way", False), dur, t_s=t_s)
     pair = t.pair("drones", n) if t.has("drones") else None
-    if kind == "loss":
-        return PacketLoss(t_s, t.number("probability", ge=0, lt=1), dur, pair)
-    if kind == "delay":
-        return LinkDelay(t_s, t.number("delay_ms", ge=0), dur, pair)
-    return Partition(t_s, t.groups("groups", n), dur)
+    if kind == Loss.kind:
+        return Loss(t.number("probability", ge=0, lt=1), pair, dur, t_s=t_s)
+    if kind == Delay.kind:
+        return Delay(t.number("delay_ms", ge=0), pair, dur, t_s=t_s)
+    return Partition(t.groups("groups", n), dur, t_s=t_s)

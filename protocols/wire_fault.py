@@ -1,5 +1,9 @@
 """The fault command (Kind.FAULT): a link-fault drill sent to every agent on ``swarm/<sid>/fault``.
 
+The commands are the classes of :mod:`protocols.faults` (the vocabulary scenarios use too); this
+module is their codec. A command's ``t_s`` (a scenario's start time) does not travel: a drill
+applies when it arrives, so only commands with ``t_s`` 0 are encoded.
+
 Body after the common header (``protocols.wire``), little-endian: ``u8 op`` (FaultOp), then::
 
     CLEAR         (nothing)
@@ -8,8 +12,9 @@ Body after the common header (``protocols.wire``), little-endian: ``u8 op`` (Fau
     LOSS          f32 probability (0..1), u8 has_link (0/1), u16 i, u16 j,
                   f32 duration_s (0: until changed)
     DELAY         f32 delay_ms (>= 0), u8 has_link (0/1), u16 i, u16 j
+                  [version 2: then f32 duration_s (> 0)]
     PARTITION     u16 n_groups (0: heal), then per group u16 n, n x u16 ids (strictly
-                  increasing; no drone in two groups)
+                  increasing; no drone in two groups) [version 2: then f32 duration_s (> 0)]
     RESTART       u16 drone, f32 gap_s (> 0): the process hosting drone's agent kills it and
                   starts a new one (a new incarnation) gap_s simulated seconds later
     DROPOUT       u16 drone: the process hosting drone's agent kills it for good (its other
@@ -17,15 +22,33 @@ Body after the common header (``protocols.wire``), little-endian: ``u8 op`` (Fau
 
 ``i``/``j`` are drone indices; with ``has_link`` 0 the command applies to every link and i, j
 are 0. A one-way cut stops i -> j only (what j receives from i).
+
+Versions (FAULT_VERSIONS): version 2 adds a duration to DELAY and PARTITION (a scenario's timed
+delay or partition, sent as a drill); every other op is the same in both. A command is encoded at
+the lowest version that carries it (a timed delay or partition at 2, anything else at 1, as
+before), so a build that speaks only version 1 still reads every command it knows and refuses a
+timed delay or partition as ``unsupported version 2``.
 """
 
 from __future__ import annotations
 
 import math
 import struct
-from dataclasses import dataclass
 from enum import IntEnum
 
+from protocols.faults import (
+    Clear,
+    Crash,
+    Delay,
+    Dropout,
+    FaultCommand,
+    LinkCut,
+    LinkRestore,
+    Loss,
+    Pair,
+    Partition,
+    Restart,
+)
 from protocols.keys import MAX_DRONE_ID
 from protocols.wire import (
     Kind,
@@ -34,20 +57,41 @@ from protocols.wire import (
     check_ids,
     encode_header,
     expect_length,
-    open_payload,
+    open_versioned,
     uint_ids,
 )
+
+__all__ = [
+    "FAULT_VERSIONS",
+    "MAX_DELAY_MS",
+    "MAX_DURATION_S",
+    "MAX_FAULT_BYTES",
+    "Clear",
+    "Delay",
+    "Dropout",
+    "FaultCommand",
+    "FaultOp",
+    "LinkCut",
+    "LinkRestore",
+    "Loss",
+    "Pair",
+    "Partition",
+    "Restart",
+    "decode_fault",
+    "encode_fault",
+    "fault_op",
+]
 
 MAX_FAULT_BYTES = 4 * 1024
 #: Longest timed fault (s): f32 keeps it exact to well under a control tick.
 MAX_DURATION_S = 86_400.0
 MAX_DELAY_MS = 60_000.0
-
-Pair = tuple[int, int]
+#: The fault schema versions this build reads, the newest last.
+FAULT_VERSIONS = (1, 2)
 
 
 class FaultOp(IntEnum):
-    """What a fault command does."""
+    """What a fault command does; its lower-case name is the command's ``kind``."""
 
     CLEAR = 0
     LINK_CUT = 1
@@ -59,93 +103,16 @@ class FaultOp(IntEnum):
     DROPOUT = 7
 
 
-@dataclass(frozen=True)
-class Clear:
-    """No faults any more."""
-
-
-@dataclass(frozen=True)
-class LinkCut:
-    """Cut the link i-j (only i -> j when ``one_way``) for ``duration_s`` s (None: until
-    restored)."""
-
-    i: int
-    j: int
-    one_way: bool = False
-    duration_s: float | None = None
-
-
-@dataclass(frozen=True)
-class LinkRestore:
-    """Restore the link i-j, both ways."""
-
-    i: int
-    j: int
-
-
-@dataclass(frozen=True)
-class Loss:
-    """Packet loss ``probability`` (0..1) on ``link`` (both ways) or on every link (None), for
-    ``duration_s`` s (None: until changed)."""
-
-    probability: float
-    link: Pair | None = None
-    duration_s: float | None = None
-
-
-@dataclass(frozen=True)
-class Delay:
-    """Added delay ``delay_ms`` (ms >= 0) on ``link`` (both ways) or on every link (None)."""
-
-    delay_ms: float
-    link: Pair | None = None
-
-
-@dataclass(frozen=True)
-class Partition:
-    """Split the swarm into ``groups`` of drone ids; None heals the partition."""
-
-    groups: tuple[tuple[int, ...], ...] | None
-
-
-@dataclass(frozen=True)
-class Restart:
-    """Kill drone ``drone``'s agent now and start a new one ``gap_s`` simulated s later."""
-
-    drone: int
-    gap_s: float
-
-
-@dataclass(frozen=True)
-class Dropout:
-    """Kill drone ``drone``'s agent now, for good."""
-
-    drone: int
-
-
-FaultCommand = Clear | LinkCut | LinkRestore | Loss | Delay | Partition | Restart | Dropout
-
-_OPS: dict[type, FaultOp] = {
-    Clear: FaultOp.CLEAR,
-    LinkCut: FaultOp.LINK_CUT,
-    LinkRestore: FaultOp.LINK_RESTORE,
-    Loss: FaultOp.LOSS,
-    Delay: FaultOp.DELAY,
-    Partition: FaultOp.PARTITION,
-    Restart: FaultOp.RESTART,
-    Dropout: FaultOp.DROPOUT,
-}
-
-
 def fault_op(command: FaultCommand) -> FaultOp:
     """The op of ``command``; its lower-case name (``link_cut``) names the drill in logs."""
-    return _OPS[type(command)]
+    return FaultOp[command.kind.upper()]
 
 
 _PAIR = struct.Struct("<HH")
 _CUT = struct.Struct("<HHBf")
 _LOSS = struct.Struct("<fBHHf")
 _DELAY = struct.Struct("<fBHH")
+_F32 = struct.Struct("<f")
 _U16 = struct.Struct("<H")
 _RESTART = struct.Struct("<Hf")
 
@@ -169,52 +136,72 @@ def _link(link: Pair | None) -> tuple[int, int, int]:
     return (0, 0, 0) if link is None else (1, *_pair(*link))
 
 
+def _drone(drone: int) -> int:
+    if not 0 <= drone <= MAX_DRONE_ID:
+        raise ValueError(f"drone must be 0..{MAX_DRONE_ID}, got {drone!r}")
+    return drone
+
+
+def _timed(duration_s: float | None) -> tuple[int, bytes]:
+    """The version and trailing bytes of an op that has a duration only from version 2."""
+    return (1, b"") if duration_s is None else (2, _F32.pack(_duration(duration_s)))
+
+
 def encode_fault(command: FaultCommand, swarm_id: str) -> bytes:
-    """The payload of ``command`` for swarm ``swarm_id``; ValueError if a field is out of range."""
-    head = encode_header(Kind.FAULT, swarm_id)
+    """The payload of ``command`` for swarm ``swarm_id``; ValueError if a field is out of range,
+    the command has a start time (``t_s``) or is a vehicle crash (not an agents' command)."""
+    if isinstance(command, Crash):
+        raise ValueError("a crash is the ground station's drill, not an agents' fault command")
+    if command.t_s != 0.0:
+        raise ValueError(f"a fault command's t_s does not travel: send it at t_s {command.t_s:g}")
+    version, body = _body(command)
+    return encode_header(Kind.FAULT, swarm_id, version) + bytes([fault_op(command)]) + body
+
+
+def _body(command: FaultCommand) -> tuple[int, bytes]:
     if isinstance(command, Clear):
-        return head + bytes([FaultOp.CLEAR])
+        return 1, b""
     if isinstance(command, LinkCut):
         i, j = _pair(command.i, command.j)
-        body = _CUT.pack(i, j, int(command.one_way), _duration(command.duration_s))
-        return head + bytes([FaultOp.LINK_CUT]) + body
+        return 1, _CUT.pack(i, j, int(command.one_way), _duration(command.duration_s))
     if isinstance(command, LinkRestore):
-        return head + bytes([FaultOp.LINK_RESTORE]) + _PAIR.pack(*_pair(command.i, command.j))
+        return 1, _PAIR.pack(*_pair(command.i, command.j))
     if isinstance(command, Loss):
         if not 0.0 <= command.probability <= 1.0:
             raise ValueError(f"loss probability must be 0..1, got {command.probability!r}")
-        body = _LOSS.pack(command.probability, *_link(command.link), _duration(command.duration_s))
-        return head + bytes([FaultOp.LOSS]) + body
+        return 1, _LOSS.pack(
+            command.probability, *_link(command.link), _duration(command.duration_s)
+        )
     if isinstance(command, Delay):
         if not 0.0 <= command.delay_ms <= MAX_DELAY_MS:
             raise ValueError(f"delay must be 0..{MAX_DELAY_MS:g} ms, got {command.delay_ms!r}")
-        return head + bytes([FaultOp.DELAY]) + _DELAY.pack(command.delay_ms, *_link(command.link))
+        version, tail = _timed(command.duration_s)
+        return version, _DELAY.pack(command.delay_ms, *_link(command.link)) + tail
     if isinstance(command, Restart):
-        if not 0 <= command.drone <= MAX_DRONE_ID:
-            raise ValueError(f"drone must be 0..{MAX_DRONE_ID}, got {command.drone!r}")
-        body = _RESTART.pack(command.drone, _duration(command.gap_s))
-        return head + bytes([FaultOp.RESTART]) + body
+        return 1, _RESTART.pack(_drone(command.drone), _duration(command.gap_s))
     if isinstance(command, Dropout):
-        if not 0 <= command.drone <= MAX_DRONE_ID:
-            raise ValueError(f"drone must be 0..{MAX_DRONE_ID}, got {command.drone!r}")
-        return head + bytes([FaultOp.DROPOUT]) + _U16.pack(command.drone)
-    groups = command.groups
-    parts = [head, bytes([FaultOp.PARTITION]), _U16.pack(0 if groups is None else len(groups))]
+        return 1, _U16.pack(_drone(command.drone))
+    return _partition_body(command)
+
+
+def _partition_body(command: Partition) -> tuple[int, bytes]:
+    parts = [_U16.pack(len(command.groups))]
     seen: set[int] = set()
-    for group in groups or ():
+    for group in command.groups:
         ids = uint_ids(group, "partition drone")
         if not ids or seen.intersection(ids) or len(set(ids)) != len(ids):
             raise ValueError("partition groups must be non-empty and disjoint")
         seen.update(ids)
         parts.append(struct.pack(f"<H{len(ids)}H", len(ids), *ids))
-    if groups is not None and not groups:
-        raise ValueError("a partition needs at least one group (None heals it)")
-    return b"".join(parts)
+    if command.heals and command.duration_s is not None:
+        raise ValueError("healing a partition takes no duration")
+    version, tail = _timed(command.duration_s)
+    return version, b"".join(parts) + tail
 
 
 def decode_fault(data: bytes, swarm_id: str, *, max_bytes: int = MAX_FAULT_BYTES) -> FaultCommand:
     """Decode a fault payload of swarm ``swarm_id``; WireError for anything malformed."""
-    off = open_payload(data, Kind.FAULT, swarm_id, max_bytes)
+    off, version = open_versioned(data, Kind.FAULT, swarm_id, max_bytes, FAULT_VERSIONS)
     if len(data) < off + 1:
         raise WireError(Reason.TRUNCATED, "fault: no op byte")
     op, off = data[off], off + 1
@@ -240,13 +227,9 @@ def decode_fault(data: bytes, swarm_id: str, *, max_bytes: int = MAX_FAULT_BYTES
             raise WireError(Reason.BAD_VALUE, f"fault loss probability {p}")
         return Loss(p, _check_link(has_link, i, j), _check_duration(duration))
     if op == FaultOp.DELAY:
-        expect_length(data, off + _DELAY.size, "fault delay")
-        ms, has_link, i, j = _DELAY.unpack_from(data, off)
-        if not 0.0 <= ms <= MAX_DELAY_MS:
-            raise WireError(Reason.BAD_VALUE, f"fault delay {ms} ms")
-        return Delay(ms, _check_link(has_link, i, j))
+        return _decode_delay(data, off, version)
     if op == FaultOp.PARTITION:
-        return _decode_partition(data, off)
+        return _decode_partition(data, off, version)
     if op == FaultOp.RESTART:
         expect_length(data, off + _RESTART.size, "fault restart")
         drone, gap = _RESTART.unpack_from(data, off)
@@ -261,7 +244,17 @@ def decode_fault(data: bytes, swarm_id: str, *, max_bytes: int = MAX_FAULT_BYTES
     raise WireError(Reason.BAD_VALUE, f"fault op {op}")
 
 
-def _decode_partition(data: bytes, off: int) -> Partition:
+def _decode_delay(data: bytes, off: int, version: int) -> Delay:
+    timed = version >= 2
+    expect_length(data, off + _DELAY.size + (_F32.size if timed else 0), "fault delay")
+    ms, has_link, i, j = _DELAY.unpack_from(data, off)
+    if not 0.0 <= ms <= MAX_DELAY_MS:
+        raise WireError(Reason.BAD_VALUE, f"fault delay {ms} ms")
+    duration_s = _check_timed(data, off + _DELAY.size) if timed else None
+    return Delay(ms, _check_link(has_link, i, j), duration_s)
+
+
+def _decode_partition(data: bytes, off: int, version: int) -> Partition:
     if len(data) < off + 2:
         raise WireError(Reason.TRUNCATED, "fault partition: no group count")
     (n_groups,), off = _U16.unpack_from(data, off), off + 2
@@ -280,8 +273,13 @@ def _decode_partition(data: bytes, off: int) -> Partition:
             raise WireError(Reason.BAD_VALUE, "partition groups must be non-empty and disjoint")
         seen.update(ids)
         groups.append(tuple(ids))
-    expect_length(data, off, "fault partition")
-    return Partition(tuple(groups) if groups else None)
+    if version < 2:
+        expect_length(data, off, "fault partition")
+        return Partition(tuple(groups))
+    expect_length(data, off + _F32.size, "fault partition")
+    if not groups:
+        raise WireError(Reason.BAD_VALUE, "fault partition: a heal with a duration")
+    return Partition(tuple(groups), _check_timed(data, off))
 
 
 def _check_pair(i: int, j: int) -> None:
@@ -302,3 +300,12 @@ def _check_duration(duration: float) -> float | None:
     if not (math.isfinite(duration) and 0.0 <= duration <= MAX_DURATION_S):
         raise WireError(Reason.BAD_VALUE, f"fault duration {duration} s")
     return duration or None
+
+
+def _check_timed(data: bytes, off: int) -> float:
+    """The f32 duration at ``off`` of a version-2 delay or partition: > 0."""
+    (duration,) = _F32.unpack_from(data, off)
+    duration_s = _check_duration(duration)
+    if duration_s is None:
+        raise WireError(Reason.BAD_VALUE, "fault duration 0 s in a timed delay or partition")
+    return duration_s

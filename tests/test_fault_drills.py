@@ -1,17 +1,21 @@
 """Live fault drills in an agent process (drone_agent.fault_drills) over the in-memory bus:
-commands applied to LinkFaults, timed faults undone in simulated time, malformed ones counted."""
+commands applied to LinkFaults, timed faults undone in simulated time, malformed ones counted;
+a scenario's faults and the same commands sent as drills leave the radio the same, tick by tick."""
 
 from __future__ import annotations
+
+import copy
+import dataclasses
 
 import pytest
 
 from drone_agent.fault_drills import FaultDrills, describe
+from drone_agent.fault_timeline import actions
 from drone_agent.link_faults import LinkFaults
 from drone_agent.memory_bus import MemoryBus
 from gcs.cli.main import main
 from gcs.station.commands import CommandError, Request, encode_request, parse_request
-from protocols.keys import SwarmKeys
-from protocols.wire_fault import (
+from protocols.faults import (
     Clear,
     Delay,
     FaultCommand,
@@ -19,8 +23,9 @@ from protocols.wire_fault import (
     LinkRestore,
     Loss,
     Partition,
-    encode_fault,
 )
+from protocols.keys import SwarmKeys
+from protocols.wire_fault import encode_fault
 
 SID = "unit"
 DT_S = 0.02
@@ -76,8 +81,8 @@ def test_loss_delay_partition_and_clear() -> None:
     assert faults.extra_delay_ticks == 2 and faults.delay_for(4, 3) == 5  # ms -> ticks of 20 ms
     assert faults.blocks(1, 2) and not faults.blocks(0, 1)
     clock.round = 25
-    drills.poll()
-    assert faults.loss_for(2, 1) == 0.0 and faults.loss == 0.25
+    drills.poll()  # the link's own loss is over: it loses as every link again
+    assert faults.loss_for(2, 1) == 0.25 and faults.link_loss == {}
     _send(medium, Partition(None))
     drills.poll()
     assert faults.partition is None
@@ -108,6 +113,8 @@ def test_malformed_payloads_are_counted_and_ignored() -> None:
 def test_describe() -> None:
     assert describe(Loss(0.1, (1, 2), 3.0)) == "loss 0.1 on 1<->2 for 3 s"
     assert describe(Delay(20.0)) == "delay 20 ms"
+    assert describe(Delay(20.0, (3, 4), 2.0)) == "delay 20 ms on 3<->4 for 2 s"
+    assert describe(Partition(((0, 1), (2,)), 5.0)) == "partition 0,1/2 for 5 s"
     assert describe(LinkCut(1, 2, one_way=True)) == "link_cut 1->2"
     assert describe(Partition(((0, 1), (2,)))) == "partition 0,1/2"
     assert describe(Partition(None)) == "partition healed"
@@ -152,3 +159,60 @@ def test_a_dropout_command_kills_a_hosted_agent_through_the_host() -> None:
     drills.poll()
     deaf.poll()
     assert killed == [4] and drills.applied == 1 and deaf.applied == 1
+
+
+class Target:
+    """What a scenario's fault timeline acts on (drone_agent.fault_timeline.FaultTarget)."""
+
+    def __init__(self) -> None:
+        self.conditions = LinkFaults()
+
+    def kill_agent(self, drone: int) -> None:
+        raise AssertionError(f"no drop-out expected, got {drone}")
+
+    def crash_vehicle(self, drone: int) -> None:
+        raise AssertionError(f"no crash expected, got {drone}")
+
+
+#: link faults a scenario schedules, overlapping: a timed link loss under an every-link one, a
+#: link's delay beside every link's, a one-way cut and a two-way one on the same link
+SCHEDULE: list[LinkCut | Loss | Delay | Partition] = [
+    Loss(0.5, t_s=1.0),
+    Loss(0.25, (0, 1), 2.0, t_s=1.5),
+    Delay(500.0, (1, 2), 3.0, t_s=2.0),
+    Delay(1000.0, t_s=2.25),
+    Partition(((0, 1),), 1.0, t_s=3.0),
+    LinkCut(3, 4, one_way=True, t_s=4.0),
+    LinkCut(4, 3, duration_s=1.25, t_s=4.5),
+    Loss(0.75, duration_s=0.5, t_s=5.0),
+]
+
+
+def test_a_scenario_fault_acts_as_the_drill_sent_at_its_time() -> None:
+    """Run the scenario's timeline on one radio and send each fault as a drill at its t_s to
+    another: the two radios are equal at every tick (one rule: LinkFaults.apply and end)."""
+    dt_s = 0.25  # ticks and times exact in binary
+    timed = sorted((a for f in SCHEDULE for a in actions(f, dt_s)), key=lambda a: a.t_s)
+    target = Target()
+    medium, faults, clock = MemoryBus(), LinkFaults(), Clock()
+    drills = FaultDrills(medium.session(), SID, faults, dt_s, clock, lambda _: None)
+    pending = list(SCHEDULE)
+    seen = []
+    for k in range(40):
+        clock.round, t_s = k, k * dt_s
+        while timed and timed[0].t_s <= t_s:
+            timed.pop(0).apply(target)
+        due = [f for f in pending if f.t_s <= t_s]
+        pending = [f for f in pending if f.t_s > t_s]
+        _send(medium, *(dataclasses.replace(f, t_s=0.0) for f in due))
+        drills.poll()
+        assert faults == target.conditions, t_s
+        seen.append(copy.deepcopy(faults))
+    # the timed ones ended: the two-way cut restored the one-way one too, the every-link loss
+    # of 0.75 left none
+    assert not timed and not pending and faults == LinkFaults(extra_delay_ticks=4)
+    assert seen[6].loss_for(0, 1) == 0.25 and seen[6].loss_for(1, 0) == 0.25
+    assert seen[9].delay_for(2, 1) == 2 and seen[9].delay_for(2, 3) == 4
+    assert seen[12].blocks(2, 0) and not seen[12].blocks(1, 0)
+    assert seen[18].cut == {(3, 4), (4, 3)} and seen[16].cut == {(3, 4)}
+    assert seen[21].loss == 0.75 and seen[22].loss == 0.0 and seen[23].cut == set()

@@ -16,11 +16,13 @@ import pytest
 
 from protocols.scenario import (
     Crash,
+    Delay,
     Dropout,
     GainsConfig,
     GeoPoint,
     LinkCut,
     LinkDelay,
+    Loss,
     PacketLoss,
     Partition,
     RatesConfig,
@@ -53,11 +55,11 @@ def test_paper_scenario_content() -> None:
     grid = [(x, y, 0.0) for x in (0.0, 2.0, 4.0) for y in (0.0, 2.0, 4.0)]
     np.testing.assert_array_equal(sc.positions_ned_m(), grid)
     assert sc.faults == (
-        LinkCut(17.0, (3, 4), 30.0),
-        LinkCut(17.0, (0, 1), 13.0),
-        Crash(30.0, 1),
-        LinkCut(67.0, (5, 8), 8.0),
-        LinkCut(100.0, (6, 7), 12.0, one_way=True),
+        LinkCut(3, 4, duration_s=30.0, t_s=17.0),
+        LinkCut(0, 1, duration_s=13.0, t_s=17.0),
+        Crash(1, t_s=30.0),
+        LinkCut(5, 8, duration_s=8.0, t_s=67.0),
+        LinkCut(6, 7, one_way=True, duration_s=12.0, t_s=100.0),
     )
     times = [w.t_s for w in sc.waypoints]
     assert times[:3] == [0.0, 0.5, 1.0] and 20.0 in times and times[-1] == 200.0
@@ -160,15 +162,20 @@ def test_every_fault_kind_parses() -> None:
     ]
     sc = parse_scenario(data, "x.toml")
     assert sc.faults == (
-        Dropout(1.0, 2),
-        PacketLoss(2.0, 0.1),
-        PacketLoss(3.0, 0.5, 2.0, (0, 1)),
-        LinkDelay(4.0, 40.0, 5.0),
-        Partition(5.0, ((0,), (2,)), 10.0),
-        LinkCut(60.0, (2, 0)),
+        Dropout(2, t_s=1.0),
+        Loss(0.1, t_s=2.0),
+        Loss(0.5, (0, 1), 2.0, t_s=3.0),
+        Delay(40.0, None, 5.0, t_s=4.0),
+        Partition(((0,), (2,)), 10.0, t_s=5.0),
+        LinkCut(2, 0, t_s=60.0),
     )
     partition = sc.faults[4]
     assert isinstance(partition, Partition) and partition.group_ids(3) == (0, 2, 1)
+    # the scenario classes' old names and fields, kept while other modules read them
+    assert PacketLoss is Loss and LinkDelay is Delay
+    cut, loss = sc.faults[5], sc.faults[2]
+    assert isinstance(cut, LinkCut) and cut.drones == cut.link == (2, 0)
+    assert isinstance(loss, Loss) and loss.drones == (0, 1)
     assert [f.kind for f in sc.faults] == [
         "dropout",
         "loss",

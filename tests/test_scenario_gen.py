@@ -19,7 +19,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gcs.report.scenario_summary import closest_in_formation, envelope_problem
-from protocols.faults import Crash, Dropout, PacketLoss
+from protocols.faults import Crash, Dropout, Loss
 from protocols.scenario import load_scenario, parse_scenario
 from protocols.scenario_gen import (
     TEMPLATES,
@@ -169,8 +169,8 @@ def test_faults_fall_inside_the_flight_on_drones_that_do_not_cut_the_graph() -> 
     assert is_cut_free(radio_graph(g.positions_ned_m, sc.comms.range_m).adjacency, set(lost))
     airborne_s = sc.waypoints[2].t_s
     assert all(airborne_s < f.t_s < sc.duration_s for f in sc.faults if not isinstance(
-        f, PacketLoss))  # fmt: skip
-    (loss,) = [f for f in sc.faults if isinstance(f, PacketLoss)]
+        f, Loss))  # fmt: skip
+    (loss,) = [f for f in sc.faults if isinstance(f, Loss)]
     assert loss.probability == 0.3 and loss.drones is None and loss.duration_s is None
     assert [f.t_s for f in sc.faults] == sorted(f.t_s for f in sc.faults)
 
@@ -269,9 +269,9 @@ def test_the_large_grids_are_issue_10s(n: int) -> None:
     sc = load_scenario(ROOT / "scenarios" / f"large_grid{n}.toml")
     assert sc.n_drones == n and sc.comms.range_m == 6.0
     assert math.isclose(min_spacing(sc.positions_ned_m()), 2.5)
-    kinds = sorted(type(f).__name__ for f in sc.faults)
-    assert kinds == ["Crash", "Dropout", "PacketLoss"]
-    assert [f.probability for f in sc.faults if isinstance(f, PacketLoss)] == [0.2]
+    kinds = sorted(f.kind for f in sc.faults)
+    assert kinds == ["crash", "dropout", "loss"]
+    assert [f.probability for f in sc.faults if isinstance(f, Loss)] == [0.2]
     assert sc.waypoints[-1].yaw_deg == 30.0
     header = (ROOT / "scenarios" / f"large_grid{n}.toml").read_text().splitlines()[2]
     assert f"swarm scenario new --drones {n} --layout grid" in header

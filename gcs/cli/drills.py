@@ -463,7 +463,7 @@ def _do(swarm: Swarm, step: Step) -> dict[str, Any]:
         command = step.args["fault"]
         if step.args.get("split") == "north":
             from gcs.report.drill_judge import split_north
-            from protocols.wire_fault import Partition
+            from protocols.faults import Partition
 
             command = Partition(split_north(_positions(swarm)))
         swarm.fault(command)

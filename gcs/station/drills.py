@@ -27,17 +27,10 @@ from drone_agent.transport import Bus, Closeable, Congestion
 from gcs.report.events import EventLog
 from gcs.station.commands import Reply
 from gcs.station.telemetry import TelemetryReceiver
+from protocols.faults import Dropout, LinkCut, LinkRestore, Restart
 from protocols.keys import SwarmKeys
 from protocols.wire import WireError
-from protocols.wire_fault import (
-    Dropout,
-    LinkCut,
-    LinkRestore,
-    Restart,
-    decode_fault,
-    encode_fault,
-    fault_op,
-)
+from protocols.wire_fault import decode_fault, encode_fault, fault_op
 
 MAV_CMD_INJECT_FAILURE = 420
 FAILURE_UNIT_SYSTEM_MOTOR = 101
