@@ -162,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
         return _said(args, True, done.what)
     if getattr(args, "json", False):
         fields = dataclasses.asdict(done.fault)
+        del fields["t_s"]  # a scenario's start time; a drill acts when it arrives
         what = done.what.removeprefix("sent ")
         print(json.dumps({"drill": args.drill, "sent": True, "what": what, **fields}))
     else:
