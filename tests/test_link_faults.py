@@ -66,8 +66,9 @@ def swarm() -> Iterator[Swarm]:
     s.close()
 
 
-def test_fault_fields_are_those_the_fault_timeline_drives() -> None:
-    """The scenario fault timeline sets these fields (directed pairs, delays in ticks)."""
+def test_fault_fields_are_those_the_in_process_radio_reads() -> None:
+    """LinkFaults.apply and end set these fields (directed pairs, delays in ticks), and the
+    in-process radio (gcs/reference/network.py) reads them."""
     names = [f.name for f in dataclasses.fields(LinkFaults)]
     assert names == [
         "cut",
