@@ -1,7 +1,8 @@
 """Throughput of the vectorised physics: drone-steps per second of ``sitl_sim.dynamics.step``.
 
-Measures RK4 and semi-implicit Euler steps alone, the inner loop (attitude controller +
-mixer) followed by an RK4 step, and the same through the fused
+Measures RK4 steps alone (the compiled rules of sitl_sim/physics_rules.py over N vehicles), the
+inner loop (the numpy attitude controller + the compiled mixer) followed by an RK4 step, and the
+same through the fused
 :class:`sitl_sim.physics_kernel.PhysicsKernel` (``kernel``: inner loop, RK4 and ground contact, as
 the simulator runs them), for N = 1, 10, 100, 1000 hovering vehicles. Each figure is the
 best of a few repeats, each at least ``MIN_SECONDS`` long.
@@ -64,9 +65,6 @@ def _variants(
     def rk4(s: FloatArray) -> FloatArray:
         return dynamics.step(s, speeds, params, DT_S, "rk4")
 
-    def euler(s: FloatArray) -> FloatArray:
-        return dynamics.step(s, speeds, params, DT_S, "euler")
-
     def inner_loop_rk4(s: FloatArray) -> FloatArray:
         return dynamics.step(s, inner_loop(s, level, hover, params), params, DT_S, "rk4")
 
@@ -75,7 +73,7 @@ def _variants(
     def fused(s: FloatArray) -> FloatArray:
         return kernel.substep(s, level, hover)[0]
 
-    return {"rk4": rk4, "euler": euler, "inner_loop+rk4": inner_loop_rk4, "kernel": fused}
+    return {"rk4": rk4, "inner_loop+rk4": inner_loop_rk4, "kernel": fused}
 
 
 def physics_step() -> dict[str, Any]:

@@ -1,6 +1,8 @@
 """Vectorised 6-DOF rigid-body dynamics of N quadcopters (ALGORITHM.md §1, paper eq. 3-6).
 
-Pure numpy, no I/O and no clock: ``step(state, rotor_speeds, params, dt_s) -> state``.
+Pure, no I/O and no clock: ``step(state, rotor_speeds, params, dt_s) -> state``. The rules are
+written once, for one vehicle, in :mod:`sitl_sim.physics_rules` (compiled); this module is
+their interface over N vehicles, with the state layout.
 
 State layout, a (13, N) float64 array, one column per vehicle:
 
@@ -12,7 +14,8 @@ State layout, a (13, N) float64 array, one column per vehicle:
 Translation: ``a = g e3 - (T/m) R_b e3``. Rotation (Euler's equations, corrected eq. 6):
 ``p' = qr(Iyy-Izz)/Ixx + l/Ixx``, ``q' = pr(Izz-Ixx)/Iyy + m/Iyy``,
 ``r' = pq(Ixx-Iyy)/Izz + n/Izz``.
-Rotor speeds are held constant over a step (zero-order hold).
+Rotor speeds are held constant over a step (zero-order hold); classic RK4, the quaternion
+re-normalised after it.
 
 Ground contact (after each step): a vehicle at or below the ground moving down is put on the
 ground with zero velocity and body rates (inelastic, with friction); while its thrust is below
@@ -25,7 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocols.frames import G_M_S2, FloatArray
+from protocols.compiled import compiled
+from protocols.frames import FloatArray
+from sitl_sim import physics_rules
+from sitl_sim.physics_rules import constants
 from sitl_sim.vehicle_params import VehicleParams
 
 POS = slice(0, 3)
@@ -34,7 +40,7 @@ QUAT = slice(6, 10)
 RATES = slice(10, 13)
 STATE_ROWS = 13
 
-_METHODS = ("rk4", "euler")
+_METHODS = ("rk4",)
 
 
 @dataclass(frozen=True)
@@ -83,9 +89,13 @@ def derivative(
     state: FloatArray, thrust_n: FloatArray, moments_nm: FloatArray, params: VehicleParams
 ) -> FloatArray:
     """Time derivative (13, N) of ``state`` (13, N) under thrust (N,) N and moments (3, N) N m."""
-    t_m, alpha = _specific_inputs(thrust_n, moments_nm, params)
-    out = np.empty_like(state)
-    _derivative_into(out, state, t_m, alpha, _euler_coeffs(params))
+    s = np.ascontiguousarray(state, dtype=np.float64)
+    t_m = np.asarray(thrust_n, dtype=np.float64).reshape(-1) * (1.0 / params.mass_kg)
+    alpha = np.asarray(moments_nm, dtype=np.float64).reshape(3, -1) / params.inertia[:, None]
+    out = np.empty_like(s)
+    compiled(physics_rules.derivative_rows)(
+        s, t_m, np.ascontiguousarray(alpha), constants(params, 0.0), out
+    )
     return out
 
 
@@ -98,14 +108,10 @@ def step(
 ) -> FloatArray:
     """Advance ``state`` (13, N) by ``dt_s`` seconds under rotor speeds (4, N) rad/s.
 
-    ``method`` is ``"rk4"`` (classic Runge-Kutta, default) or ``"euler"`` (semi-implicit: velocity
-    and rates first, then position and attitude with the new ones). The quaternion is
-    re-normalised, then ground contact is applied. Returns a new (13, N) array.
+    ``method`` is ``"rk4"`` (classic Runge-Kutta, the only one). The quaternion is re-normalised,
+    then ground contact is applied. Returns a new (13, N) array.
     """
-    thrust, moments = wrench_from_rotor_speeds(rotor_speed_rad_s, params)
-    new = _integrate(state, thrust, moments, params, dt_s, method)
-    _ground_contact_inplace(new, state, thrust, params.weight_n)
-    return new
+    return step_with_contact(state, rotor_speed_rad_s, params, dt_s, method).state
 
 
 def step_with_contact(
@@ -116,11 +122,12 @@ def step_with_contact(
     method: str = "rk4",
 ) -> StepResult:
     """As :func:`step`, also reporting each vehicle's touchdown speed (N,) m/s for this step."""
-    thrust, moments = wrench_from_rotor_speeds(rotor_speed_rad_s, params)
-    new = _integrate(state, thrust, moments, params, dt_s, method)
-    impact = _ground_contact_inplace(new, state, thrust, params.weight_n)
-    if impact is None:
-        impact = np.zeros(state.shape[1])
+    if method not in _METHODS:
+        raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
+    s = np.ascontiguousarray(state, dtype=np.float64)
+    new, impact = np.empty_like(s), np.zeros(s.shape[1])
+    rotor = np.ascontiguousarray(rotor_speed_rad_s, dtype=np.float64).reshape(4, -1)
+    compiled(physics_rules.advance_rotors)(s, rotor, constants(params, dt_s), new, impact)
     return StepResult(state=new, impact_speed_m_s=impact)
 
 
@@ -132,154 +139,9 @@ def ground_contact(
     ``thrust_n`` (N,) is the collective thrust (N) over the step. Returns the corrected state
     (a copy) and the touchdown speed (N,) m/s of each vehicle (0 if it did not touch down).
     """
-    new = np.array(state, dtype=np.float64)
-    impact = _ground_contact_inplace(new, prev_state, np.asarray(thrust_n), params.weight_n)
-    return new, np.zeros(new.shape[1]) if impact is None else impact
-
-
-def _euler_coeffs(params: VehicleParams) -> tuple[float, float, float]:
-    """Inertia ratios of Euler's equations: ``(Iyy-Izz)/Ixx, (Izz-Ixx)/Iyy, (Ixx-Iyy)/Izz``."""
-    ixx, iyy, izz = params.ixx, params.iyy, params.izz
-    return (iyy - izz) / ixx, (izz - ixx) / iyy, (ixx - iyy) / izz
-
-
-def _specific_inputs(
-    thrust_n: FloatArray, moments_nm: FloatArray, params: VehicleParams
-) -> tuple[FloatArray, FloatArray]:
-    """Thrust per mass (N,) m/s^2 and moments per inertia (3, N) rad/s^2."""
-    t_m = np.asarray(thrust_n, dtype=np.float64) * (1.0 / params.mass_kg)
-    alpha = np.asarray(moments_nm, dtype=np.float64) / params.inertia[:, None]
-    return t_m, alpha
-
-
-def _derivative_into(
-    out: FloatArray,
-    s: FloatArray,
-    t_m: FloatArray,
-    alpha: FloatArray,
-    coeffs: tuple[float, float, float],
-) -> None:
-    """Write the derivative of ``s`` (13, N) into ``out`` (13, N).
-
-    ``t_m`` (N,) is thrust per mass (m/s^2), ``alpha`` (3, N) moments per inertia (rad/s^2).
-    """
-    w, x, y, z = s[6], s[7], s[8], s[9]
-    p, q, r = s[10], s[11], s[12]
-    out[POS] = s[VEL]
-    # R_b e3 = [2(xz + wy), 2(yz - wx), 1 - 2(x^2 + y^2)]
-    two_t_m = t_m + t_m
-    out[3] = -two_t_m * (x * z + w * y)
-    out[4] = -two_t_m * (y * z - w * x)
-    out[5] = G_M_S2 - t_m + two_t_m * (x * x + y * y)
-    _quat_dot_into(out[QUAT], s[QUAT], p, q, r)
-    out[10] = coeffs[0] * (q * r) + alpha[0]
-    out[11] = coeffs[1] * (p * r) + alpha[1]
-    out[12] = coeffs[2] * (p * q) + alpha[2]
-
-
-def _quat_dot_into(
-    out: FloatArray, quat: FloatArray, p: FloatArray, q: FloatArray, r: FloatArray
-) -> None:
-    """``out`` (4, N) = ``0.5 quat ⊗ (0, p, q, r)``: quaternion rate for body rates (rad/s)."""
-    w, x, y, z = quat[0], quat[1], quat[2], quat[3]
-    hp, hq, hr = 0.5 * p, 0.5 * q, 0.5 * r
-    out[0] = -(x * hp + y * hq + z * hr)
-    out[1] = w * hp + y * hr - z * hq
-    out[2] = w * hq + z * hp - x * hr
-    out[3] = w * hr + x * hq - y * hp
-
-
-def _integrate(
-    state: FloatArray,
-    thrust_n: FloatArray,
-    moments_nm: FloatArray,
-    params: VehicleParams,
-    dt_s: float,
-    method: str,
-) -> FloatArray:
-    """One integration step (no ground contact) with a normalised quaternion; new (13, N)."""
-    if method not in _METHODS:
-        raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
-    t_m, alpha = _specific_inputs(thrust_n, moments_nm, params)
-    coeffs = _euler_coeffs(params)
-    new = (_rk4 if method == "rk4" else _semi_implicit_euler)(state, t_m, alpha, coeffs, dt_s)
-    quat = new[QUAT]
-    quat /= np.sqrt(np.einsum("ij,ij->j", quat, quat))
-    return new
-
-
-def _rk4(
-    s: FloatArray, t_m: FloatArray, alpha: FloatArray, coeffs: tuple[float, float, float], h: float
-) -> FloatArray:
-    """Classic fourth-order Runge-Kutta step of length ``h`` s; returns a new (13, N) array."""
-    k1, k2, k3, k4 = (np.empty_like(s) for _ in range(4))
-    tmp = np.empty_like(s)
-    _derivative_into(k1, s, t_m, alpha, coeffs)
-    np.multiply(k1, 0.5 * h, out=tmp)
-    tmp += s
-    _derivative_into(k2, tmp, t_m, alpha, coeffs)
-    np.multiply(k2, 0.5 * h, out=tmp)
-    tmp += s
-    _derivative_into(k3, tmp, t_m, alpha, coeffs)
-    np.multiply(k3, h, out=tmp)
-    tmp += s
-    _derivative_into(k4, tmp, t_m, alpha, coeffs)
-    k2 += k3
-    k2 += k2
-    k2 += k1
-    k2 += k4
-    k2 *= h / 6.0
-    k2 += s
-    return k2
-
-
-def _semi_implicit_euler(
-    s: FloatArray, t_m: FloatArray, alpha: FloatArray, coeffs: tuple[float, float, float], h: float
-) -> FloatArray:
-    """Semi-implicit Euler: update velocity and rates, then position and attitude with them."""
-    d = np.empty_like(s)
-    _derivative_into(d, s, t_m, alpha, coeffs)
-    new = s + h * d
-    new[POS] = s[POS] + h * new[VEL]
-    _quat_dot_into(d[QUAT], s[QUAT], new[10], new[11], new[12])
-    new[QUAT] = s[QUAT] + h * d[QUAT]
-    return new
-
-
-def _ground_contact_inplace(
-    new: FloatArray, prev: FloatArray, thrust_n: FloatArray, weight_n: float
-) -> FloatArray | None:
-    """Apply ground contact to ``new`` (13, N) in place; touchdown speeds (N,) or None if none."""
-    contact = new[2] >= 0.0
-    if not contact.any():
-        return None
-    idx = np.flatnonzero(contact)
-    sub, before = new[:, idx], prev[:, idx]
-    z0, vz0, vz1 = before[2], before[5], sub[5]
-    # Fraction of the step at which the ground was reached (0 if it started on the ground).
-    dz = sub[2] - z0
-    frac = np.where(z0 < 0.0, -z0 / np.where(dz > 0.0, dz, 1.0), 0.0).clip(0.0, 1.0)
-    moving_down = vz1 > 0.0
+    new = np.array(state, dtype=np.float64, order="C")
     impact = np.zeros(new.shape[1])
-    impact[idx] = np.where(moving_down, np.maximum(vz0 + frac * (vz1 - vz0), 0.0), 0.0)
-    resting = np.asarray(thrust_n)[idx] < weight_n
-    stopped = moving_down | resting
-    sub[2] = 0.0
-    sub[VEL, stopped] = 0.0
-    sub[RATES, stopped] = 0.0
-    on_ground_before = stopped & (z0 >= 0.0)
-    sub[0:2, on_ground_before] = before[0:2, on_ground_before]
-    if resting.any():
-        sub[QUAT, resting] = _level_quat(sub[QUAT, resting])
-    new[:, idx] = sub
-    return impact
-
-
-def _level_quat(quat: FloatArray) -> FloatArray:
-    """Quaternions (4, K) with roll and pitch removed, yaw kept."""
-    w, x, y, z = quat
-    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    out = np.zeros_like(quat)
-    out[0] = np.cos(0.5 * yaw)
-    out[3] = np.sin(0.5 * yaw)
-    return out
+    prev = np.ascontiguousarray(prev_state, dtype=np.float64)
+    thrust = np.ascontiguousarray(thrust_n, dtype=np.float64).reshape(-1)
+    compiled(physics_rules.contact_rows)(new, prev, thrust, constants(params, 0.0), impact)
+    return new, impact

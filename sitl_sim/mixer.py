@@ -14,7 +14,9 @@ Saturation, per vehicle, keeping roll and pitch authority first:
 3. each rotor force is clipped to ``[F_min, F_max]`` (this trims roll/pitch and thrust only when
    they alone do not fit).
 
-Returns ``w_i = sqrt(F_i / c)``, always finite and within the rotor-speed limits.
+Returns ``w_i = sqrt(F_i / c)``, always finite and within the rotor-speed limits. The rule is
+written once, for one vehicle, in :func:`sitl_sim.physics_rules.mix` (compiled); :func:`mix` is
+it over N vehicles.
 
 :func:`wrench_from_rotor_forces` is the forward map (forces -> thrust and moments), e.g. for a
 ground station that receives the rotor forces (ACTUATOR_OUTPUT_STATUS).
@@ -27,7 +29,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from protocols.compiled import compiled
 from protocols.frames import FloatArray
+from sitl_sim import physics_rules
+from sitl_sim.physics_rules import constants
 from sitl_sim.vehicle_params import VehicleParams
 
 #: Sign of the yaw share ``y`` in each rotor's force (paper eq. 3: n = M1 - M2 + M3 - M4).
@@ -36,11 +41,11 @@ _YAW_SIGN = np.array([1.0, -1.0, 1.0, -1.0])[:, None]
 
 def mix(thrust_n: FloatArray, moments_nm: FloatArray, params: VehicleParams) -> FloatArray:
     """Rotor speeds (4, N) rad/s realising thrust (N,) N and moments (3, N) N m where possible."""
-    f_min, f_max = params.rotor_force_min_n, params.rotor_force_max_n
-    base, yaw = _shares(*_limited_demands(thrust_n, moments_nm, params), params)
-    forces = base + _yaw_scale(base, yaw, f_min, f_max) * yaw
-    np.clip(forces, f_min, f_max, out=forces)
-    return np.sqrt(forces * (1.0 / params.thrust_coeff))
+    thrust = np.ascontiguousarray(thrust_n, dtype=np.float64).reshape(-1)
+    moments = np.ascontiguousarray(moments_nm, dtype=np.float64).reshape(3, -1)
+    out = np.empty((4, thrust.shape[0]))
+    compiled(physics_rules.mix_rows)(thrust, moments, constants(params, 0.0), out)
+    return out
 
 
 def rotor_forces_from_wrench(
@@ -84,39 +89,3 @@ def _shares(
     base[3] -= half_arm_inv * moments[1]
     yaw = _YAW_SIGN * (moments[2] * (0.25 / params.yaw_moment_per_thrust_m))
     return base, yaw
-
-
-def _limited_demands(
-    thrust_n: FloatArray, moments_nm: FloatArray, params: VehicleParams
-) -> tuple[FloatArray, FloatArray]:
-    """Finite thrust (N,) and moments (3, N), limited to what four rotors could ever produce."""
-    f_min, f_max = params.rotor_force_min_n, params.rotor_force_max_n
-    span = f_max - f_min
-    thrust = np.nan_to_num(np.asarray(thrust_n, dtype=np.float64), nan=0.0, posinf=4 * f_max)
-    np.clip(thrust, 4.0 * f_min, 4.0 * f_max, out=thrust)
-    moments = np.nan_to_num(np.asarray(moments_nm, dtype=np.float64), nan=0.0)
-    arm_limit = span * params.arm_m
-    yaw_limit = 2.0 * span * params.yaw_moment_per_thrust_m
-    limits = np.array([arm_limit, arm_limit, yaw_limit])[:, None]
-    np.clip(moments, -limits, limits, out=moments)
-    return thrust, moments
-
-
-def _yaw_scale(base: FloatArray, yaw: FloatArray, f_min: float, f_max: float) -> FloatArray:
-    """Largest factor (N,) in [0, 1] such that ``base + factor * yaw`` (4, N) fits the limits.
-
-    ``base`` (4, N) holds the thrust and roll/pitch shares, ``yaw`` (4, N) the yaw shares (N).
-    Forces within ``1e-9 * f_max`` of the limits count as fitting (round-off; the final clip
-    removes it), and yaw shares below that are ignored. Each vehicle's factor is its own: a
-    vehicle whose forces all fit keeps its whole yaw share whatever the others need.
-    """
-    tol = 1e-9 * f_max
-    total = base + yaw
-    fits = np.all((total >= f_min - tol) & (total <= f_max + tol), axis=0)
-    if fits.all():
-        return np.ones(base.shape[1])
-    room = np.where(yaw > 0.0, f_max - base, base - f_min)
-    mag = np.abs(yaw)
-    safe_mag = np.where(mag > tol, mag, 1.0)
-    ratio = np.where(mag > tol, room / safe_mag, np.inf)
-    return np.where(fits, 1.0, np.clip(ratio.min(axis=0), 0.0, 1.0))

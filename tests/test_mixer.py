@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from sitl_sim.dynamics import wrench_from_rotor_speeds
 from sitl_sim.mixer import mix, rotor_forces_from_wrench
 from sitl_sim.vehicle_params import VehicleParams
+from tests import physics_oracle
 
 P = VehicleParams()
 F_MAX = P.rotor_force_max_n
@@ -97,4 +98,19 @@ def test_vectorised_mix_equals_single_vehicle_mix() -> None:
     for i in range(50):
         np.testing.assert_array_equal(
             together[:, i], mix(thrust[i : i + 1], moments[:, i : i + 1], P)[:, 0]
+        )
+
+
+def test_mix_is_the_numpy_oracle() -> None:
+    """The compiled rule (sitl_sim/physics_rules.mix) against the array code it replaced
+    (tests/physics_oracle.py): feasible, saturated, NaN and infinite demands."""
+    rng = np.random.default_rng(11)
+    thrust = rng.uniform(-1, 8, 400)
+    moments = rng.normal(scale=[[0.05], [0.05], [0.05]], size=(3, 400))
+    thrust[::17], moments[1, ::19], moments[2, ::23] = np.nan, np.nan, np.inf
+    thrust[::29] = np.inf
+    for params in (P, VehicleParams(rotor_speed_min_rad_s=150.0)):
+        got, want = mix(thrust, moments, params), physics_oracle.mix(thrust, moments, params)
+        np.testing.assert_allclose(
+            params.thrust_coeff * got**2, params.thrust_coeff * want**2, rtol=0, atol=1e-12
         )

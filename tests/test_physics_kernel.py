@@ -1,7 +1,8 @@
 """The fused physics sub-step (sitl_sim.physics_kernel) against the reference functions.
 
-The reference is ``inner_loop`` (attitude controller + mixer) followed by the rotor mask and
-``step_with_contact`` (RK4 + ground contact), as the simulator ran them before the kernel. The
+The reference is the numpy oracle (tests/physics_oracle.py): ``inner_loop`` (attitude controller
++ mixer) followed by the rotor mask and ``step_with_contact`` (RK4 + ground contact), the array
+code the simulator ran before the per-vehicle rules were written once and compiled. The
 kernel must give the same states, rotor forces and touchdown speeds to 1e-9 over hundreds of steps
 that go through take-off from the ground, touchdowns and hard landings, vehicles resting tilted,
 saturated mixers (full roll commands, thrust 0 and 1, a NaN thrust), disarming, dead motors,
@@ -21,13 +22,13 @@ from protocols.frames import FloatArray
 from protocols.scenario import parse_scenario
 from sitl_sim.attitude_control import AttitudeGains
 from sitl_sim.autopilot import AutopilotConfig, Mode, VehicleEvent
-from sitl_sim.dynamics import initial_state, step_with_contact
-from sitl_sim.inner_loop import inner_loop
+from sitl_sim.dynamics import initial_state
 from sitl_sim.physics_kernel import PhysicsKernel
 from sitl_sim.setpoint import AttitudeSetpoint, quat_from_euler, validate_attitude_target
 from sitl_sim.tunables import FleetAttitudeGains
 from sitl_sim.vehicle_params import VehicleParams
 from sitl_sim.world import World, WorldConfig
+from tests.physics_oracle import inner_loop, step_with_contact
 
 TOL = 1e-9
 DT = 0.002
