@@ -28,8 +28,6 @@ CYCLE_FREE = ("protocols", "sitl_sim", "drone_agent", "gcs", "bench")
 #: modules may still import one another. A cycle found must lie inside one of them; take a group
 #: out (or shrink it) once its cycle is gone. Never add one.
 KNOWN_CYCLES: tuple[frozenset[str], ...] = (
-    # the estimator's plain rows and its batch (helper "numba")
-    frozenset({"drone_agent.consensus", "drone_agent.consensus_batch"}),
     # the report's reader -> the recording -> the scene -> the reader, with the view's modules
     # on the way (helper "numba")
     frozenset(
