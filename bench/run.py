@@ -32,6 +32,7 @@ from bench.session import session
 from bench.settling import settling
 from bench.simulate_rtf import simulate_rtf
 from bench.sitl import sitl_rtf
+from bench.tables import format_rows
 from bench.up_lockstep import up_lockstep
 from bench.zenoh_latency import zenoh_latency
 from bench.zenoh_router import zenoh_router
@@ -78,20 +79,6 @@ def machine_info() -> dict[str, Any]:
         "commit": commit(),
         "load_average": load_average(),
     }
-
-
-def format_rows(name: str, rows: Sequence[dict[str, Any]]) -> str:
-    """A plain-text table of flat dicts, one line per row."""
-    columns = list(rows[0])
-    cells = [[_cell(row.get(c)) for c in columns] for row in rows]
-    widths = [max(len(c), *(len(r[i]) for r in cells)) for i, c in enumerate(columns)]
-    lines = [name, "  ".join(c.rjust(w) for c, w in zip(columns, widths, strict=True))]
-    lines += ["  ".join(v.rjust(w) for v, w in zip(r, widths, strict=True)) for r in cells]
-    return "\n".join(lines)
-
-
-def _cell(value: Any) -> str:
-    return f"{value:,}" if isinstance(value, int) and not isinstance(value, bool) else str(value)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -209,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--secrets", default=None, help="agent credential of a secured router")
     args = parser.parse_args(argv)
     if args.worker is None:
-        from bench.run import format_rows
+        from bench.tables import format_rows
 
         result = zenoh_latency(args.duration_s)
         print(format_rows("zenoh_latency", result["rows"]))

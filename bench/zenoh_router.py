@@ -141,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration-s", type=float, default=5.0)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args(argv)
-    from bench.run import format_rows
+    from bench.tables import format_rows
 
     result = zenoh_router(args.duration_s, args.repeats)
     print(format_rows("zenoh_router", result["rows"]))

@@ -28,20 +28,6 @@ CYCLE_FREE = ("protocols", "sitl_sim", "drone_agent", "gcs", "bench")
 #: modules may still import one another. A cycle found must lie inside one of them; take a group
 #: out (or shrink it) once its cycle is gone. Never add one.
 KNOWN_CYCLES: tuple[frozenset[str], ...] = (
-    # the report's reader -> the recording -> the scene -> the reader, with the view's modules
-    # on the way (helper "numba")
-    frozenset(
-        {
-            "gcs.report.from_logs",
-            "gcs.view.layout",
-            "gcs.view.recording",
-            "gcs.view.rerun_log",
-            "gcs.view.rerun_series",
-            "gcs.view.scene",
-        }
-    ),
-    # the benchmark runner and its Zenoh benchmarks (helper "numba")
-    frozenset({"bench.run", "bench.zenoh_latency", "bench.zenoh_router"}),
     # setpoint.validate_attitude_targets forwards to setpoint_jit until
     # gcs/reference/autopilot_link.py imports it from there (then delete the forward and this)
     frozenset({"sitl_sim.setpoint", "sitl_sim.setpoint_jit"}),

@@ -18,7 +18,7 @@ import numpy as np
 
 from gcs.report.drill_judge import DrillResult, Window, bridge_flaps, series
 from gcs.report.events import read_events
-from gcs.report.from_logs import MAX_AGE_S, _hold, membership
+from gcs.report.log_record import MAX_AGE_S, hold, membership
 from gcs.report.tlog import TlogTrack, read_tlog
 from gcs.report.trajectory_file import read_trajectory
 
@@ -56,7 +56,7 @@ def window_from_logs(
     est = np.full((t.size, n, 9), np.nan)
     for sysid, v in track.vehicles.items():
         if 1 <= sysid <= n:
-            est[:, sysid - 1] = _hold(t, v.status_t_s, v.status, MAX_AGE_S)[:, :9]
+            est[:, sysid - 1] = hold(t, v.status_t_s, v.status, MAX_AGE_S)[:, :9]
     member = bridge_flaps(membership(events, t, n)[0], t)
     with np.errstate(invalid="ignore"):
         airborne = np.isfinite(pos[..., 2]) & (-pos[..., 2] > 0.3)

@@ -29,7 +29,7 @@ import rerun as rr
 
 from gcs.report.events import read_events
 from gcs.report.flight_record import FlightRecord
-from gcs.report.from_logs import build_record
+from gcs.report.log_record import build_record
 from gcs.report.tlog import TlogReader
 from gcs.view.rerun_log import log_scene, log_setup, trail_stride
 from gcs.view.scene import (

@@ -4,7 +4,7 @@ A :class:`Scene` is built from ``flight.tlog`` (positions, the agents' estimates
 (who joined, was lost, failed safe; every event as a log line) and ``trajectory.json`` (the plan:
 the commanded descriptors), so a recording made from it (:mod:`gcs.view.rerun_log`) shows exactly
 what those files say. Samples are the tlog's own: the time grid is the tlog's LOCAL_POSITION_NED
-rate, starting at its first sample, sample-and-hold (:func:`gcs.report.from_logs.build_record`),
+rate, starting at its first sample, sample-and-hold (:func:`gcs.report.log_record.build_record`),
 so each sample time carries the logged position of that time.
 
 Mode of a drone at a sample (its colour in the view): ``GROUND`` (not airborne), ``FLYING``,
@@ -31,7 +31,7 @@ import numpy.typing as npt
 
 from gcs.report.events import read_events
 from gcs.report.flight_record import FlightRecord
-from gcs.report.from_logs import MAX_AGE_S, _hold, build_record
+from gcs.report.log_record import MAX_AGE_S, build_record, hold
 from gcs.report.metrics import heading_mask, true_descriptors
 from gcs.report.tlog import TlogTrack, read_tlog
 from protocols.frames import FloatArray
@@ -127,7 +127,7 @@ class LinkLog:
         out = np.full((t_grid.size, len(self.ids), width), np.nan)
         for i, (t, ids) in enumerate(zip(self.t_s, self.ids, strict=True)):
             if t.size:
-                out[:, i, : ids.shape[1]] = _hold(t_grid, t, ids, max_age_s)
+                out[:, i, : ids.shape[1]] = hold(t_grid, t, ids, max_age_s)
         return out
 
 
