@@ -5,8 +5,9 @@ Flies one scenario twice, as a user would: ``swarm simulate FILE`` and ``swarm u
 lockstep --agents-per-process K`` (real processes, Zenoh, MAVLink; free ports and a swarm id of
 its own, so it runs beside anything), then compares the two flight.tlogs alone: for every vehicle
 and every ``time_boot_ms`` both logged, the distance between the two LOCAL_POSITION_NED
-positions. Drones a scenario fault takes out (drop-out, crash) are reported apart: a dropped
-agent's vehicle lands on its own failsafe, which the in-process flight models more simply.
+positions. Drones a scenario fault takes out (drop-out, crash) are reported apart (their
+vehicles are one model in both runners, sitl_sim/world.py: a dropped agent's vehicle lands on its
+own failsafe in both the same way).
 
 Writes ``bench/results_runners_gap.json`` (per drone: the largest gap and when it first exceeded
 1 mm; the median and largest over drones; how many drones are beyond the 5 cm bar) and prints a
