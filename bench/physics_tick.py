@@ -43,14 +43,14 @@ from typing import Any
 
 import numpy as np
 
-from protocols.frames import FloatArray
+from protocols.frames import FloatArray, wxyz_from_zyx
 from sitl_sim import physics_kernel
 from sitl_sim.attitude_control import AttitudeGains
 from sitl_sim.autopilot import Mode, VehicleEvent
 from sitl_sim.dynamics import initial_state, step_with_contact
 from sitl_sim.inner_loop import inner_loop
 from sitl_sim.physics_kernel import PhysicsKernel
-from sitl_sim.setpoint import AttitudeSetpoint, quat_from_euler, validate_attitude_target
+from sitl_sim.setpoint import AttitudeSetpoint, validate_attitude_target
 from sitl_sim.tunables import FleetAttitudeGains
 from sitl_sim.vehicle_params import VehicleParams
 from sitl_sim.world import World, WorldConfig
@@ -171,7 +171,7 @@ def _flying_world(n: int, one_down: bool) -> World:
 
 def _give_setpoint(w: World, i: int, tick: int) -> None:
     euler, thrust = _setpoint(w.n, tick)
-    quat = quat_from_euler(float(euler[0, i]), float(euler[1, i]), float(euler[2, i]))
+    quat = wxyz_from_zyx(float(euler[2, i]), float(euler[1, i]), float(euler[0, i]))
     sp = validate_attitude_target(quat, float(thrust[i]))
     assert isinstance(sp, AttitudeSetpoint)
     w.autopilot.setpoint(i, sp, w.t_s)

@@ -17,9 +17,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import Enum
-from typing import Any
 
-from protocols.frames import wxyz_from_zyx, zyx_from_wxyz
+from protocols.frames import zyx_from_wxyz
 
 #: Largest accepted deviation of the quaternion norm from 1 (sender round-off, float32 on the wire).
 QUAT_NORM_TOLERANCE = 0.05
@@ -92,18 +91,3 @@ def checked_setpoint(
     qw, qx, qy, qz = w / norm, x / norm, y / norm, z / norm
     yaw, pitch, roll = zyx_from_wxyz(qw, qx, qy, qz)
     return 0, qw, qx, qy, qz, roll, pitch, yaw
-
-
-def quat_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """Deprecated, the old argument order: :func:`protocols.frames.wxyz_from_zyx` ``(yaw, pitch,
-    roll)``. Kept until bench/physics_tick.py, tests/test_physics_kernel.py and
-    tests/test_sitl_world.py call that (then remove it)."""
-    return wxyz_from_zyx(yaw, pitch, roll)
-
-
-def validate_attitude_targets(quats_wxyz: Any, thrusts: Any) -> Any:
-    """Moved: :func:`sitl_sim.setpoint_jit.validate_attitude_targets`. This forward (and the
-    import cycle it makes) stays until gcs/reference/autopilot_link.py imports it from there."""
-    from sitl_sim import setpoint_jit
-
-    return setpoint_jit.validate_attitude_targets(quats_wxyz, thrusts)

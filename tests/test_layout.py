@@ -24,14 +24,6 @@ ALLOWED = {
 PROJECT = {"protocols", "sitl_sim", "drone_agent", "gcs"}
 #: The packages whose modules must not import each other in a cycle.
 CYCLE_FREE = ("protocols", "sitl_sim", "drone_agent", "gcs", "bench")
-#: Import cycles known when the test came (issue 35) and being taken apart: each listed group of
-#: modules may still import one another. A cycle found must lie inside one of them; take a group
-#: out (or shrink it) once its cycle is gone. Never add one.
-KNOWN_CYCLES: tuple[frozenset[str], ...] = (
-    # setpoint.validate_attitude_targets forwards to setpoint_jit until
-    # gcs/reference/autopilot_link.py imports it from there (then delete the forward and this)
-    frozenset({"sitl_sim.setpoint", "sitl_sim.setpoint_jit"}),
-)
 
 
 def _module_of(path: Path) -> str:
@@ -112,16 +104,11 @@ def test_the_cycle_finder_finds_cycles() -> None:
 
 
 def test_no_import_cycles() -> None:
-    """No module imports itself through others, but for the cycles being taken apart
-    (:data:`KNOWN_CYCLES`)."""
+    """No module imports itself through others."""
     graph = _import_graph()
     assert {"protocols.frames", "sitl_sim.setpoint"} <= graph["sitl_sim.setpoint_jit"]  # it reads
-    unknown = [
-        sorted(cycle)
-        for cycle in _cycles(graph)
-        if not any(cycle <= known for known in KNOWN_CYCLES)
-    ]
-    assert not unknown, f"import cycles: {unknown}"
+    cycles = [sorted(cycle) for cycle in _cycles(graph)]
+    assert not cycles, f"import cycles: {cycles}"
 
 
 def _imports(path: Path) -> set[str]:

@@ -18,13 +18,13 @@ import numpy.typing as npt
 import pytest
 
 from gcs.reference.flight import ReferenceFlight
-from protocols.frames import FloatArray
+from protocols.frames import FloatArray, wxyz_from_zyx
 from protocols.scenario import parse_scenario
 from sitl_sim.attitude_control import AttitudeGains
 from sitl_sim.autopilot import AutopilotConfig, Mode, VehicleEvent
 from sitl_sim.dynamics import initial_state
 from sitl_sim.physics_kernel import PhysicsKernel
-from sitl_sim.setpoint import AttitudeSetpoint, quat_from_euler, validate_attitude_target
+from sitl_sim.setpoint import AttitudeSetpoint, validate_attitude_target
 from sitl_sim.tunables import FleetAttitudeGains
 from sitl_sim.vehicle_params import VehicleParams
 from sitl_sim.world import World, WorldConfig
@@ -200,7 +200,7 @@ def _drive(w: World, tick: int) -> None:
     for i in range(w.n):
         if i == 4 and tick > 120:
             continue
-        sp = validate_attitude_target(quat_from_euler(0.1 * np.sin(0.05 * tick + i), 0.0, 0.3), 0.6)
+        sp = validate_attitude_target(wxyz_from_zyx(0.3, 0.0, 0.1 * np.sin(0.05 * tick + i)), 0.6)
         assert isinstance(sp, AttitudeSetpoint)
         ap.setpoint(i, sp, t)
     if tick == 5:

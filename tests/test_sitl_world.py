@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from protocols.frames import wxyz_from_zyx
 from sitl_sim.attitude_control import AttitudeGains
 from sitl_sim.autopilot import Mode, Result
-from sitl_sim.setpoint import AttitudeSetpoint, quat_from_euler, validate_attitude_target
+from sitl_sim.setpoint import AttitudeSetpoint, validate_attitude_target
 from sitl_sim.tunables import FleetAttitudeGains
 from sitl_sim.vehicle_params import VehicleParams
 from sitl_sim.world import World, WorldConfig
@@ -28,7 +29,7 @@ def _world(n: int = 3, z: float = 0.0, **config: object) -> World:
 
 
 def _sp(thrust: float, roll: float = 0.0) -> AttitudeSetpoint:
-    sp = validate_attitude_target(quat_from_euler(roll, 0.0, 0.0), thrust, 7)
+    sp = validate_attitude_target(wxyz_from_zyx(0.0, 0.0, roll), thrust, 7)
     assert isinstance(sp, AttitudeSetpoint)
     return sp
 
