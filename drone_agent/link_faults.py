@@ -34,8 +34,8 @@ from drone_agent.transport import (
     BY_SENDER_ROUND,
     AgentTransport,
     ClosesOnExit,
-    LinkCounters,
     Position,
+    SwarmMessageCounters,
 )
 from protocols.consensus_message import ConsensusMessage
 from protocols.faults import Clear, Delay, LinkCut, LinkFault, LinkRestore, Loss, Partition
@@ -289,7 +289,7 @@ class FaultyTransport(ClosesOnExit):
         out, self._withheld = self._withheld, {}
         return out
 
-    def counters(self) -> LinkCounters:
+    def counters(self) -> SwarmMessageCounters:
         """The inner counters, with this wrapper's drops and deliveries."""
         inner = self._inner.counters()
         return replace(inner, faults=inner.faults + self._dropped, delivered=self._delivered)

@@ -172,9 +172,6 @@ class SwarmMessageCounters:
         )
 
 
-#: The old name, kept until drone_agent/link_faults.py and tests/test_link_faults.py use the new.
-LinkCounters = SwarmMessageCounters
-
 
 class AgentTransport(Protocol):
     """What one agent uses to talk to the swarm. One per hosted agent; not thread-safe (call it

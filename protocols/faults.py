@@ -46,11 +46,6 @@ class LinkCut:
         """The link ``(i, j)``."""
         return self.i, self.j
 
-    @property
-    def drones(self) -> Pair:
-        """The link ``(i, j)``, by the scenario file's name (kept while gcs/report reads it)."""
-        return self.i, self.j
-
 
 @dataclass(frozen=True)
 class LinkRestore:
@@ -79,11 +74,6 @@ class Loss:
     duration_s: float | None = None
     t_s: float = 0.0
 
-    @property
-    def drones(self) -> Pair | None:
-        """``link``, by the scenario file's name (kept while gcs/report reads it)."""
-        return self.link
-
 
 @dataclass(frozen=True)
 class Delay:
@@ -96,11 +86,6 @@ class Delay:
     link: Pair | None = None
     duration_s: float | None = None
     t_s: float = 0.0
-
-    @property
-    def drones(self) -> Pair | None:
-        """``link``, by the scenario file's name (kept while gcs/report reads it)."""
-        return self.link
 
 
 @dataclass(frozen=True, init=False)
@@ -176,7 +161,3 @@ FaultCommand = LinkFault | Restart | Dropout
 
 Fault = Dropout | Crash | LinkCut | Loss | Delay | Partition
 """What a scenario schedules (``[[faults]] kind``)."""
-
-#: Old names of the scenario's classes, kept while gcs/report and tests import them.
-PacketLoss = Loss
-LinkDelay = Delay

@@ -27,9 +27,7 @@ from protocols.faults import (
     Dropout,
     Fault,
     LinkCut,
-    LinkDelay,
     Loss,
-    PacketLoss,
     Partition,
 )
 from protocols.formation_fit import fit_problem
@@ -46,9 +44,7 @@ __all__ = [
     "Fault",
     "GeoPoint",
     "LinkCut",
-    "LinkDelay",
     "Loss",
-    "PacketLoss",
     "Partition",
     "Scenario",
     "ScenarioError",

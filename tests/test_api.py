@@ -29,7 +29,7 @@ from gcs.api.requests import command_request, fault_command
 from gcs.api.state import Sent, Status, arrived, status_of
 from gcs.report.events import read_events
 from gcs.report.tlog import TlogTrack, read_tlog
-from protocols.wire_fault import LinkCut
+from protocols.faults import LinkCut
 
 N = 4
 

@@ -147,7 +147,8 @@ def test_a_dropout_command_kills_a_hosted_agent_through_the_host() -> None:
     """The DROPOUT fault command (the ground station's dropout drill of a hosted agent) reaches
     the process's ``kill`` callback with the drone; a process without one ignores it."""
     from drone_agent.transport import Congestion
-    from protocols.wire_fault import Dropout, encode_fault
+    from protocols.faults import Dropout
+    from protocols.wire_fault import encode_fault
 
     medium = MemoryBus()
     killed: list[int] = []

@@ -16,11 +16,12 @@ from gcs.report.flight_record import LinkFault
 from gcs.report.from_logs import build_record, drill_link_faults, membership
 from gcs.report.tlog import TlogWriter, read_tlog
 from gcs.station.drills import GcsDrills
+from protocols.faults import Clear, LinkCut, LinkRestore, Partition
 from protocols.frames import G_M_S2
 from protocols.keys import SwarmKeys
 from protocols.scenario import load_scenario
 from protocols.trajectory import DescriptorTrajectory
-from protocols.wire_fault import Clear, LinkCut, LinkRestore, Partition, encode_fault
+from protocols.wire_fault import encode_fault
 from sitl_sim.dynamics import wrench_from_rotor_speeds
 from sitl_sim.messages import actuator_output_status
 from sitl_sim.mixer import mix, rotor_forces_from_wrench, wrench_from_rotor_forces

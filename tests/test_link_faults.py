@@ -313,11 +313,11 @@ def test_the_fault_loop_delivers_drops_and_withholds_as_the_reference() -> None:
 
 
 def test_the_wrappers_counters_are_the_inner_ones_with_its_drops_and_deliveries() -> None:
-    """Every field of the inner counters is carried (a field added to LinkCounters later must
-    not come out as 0)."""
-    from drone_agent.transport import LinkCounters
+    """Every field of the inner counters is carried (a field added to SwarmMessageCounters later
+    must not come out as 0)."""
+    from drone_agent.transport import SwarmMessageCounters
 
-    inner = LinkCounters(*range(1, len(dataclasses.fields(LinkCounters)) + 1))
+    inner = SwarmMessageCounters(*range(1, len(dataclasses.fields(SwarmMessageCounters)) + 1))
     radio = _Radio()
     radio.counters = lambda: inner  # type: ignore[attr-defined]
     faults = LinkFaults()

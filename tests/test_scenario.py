@@ -21,9 +21,7 @@ from protocols.scenario import (
     GainsConfig,
     GeoPoint,
     LinkCut,
-    LinkDelay,
     Loss,
-    PacketLoss,
     Partition,
     RatesConfig,
     ScenarioError,
@@ -171,11 +169,9 @@ def test_every_fault_kind_parses() -> None:
     )
     partition = sc.faults[4]
     assert isinstance(partition, Partition) and partition.group_ids(3) == (0, 2, 1)
-    # the scenario classes' old names and fields, kept while other modules read them
-    assert PacketLoss is Loss and LinkDelay is Delay
     cut, loss = sc.faults[5], sc.faults[2]
-    assert isinstance(cut, LinkCut) and cut.drones == cut.link == (2, 0)
-    assert isinstance(loss, Loss) and loss.drones == (0, 1)
+    assert isinstance(cut, LinkCut) and cut.link == (2, 0)
+    assert isinstance(loss, Loss) and loss.link == (0, 1)
     assert [f.kind for f in sc.faults] == [
         "dropout",
         "loss",

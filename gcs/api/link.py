@@ -13,8 +13,8 @@ from gcs.api.errors import NoGroundStation, UsageError
 if TYPE_CHECKING:
     from drone_agent.zenoh_transport import ZenohBus
     from gcs.station.commands import Reply, Request
+    from protocols.faults import FaultCommand
     from protocols.swarm_secrets import RoleSecrets
-    from protocols.wire_fault import FaultCommand
 
 #: How long the ground station gets to answer a request (wall s).
 ANSWER_TIMEOUT_S = 2.0

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 
 from gcs.api.errors import UsageError
 from gcs.station.commands import COMMANDS, Request
-from protocols.wire_fault import (
+from protocols.faults import (
     Clear,
     Delay,
     FaultCommand,

@@ -39,8 +39,8 @@ if TYPE_CHECKING:
     from gcs.api.launch import Launched
     from gcs.api.report import FlightReport
     from gcs.station.commands import Reply, Request
+    from protocols.faults import FaultCommand
     from protocols.swarm_secrets import RoleSecrets
-    from protocols.wire_fault import FaultCommand
 
 #: The ground station's endpoint ``swarm up`` uses on the default ports.
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"

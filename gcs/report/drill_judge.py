@@ -175,7 +175,7 @@ def catalogue(n_drones: int, loss: float = 0.5) -> tuple[DrillSpec, ...]:
     estimate stays right without a single message, and so does it in a move alone (the agents
     take their consensus channels in the plan's frame, which a move carries along), so only a
     formation that changes shape shows whether the estimator holds."""
-    from protocols.wire_fault import Clear, Delay, LinkCut, Loss, Partition, Restart
+    from protocols.faults import Clear, Delay, LinkCut, Loss, Partition, Restart
 
     if n_drones < 4:
         raise ValueError(f"the drills need at least 4 drones, got {n_drones}")

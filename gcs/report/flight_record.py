@@ -79,8 +79,8 @@ def scenario_link_cuts(scenario: Scenario) -> list[LinkFault]:
         LinkFault(
             f.t_s,
             f.t_s + (f.duration_s or scenario.duration_s - f.t_s),
-            f.drones[0],
-            f.drones[1],
+            f.i,
+            f.j,
             f.one_way,
         )
         for f in scenario.faults

@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from gcs.station.planner import Envelope, PlanRefused, check_target, envelope_of
-from protocols.faults import Crash, Dropout, Fault, LinkCut, LinkDelay, PacketLoss, Partition
+from protocols.faults import Crash, Delay, Dropout, Fault, LinkCut, Loss, Partition
 from protocols.formation_fit import closest_pair, formation_positions
 from protocols.plan_timing import departure_s
 from protocols.scenario import Scenario, WaypointConfig
@@ -64,12 +64,12 @@ def describe_fault(fault: Fault) -> str:
         return head + f"{what}, drone {fault.drone} (system id {fault.drone + 1})"
     if isinstance(fault, LinkCut):
         way = " one way" if fault.one_way else ""
-        return head + f"link cut {fault.drones[0]}-{fault.drones[1]}{way}{span}"
-    pair: tuple[int, int] | None = getattr(fault, "drones", None)
-    where = "every link" if pair is None else f"link {pair[0]}-{pair[1]}"
-    if isinstance(fault, PacketLoss):
-        return head + f"{fault.probability:.0%} loss on {where}{span}"
-    if isinstance(fault, LinkDelay):
+        return head + f"link cut {fault.i}-{fault.j}{way}{span}"
+    if isinstance(fault, Loss | Delay):
+        pair = fault.link
+        where = "every link" if pair is None else f"link {pair[0]}-{pair[1]}"
+        if isinstance(fault, Loss):
+            return head + f"{fault.probability:.0%} loss on {where}{span}"
         return head + f"{fault.delay_ms:g} ms delay on {where}{span}"
     assert isinstance(fault, Partition)
     return head + f"partition into {len(fault.groups)} groups (+ the rest){span}"
