@@ -171,7 +171,7 @@ def test_faults_fall_inside_the_flight_on_drones_that_do_not_cut_the_graph() -> 
     assert all(airborne_s < f.t_s < sc.duration_s for f in sc.faults if not isinstance(
         f, Loss))  # fmt: skip
     (loss,) = [f for f in sc.faults if isinstance(f, Loss)]
-    assert loss.probability == 0.3 and loss.drones is None and loss.duration_s is None
+    assert loss.probability == 0.3 and loss.link is None and loss.duration_s is None
     assert [f.t_s for f in sc.faults] == sorted(f.t_s for f in sc.faults)
 
 
