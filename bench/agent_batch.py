@@ -6,7 +6,7 @@ before revision; ``--quick`` for a smoke run).
 - ``maths``: CPU time (``time.process_time``) of the agent core alone per agent-tick, on N = 100
   drones hovering on a grid 2.5 m apart with a 6 m radio range (about 16 neighbours each; the
   in-memory radio of ``swarm simulate`` carries their messages, untimed), hosted in batches of K =
-  1, 9, 25, 100 (:class:`~drone_agent.agent_core.BatchAgentCore`, one call per batch per tick);
+  1, 9, 25, 100 (:class:`~drone_agent.core.agent_core.BatchAgentCore`, one call per batch per tick);
   ``before`` is the code at ``--before`` (one ``AgentCore.tick`` per agent).
 - ``simulate``: ``swarm simulate`` real-time factor (the flight loop's wall time as metrics.json
   reports it) of ``scenarios/paper.toml`` (N = 9, 200 s) and of the N = 100 grid hovering (30 s).
@@ -55,10 +55,10 @@ def _grid_scenario(n: int, duration_s: float, folder: Path) -> Path:
 def maths_worker(n: int, k: int, ticks: int) -> dict[str, Any]:
     """CPU µs per agent-tick of the core, N drones in batches of K (one by one without
     BatchAgentCore, i.e. before)."""
-    from drone_agent import agent_core
-    from drone_agent.config import agent_config
+    from drone_agent.core import agent_core
+    from drone_agent.core.config import agent_config
     from gcs.reference.network import InProcessNetwork
-    from protocols.scenario import load_scenario
+    from protocols.scenario.scenario_file import load_scenario
 
     with tempfile.TemporaryDirectory() as tmp:
         scenario = load_scenario(_grid_scenario(n, 20.0, Path(tmp)))
@@ -117,7 +117,7 @@ def simulate_worker(scenario: str, duration_s: float | None) -> dict[str, Any]:
     import dataclasses
 
     from gcs.reference.simulate import simulate
-    from protocols.scenario import load_scenario
+    from protocols.scenario.scenario_file import load_scenario
 
     with tempfile.TemporaryDirectory() as tmp:
         path = (
@@ -138,31 +138,46 @@ def simulate_worker(scenario: str, duration_s: float | None) -> dict[str, Any]:
 
 #: (label, function) parts timed per control tick; the name is looked up in the tree under test.
 _PARTS = (
-    ("agents (core)", "drone_agent.agent_core", "BatchAgentCore", "tick"),
-    ("agents (core)", "drone_agent.agent_core", "AgentCore", "tick"),
-    ("agents (core)", "drone_agent.agent_core", "BatchAgentCore", "tick_columns"),
-    ("  consensus step", "drone_agent.consensus_batch", "BatchConsensus", "step"),
-    ("  consensus step", "drone_agent.consensus_batch", "BatchConsensus", "step_messages"),
-    ("  consensus step", "drone_agent.consensus_batch", "BatchConsensus", "step_outgoing"),
-    ("  consensus step", "drone_agent.consensus", "ConsensusEstimator", "step"),
-    ("  descriptor frame (eigh, axes)", "protocols.descriptors", None, "align_axes_batch"),
-    ("  descriptor frame (eigh, axes)", "protocols.descriptors", None, "align_axes"),
-    ("  cooperative field", "drone_agent.cooperative", None, "virtual_acceleration_batch"),
-    ("  cooperative field", "drone_agent.cooperative", None, "virtual_acceleration"),
-    ("  thrust and attitude", "drone_agent.thrust_attitude", None, "attitude_thrust_batch"),
-    ("  thrust and attitude", "drone_agent.thrust_attitude", None, "attitude_thrust"),
-    ("  plan evaluation", "protocols.trajectory", "DescriptorTrajectory", "evaluate"),
-    ("  separation layer", "drone_agent.separation_layer", "SeparationLayer", "filter"),
-    ("    neighbours heard (filing, query)", "drone_agent.neighbours", "NeighbourTable", "hear"),
-    ("    neighbours heard (filing, query)", "drone_agent.neighbours", "NeighbourTable", "query"),
-    ("    nobody-near pre-check", "drone_agent.separation", None, "nobody_near"),
-    ("    filter (agents not cleared)", "drone_agent.separation", None, "filter_accelerations"),
-    ("readiness and flight phase", "drone_agent.flight_phase", "Readiness", "update"),
-    ("readiness and flight phase", "drone_agent.flight_phase", "BatchReadiness", "update"),
+    ("agents (core)", "drone_agent.core.agent_core", "BatchAgentCore", "tick"),
+    ("agents (core)", "drone_agent.core.agent_core", "AgentCore", "tick"),
+    ("agents (core)", "drone_agent.core.agent_core", "BatchAgentCore", "tick_columns"),
+    ("  consensus step", "drone_agent.core.consensus.estimator", "BatchConsensus", "step"),
+    ("  consensus step", "drone_agent.core.consensus.estimator", "BatchConsensus", "step_messages"),
+    ("  consensus step", "drone_agent.core.consensus.estimator", "BatchConsensus", "step_outgoing"),
+    ("  consensus step", "drone_agent.core.consensus.scalar", "ConsensusEstimator", "step"),
+    ("  descriptor frame (eigh, axes)", "protocols.model.descriptors", None, "align_axes_batch"),
+    ("  descriptor frame (eigh, axes)", "protocols.model.descriptors", None, "align_axes"),
+    ("  cooperative field", "drone_agent.core.cooperative", None, "virtual_acceleration_batch"),
+    ("  cooperative field", "drone_agent.core.cooperative", None, "virtual_acceleration"),
+    ("  thrust and attitude", "drone_agent.core.thrust_attitude", None, "attitude_thrust_batch"),
+    ("  thrust and attitude", "drone_agent.core.thrust_attitude", None, "attitude_thrust"),
+    ("  plan evaluation", "protocols.model.trajectory", "DescriptorTrajectory", "evaluate"),
+    ("  separation layer", "drone_agent.core.separation.layer", "SeparationLayer", "filter"),
+    (
+        "    neighbours heard (filing, query)",
+        "drone_agent.core.neighbours",
+        "NeighbourTable",
+        "hear",
+    ),
+    (
+        "    neighbours heard (filing, query)",
+        "drone_agent.core.neighbours",
+        "NeighbourTable",
+        "query",
+    ),
+    ("    nobody-near pre-check", "drone_agent.core.separation.filter", None, "nobody_near"),
+    (
+        "    filter (agents not cleared)",
+        "drone_agent.core.separation.filter",
+        None,
+        "filter_accelerations",
+    ),
+    ("readiness and flight phase", "drone_agent.core.flight_phase", "Readiness", "update"),
+    ("readiness and flight phase", "drone_agent.core.flight_phase", "BatchReadiness", "update"),
     ("readiness and flight phase", "gcs.reference.flight", "ReferenceFlight", "_decide"),
     ("radio (in-memory, send + receive)", "gcs.reference.network", "InProcessNetwork", "send"),
     ("radio (in-memory, send + receive)", "gcs.reference.network", "InProcessNetwork", "receive"),
-    ("vehicles (World.step: 10 sub-steps, autopilots)", "sitl_sim.world", "World", "step"),
+    ("vehicles (World.step: 10 sub-steps, autopilots)", "sitl_sim.vehicle.world", "World", "step"),
 )
 
 
@@ -173,7 +188,7 @@ def profile_worker(scenario: str, duration_s: float) -> dict[str, Any]:
     import importlib
 
     from gcs.reference.flight import ReferenceFlight
-    from protocols.scenario import load_scenario
+    from protocols.scenario.scenario_file import load_scenario
 
     with tempfile.TemporaryDirectory() as tmp:
         path = (

@@ -27,9 +27,9 @@ from typing import Any
 
 from bench.runners_gap import ROOT, _swarm, gaps
 from bench.sitl import _free_block
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
+from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings, free_loopback_endpoint
 from protocols.faults import Crash, Dropout
-from protocols.scenario import load_scenario
+from protocols.scenario.scenario_file import load_scenario
 
 OUT_JSON = ROOT / "bench" / "results_controllers.json"
 FLIGHTS = (

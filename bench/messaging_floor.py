@@ -7,8 +7,8 @@ agents' own code costs.
 ``python -m bench.run --only messaging_floor``). Writes ``bench/results_messaging_floor.json``.
 
 N worker processes (``subprocess``, never forked after a session opened), one Zenoh session each
-with the settings ``swarm agent`` takes by default (drone_agent.agent_cli.zenoh_settings: the
-first listens on a rendezvous endpoint on loopback, the others connect to it and mesh by gossip;
+with the settings ``swarm agent`` takes by default (drone_agent.process.agent_cli.zenoh_settings:
+the first listens on a rendezvous endpoint on loopback, the others connect to it and mesh by gossip;
 lockstep's longer lease and deeper send queue), through the agents' Zenoh adapter. Per round
 each publishes one consensus sample of ``PAYLOAD_BYTES`` on its own key, to the other sessions
 only (QUEUED in lockstep, express DROP in realtime, as an agent process's hub), and drains every
@@ -48,7 +48,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 OUT_JSON = ROOT / "bench" / "results_messaging_floor.json"
 CONTROL_HZ = 50
-#: a consensus message of an agent with eight neighbours is about 1.4 kB (protocols/wire.py)
+#: a consensus message of an agent with eight neighbours is about 1.4 kB (protocols/wire/format.py)
 PAYLOAD_BYTES = 1000
 WARM_ROUNDS = 50
 #: (mode, processes, topology): the issue's per-drone targets (lockstep 3x at N = 9, realtime at
@@ -63,10 +63,10 @@ CASES = (
 
 
 def _settings(mode: str, first: bool, endpoint: str, router: bool) -> Any:
-    """The Zenoh settings ``swarm agent`` takes in ``mode`` (drone_agent.agent_cli): a peer
+    """The Zenoh settings ``swarm agent`` takes in ``mode`` (drone_agent.process.agent_cli): a peer
     listening on the rendezvous ``endpoint`` (the ``first``) or connected to it, or a client of
     the router there."""
-    from drone_agent.agent_cli import zenoh_settings
+    from drone_agent.process.agent_cli import zenoh_settings
 
     if router:
         listen, connect = None, [endpoint]
@@ -87,13 +87,13 @@ def worker(
     index: int, n: int, mode: str, rounds: int, tag: str, endpoint: str, router: bool
 ) -> dict[str, Any]:
     """One of the ``n`` processes of a case (module docstring); returns its figures. Its
-    session: :func:`_settings`, through the agents' Zenoh adapter (drone_agent.zenoh_transport):
+    session: :func:`_settings`, through the agents' Zenoh adapter (protocols.bus.zenoh_bus):
     the consensus publisher as an agent process's hub declares it (to other sessions only;
     QUEUED in lockstep, express DROP in realtime), the markers as its round book does (express
     DROP)."""
-    from drone_agent.host import REPEAT_MARKERS_S
-    from drone_agent.transport import Congestion
-    from drone_agent.zenoh_transport import ZenohBus
+    from drone_agent.process.host import REPEAT_MARKERS_S
+    from protocols.bus.interface import Congestion
+    from protocols.bus.zenoh_bus import ZenohBus
 
     bus = ZenohBus.open(_settings(mode, index == 0, endpoint, router))
     data = bus.subscribe(f"{tag}/c/*", 256)
@@ -142,7 +142,7 @@ def worker(
                 if time.monotonic() > stuck:  # a process died or the mesh never formed
                     raise SystemExit(f"process {index}: round {k}'s markers did not all come")
                 # express DROP loses a marker now and then: sent again, as the agents' host
-                # does (drone_agent/host.py, REPEAT_MARKERS_S)
+                # does (drone_agent/process/host.py, REPEAT_MARKERS_S)
                 if not select.select([wake_r], [], [], REPEAT_MARKERS_S)[0]:
                     mark.put(marker)
                 with contextlib.suppress(BlockingIOError):
@@ -172,7 +172,7 @@ def run_case(mode: str, n: int, rounds: int, topology: str = "mesh") -> dict[str
     """``n`` worker processes of ``mode`` in ``topology`` (module docstring)."""
     import psutil
 
-    from drone_agent.zenoh_transport import free_loopback_endpoint
+    from protocols.bus.zenoh_bus import free_loopback_endpoint
 
     endpoint = free_loopback_endpoint()  # the rendezvous, or the router's
     tag = f"floor{os.getpid()}x{n}{mode[0]}{topology[0]}"

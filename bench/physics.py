@@ -1,9 +1,10 @@
-"""Throughput of the vectorised physics: drone-steps per second of ``sitl_sim.dynamics.step``.
+"""Throughput of the vectorised physics: drone-steps per second of
+``sitl_sim.physics.dynamics.step``.
 
-Measures RK4 steps alone (the compiled rules of sitl_sim/physics_rules.py over N vehicles), the
+Measures RK4 steps alone (the compiled rules of sitl_sim/physics/rules.py over N vehicles), the
 inner loop (the numpy attitude controller + the compiled mixer) followed by an RK4 step, and the
 same through the fused
-:class:`sitl_sim.physics_kernel.PhysicsKernel` (``kernel``: inner loop, RK4 and ground contact, as
+:class:`sitl_sim.physics.kernel.PhysicsKernel` (``kernel``: inner loop, RK4 and ground contact, as
 the simulator runs them), for N = 1, 10, 100, 1000 hovering vehicles. Each figure is the
 best of a few repeats, each at least ``MIN_SECONDS`` long.
 """
@@ -16,11 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from protocols.frames import FloatArray
-from sitl_sim import dynamics
-from sitl_sim.inner_loop import inner_loop
-from sitl_sim.physics_kernel import PhysicsKernel
-from sitl_sim.vehicle_params import VehicleParams
+from protocols.model.frames import FloatArray
+from sitl_sim.physics import dynamics
+from sitl_sim.physics.inner_loop import inner_loop
+from sitl_sim.physics.kernel import PhysicsKernel
+from sitl_sim.physics.vehicle_params import VehicleParams
 
 SIZES = (1, 10, 100, 1000)
 DT_S = 0.002

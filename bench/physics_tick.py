@@ -7,8 +7,9 @@ the attitude loop works), it times one control tick, i.e. 10 sub-steps of 2 ms, 
 
 - ``reference``: ``inner_loop`` + ``step_with_contact`` per sub-step, as the simulator ran before
   the fused kernel (the readable reference functions, still in sitl_sim/);
-- ``kernel``: :class:`sitl_sim.physics_kernel.PhysicsKernel` (same arithmetic, fused);
-- ``world_reference`` / ``world``: the whole tick of ``swarm sim``'s :class:`~sitl_sim.world.World`
+- ``kernel``: :class:`sitl_sim.physics.kernel.PhysicsKernel` (same arithmetic, fused);
+- ``world_reference`` / ``world``: the whole tick of ``swarm sim``'s
+:class:`~sitl_sim.vehicle.world.World`
   (autopilot guidance, the 10 sub-steps, autopilot update) with the reference loop and with
   :meth:`World.step`,
 
@@ -43,17 +44,17 @@ from typing import Any
 
 import numpy as np
 
-from protocols.frames import FloatArray, wxyz_from_zyx
-from sitl_sim import physics_kernel
-from sitl_sim.attitude_control import AttitudeGains
-from sitl_sim.autopilot import Mode, VehicleEvent
-from sitl_sim.dynamics import initial_state, step_with_contact
-from sitl_sim.inner_loop import inner_loop
-from sitl_sim.physics_kernel import PhysicsKernel
-from sitl_sim.setpoint import AttitudeSetpoint, validate_attitude_target
-from sitl_sim.tunables import FleetAttitudeGains
-from sitl_sim.vehicle_params import VehicleParams
-from sitl_sim.world import World, WorldConfig
+from protocols.model.frames import FloatArray, wxyz_from_zyx
+from sitl_sim.physics import kernel as physics_kernel
+from sitl_sim.physics.attitude_control import AttitudeGains
+from sitl_sim.physics.dynamics import initial_state, step_with_contact
+from sitl_sim.physics.inner_loop import inner_loop
+from sitl_sim.physics.kernel import PhysicsKernel
+from sitl_sim.physics.vehicle_params import VehicleParams
+from sitl_sim.vehicle.autopilot import Mode, VehicleEvent
+from sitl_sim.vehicle.setpoint import AttitudeSetpoint, validate_attitude_target
+from sitl_sim.vehicle.tunables import FleetAttitudeGains
+from sitl_sim.vehicle.world import World, WorldConfig
 
 SIZES = (9, 25, 100, 250)
 SUBSTEPS = 10
@@ -281,7 +282,7 @@ def hover_scenario_text(n: int, duration_s: float) -> str:
 
 def _profile_flight(scenario: Any, reference: bool) -> dict[str, float]:
     """Wall µs per control tick of one in-process flight, per part."""
-    import drone_agent.agent_core as agent_core
+    import drone_agent.core.agent_core as agent_core
     import gcs.reference.flight as rf
 
     parts: dict[str, float] = {}
@@ -341,7 +342,7 @@ _ROWS = (_WHOLE, _CONTROL, _AGENTS, _PHYSICS, _KERNEL, _BOOKKEEPING, _REST)
 
 def profile() -> str:
     """A text table: where one control tick of ``swarm simulate`` goes, per part, before/after."""
-    from protocols.scenario import load_scenario, parse_scenario
+    from protocols.scenario.scenario_file import load_scenario, parse_scenario
 
     paper = dataclasses.replace(load_scenario(ROOT / "scenarios" / "paper.toml"), duration_s=40.0)
     hover = parse_scenario(tomllib.loads(hover_scenario_text(100, 6.0)), "hover100.toml")
@@ -407,7 +408,8 @@ def _server_parts(n: int, reference: bool) -> dict[str, float]:
     import threading
 
     from bench.sitl import _free_block
-    from sitl_sim import dispatch, server, sim_cli
+    from sitl_sim import server, sim_cli
+    from sitl_sim.mavlink_edge import dispatch
 
     parts: dict[str, float] = {}
     undo: list[tuple[Any, str, Any]] = []

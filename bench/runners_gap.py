@@ -6,8 +6,8 @@ lockstep --agents-per-process K`` (real processes, Zenoh, MAVLink; free ports an
 its own, so it runs beside anything), then compares the two flight.tlogs alone: for every vehicle
 and every ``time_boot_ms`` both logged, the distance between the two LOCAL_POSITION_NED
 positions. Drones a scenario fault takes out (drop-out, crash) are reported apart (their
-vehicles are one model in both runners, sitl_sim/world.py: a dropped agent's vehicle lands on its
-own failsafe in both the same way).
+vehicles are one model in both runners, sitl_sim/vehicle/world.py: a dropped agent's vehicle lands
+on its own failsafe in both the same way).
 
 Writes ``bench/results_runners_gap.json`` (per drone: the largest gap and when it first exceeded
 1 mm; the median and largest over drones; how many drones are beyond the 5 cm bar) and prints a
@@ -33,7 +33,7 @@ import numpy as np
 from bench.sitl import _free_block
 from gcs.report.tlog import vehicle_samples
 from protocols.faults import Crash, Dropout
-from protocols.scenario import load_scenario
+from protocols.scenario.scenario_file import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT_JSON = ROOT / "bench" / "results_runners_gap.json"

@@ -5,14 +5,14 @@ bench`` as ``settling``, which writes ``bench/results_settling.json``; a few min
 
 Drones stand on the ground in a square grid (2.5 m apart, the large-swarm scenarios' layout) and
 run the real estimator (all of them as the rows of one
-:class:`~drone_agent.consensus_batch.BatchConsensus`, each row exactly one
-:class:`~drone_agent.consensus.ConsensusEstimator`: tests/test_batch_core.py) with the one-tick
-message delay of the in-process radio. Measured, in simulated seconds from power-on:
+:class:`~drone_agent.core.consensus.estimator.BatchConsensus`, each row exactly one
+:class:`~drone_agent.core.consensus.scalar.ConsensusEstimator`: tests/test_batch_core.py) with the
+one-tick message delay of the in-process radio. Measured, in simulated seconds from power-on:
 
 - ``settle_s``: every agent's estimate of the swarm centre and covariance is within 2 % of the
   truth (centre error and largest covariance-entry error, each divided by the swarm's size
   ``trace(Sigma)`` resp. its square root), and stays there;
-- ``agree_s``: the agents' own settling rule (drone_agent.flight_phase.Settling: neighbour
+- ``agree_s``: the agents' own settling rule (drone_agent.core.flight_phase.Settling: neighbour
   disagreement below 2 % for 25 ticks) holds for every agent;
 - ``resettle_s``: after one interior agent drops out at ``settle`` + 2 s, how long until every
   remaining estimate is within 2 % of the new truth again.
@@ -20,7 +20,7 @@ message delay of the in-process radio. Measured, in simulated seconds from power
 The estimator's linearisation ``gamma_dot = -f rho c L gamma`` converges at ``f rho c lambda_2(L)``
 per second, while ``tanh`` caps each edge's rate at ``rho`` per channel unit; both are printed
 (``lambda2``, ``lambda_max``; ``step_gain`` with the fixed rho, ``capped_step_gain`` with the
-step cap of drone_agent/consensus.py, the one flown) so a slow case can be told from an
+step cap of drone_agent/core/consensus/scalar.py, the one flown) so a slow case can be told from an
 unstable one.
 """
 
@@ -37,11 +37,15 @@ from typing import Any
 
 import numpy as np
 
-from drone_agent.consensus import ConsensusParams
-from drone_agent.consensus_batch import BatchConsensus
-from drone_agent.moments import channels_batch, moments_from_averages, moments_from_averages_batch
-from protocols.consensus_message import ConsensusMessage
-from protocols.frames import FloatArray
+from drone_agent.core.consensus.estimator import BatchConsensus
+from drone_agent.core.consensus.scalar import ConsensusParams
+from drone_agent.core.moments import (
+    channels_batch,
+    moments_from_averages,
+    moments_from_averages_batch,
+)
+from protocols.model.frames import FloatArray
+from protocols.wire.consensus_message import ConsensusMessage
 
 TOLERANCE = 0.02
 SETTLE_TICKS = 25

@@ -60,7 +60,7 @@ def scenario_path(n: int, folder: Path) -> Path:
     if library.exists():
         return library
     sys.path.insert(0, str(ROOT))
-    from protocols.scenario_gen import GeneratorOptions, generate
+    from protocols.scenario.generator import GeneratorOptions, generate
     from scripts.make_scenarios import LARGE_FAULTS
 
     path = folder / f"large_grid{n}.toml"
@@ -75,7 +75,7 @@ def run_one(scenario: Path, max_s: float | None = None) -> dict[str, Any]:
     :func:`gcs.reference.simulate.simulate` in this process; the figures."""
     from gcs.reference import flight as reference_flight
     from gcs.reference.simulate import simulate
-    from protocols.scenario import load_scenario
+    from protocols.scenario.scenario_file import load_scenario
 
     cpu: dict[str, float] = {}
     original = reference_flight.ReferenceFlight.run
@@ -244,7 +244,7 @@ def profile_worker(scenario: str, duration_s: float) -> dict[str, Any]:
 
     from bench.agent_batch import _PARTS
     from gcs.reference.flight import ReferenceFlight
-    from protocols.scenario import load_scenario
+    from protocols.scenario.scenario_file import load_scenario
 
     sc = dataclasses.replace(load_scenario(Path(scenario)), duration_s=duration_s)
     ticks = round(duration_s / sc.rates.dt_control_s) + 1

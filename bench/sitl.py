@@ -250,10 +250,10 @@ def physics_vs_rotorpy(repeats: int = 3, steps: int = 400) -> dict[str, Any]:
 
 
 def _our_step_us(n: int, repeats: int, steps: int) -> float:
-    from sitl_sim.attitude_control import AttitudeGains
-    from sitl_sim.dynamics import initial_state, step_with_contact
-    from sitl_sim.inner_loop import inner_loop
-    from sitl_sim.vehicle_params import VehicleParams
+    from sitl_sim.physics.attitude_control import AttitudeGains
+    from sitl_sim.physics.dynamics import initial_state, step_with_contact
+    from sitl_sim.physics.inner_loop import inner_loop
+    from sitl_sim.physics.vehicle_params import VehicleParams
 
     params, gains = VehicleParams(), AttitudeGains()
     state0 = initial_state(np.stack([np.arange(n) * 2.0, np.zeros(n), np.full(n, -5.0)], axis=1))

@@ -64,9 +64,9 @@ def run_worker(
 
     A host receives once per tick; the probe (one drone) polls every ``POLL_S`` and records
     latencies and which (sender, round) arrived."""
-    from drone_agent.transport_link import AgentLink, LinkSettings
-    from drone_agent.zenoh_transport import ZenohBus
-    from protocols.consensus_message import ConsensusMessage
+    from drone_agent.process.transport_link import AgentLink, LinkSettings
+    from protocols.bus.zenoh_bus import ZenohBus
+    from protocols.wire.consensus_message import ConsensusMessage
 
     positions = grid_positions(n)
     edges = {i: {j: np.full(18, 0.5) for j in _neighbours(positions, i)} for i in drones}
@@ -133,7 +133,7 @@ def measure(
 
     ``session_args(k)``: the Zenoh flags of worker ``k`` (default: peers meshed from worker 0's
     endpoint; bench/zenoh_router.py gives clients of a router)."""
-    from drone_agent.zenoh_transport import free_loopback_endpoint
+    from protocols.bus.zenoh_bus import free_loopback_endpoint
 
     seed = free_loopback_endpoint()
     start_at = time.monotonic() + 2.0 + 0.3 * n_processes
@@ -215,8 +215,8 @@ def main(argv: list[str] | None = None) -> int:
         print(format_rows("zenoh_latency", result["rows"]))
         print(f"{result['note']}; target {result['target']} met: {result['target_met']}")
         return 0
-    from drone_agent.zenoh_config import role_secrets
-    from drone_agent.zenoh_transport import ZenohSettings
+    from protocols.bus.zenoh_bus import ZenohSettings
+    from protocols.bus.zenoh_config import role_secrets
 
     if args.client:
         settings = ZenohSettings(

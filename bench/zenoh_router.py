@@ -61,7 +61,7 @@ def _router(endpoint: str, secrets: Path | None) -> Iterator[subprocess.Popen[by
 
 
 def _row(name: str, duration_s: float, secrets: Path | None) -> dict[str, Any]:
-    from drone_agent.zenoh_transport import free_loopback_endpoint
+    from protocols.bus.zenoh_bus import free_loopback_endpoint
 
     if name == "peer":
         return {"setup": name, **measure(AGENTS, PROCESSES, duration_s), "router_cpu_pct": None}
@@ -80,8 +80,8 @@ def _row(name: str, duration_s: float, secrets: Path | None) -> dict[str, Any]:
 
 
 def _open_times_ms(endpoint: str, secrets: Path | None) -> float:
-    from drone_agent.zenoh_config import role_secrets
-    from drone_agent.zenoh_transport import open_client
+    from protocols.bus.zenoh_bus import open_client
+    from protocols.bus.zenoh_config import role_secrets
 
     times = []
     for _ in range(SESSION_OPENS):
@@ -94,7 +94,7 @@ def _open_times_ms(endpoint: str, secrets: Path | None) -> float:
 
 def session_open(secrets: Path) -> dict[str, Any]:
     """Median time (ms) to open a client session to a router: plain TCP vs TLS + auth."""
-    from drone_agent.zenoh_transport import free_loopback_endpoint
+    from protocols.bus.zenoh_bus import free_loopback_endpoint
 
     out: dict[str, Any] = {}
     for name, folder in (("tcp_ms", None), ("tls_auth_ms", secrets)):
@@ -109,7 +109,7 @@ def session_open(secrets: Path) -> dict[str, Any]:
 def zenoh_router(duration_s: float = 5.0, repeats: int = 3) -> dict[str, Any]:
     """The benchmark entry of ``bench.run``: the three set-ups taking turns ``repeats`` times
     (a shared machine's load moves all of them alike); per set-up the run with the median p99."""
-    from protocols.swarm_secrets import init_secrets
+    from protocols.secrets.swarm_secrets import init_secrets
 
     folder = Path(tempfile.mkdtemp(prefix="quadswarm-bench-"))
     setups = {"peer": None, "router": None, "router+tls": folder / "secrets"}

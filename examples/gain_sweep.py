@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from gcs.api import Swarm
-from protocols.scenario_gen import GeneratorOptions, generate, parse_faults
+from protocols.scenario.generator import GeneratorOptions, generate, parse_faults
 
 # %% the sweep
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

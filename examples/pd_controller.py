@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from drone_agent.controller import Controller, ControllerInputs, ControllerSetup
-from protocols.descriptor_vector import CENTRE, SHAPE
-from protocols.frames import FloatArray
+from drone_agent.core.controller import Controller, ControllerInputs, ControllerSetup
+from protocols.model.descriptor_vector import CENTRE, SHAPE
+from protocols.model.frames import FloatArray
 
 #: Estimated variances below this (m^2) count as this much: a flat swarm's height.
 MIN_VARIANCE_M2 = 0.05

@@ -2,15 +2,15 @@
 
 A scenario fault is a drill command with a start time: each class below is a command, and its
 ``t_s`` (simulated s from the scenario's start) says when a scenario applies it. A drill sent live
-applies when it arrives: its ``t_s`` stays 0 and does not travel (``protocols.wire_fault``
+applies when it arrives: its ``t_s`` stays 0 and does not travel (``protocols.wire.fault``
 encodes and decodes these same classes). Each class's ``kind`` is its name in a scenario file,
 in the drill logs and, upper-cased, of its wire op.
 
 Drone indices are 0-based (MAVLink system id = index + 1). A link ``(i, j)`` is two drone
 indices; link faults act on it both ways unless a cut is ``one_way`` (i -> j only). A
 ``duration_s`` of None lasts until changed; a timed fault undoes itself ``duration_s`` s after
-it started (``drone_agent.link_faults.LinkFaults.apply`` and ``end``: the one rule by which the
-scenario timeline and the operator's drills act on the radio).
+it started (``drone_agent.process.link_faults.LinkFaults.apply`` and ``end``: the one rule by which
+the scenario timeline and the operator's drills act on the radio).
 """
 
 from __future__ import annotations
@@ -154,10 +154,10 @@ class Crash:
 
 
 LinkFault = Clear | LinkCut | LinkRestore | Loss | Delay | Partition
-"""What acts on the radio (``drone_agent.link_faults.LinkFaults.apply``)."""
+"""What acts on the radio (``drone_agent.process.link_faults.LinkFaults.apply``)."""
 
 FaultCommand = LinkFault | Restart | Dropout
-"""What the agents' fault topic carries (``protocols.wire_fault``)."""
+"""What the agents' fault topic carries (``protocols.wire.fault``)."""
 
 Fault = Dropout | Crash | LinkCut | Loss | Delay | Partition
 """What a scenario schedules (``[[faults]] kind``)."""

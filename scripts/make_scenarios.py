@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from gcs.report.scenario_summary import envelope_problem
-from protocols.scenario_gen import FaultRequest, GeneratorOptions, generate
+from protocols.scenario.generator import FaultRequest, GeneratorOptions, generate
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Issue 10's large-swarm flight: take-off, a 20 m move with a 30 deg turn and a 15 % stretch, an

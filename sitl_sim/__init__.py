@@ -1,17 +1,11 @@
-"""The SITL simulator: vectorised 6-DOF quadcopter dynamics and each vehicle's inner loop.
+"""The SITL simulator: N quadcopters' 6-DOF dynamics, each one's autopilot, and its MAVLink edge.
 
-Pure core (numpy, no I/O, no clock):
-``vehicle_params``, ``dynamics``, ``attitude_control``, ``mixer``, ``inner_loop``, ``failsafe``
-(the flight core); ``setpoint`` (offboard setpoint validation), ``autopilot`` (modes, arming,
-failsafe and crash state machines of N vehicles), ``guidance`` (what each autopilot asks of its
-inner loop per physics step), ``world`` (N vehicles stepped at the physics rate), ``tunables``
-(the parameter table), ``streams`` (message-interval bookkeeping), ``lockstep`` (the barrier),
-``pacing`` (wall-clock pacing and the real-time factor), ``copter`` (the ArduCopter dialect's
-autopilot and guidance).
-
-MAVLink edge (pymavlink as a codec only): ``messages`` (what a vehicle sends), ``commands``
-(COMMAND_LONG/INT and SET_MODE), ``dispatch`` (inbound routing, checks, counters), ``dialect``
-(PX4 or ArduCopter on the wire, chosen once; ``copter_messages``), ``channel``
-(UDP endpoints, batching, signing), ``network`` (the sockets), ``server`` (the event loop under
-either clock). ``swarm sim``: ``sim_config``, ``launch`` and ``sim_cli``.
+- ``physics``: parameters, the per-vehicle rules written once (attitude controller, mixer, rotor
+  wrench, rigid body, ground contact) and their compiled kernel. Pure.
+- ``vehicle``: each vehicle's autopilot (modes, arming, guidance, failsafe, setpoint checks,
+  battery, tunables, the ArduCopter flight core) and the world of N vehicles. Pure.
+- ``mavlink_edge``: what a vehicle sends and how it answers what it receives, per autopilot
+  dialect; streams, map telemetry, channels and sockets (pymavlink as a codec only).
+- here: the event loop under either clock (``server``), the lockstep barrier (``lockstep``,
+  ``shard_sync``), pacing, shards, and ``swarm sim`` (``sim_config``, ``launch``, ``sim_cli``).
 """

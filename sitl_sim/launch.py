@@ -13,13 +13,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocols.frames import FloatArray
-from protocols.geodesy import GeoPoint
-from protocols.mavlink_conventions import Dialect, describe_ports, vehicle_ports
-from sitl_sim.attitude_control import AttitudeGains
-from sitl_sim.autopilot import AutopilotConfig
-from sitl_sim.dialect import tunables_for
-from sitl_sim.failsafe import FailsafeConfig
+from protocols.mavlink.conventions import Dialect, describe_ports, vehicle_ports
+from protocols.model.frames import FloatArray
+from protocols.model.geodesy import GeoPoint
+from sitl_sim.mavlink_edge.dialect import tunables_for
+from sitl_sim.mavlink_edge.streams import (
+    AGENT_RATES_HZ,
+    AGENT_STATE_STREAMS,
+    COPTER_AGENT_RATES_HZ,
+    COPTER_AGENT_STATE_STREAMS,
+    COPTER_GCS_RATES_HZ,
+    COPTER_GCS_STATE_STREAMS,
+    GCS_RATES_HZ,
+    GCS_STATE_STREAMS,
+)
+from sitl_sim.physics.attitude_control import AttitudeGains
+from sitl_sim.physics.vehicle_params import VehicleParams
 from sitl_sim.server import Status
 from sitl_sim.shard import DroneRange, parse_drones
 from sitl_sim.sim_config import (
@@ -39,19 +48,10 @@ from sitl_sim.sim_config import (
     read_signing_key,
     vehicles_from_scenario,
 )
-from sitl_sim.streams import (
-    AGENT_RATES_HZ,
-    AGENT_STATE_STREAMS,
-    COPTER_AGENT_RATES_HZ,
-    COPTER_AGENT_STATE_STREAMS,
-    COPTER_GCS_RATES_HZ,
-    COPTER_GCS_STATE_STREAMS,
-    GCS_RATES_HZ,
-    GCS_STATE_STREAMS,
-)
-from sitl_sim.tunables import FleetAttitudeGains, Tunables
-from sitl_sim.vehicle_params import VehicleParams
-from sitl_sim.world import DEFAULT_EKF_READY_S, World, WorldConfig
+from sitl_sim.vehicle.autopilot import AutopilotConfig
+from sitl_sim.vehicle.failsafe import FailsafeConfig
+from sitl_sim.vehicle.tunables import FleetAttitudeGains, Tunables
+from sitl_sim.vehicle.world import DEFAULT_EKF_READY_S, World, WorldConfig
 
 
 @dataclass(frozen=True)
@@ -216,7 +216,7 @@ def stream_rates(
     """The default stream rates (Hz) of the agent links and of the GCS link in ``dialect``, the
     state messages at ``agent_rate_hz`` and ``gcs_rate_hz`` (``NetConfig``'s rates; for a
     :class:`NetConfig` built by hand for ArduCopter, so that GLOBAL_POSITION_INT, the lockstep's
-    tick message, reaches the agents: sitl_sim/dialect.py)."""
+    tick message, reaches the agents: sitl_sim/mavlink_edge/dialect.py)."""
     if dialect == Dialect.ARDUPILOT:
         return (
             _rates(COPTER_AGENT_RATES_HZ, COPTER_AGENT_STATE_STREAMS, agent_rate_hz),

@@ -14,8 +14,8 @@ import socket
 from collections.abc import Sequence
 from types import TracebackType
 
-from protocols.mavlink_conventions import vehicle_port
-from sitl_sim.channel import Channel, Endpoint, new_codec, report_unreachable
+from protocols.mavlink.conventions import vehicle_port
+from sitl_sim.mavlink_edge.channel import Channel, Endpoint, new_codec, report_unreachable
 from sitl_sim.sim_config import NetConfig, SimConfigError
 
 _GCS_BUFFER_BYTES = 1 << 21

@@ -1,22 +1,22 @@
 """The simulator's event loop: simulated time, telemetry out, MAVLink in, under either clock.
 
 Each control tick ``k``: the world's state at ``k`` goes out as telemetry (each link at its own
-rates, :mod:`sitl_sim.streams`); input is processed while the clock waits; then the world steps
-to ``k + 1`` with the setpoints and commands received so far.
+rates, :mod:`sitl_sim.mavlink_edge.streams`); input is processed while the clock waits; then the
+world steps to ``k + 1`` with the setpoints and commands received so far.
 
 - ``realtime``: tick ``k + 1`` runs at its wall-clock deadline (:class:`sitl_sim.pacing.Pacer`).
 - ``lockstep``: tick ``k + 1`` runs once every agent in the barrier has echoed tick ``k``
-  (:mod:`sitl_sim.lockstep`); tick 0 waits up to the join timeout for the expected agents; while
-  nobody holds the barrier, time runs paced as in realtime. While it waits, the current tick's
-  state is re-sent to the awaited agents every :data:`RESEND_S` seconds (UDP may drop it), and
-  a new agent address gets it at once.
+  (:mod:`sitl_sim.mavlink_edge.lockstep`); tick 0 waits up to the join timeout for the expected
+  agents; while nobody holds the barrier, time runs paced as in realtime. While it waits, the
+  current tick's state is re-sent to the awaited agents every :data:`RESEND_S` seconds (UDP may drop
+  it), and a new agent address gets it at once.
 
 The wall clock is injected (``time.monotonic`` by default) and only decides *when* things happen,
 never *what*: in lockstep the telemetry depends on the seed and the agents' answers alone.
 
-What the vehicles speak on the wire is the world's dialect (:mod:`sitl_sim.dialect`, PX4 or
-ArduCopter), set up once here: the messages it builds its own way replace the PX4 builders, and
-the barrier awaits an agent at a tick when the dialect's tick message (PX4: LOCAL_POSITION_NED,
+What the vehicles speak on the wire is the world's dialect (:mod:`sitl_sim.mavlink_edge.dialect`,
+PX4 or ArduCopter), set up once here: the messages it builds its own way replace the PX4 builders,
+and the barrier awaits an agent at a tick when the dialect's tick message (PX4: LOCAL_POSITION_NED,
 ArduCopter: GLOBAL_POSITION_INT) of that tick went to it.
 """
 
@@ -30,20 +30,15 @@ from typing import Any
 
 import numpy as np
 
-from protocols.collector import flight_collector
-from protocols.frames import FloatArray
-from sitl_sim import map_telemetry, messages
-from sitl_sim.autopilot import Severity, VehicleEvent
-from sitl_sim.commands import CommandHandler
-from sitl_sim.dialect import sim_dialect
-from sitl_sim.dispatch import Dispatcher, LinkSide
-from sitl_sim.lockstep import LockstepBarrier
-from sitl_sim.map_telemetry import MapFix
-from sitl_sim.network import Network
-from sitl_sim.pacing import Pacer, RateMeter
-from sitl_sim.shard_sync import ShardSync
-from sitl_sim.sim_config import ClockConfig
-from sitl_sim.streams import (
+from protocols.model.frames import FloatArray
+from protocols.runtime.collector import flight_collector
+from sitl_sim.mavlink_edge import map_telemetry, messages
+from sitl_sim.mavlink_edge.commands import CommandHandler
+from sitl_sim.mavlink_edge.dialect import sim_dialect
+from sitl_sim.mavlink_edge.dispatch import Dispatcher, LinkSide
+from sitl_sim.mavlink_edge.lockstep import LockstepBarrier
+from sitl_sim.mavlink_edge.map_telemetry import MapFix
+from sitl_sim.mavlink_edge.streams import (
     ACTUATOR_OUTPUT_STATUS,
     ATTITUDE,
     ATTITUDE_TARGET,
@@ -56,9 +51,14 @@ from sitl_sim.streams import (
     SYS_STATUS,
     StreamTable,
 )
-from sitl_sim.tick_answers import AnswerStats, TickAnswers
-from sitl_sim.tunables import Tunables
-from sitl_sim.world import Snapshot, World
+from sitl_sim.network import Network
+from sitl_sim.pacing import Pacer, RateMeter
+from sitl_sim.shard_sync import ShardSync
+from sitl_sim.sim_config import ClockConfig
+from sitl_sim.vehicle.autopilot import Severity, VehicleEvent
+from sitl_sim.vehicle.tick_answers import AnswerStats, TickAnswers
+from sitl_sim.vehicle.tunables import Tunables
+from sitl_sim.vehicle.world import Snapshot, World
 
 RESEND_S = 0.25
 _MAX_WAIT_S = 0.05
@@ -185,7 +185,8 @@ class SimServer:
         return self._map_fix()
 
     def sys_status(self, i: int, prearm_ok: bool | None = None) -> Any:
-        """Vehicle ``i``'s SYS_STATUS now (``prearm_ok``: :func:`sitl_sim.messages.sys_status`)."""
+        """Vehicle ``i``'s SYS_STATUS now (``prearm_ok``:
+        :func:`sitl_sim.mavlink_edge.messages.sys_status`)."""
         world = self.world
         counters = self.dispatch.counters[i]
         return messages.sys_status(

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
-from protocols.mavlink_conventions import DEFAULT_GCS_PORT, LOCKSTEP_DROP_TIMEOUT_S, MAX_VEHICLES
+from protocols.mavlink.conventions import DEFAULT_GCS_PORT, LOCKSTEP_DROP_TIMEOUT_S, MAX_VEHICLES
 
 DESCRIPTION = (
     "Simulate N quadcopters behind real MAVLink 2 UDP endpoints, as PX4 SITL does: vehicle i "
@@ -27,10 +27,10 @@ DESCRIPTION = (
     "MAVLink instead (ArduCopter 4.6 SITL): modes GUIDED_NOGPS/BRAKE/LAND, an EKF and GPS that "
     "are ready --ekf-ready-s after start, GUID_OPTIONS, GUID_TIMEOUT and the GCS heartbeat "
     "failsafe, each vehicle's LOCAL_POSITION_NED about its own start and GLOBAL_POSITION_INT on "
-    "the map (sitl_sim/dialect.py). "
+    "the map (sitl_sim/mavlink_edge/dialect.py). "
     "Units: metres, seconds, Hz."
 )
-DIALECTS = ("px4", "ardupilot")  # protocols.mavlink_conventions.Dialect (not imported: cheap)
+DIALECTS = ("px4", "ardupilot")  # protocols.mavlink.conventions.Dialect (not imported: cheap)
 
 
 def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
@@ -63,7 +63,7 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
         choices=("realtime", "lockstep"),
         default="realtime",
         help="realtime: paced to the wall clock x --speedup; lockstep: time advances "
-        "once every agent echoed the tick (protocols/mavlink_conventions.py)",
+        "once every agent echoed the tick (protocols/mavlink/conventions.py)",
     )
     p.add_argument(
         "--speedup",

@@ -16,9 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from protocols.faults import Crash
-from protocols.frames import FloatArray
-from protocols.geodesy import GeoPoint
-from protocols.mavlink_conventions import (
+from protocols.mavlink.conventions import (
     DEFAULT_GCS_PORT,
     LOCKSTEP_DROP_TIMEOUT_S,
     MAX_VEHICLES,
@@ -26,14 +24,16 @@ from protocols.mavlink_conventions import (
     port_clash,
     vehicle_ports,
 )
-from protocols.mavlink_signing import SigningKeyError, load_signing_key
-from protocols.scenario import HOME_BOUNDS, ScenarioError, load_scenario
-from protocols.scenario_schema import check_number
-from sitl_sim.attitude_control import AttitudeGains
-from sitl_sim.config import attitude_gains, vehicle_params
-from sitl_sim.streams import AGENT_RATES_HZ, GCS_RATES_HZ
-from sitl_sim.vehicle_params import VehicleParams
-from sitl_sim.world import WorldConfig
+from protocols.mavlink.signing import SigningKeyError, load_signing_key
+from protocols.model.frames import FloatArray
+from protocols.model.geodesy import GeoPoint
+from protocols.scenario.scenario_file import HOME_BOUNDS, ScenarioError, load_scenario
+from protocols.scenario.schema import check_number
+from sitl_sim.mavlink_edge.streams import AGENT_RATES_HZ, GCS_RATES_HZ
+from sitl_sim.physics.attitude_control import AttitudeGains
+from sitl_sim.physics.vehicle_params import VehicleParams
+from sitl_sim.vehicle.config import attitude_gains, vehicle_params
+from sitl_sim.vehicle.world import WorldConfig
 
 Address = tuple[str, int]
 GRID_SPACING_M = 2.0
@@ -46,7 +46,7 @@ class SimConfigError(ValueError):
 
 @dataclass(frozen=True)
 class NetConfig:
-    """Where the vehicles listen (``bind_host``, :func:`~protocols.mavlink_conventions.
+    """Where the vehicles listen (``bind_host``, :func:`~protocols.mavlink.conventions.
     vehicle_port` of ``base_port``: None is the default layout), where telemetry for the
     ground station goes (None: nowhere), the signing key and the default stream rates (Hz; the
     defaults here are PX4's: for ArduCopter take sitl_sim.launch.stream_rates)."""
@@ -84,7 +84,7 @@ class ClockConfig:
 class SimConfig:
     """Everything a run needs: vehicles (system ids, parameters, gains, initial positions (N, 3)
     NED m and yaw (N,) rad), the world's rates and faults, network, clock and seed. The autopilot
-    dialect on the wire is ``world.dialect`` (:class:`~protocols.mavlink_conventions.Dialect`,
+    dialect on the wire is ``world.dialect`` (:class:`~protocols.mavlink.conventions.Dialect`,
     with ``world.ekf_ready_s`` for ArduCopter); ``net``'s rates must then be that dialect's
     (sitl_sim.launch.stream_rates)."""
 

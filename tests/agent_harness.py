@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
 
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
-from protocols.descriptors import descriptors
-from protocols.keys import SwarmKeys
-from protocols.wire_status import AgentMode, AgentStatus, decode_statuses
+from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings, free_loopback_endpoint
+from protocols.model.descriptors import descriptors
+from protocols.wire.keys import SwarmKeys
+from protocols.wire.status import AgentMode, AgentStatus, decode_statuses
 
 SWARM = "test"
 

@@ -19,8 +19,8 @@ import numpy as np
 
 from gcs.report.tlog import read_tlog
 from gcs.report.trajectory_file import read_trajectory
-from protocols.descriptors import desired_axes
-from protocols.scenario import Crash, Dropout, load_scenario
+from protocols.model.descriptors import desired_axes
+from protocols.scenario.scenario_file import Crash, Dropout, load_scenario
 
 
 @dataclass(frozen=True)
@@ -60,7 +60,7 @@ def judge(
         d = np.linalg.norm(p[:, None] - p[None], axis=-1)
         np.fill_diagonal(d, np.inf)
         min_sep = min(min_sep, float(d.min()))
-    # the plan as flown (re-timed to the take-off: protocols/plan_timing.py)
+    # the plan as flown (re-timed to the take-off: protocols/model/plan_timing.py)
     plan = read_trajectory(report / "trajectory.json")
     late = plan.start_s - scenario.trajectory().start_s
     wps = scenario.waypoints

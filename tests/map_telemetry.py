@@ -16,7 +16,7 @@ os.environ.setdefault("MAVLINK20", "1")
 import numpy as np
 from pymavlink import mavutil
 
-from protocols.geodesy import GeoPoint, ned_of_global_int
+from protocols.model.geodesy import GeoPoint, ned_of_global_int
 
 
 @dataclass(frozen=True)

@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from gcs.report.tlog import read_tlog
-from protocols.descriptors import align_axes, desired_axes
-from protocols.frames import FloatArray, zyx_from_rot
-from protocols.scenario import Crash, Dropout, load_scenario
+from protocols.model.descriptors import align_axes, desired_axes
+from protocols.model.frames import FloatArray, zyx_from_rot
+from protocols.scenario.scenario_file import Crash, Dropout, load_scenario
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from sitl_client import free_port_block, free_udp_port
 
 from gcs.report.tlog import TlogTrack, read_tlog
 from gcs.report.trajectory_file import read_trajectory
-from protocols.scenario import Crash, load_scenario
+from protocols.scenario.scenario_file import Crash, load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "scenarios" / "paper.toml"
@@ -61,7 +61,7 @@ def paper_flight(report: Path) -> dict[str, np.ndarray]:
     """``t`` (T,), ``positions`` (T, N, 3), ``member`` (T, N), ``desired`` (T, 9) of the paper's
     flight from ``report/flight.tlog``; the commanded descriptors are the plan as flown (the
     report's trajectory.json: the paper's plan starts on the ground, so it waits for the swarm's
-    take-off, protocols/plan_timing.py)."""
+    take-off, protocols/model/plan_timing.py)."""
     return flight_of(read_tlog(report / "flight.tlog"), report)
 
 

@@ -1,10 +1,10 @@
 """The simulator's physics in numpy, vectorised over vehicles: the readable implementation that
-sitl_sim/physics_rules.py replaced (one vehicle's plain floats, compiled), kept here as the
+sitl_sim/physics/rules.py replaced (one vehicle's plain floats, compiled), kept here as the
 oracle the compiled rules are checked against (tests/test_physics_kernel.py, test_dynamics.py,
-test_mixer.py). The same maths (sitl_sim/dynamics.py's and mixer.py's docs), written as array
-operations over the (13, N) state: a second, independent writing of the rules.
+test_mixer.py). The same maths (sitl_sim/physics/dynamics.py's and mixer.py's docs), written as
+array operations over the (13, N) state: a second, independent writing of the rules.
 
-``inner_loop`` runs the numpy attitude controller of sitl_sim/attitude_control.py and
+``inner_loop`` runs the numpy attitude controller of sitl_sim/physics/attitude_control.py and
 :func:`mix`; ``step_with_contact`` integrates with RK4 (or semi-implicit Euler) and applies
 ground contact.
 """
@@ -16,11 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from protocols.frames import G_M_S2, FloatArray
-from sitl_sim.attitude_control import AttitudeGains, attitude_moments, euler_from_quat_batch
-from sitl_sim.dynamics import POS, QUAT, RATES, VEL, wrench_from_rotor_speeds
-from sitl_sim.physics_rules import euler_coeffs as _euler_coeffs
-from sitl_sim.vehicle_params import VehicleParams
+from protocols.model.frames import G_M_S2, FloatArray
+from sitl_sim.physics.attitude_control import AttitudeGains, attitude_moments, euler_from_quat_batch
+from sitl_sim.physics.dynamics import POS, QUAT, RATES, VEL, wrench_from_rotor_speeds
+from sitl_sim.physics.rules import euler_coeffs as _euler_coeffs
+from sitl_sim.physics.vehicle_params import VehicleParams
 
 _METHODS = ("rk4", "euler")
 #: Sign of the yaw share ``y`` in each rotor's force (paper eq. 3: n = M1 - M2 + M3 - M4).
@@ -309,7 +309,7 @@ def inner_loop(
     """Rotor speeds (4, N) rad/s tracking an attitude setpoint with a collective thrust.
 
     Args:
-        state: vehicle states (13, N), layout of ``sitl_sim.dynamics``.
+        state: vehicle states (13, N), layout of ``sitl_sim.physics.dynamics``.
         attitude_des: either quaternions (4, N) ``(w, x, y, z)`` body -> world, or ZYX Euler
             angles (3, N) ``(roll, pitch, yaw)`` in radians.
         thrust_normalised: collective thrust (N,) as a fraction of ``params.max_thrust_n``,

@@ -10,9 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drone_agent.separation import SeparationParams, filter_accelerations
-from drone_agent.thrust_attitude import ThrustLimits, attitude_thrust
-from protocols.frames import G_M_S2, FloatArray, rot_zyx
+from drone_agent.core.separation.filter import SeparationParams, filter_accelerations
+from drone_agent.core.thrust_attitude import ThrustLimits, attitude_thrust
+from protocols.model.frames import G_M_S2, FloatArray, rot_zyx
 
 DT_S = 0.02
 #: The paper's vehicle (Table II), thrust-to-weight 2.

@@ -34,7 +34,7 @@ from typing import Any, Protocol
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from protocols.mavlink_signing import setup_signing
+from protocols.mavlink.signing import setup_signing
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "MAVLINK20": "1", "MPLBACKEND": "Agg", "PYTHONUNBUFFERED": "1"}

@@ -12,7 +12,7 @@ import pytest
 from agent_harness import agent_process, observer, write_scenario
 from sitl_client import MavPeer, free_port_block, free_udp_port, of_system, sim_process
 
-from protocols.wire_status import AgentMode
+from protocols.wire.status import AgentMode
 
 pytestmark = pytest.mark.slow
 SQUARE = [(0.0, 0.0, 0.0), (0.0, 3.0, 0.0), (4.0, 0.0, 0.0), (4.0, 3.0, 0.0)]

@@ -24,11 +24,11 @@ from agent_harness import (
 )
 from sitl_client import free_port_block, sim_process
 
-from drone_agent.transport import Congestion
-from protocols.consensus_message import ConsensusMessage
-from protocols.keys import SwarmKeys
-from protocols.wire import encode_consensus
-from protocols.wire_status import AgentStatus, decode_statuses
+from protocols.bus.interface import Congestion
+from protocols.wire.consensus_message import ConsensusMessage
+from protocols.wire.format import encode_consensus
+from protocols.wire.keys import SwarmKeys
+from protocols.wire.status import AgentStatus, decode_statuses
 
 pytestmark = pytest.mark.slow
 TRUTH = truth_of(GRID)

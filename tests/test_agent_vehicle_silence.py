@@ -1,7 +1,7 @@
 """An agent whose vehicle falls silent leaves the swarm: real ``swarm sim`` and ``swarm agent``
 processes; the simulator is frozen (SIGSTOP: its sockets stay open, nothing comes out) or killed
 (SIGKILL), and each hosted agent drops its liveliness token once no vehicle sample has come for
-``vehicle_timeout_s`` (3 s, drone_agent/hosted_agent.py); with all its agents gone the agent
+``vehicle_timeout_s`` (3 s, drone_agent/process/hosted_agent.py); with all its agents gone the agent
 process ends by itself."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import pytest
 from agent_harness import SwarmObserver, agent_process, observer, write_scenario
 from sitl_client import free_port_block, sim_process
 
-from drone_agent.hosted_agent import RunOptions
+from drone_agent.process.hosted_agent import RunOptions
 
 pytestmark = pytest.mark.timeout(60)
 PAIR = [(0.0, 0.0, 0.0), (3.0, 0.0, 0.0)]

@@ -11,7 +11,7 @@ import pytest
 from agent_harness import SWARM, agent_process, observer, write_scenario
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, sim_process, swarm_command
 
-from protocols.wire_status import AgentMode, Health
+from protocols.wire.status import AgentMode, Health
 
 pytestmark = pytest.mark.timeout(150)
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from gcs.cli.ardupilot_sitl import GCS_STREAM_PARAMS, homes, vehicle_children
-from protocols.geodesy import geodetic_to_ned
-from protocols.scenario import load_scenario
+from protocols.model.geodesy import geodetic_to_ned
+from protocols.scenario.scenario_file import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "scenarios" / "ardupilot4.toml"

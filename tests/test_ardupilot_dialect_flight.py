@@ -18,7 +18,7 @@ import pytest
 from gcs.report.events import read_events
 from gcs.report.holds import window_errors
 from gcs.report.tlog import read_tlog
-from protocols.mavlink_conventions import CopterMode
+from protocols.mavlink.conventions import CopterMode
 
 ROOT = Path(__file__).resolve().parents[1]
 

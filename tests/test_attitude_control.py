@@ -9,16 +9,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from protocols.frames import FloatArray, quat_from_zyx, zyx_from_quat
-from sitl_sim import dynamics as dyn
-from sitl_sim.attitude_control import (
+from protocols.model.frames import FloatArray, quat_from_zyx, zyx_from_quat
+from sitl_sim.physics import dynamics as dyn
+from sitl_sim.physics.attitude_control import (
     AttitudeGains,
     attitude_moments,
     euler_from_quat_batch,
     euler_rates_from_body_rates,
 )
-from sitl_sim.inner_loop import inner_loop
-from sitl_sim.vehicle_params import VehicleParams
+from sitl_sim.physics.inner_loop import inner_loop
+from sitl_sim.physics.vehicle_params import VehicleParams
 
 P = VehicleParams()
 G = AttitudeGains()
@@ -48,7 +48,7 @@ def rise_time_90(trace: FloatArray, target: float) -> float:
     return (int(np.argmax(trace >= 0.9 * target)) + 1) * DT
 
 
-# --- helpers against protocols.frames ---------------------------------------------------
+# --- helpers against protocols.model.frames ---------------------------------------------------
 
 
 @settings(max_examples=100, deadline=None)

@@ -17,13 +17,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from drone_agent.agent_core import AgentConfig, AgentCore, AgentOutput, BatchAgentCore
-from drone_agent.consensus import ConsensusParams
-from drone_agent.cooperative import CooperativeGains
-from drone_agent.thrust_attitude import ThrustLimits
+from drone_agent.core.agent_core import AgentConfig, AgentCore, AgentOutput, BatchAgentCore
+from drone_agent.core.consensus.scalar import ConsensusParams
+from drone_agent.core.cooperative import CooperativeGains
+from drone_agent.core.thrust_attitude import ThrustLimits
 from gcs.reference.network import InProcessNetwork
-from protocols.frames import FloatArray
-from protocols.trajectory import DescriptorTrajectory, Waypoint
+from protocols.model.frames import FloatArray
+from protocols.model.trajectory import DescriptorTrajectory, Waypoint
 
 N = 12
 TICKS = 300
@@ -215,8 +215,8 @@ def test_batched_and_one_by_one_agree(degree_normalised: bool) -> None:
 def test_edge_sums_is_a_read_only_mapping_that_goes_on_the_wire() -> None:
     """The batched core's messages carry their running sums as EdgeSums (rows of one array):
     it behaves as the dict it replaces, and encodes to the same bytes."""
-    from protocols.consensus_message import ConsensusMessage, EdgeSums
-    from protocols.wire import decode_consensus, encode_consensus
+    from protocols.wire.consensus_message import ConsensusMessage, EdgeSums
+    from protocols.wire.format import decode_consensus, encode_consensus
 
     rows = np.arange(3 * 18, dtype=float).reshape(3, 18)
     sums = EdgeSums(np.array([2, 5, 9]), rows)
@@ -239,8 +239,8 @@ def test_edge_sums_is_a_read_only_mapping_that_goes_on_the_wire() -> None:
 def test_a_sender_id_beyond_any_swarm_is_dropped_not_grown_into() -> None:
     """A forged message from sender 65535 would size every edge array by it: it is dropped and
     counted, and the estimator carries on."""
-    from drone_agent.consensus import ConsensusEstimator, ConsensusParams
-    from protocols.consensus_message import ConsensusMessage
+    from drone_agent.core.consensus.scalar import ConsensusEstimator, ConsensusParams
+    from protocols.wire.consensus_message import ConsensusMessage
 
     est = ConsensusEstimator(0, ConsensusParams())
     forged = ConsensusMessage(65535, 0, np.ones(18), {}, frozenset({0}), 1)

@@ -91,11 +91,12 @@ def test_help_explains_units() -> None:
 #: What a process of one subcommand imports only when that subcommand runs: every ``swarm``
 #: process builds every subcommand's parser, and a lockstep flight starts a dozen of them.
 MACHINERY = (
-    "numpy", "numba", "zenoh", "pymavlink", "matplotlib", "rerun", "drone_agent.agent_core",
-    "drone_agent.host", "drone_agent.hosted_agent", "drone_agent.vehicle_link",
-    "drone_agent.zenoh_transport", "gcs.station", "gcs.report", "gcs.reference", "gcs.cli.session",
-    "protocols.scenario", "protocols.scenario_gen", "protocols.scenario_layout", "sitl_sim.server",
-    "sitl_sim.sim_config", "sitl_sim.world",
+    "numpy", "numba", "zenoh", "pymavlink", "matplotlib", "rerun", "drone_agent.core.agent_core",
+    "drone_agent.process.host", "drone_agent.process.hosted_agent",
+    "drone_agent.process.vehicle_link", "protocols.bus.zenoh_bus", "gcs.station", "gcs.report",
+    "gcs.reference", "gcs.cli.session", "protocols.scenario.scenario_file",
+    "protocols.scenario.generator", "protocols.scenario.layout", "sitl_sim.server",
+    "sitl_sim.sim_config", "sitl_sim.vehicle.world",
 )  # fmt: skip
 
 

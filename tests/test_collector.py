@@ -1,11 +1,12 @@
-"""The garbage collector tuned for a flight (protocols/collector.py), shared by the in-process
-runner, the agent processes and the simulator: tuned inside the block, as it was after."""
+"""The garbage collector tuned for a flight (protocols/runtime/collector.py), shared by the
+in-process runner, the agent processes and the simulator: tuned inside the block, as it was
+after."""
 
 from __future__ import annotations
 
 import gc
 
-from protocols.collector import YOUNG_COLLECTION_EVERY, flight_collector
+from protocols.runtime.collector import YOUNG_COLLECTION_EVERY, flight_collector
 
 
 def test_the_collector_is_tuned_inside_a_flight_and_as_it_was_after() -> None:

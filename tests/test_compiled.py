@@ -1,5 +1,5 @@
-"""protocols/compiled.py: the one way the project compiles with numba (lazy, cached, the plain
-function's own code with its compiled callees)."""
+"""protocols/runtime/compiled.py: the one way the project compiles with numba (lazy, cached, the
+plain function's own code with its compiled callees)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from protocols.compiled import Compiled, compiled, jit
+from protocols.runtime.compiled import Compiled, compiled, jit
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -20,10 +20,10 @@ def test_defining_a_compiled_function_does_not_load_numba() -> None:
     process that never calls them without numba being loaded."""
     code = (
         "import sys\n"
-        "from protocols.compiled import jit, loaded\n"
+        "from protocols.runtime.compiled import jit, loaded\n"
         "f = jit(lambda x: x + 1.0)\n"
         "g = jit(error_model='numpy')(lambda x: x)\n"
-        "import drone_agent.jit_math, protocols.descriptors, sitl_sim.physics_kernel\n"
+        "import drone_agent.core.jit_math, protocols.model.descriptors, sitl_sim.physics.kernel\n"
         "print(loaded(), 'numba' in sys.modules)\n"
     )
     done = subprocess.run(

@@ -10,9 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drone_agent.consensus import ConsensusEstimator, ConsensusParams
+from drone_agent.core.consensus.scalar import ConsensusEstimator, ConsensusParams
 from gcs.reference.network import InProcessNetwork
-from protocols.frames import FloatArray
+from protocols.model.frames import FloatArray
 
 Signal = Callable[[int], FloatArray]
 

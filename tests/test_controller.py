@@ -1,4 +1,4 @@
-"""The formation controller's plug-in point (drone_agent/controller.py, controller_load.py):
+"""The formation controller's plug-in point (drone_agent/core/controller.py, controller_load.py):
 ``[agent] controller`` in a scenario, each mistake in naming one a one-line error naming the
 file and the field (at load, before anything flies), and a controller that fails in flight
 (raises, gives NaN or the wrong shape) leaves its drones without a setpoint, counted and said,
@@ -15,14 +15,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drone_agent.agent_core import AgentOutput, BatchAgentCore
-from drone_agent.config import agent_config
-from drone_agent.controller import CooperativeController
-from drone_agent.flight_phase import FlightPhase, Request, VehicleView
+from drone_agent.core.agent_core import AgentOutput, BatchAgentCore
+from drone_agent.core.config import agent_config
+from drone_agent.core.controller import CooperativeController
+from drone_agent.core.flight_phase import FlightPhase, Request, VehicleView
 from gcs.cli.main import main
-from protocols.scenario import ScenarioError, load_scenario
-from protocols.wire_plan import FlightCommand
-from protocols.wire_status import AgentMode
+from protocols.scenario.scenario_file import ScenarioError, load_scenario
+from protocols.wire.plan import FlightCommand
+from protocols.wire.status import AgentMode
 
 SCENARIO = """\
 version = 1
@@ -41,7 +41,7 @@ spread_m = [1.5, 1.2, 0.0]
 
 MODULE = """\
 import numpy as np
-from drone_agent.controller import Controller
+from drone_agent.core.controller import Controller
 
 
 class Hover(Controller):

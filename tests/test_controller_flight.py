@@ -19,8 +19,8 @@ import pytest
 from large_swarm import judge
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
 
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
 from gcs.report.tlog import read_tlog, vehicle_samples
+from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings, free_loopback_endpoint
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
@@ -61,8 +61,8 @@ spread_m = [1.375, 1.25, 0.0]
 
 #: flies, but only holds each drone over where it took off (no formation)
 STAY = """\
-from drone_agent.controller import Controller
-from protocols.descriptor_vector import CENTRE
+from drone_agent.core.controller import Controller
+from protocols.model.descriptor_vector import CENTRE
 
 
 class Stay(Controller):
@@ -138,7 +138,7 @@ def test_the_bars_fail_a_controller_that_keeps_no_formation(tmp_path: Path) -> N
 
 def test_the_papers_controller_named_is_the_default(tmp_path: Path) -> None:
     default = _simulate(tmp_path, _write(tmp_path, "paper4", None), "default")
-    named = _write(tmp_path, "paper4", "drone_agent.controller:CooperativeController")
+    named = _write(tmp_path, "paper4", "drone_agent.core.controller:CooperativeController")
     explicit = _simulate(tmp_path, named, "named")
     assert (default / "flight.tlog").read_bytes() == (explicit / "flight.tlog").read_bytes()
     metrics = [json.loads((r / "metrics.json").read_text()) for r in (default, explicit)]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from drone_agent.cooperative import (
+from drone_agent.core.cooperative import (
     CooperativeGains,
     euler_rate_derivative_batch,
     euler_rate_matrix,
@@ -17,9 +17,9 @@ from drone_agent.cooperative import (
     pinv_block_zyx,
     virtual_acceleration,
 )
-from drone_agent.moments import SwarmMoments, true_moments
-from protocols.descriptors import align_axes, covariance, descriptors
-from protocols.frames import FloatArray, rot_zyx
+from drone_agent.core.moments import SwarmMoments, true_moments
+from protocols.model.descriptors import align_axes, covariance, descriptors
+from protocols.model.frames import FloatArray, rot_zyx
 
 
 def _formation(n: int, seed: int) -> FloatArray:

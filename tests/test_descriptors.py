@@ -13,15 +13,15 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from drone_agent.moments import (
+from drone_agent.core.moments import (
     channels_batch,
     moments_from_averages,
     moments_from_averages_batch,
     true_moments,
 )
-from drone_agent.thrust_attitude import ThrustLimits, attitude_thrust
-from protocols.descriptors import descriptors, heading_defined, swarm_frame
-from protocols.frames import E3, G_M_S2, FloatArray, rot_zyx
+from drone_agent.core.thrust_attitude import ThrustLimits, attitude_thrust
+from protocols.model.descriptors import descriptors, heading_defined, swarm_frame
+from protocols.model.frames import E3, G_M_S2, FloatArray, rot_zyx
 
 _positions = arrays(
     np.float64,
@@ -172,8 +172,8 @@ def test_moments_from_channels_in_the_plans_turning_frame_are_exact(
 def test_compiled_axis_assignment_is_the_plain_one_to_the_bit() -> None:
     """align_axes_batch's assignment loop, compiled, gives the plain Python function's axes
     bit for bit: random, flat, tied (equal variances) and NaN covariances, any desired axes."""
-    from protocols.descriptors import _assign_axes, _compiled
-    from protocols.frames import rot_zyx_batch
+    from protocols.model.descriptors import _assign_axes, _compiled
+    from protocols.model.frames import rot_zyx_batch
 
     rng = np.random.default_rng(7)
     for trial in range(200):
@@ -204,7 +204,7 @@ def test_loading_a_scenario_or_writing_a_report_does_not_load_numba() -> None:
     root = Path(__file__).resolve().parents[1]
     code = (
         "import sys, numpy as np\n"
-        "from protocols.scenario import load_scenario\n"
+        "from protocols.scenario.scenario_file import load_scenario\n"
         "from gcs.report.metrics import descriptors_of\n"
         "load_scenario('scenarios/paper.toml')\n"
         "pos = np.random.default_rng(0).normal(size=(5, 4, 3))\n"

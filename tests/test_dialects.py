@@ -1,7 +1,7 @@
-"""The agents' autopilot dialects (drone_agent/dialects.py), the ArduCopter side of the vehicle
-link (drone_agent/vehicle_link.py: GLOBAL_POSITION_INT about the swarm's origin, pairing by time,
-listening for an ArduCopter SITL's udpclient) and the swarm clock (protocols/swarm_clock.py), with
-a real UDP peer speaking as an ArduCopter would."""
+"""The agents' autopilot dialects (drone_agent/process/dialects.py), the ArduCopter side of the
+vehicle link (drone_agent/process/vehicle_link.py: GLOBAL_POSITION_INT about the swarm's origin,
+pairing by time, listening for an ArduCopter SITL's udpclient) and the swarm clock
+(protocols/mavlink/swarm_clock.py), with a real UDP peer speaking as an ArduCopter would."""
 
 from __future__ import annotations
 
@@ -17,15 +17,9 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as apm
 
-from drone_agent.dialects import (
-    FS_GCS_LAND,
-    ArduCopterDialect,
-    Px4Dialect,
-    make_dialect,
-)
-from drone_agent.vehicle_link import VehicleLink
-from protocols.geodesy import GeoPoint, geodetic_to_ned, ned_to_geodetic
-from protocols.mavlink_conventions import (
+from drone_agent.process.dialects import FS_GCS_LAND, ArduCopterDialect, Px4Dialect, make_dialect
+from drone_agent.process.vehicle_link import VehicleLink
+from protocols.mavlink.conventions import (
     EKF_READY_FLAGS,
     GUID_OPTIONS_THRUST,
     MODE_OFFBOARD,
@@ -33,7 +27,8 @@ from protocols.mavlink_conventions import (
     CopterMode,
     Dialect,
 )
-from protocols.swarm_clock import VehicleClock
+from protocols.mavlink.swarm_clock import VehicleClock
+from protocols.model.geodesy import GeoPoint, geodetic_to_ned, ned_to_geodetic
 
 
 class _Io:

@@ -48,14 +48,14 @@ import pytest
 from agent_harness import GRID, within_bound, write_scenario
 from sitl_client import ENV
 
-from drone_agent.agent_cli import RENDEZVOUS_PORT
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, tcp_listen_free
 from gcs.report.events import read_events
 from gcs.report.tlog import read_tlog
-from protocols.descriptors import descriptors
-from protocols.keys import SwarmKeys
-from protocols.mavlink_conventions import DEFAULT_BASE_PORT, DEFAULT_GCS_PORT
-from protocols.wire_status import AgentMode, AgentStatus, decode_statuses
+from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings, tcp_listen_free
+from protocols.bus.zenoh_config import RENDEZVOUS_PORT
+from protocols.mavlink.conventions import DEFAULT_BASE_PORT, DEFAULT_GCS_PORT
+from protocols.model.descriptors import descriptors
+from protocols.wire.keys import SwarmKeys
+from protocols.wire.status import AgentMode, AgentStatus, decode_statuses
 
 pytestmark = pytest.mark.slow
 
@@ -454,8 +454,8 @@ def test_loss_lowers_the_messages_received_and_the_link_quality(flight: Flight) 
 def test_delay_makes_messages_late_not_lost(flight: Flight) -> None:
     """``swarm drill delay 100``: every message arrives 100 ms late, 6 control ticks after its
     round, beyond the 5-tick heard-set timeout; the link is still heard — by arrival
-    (drone_agent/consensus.py, rule 3) — and each late value pairs with the own value of its
-    round, so every agent keeps integrating its neighbours, every message still arrives (rx per
+    (drone_agent/core/consensus/scalar.py, rule 3) — and each late value pairs with the own value of
+    its round, so every agent keeps integrating its neighbours, every message still arrives (rx per
     round unchanged) and the estimates stay right. ``swarm drill delay 60``: 4 ticks, the same.
     ``swarm drill clear``: no delay."""
     try:

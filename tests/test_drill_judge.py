@@ -28,7 +28,7 @@ from gcs.report.drill_judge import (
     to_json,
 )
 from gcs.report.from_logs import membership
-from protocols.descriptors import descriptors
+from protocols.model.descriptors import descriptors
 
 RATE = 25.0
 #: Six drones on a 3 x 2 grid at 3 m (x north 0, 3, 6; y east 0, 2), NED.

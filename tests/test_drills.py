@@ -34,11 +34,11 @@ from sitl_client import (
     swarm_command,
 )
 
-from drone_agent.transport import Congestion
 from gcs.report.events import read_events
 from gcs.report.tlog import read_tlog
-from protocols.keys import SwarmKeys
-from protocols.wire_status import AgentMode
+from protocols.bus.interface import Congestion
+from protocols.wire.keys import SwarmKeys
+from protocols.wire.status import AgentMode
 
 pytestmark = pytest.mark.slow
 TRUTH = truth_of(GRID)

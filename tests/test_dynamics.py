@@ -1,4 +1,4 @@
-"""Rigid-body dynamics against closed-form answers and invariants (sitl_sim.dynamics)."""
+"""Rigid-body dynamics against closed-form answers and invariants (sitl_sim.physics.dynamics)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from protocols.frames import G_M_S2, FloatArray, quat_from_zyx, rot_zyx, zyx_from_quat
-from sitl_sim import dynamics as dyn
-from sitl_sim.vehicle_params import VehicleParams
+from protocols.model.frames import G_M_S2, FloatArray, quat_from_zyx, rot_zyx, zyx_from_quat
+from sitl_sim.physics import dynamics as dyn
+from sitl_sim.physics.vehicle_params import VehicleParams
 from tests import physics_oracle as oracle
 
 P = VehicleParams()
@@ -196,7 +196,7 @@ def test_vectorised_step_equals_single_vehicle_steps(seed: int, n: int) -> None:
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 8))
 def test_step_is_the_numpy_oracle(seed: int, n: int) -> None:
-    """The compiled rules (sitl_sim/physics_rules.py) against the array code they replaced
+    """The compiled rules (sitl_sim/physics/rules.py) against the array code they replaced
     (tests/physics_oracle.py), near and on the ground (touchdowns, resting, take-off), and the
     derivative and ground contact alone."""
     rng = np.random.default_rng(seed)

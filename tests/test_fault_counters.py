@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drone_agent.link_faults import FaultyTransport, LinkFaults, PairRandom
-from drone_agent.memory_bus import MemoryBus
-from drone_agent.transport_link import AgentLink, LinkSettings
-from protocols.consensus_message import ConsensusMessage
+from drone_agent.process.link_faults import FaultyTransport, LinkFaults, PairRandom
+from drone_agent.process.transport_link import AgentLink, LinkSettings
+from protocols.bus.memory import MemoryBus
+from protocols.wire.consensus_message import ConsensusMessage
 
 pytestmark = pytest.mark.timeout(60)
 SETTINGS = LinkSettings("counters", comm_range_m=10.0)

@@ -1,4 +1,4 @@
-"""Live fault drills in an agent process (drone_agent.fault_drills) over the in-memory bus:
+"""Live fault drills in an agent process (drone_agent.process.fault_drills) over the in-memory bus:
 commands applied to LinkFaults, timed faults undone in simulated time, malformed ones counted;
 a scenario's faults and the same commands sent as drills leave the radio the same, tick by tick."""
 
@@ -9,12 +9,12 @@ import dataclasses
 
 import pytest
 
-from drone_agent.fault_drills import FaultDrills, describe
-from drone_agent.fault_timeline import actions
-from drone_agent.link_faults import LinkFaults
-from drone_agent.memory_bus import MemoryBus
+from drone_agent.process.fault_drills import FaultDrills, describe
+from drone_agent.process.fault_timeline import actions
+from drone_agent.process.link_faults import LinkFaults
 from gcs.cli.main import main
 from gcs.station.commands import CommandError, Request, encode_request, parse_request
+from protocols.bus.memory import MemoryBus
 from protocols.faults import (
     Clear,
     Delay,
@@ -24,8 +24,8 @@ from protocols.faults import (
     Loss,
     Partition,
 )
-from protocols.keys import SwarmKeys
-from protocols.wire_fault import encode_fault
+from protocols.wire.fault import encode_fault
+from protocols.wire.keys import SwarmKeys
 
 SID = "unit"
 DT_S = 0.02
@@ -146,9 +146,9 @@ def test_crash_is_an_operator_request_with_a_drone() -> None:
 def test_a_dropout_command_kills_a_hosted_agent_through_the_host() -> None:
     """The DROPOUT fault command (the ground station's dropout drill of a hosted agent) reaches
     the process's ``kill`` callback with the drone; a process without one ignores it."""
-    from drone_agent.transport import Congestion
+    from protocols.bus.interface import Congestion
     from protocols.faults import Dropout
-    from protocols.wire_fault import encode_fault
+    from protocols.wire.fault import encode_fault
 
     medium = MemoryBus()
     killed: list[int] = []
@@ -163,7 +163,7 @@ def test_a_dropout_command_kills_a_hosted_agent_through_the_host() -> None:
 
 
 class Target:
-    """What a scenario's fault timeline acts on (drone_agent.fault_timeline.FaultTarget)."""
+    """What a scenario's fault timeline acts on (drone_agent.process.fault_timeline.FaultTarget)."""
 
     def __init__(self) -> None:
         self.conditions = LinkFaults()

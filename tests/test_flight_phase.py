@@ -1,5 +1,5 @@
-"""The agent's flight phases (drone_agent/flight_phase.py): the safety invariant over every flight
-command, agent phase and vehicle state, and the landing and take-off sequences."""
+"""The agent's flight phases (drone_agent/core/flight_phase.py): the safety invariant over every
+flight command, agent phase and vehicle state, and the landing and take-off sequences."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from drone_agent.agent_core import AgentConfig, AgentOutput, Setpoint
-from drone_agent.consensus import ConsensusParams
-from drone_agent.flight_phase import (
+from drone_agent.core.agent_core import AgentConfig, AgentOutput, Setpoint
+from drone_agent.core.consensus.scalar import ConsensusParams
+from drone_agent.core.flight_phase import (
     AIRBORNE_ALTITUDE_M,
     FlightPhase,
     Readiness,
@@ -20,11 +20,11 @@ from drone_agent.flight_phase import (
     SwarmSettled,
     VehicleView,
 )
-from drone_agent.thrust_attitude import ThrustLimits
-from protocols.consensus_message import ConsensusMessage
-from protocols.frames import G_M_S2
-from protocols.wire_plan import LAND_HANDOVER_ALTITUDE_M, FlightCommand
-from protocols.wire_status import AgentMode
+from drone_agent.core.thrust_attitude import ThrustLimits
+from protocols.model.frames import G_M_S2
+from protocols.wire.consensus_message import ConsensusMessage
+from protocols.wire.plan import LAND_HANDOVER_ALTITUDE_M, FlightCommand
+from protocols.wire.status import AgentMode
 
 LIMITS = ThrustLimits(mass_kg=0.34, max_thrust_n=2 * 0.34 * G_M_S2)
 MIN_THRUST = LIMITS.thrust_range_n[0] / LIMITS.max_thrust_n
@@ -254,7 +254,7 @@ def test_batch_readiness_is_readiness_row_by_row() -> None:
     rows skipped for a tick, commitments and agents that never settle."""
     from types import SimpleNamespace
 
-    from drone_agent.flight_phase import Arrivals, BatchReadiness
+    from drone_agent.core.flight_phase import Arrivals, BatchReadiness
 
     config = AgentConfig(  # type: ignore[arg-type]
         ConsensusParams(heard_timeout_ticks=3), None, LIMITS, settle_ticks=4, settle_tolerance=0.05
@@ -329,7 +329,7 @@ def test_batch_takeoff_is_takeoff_clock_row_by_row() -> None:
     off at different rounds, landing and flying again, silences longer than the timeout."""
     from types import SimpleNamespace
 
-    from drone_agent.flight_phase import Arrivals, BatchTakeoff, TakeoffClock
+    from drone_agent.core.flight_phase import Arrivals, BatchTakeoff, TakeoffClock
 
     rng = np.random.default_rng(11)
     k, timeout = 10, 3
@@ -373,7 +373,7 @@ def test_agents_that_leave_apart_agree_on_the_first_take_off_round() -> None:
     """A line of 6 whose agents decide to fly at rounds 10..15 (losses, say): within the line's
     diameter in ticks every one advertises round 10; one that has not left the ground yet flies
     the plan on it too, and a landed swarm forgets it."""
-    from drone_agent.flight_phase import TakeoffClock
+    from drone_agent.core.flight_phase import TakeoffClock
 
     n = 6
     clocks = [TakeoffClock(heard_timeout_ticks=5) for _ in range(n)]

@@ -1,5 +1,6 @@
-"""Whether a formation can hold its drones at the minimum separation (protocols/formation_fit.py),
-and where that is checked: operator commands and scenario waypoints."""
+"""Whether a formation can hold its drones at the minimum separation
+(protocols/model/formation_fit.py), and where that is checked: operator commands and scenario
+waypoints."""
 
 from __future__ import annotations
 
@@ -10,12 +11,12 @@ import pytest
 
 from gcs.station.commands import Request, apply_command
 from gcs.station.planner import Envelope, PlanRefused
-from protocols.descriptors import descriptors
-from protocols.formation_fit import closest_pair, fit_problem, formation_positions
-from protocols.scenario import parse_scenario
-from protocols.scenario_schema import ScenarioError
-from protocols.trajectory import DescriptorTrajectory, Waypoint
-from protocols.wire_plan import PlanMessage
+from protocols.model.descriptors import descriptors
+from protocols.model.formation_fit import closest_pair, fit_problem, formation_positions
+from protocols.model.trajectory import DescriptorTrajectory, Waypoint
+from protocols.scenario.scenario_file import parse_scenario
+from protocols.scenario.schema import ScenarioError
+from protocols.wire.plan import PlanMessage
 
 GRID = np.array([[x, y, 0.0] for x in (0.0, 2.0, 4.0) for y in (0.0, 2.0, 4.0)])
 

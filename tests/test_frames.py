@@ -1,5 +1,5 @@
-"""protocols.frames: rotations against closed-form answers, and each conversion's versions (plain
-floats, numpy, compiled) as the one formula they are."""
+"""protocols.model.frames: rotations against closed-form answers, and each conversion's versions
+(plain floats, numpy, compiled) as the one formula they are."""
 
 from __future__ import annotations
 
@@ -10,12 +10,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from protocols.frames import (
+from protocols.model.frames import (
     FloatArray,
     quat_from_zyx,
     rot_zyx,
     rot_zyx_batch,
-    same_code,
     wxyz_from_zyx,
     yaw_from_quat_batch,
     yaw_from_wxyz,
@@ -25,6 +24,7 @@ from protocols.frames import (
     zyx_from_rot_batch,
     zyx_from_wxyz,
 )
+from protocols.runtime.same_code import same_code
 
 zyx_angles = st.tuples(
     st.floats(-math.pi + 1e-3, math.pi - 1e-3), st.floats(-1.5, 1.5), st.floats(-3.1, 3.1)
@@ -99,7 +99,7 @@ def test_numpy_versions_are_the_float_formula() -> None:
 
 
 def test_the_compiled_conversion_is_the_plain_one_to_the_last_bit() -> None:
-    from sitl_sim import setpoint_jit
+    from sitl_sim.vehicle import setpoint_jit
 
     rng = np.random.default_rng(4)
     q = rng.normal(size=(300, 4))

@@ -18,8 +18,8 @@ from gcs.station.commands import (
     parse_request,
 )
 from gcs.station.planner import Envelope, PlanRefused
-from protocols.trajectory import DescriptorTrajectory, Waypoint
-from protocols.wire_plan import FlightCommand, PlanMessage
+from protocols.model.trajectory import DescriptorTrajectory, Waypoint
+from protocols.wire.plan import FlightCommand, PlanMessage
 
 HOVER = np.array([2.0, 1.5, -2.0, 0.0, 0.0, 0.0, 4.0, 2.25, 0.0])
 

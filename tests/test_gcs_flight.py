@@ -21,16 +21,16 @@ import pytest
 from agent_harness import SWARM, agent_process, write_scenario
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, sim_process, swarm_command
 
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
 from gcs.cli.operator import format_reply, send
 from gcs.report.events import read_events
 from gcs.report.tlog import read_tlog
 from gcs.station.commands import Reply, Request, encode_request
 from gcs.station.ground_station import GcsOptions, GroundStation
-from protocols.descriptors import descriptors
-from protocols.keys import SwarmKeys
-from protocols.scenario import load_scenario
-from protocols.wire_plan import PlanMessage, encode_plan
+from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings, free_loopback_endpoint
+from protocols.model.descriptors import descriptors
+from protocols.scenario.scenario_file import load_scenario
+from protocols.wire.keys import SwarmKeys
+from protocols.wire.plan import PlanMessage, encode_plan
 
 pytestmark = pytest.mark.slow
 SQUARE = [(0.0, 0.0, 0.0), (0.0, 3.0, 0.0), (4.0, 0.0, 0.0), (4.0, 3.0, 0.0)]

@@ -10,22 +10,22 @@ import numpy as np
 import pytest
 from agent_harness import write_scenario
 
-from drone_agent.memory_bus import MemoryBus
 from gcs.report.events import EventLog
 from gcs.report.flight_record import LinkFault
 from gcs.report.from_logs import build_record, drill_link_faults, membership
 from gcs.report.tlog import TlogWriter, read_tlog
 from gcs.station.drills import GcsDrills
+from protocols.bus.memory import MemoryBus
 from protocols.faults import Clear, LinkCut, LinkRestore, Partition
-from protocols.frames import G_M_S2
-from protocols.keys import SwarmKeys
-from protocols.scenario import load_scenario
-from protocols.trajectory import DescriptorTrajectory
-from protocols.wire_fault import encode_fault
-from sitl_sim.dynamics import wrench_from_rotor_speeds
-from sitl_sim.messages import actuator_output_status
-from sitl_sim.mixer import mix, rotor_forces_from_wrench, wrench_from_rotor_forces
-from sitl_sim.vehicle_params import VehicleParams
+from protocols.model.frames import G_M_S2
+from protocols.model.trajectory import DescriptorTrajectory
+from protocols.scenario.scenario_file import load_scenario
+from protocols.wire.fault import encode_fault
+from protocols.wire.keys import SwarmKeys
+from sitl_sim.mavlink_edge.messages import actuator_output_status
+from sitl_sim.physics.dynamics import wrench_from_rotor_speeds
+from sitl_sim.physics.mixer import mix, rotor_forces_from_wrench, wrench_from_rotor_forces
+from sitl_sim.physics.vehicle_params import VehicleParams
 
 PARAMS = [VehicleParams(), VehicleParams(mass_kg=0.8, arm_m=0.2, drag_coeff=2e-8)]
 SWARM = "swarm"

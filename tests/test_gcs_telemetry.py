@@ -10,9 +10,9 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import common
 
-from drone_agent.zenoh_transport import ZenohSettings
 from gcs.station.ground_station import GcsOptions, GroundStation
-from protocols.scenario import load_scenario
+from protocols.bus.zenoh_bus import ZenohSettings
+from protocols.scenario.scenario_file import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -11,7 +11,7 @@ import pymap3d
 import pytest
 from pymap3d.vincenty import vdist
 
-from protocols.geodesy import WGS84_A_M, GeoPoint, ecef_to_geodetic, ned_to_geodetic
+from protocols.model.geodesy import WGS84_A_M, GeoPoint, ecef_to_geodetic, ned_to_geodetic
 
 HOMES = [
     GeoPoint(),  # PX4 SITL's, Zürich

@@ -1,10 +1,10 @@
 """A process hosting several agents runs the agents of one tick in one batched core call, even
 though their vehicles' samples of the tick come in one datagram after the other (the simulator
 sends them back to back; the first wakes the process before the last is in): AgentHost waits a
-moment for the rest of the tick (drone_agent/host.py, ``_gather``). A vehicle that falls silent
-is not waited for.
+moment for the rest of the tick (drone_agent/process/host.py, ``_gather``). A vehicle that falls
+silent is not waited for.
 
-Real UDP vehicle links (drone_agent/vehicle_link.py) to a stand-in simulator that sends each
+Real UDP vehicle links (drone_agent/process/vehicle_link.py) to a stand-in simulator that sends each
 tick's ATTITUDE + LOCAL_POSITION_NED to its vehicles 0.4 ms apart and waits for
 the agents' answers (as in lockstep); the agents' messages go over
 the in-memory bus."""
@@ -22,16 +22,17 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import common
 
-from drone_agent.config import agent_config
-from drone_agent.host import AgentHost
-from drone_agent.hosted_agent import RunOptions
-from drone_agent.link_faults import FaultyTransport, LinkFaults, PairRandom
-from drone_agent.memory_bus import MemoryBus
-from drone_agent.transport import AgentTransport, Bus, Position
-from drone_agent.transport_link import AgentLink, ConsensusHub, LinkSettings
-from drone_agent.vehicle_link import VehicleLink
-from protocols.mavlink_conventions import AUTOPILOT_COMPID, sysid_of
-from protocols.scenario import load_scenario
+from drone_agent.core.config import agent_config
+from drone_agent.process.host import AgentHost
+from drone_agent.process.hosted_agent import RunOptions
+from drone_agent.process.link_faults import FaultyTransport, LinkFaults, PairRandom
+from drone_agent.process.transport import AgentTransport, Position
+from drone_agent.process.transport_link import AgentLink, ConsensusHub, LinkSettings
+from drone_agent.process.vehicle_link import VehicleLink
+from protocols.bus.interface import Bus
+from protocols.bus.memory import MemoryBus
+from protocols.mavlink.conventions import AUTOPILOT_COMPID, sysid_of
+from protocols.scenario.scenario_file import load_scenario
 
 pytestmark = pytest.mark.timeout(60)
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,8 +9,8 @@ import zenoh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drone_agent.memory_bus import key_matches
-from protocols.keys import (
+from protocols.bus.memory import key_matches
+from protocols.wire.keys import (
     SwarmKeys,
     cell_of,
     cell_size_for,

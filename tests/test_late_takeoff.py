@@ -1,5 +1,5 @@
 """A plan that climbs before the swarm can leave the ground is not chased: it waits for the swarm
-(protocols/plan_timing.py), in ``swarm simulate``, in ``swarm up`` (lockstep, the default) and
+(protocols/model/plan_timing.py), in ``swarm simulate``, in ``swarm up`` (lockstep, the default) and
 for an operator's ``takeoff`` typed during the warm-up.
 
 The scenario is a user's own: a k x k grid (2.5 m spacing, radio 6 m, the default warm-up)
@@ -26,7 +26,7 @@ from test_operator_session import Session
 from gcs.report.events import read_events
 from gcs.report.tlog import read_tlog
 from gcs.report.trajectory_file import read_trajectory
-from protocols.descriptors import descriptors
+from protocols.model.descriptors import descriptors
 
 pytestmark = pytest.mark.slow
 CLIMB_TOP_M = 5.0

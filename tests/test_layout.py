@@ -106,7 +106,9 @@ def test_the_cycle_finder_finds_cycles() -> None:
 def test_no_import_cycles() -> None:
     """No module imports itself through others."""
     graph = _import_graph()
-    assert {"protocols.frames", "sitl_sim.setpoint"} <= graph["sitl_sim.setpoint_jit"]  # it reads
+    assert {"protocols.model.frames", "sitl_sim.vehicle.setpoint"} <= graph[
+        "sitl_sim.vehicle.setpoint_jit"
+    ]  # it reads
     cycles = [sorted(cycle) for cycle in _cycles(graph)]
     assert not cycles, f"import cycles: {cycles}"
 
@@ -146,3 +148,99 @@ def test_gcs_modules_live_in_their_concern() -> None:
         "report",
         "view",
     }
+
+
+#: A concern (a sub-package, or a package's own modules: "sitl_sim", "protocols.faults") -> the
+#: concerns it may import besides itself. protocols' concerns build up from the model; in each
+#: role the pure core imports no run-time side (agent: core <- process; simulator: physics <-
+#: vehicle <- mavlink_edge <- the event loop and ``swarm sim``).
+CONCERNS: dict[str, set[str]] = {
+    "protocols.runtime": set(),
+    "protocols.faults": set(),
+    "protocols.model": {"protocols.runtime"},
+    "protocols.wire": {"protocols.model", "protocols.faults", "protocols.runtime"},
+    "protocols.mavlink": {"protocols.model", "protocols.runtime"},
+    "protocols.scenario": {"protocols.model", "protocols.faults", "protocols.runtime"},
+    "protocols.secrets": {"protocols.wire"},
+    "protocols.bus": {"protocols.secrets", "protocols.wire"},
+    "drone_agent.core": {
+        "protocols.runtime",
+        "protocols.model",
+        "protocols.wire",
+        "protocols.mavlink",
+        "protocols.scenario",
+        "protocols.faults",
+    },
+    "drone_agent.process": {"drone_agent.core", "protocols.*"},
+    "sitl_sim.physics": {"protocols.model", "protocols.runtime"},
+    "sitl_sim.vehicle": {
+        "sitl_sim.physics",
+        "protocols.model",
+        "protocols.runtime",
+        "protocols.mavlink",
+        "protocols.scenario",
+    },
+    "sitl_sim.mavlink_edge": {
+        "sitl_sim.vehicle",
+        "sitl_sim.physics",
+        "protocols.model",
+        "protocols.runtime",
+        "protocols.mavlink",
+    },
+    "sitl_sim": {"sitl_sim.*", "protocols.*"},
+}
+#: The most modules a folder of protocols, the agent or the simulator holds side by side (a bigger
+#: one is split by concern).
+MAX_MODULES = 15
+
+
+def _concern(module: str) -> str:
+    """The concern a module belongs to: ``drone_agent.core.consensus.kernels`` ->
+    ``drone_agent.core``; a package's own module ``protocols.faults`` -> itself,
+    ``sitl_sim.server`` -> ``sitl_sim``."""
+    parts = module.split(".")
+    if parts[0] == "protocols" and len(parts) == 2:
+        return module
+    return ".".join(parts[:2]) if len(parts) > 2 else parts[0]
+
+
+def _allowed(concern: str, other: str) -> bool:
+    rules = CONCERNS[concern]
+    return other == concern or other in rules or f"{other.split('.')[0]}.*" in rules
+
+
+def test_every_concern_has_a_rule() -> None:
+    concerns = {_concern(m) for m in _import_graph() if m.split(".")[0] in ALLOWED}
+    assert concerns - {"protocols", "drone_agent"} == set(CONCERNS)
+
+
+def test_concerns_import_only_what_their_rule_allows() -> None:
+    """Inside protocols, the agent and the simulator, each concern imports only those below it."""
+    graph = _import_graph()
+    wrong = sorted(
+        f"{m} -> {d}"
+        for m, deps in graph.items()
+        if m.split(".")[0] in ALLOWED and m.count(".")
+        for d in deps
+        if not _allowed(_concern(m), _concern(d))
+    )
+    assert not wrong, wrong
+
+
+def test_no_folder_is_a_drawer() -> None:
+    """No folder holds more than MAX_MODULES modules side by side; the agent's modules all live
+    in a concern, as protocols' do (besides the one fault vocabulary)."""
+    crowded = {
+        str(folder.relative_to(ROOT)): n
+        for package in sorted(ALLOWED)
+        for folder in [ROOT / package, *(ROOT / package).rglob("*/")]
+        if folder.is_dir()
+        and "__pycache__" not in folder.parts
+        and (n := len([p for p in folder.glob("*.py") if p.name != "__init__.py"])) > MAX_MODULES
+    }
+    assert not crowded
+    flat = {
+        package: sorted(p.stem for p in (ROOT / package).glob("*.py") if p.name != "__init__.py")
+        for package in ("protocols", "drone_agent")
+    }
+    assert flat == {"protocols": ["faults"], "drone_agent": []}

@@ -11,12 +11,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from drone_agent.consensus import ConsensusEstimator, ConsensusParams
-from drone_agent.link_faults import FaultyTransport, LinkFaults, PairRandom, delay_ticks
-from drone_agent.memory_bus import MemoryBus
-from drone_agent.transport import AgentTransport
-from drone_agent.transport_link import AgentLink, LinkSettings
-from protocols.consensus_message import ConsensusMessage
+from drone_agent.core.consensus.scalar import ConsensusEstimator, ConsensusParams
+from drone_agent.process.link_faults import FaultyTransport, LinkFaults, PairRandom, delay_ticks
+from drone_agent.process.transport import AgentTransport
+from drone_agent.process.transport_link import AgentLink, LinkSettings
+from protocols.bus.memory import MemoryBus
+from protocols.wire.consensus_message import ConsensusMessage
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -315,7 +315,7 @@ def test_the_fault_loop_delivers_drops_and_withholds_as_the_reference() -> None:
 def test_the_wrappers_counters_are_the_inner_ones_with_its_drops_and_deliveries() -> None:
     """Every field of the inner counters is carried (a field added to SwarmMessageCounters later
     must not come out as 0)."""
-    from drone_agent.transport import SwarmMessageCounters
+    from drone_agent.process.transport import SwarmMessageCounters
 
     inner = SwarmMessageCounters(*range(1, len(dataclasses.fields(SwarmMessageCounters)) + 1))
     radio = _Radio()

@@ -5,7 +5,7 @@ schedules the processes: one run gives each drone's agent a process of its own
 (``--agents-per-process 1 --duration-s 20``), the other hosts the nine in one process, as by
 default: ``swarm demo`` (``swarm up scenarios/paper.toml``), the session's demo flight that
 tests/test_demo_paper.py judges, whose first 20 s are compared. Each agent waits for every live
-drone's round-done marker of the previous round before its tick (drone_agent/round_gate.py),
+drone's round-done marker of the previous round before its tick (drone_agent/process/round_gate.py),
 link faults act by message round and draw from per-link seeded generators, and an agent's
 commands go before its tick's echo. About a minute beside the demo's flight."""
 
@@ -18,8 +18,8 @@ from pathlib import Path
 import pytest
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
 
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
 from gcs.report.tlog import vehicle_samples
+from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings, free_loopback_endpoint
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 DURATION_S = 20.0  # the paper's link cuts start at 17 s

@@ -11,9 +11,9 @@ membership view of the lockstep round gate (the agents that finished round k - 1
 drops out at k is a member at k), and its vehicles take the setpoints as the simulator does (the
 agent's quaternion in SET_ATTITUDE_TARGET's float32). Without any one of these this flight is
 0.1 to 3 mm apart, and the 100-drone grid's heading flipped by 90 degrees at take-off. The vehicles
-are one model in both (sitl_sim/world.py: ``swarm simulate`` flies the simulator's World), so the
-dropped drone's own failsafe landing (altitude hold, land, disarm on touchdown) is the same to the
-last bit too. One agent process (across processes, a consensus message lost by the transport
+are one model in both (sitl_sim/vehicle/world.py: ``swarm simulate`` flies the simulator's World),
+so the dropped drone's own failsafe landing (altitude hold, land, disarm on touchdown) is the same
+to the last bit too. One agent process (across processes, a consensus message lost by the transport
 under load would show here too). About a minute."""
 
 from __future__ import annotations
@@ -26,10 +26,10 @@ from pathlib import Path
 import pytest
 from sitl_client import ENV, free_port_block, free_udp_port, swarm_command
 
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
 from gcs.report.tlog import vehicle_samples
+from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings, free_loopback_endpoint
 from protocols.faults import Dropout
-from protocols.scenario import load_scenario
+from protocols.scenario.scenario_file import load_scenario
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 DURATION_S = 20.0  # take-off at 3.5 s, 20 % loss from 9.5 s, the drop-out at 11.5 s

@@ -1,5 +1,5 @@
 """A lockstep agent's Zenoh session keeps its consensus messages under load: a deeper send
-queue and a longer wait before DROP gives up (drone_agent/agent_cli.py, ZenohSettings)."""
+queue and a longer wait before DROP gives up (drone_agent/process/agent_cli.py, ZenohSettings)."""
 
 from __future__ import annotations
 
@@ -9,13 +9,13 @@ import time
 
 import pytest
 
-from drone_agent.agent_cli import (
+from drone_agent.process.agent_cli import (
     LOCKSTEP_DROP_WAIT_US,
     LOCKSTEP_TX_QUEUE_BATCHES,
     zenoh_settings,
 )
-from drone_agent.transport import Congestion
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
+from protocols.bus.interface import Congestion
+from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings, free_loopback_endpoint
 
 
 def _args(lockstep: bool) -> argparse.Namespace:
@@ -49,7 +49,7 @@ def test_a_queue_depth_out_of_range_is_refused(batches: int) -> None:
 
 
 def test_a_sessions_queued_and_express_samples_arrive_in_send_order() -> None:
-    """The round gate's premise (drone_agent/round_gate.py): a lockstep session's consensus
+    """The round gate's premise (drone_agent/process/round_gate.py): a lockstep session's consensus
     messages (QUEUED) reach another session before the round-done marker (express) put after
     them. Lockstep sessions as the agents open them (a deep queue, a long wait before a drop):
     with Zenoh's defaults (2 batches, 1 ms before a drop) this test failed once at load 18."""

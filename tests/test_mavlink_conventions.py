@@ -1,4 +1,4 @@
-"""protocols.mavlink_conventions: the MAVLink values the project names are MAVLink's own."""
+"""protocols.mavlink.conventions: the MAVLink values the project names are MAVLink's own."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from enum import IntEnum
 import pytest
 from pymavlink.dialects.v20 import common
 
-from protocols.mavlink_conventions import LOST_STATES, MavResult, MavSeverity, MavState
+from protocols.mavlink.conventions import LOST_STATES, MavResult, MavSeverity, MavState
 
 
 @pytest.mark.parametrize(

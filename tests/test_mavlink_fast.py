@@ -1,4 +1,4 @@
-"""protocols/mavlink_fast.py against pymavlink: the same bytes out, the same messages in, for every
+"""protocols/mavlink/fast.py against pymavlink: the same bytes out, the same messages in, for every
 message of the common dialect with random fields; anything pymavlink would have to judge (junk,
 truncation, bad checksums, signed or MAVLink 1 frames, unknown ids) is left to it."""
 
@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from protocols.mavlink_fast import fast_receive_ok, pack, parse
-from protocols.mavlink_signing import setup_signing
+from protocols.mavlink.fast import fast_receive_ok, pack, parse
+from protocols.mavlink.signing import setup_signing
 
 _INT_RANGES = {
     "uint8_t": (0, 255), "int8_t": (-128, 127), "uint16_t": (0, 65535),

@@ -18,7 +18,7 @@ from gcs.report.metrics import (
     tracking_from_positions,
     true_descriptors,
 )
-from protocols.frames import FloatArray, rot_zyx
+from protocols.model.frames import FloatArray, rot_zyx
 
 DT = 0.02
 RECT = np.array([[3.0, 1.5, 0.0], [3.0, -1.5, 0.0], [-3.0, 1.5, 0.0], [-3.0, -1.5, 0.0]])

@@ -1,4 +1,4 @@
-"""Mixer: inverse of paper eq. 3-4 with rotor-speed saturation (sitl_sim.mixer)."""
+"""Mixer: inverse of paper eq. 3-4 with rotor-speed saturation (sitl_sim.physics.mixer)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sitl_sim.dynamics import wrench_from_rotor_speeds
-from sitl_sim.mixer import mix, rotor_forces_from_wrench
-from sitl_sim.vehicle_params import VehicleParams
+from sitl_sim.physics.dynamics import wrench_from_rotor_speeds
+from sitl_sim.physics.mixer import mix, rotor_forces_from_wrench
+from sitl_sim.physics.vehicle_params import VehicleParams
 from tests import physics_oracle
 
 P = VehicleParams()

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drone_agent.neighbours import NeighbourTable, neighbour_arrays, neighbours_from_inbox
-from drone_agent.separation import SeparationParams, filter_accelerations
-from protocols.consensus_message import ConsensusMessage
-from protocols.wire import decode_consensus, encode_consensus
+from drone_agent.core.neighbours import NeighbourTable, neighbour_arrays, neighbours_from_inbox
+from drone_agent.core.separation.filter import SeparationParams, filter_accelerations
+from protocols.wire.consensus_message import ConsensusMessage
+from protocols.wire.format import decode_consensus, encode_consensus
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -29,9 +29,9 @@ from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
 
 from gcs.report.events import read_events
 from gcs.report.tlog import TlogTrack, VehicleTrack, read_tlog
-from protocols.descriptors import descriptors
-from protocols.scenario import load_scenario
-from protocols.wire_status import AgentMode
+from protocols.model.descriptors import descriptors
+from protocols.scenario.scenario_file import load_scenario
+from protocols.wire.status import AgentMode
 
 pytestmark = pytest.mark.slow
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"

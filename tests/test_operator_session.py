@@ -38,7 +38,7 @@ from test_operator_flight import (
 
 from gcs.report.events import read_events
 from gcs.report.tlog import TlogTrack, read_tlog
-from protocols.descriptors import descriptors
+from protocols.model.descriptors import descriptors
 
 pytestmark = pytest.mark.slow
 N = 4

@@ -1,4 +1,4 @@
-"""The fused physics sub-step (sitl_sim.physics_kernel) against the reference functions.
+"""The fused physics sub-step (sitl_sim.physics.kernel) against the reference functions.
 
 The reference is the numpy oracle (tests/physics_oracle.py): ``inner_loop`` (attitude controller
 + mixer) followed by the rotor mask and ``step_with_contact`` (RK4 + ground contact), the array
@@ -18,16 +18,16 @@ import numpy.typing as npt
 import pytest
 
 from gcs.reference.flight import ReferenceFlight
-from protocols.frames import FloatArray, wxyz_from_zyx
-from protocols.scenario import parse_scenario
-from sitl_sim.attitude_control import AttitudeGains
-from sitl_sim.autopilot import AutopilotConfig, Mode, VehicleEvent
-from sitl_sim.dynamics import initial_state
-from sitl_sim.physics_kernel import PhysicsKernel
-from sitl_sim.setpoint import AttitudeSetpoint, validate_attitude_target
-from sitl_sim.tunables import FleetAttitudeGains
-from sitl_sim.vehicle_params import VehicleParams
-from sitl_sim.world import World, WorldConfig
+from protocols.model.frames import FloatArray, wxyz_from_zyx
+from protocols.scenario.scenario_file import parse_scenario
+from sitl_sim.physics.attitude_control import AttitudeGains
+from sitl_sim.physics.dynamics import initial_state
+from sitl_sim.physics.kernel import PhysicsKernel
+from sitl_sim.physics.vehicle_params import VehicleParams
+from sitl_sim.vehicle.autopilot import AutopilotConfig, Mode, VehicleEvent
+from sitl_sim.vehicle.setpoint import AttitudeSetpoint, validate_attitude_target
+from sitl_sim.vehicle.tunables import FleetAttitudeGains
+from sitl_sim.vehicle.world import World, WorldConfig
 from tests.physics_oracle import inner_loop, step_with_contact
 
 TOL = 1e-9

@@ -1,4 +1,4 @@
-"""The plan's clock (protocols/plan_timing.py): a plan that starts on the ground is held until
+"""The plan's clock (protocols/model/plan_timing.py): a plan that starts on the ground is held until
 the swarm takes off and flown from there; one that starts airborne, or rests past the take-off,
 is flown as written."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from protocols.plan_timing import (
+from protocols.model.plan_timing import (
     departure_s,
     flown_plan,
     flown_time_s,
@@ -15,7 +15,7 @@ from protocols.plan_timing import (
     shift_s,
     tick_time_s,
 )
-from protocols.trajectory import DescriptorTrajectory, Waypoint
+from protocols.model.trajectory import DescriptorTrajectory, Waypoint
 
 
 def _plan(*points: tuple[float, float]) -> DescriptorTrajectory:

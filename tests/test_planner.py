@@ -17,7 +17,7 @@ from gcs.station.planner import (
     plan_move,
     plan_to,
 )
-from protocols.trajectory import DescriptorTrajectory, Waypoint
+from protocols.model.trajectory import DescriptorTrajectory, Waypoint
 
 ENV = Envelope(fence_north_m=(-50.0, 50.0), fence_east_m=(-50.0, 50.0))
 HOVER = np.array([0.0, 0.0, -5.0, 0.0, 0.0, 0.0, 9.0, 4.0, 0.0])

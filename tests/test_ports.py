@@ -14,7 +14,7 @@ from sitl_client import ENV, ROOT, swarm_command
 from test_drill_flight import _default_ports_lock
 
 from gcs.report.tlog import read_tlog
-from protocols.mavlink_conventions import (
+from protocols.mavlink.conventions import (
     DEFAULT_GCS_PORT,
     MAX_VEHICLES,
     describe_ports,

@@ -11,10 +11,10 @@ from typing import Any
 
 import numpy as np
 
-from drone_agent.inboxes import Inboxes
+from drone_agent.core.inboxes import Inboxes
 from gcs.reference.flight import ReferenceFlight
 from gcs.report.metrics import true_descriptors
-from protocols.scenario import parse_scenario
+from protocols.scenario.scenario_file import parse_scenario
 
 HOVER = {"centre_ned_m": [1.5, 1.5, -3.0], "spread_m": [2.0, 1.2, 0.0]}
 FAULT_T_S, DT_S = 10.0, 0.02
@@ -52,8 +52,9 @@ def _events(flight: ReferenceFlight, kind: str) -> list[Any]:
 
 
 def test_dropout_failsafe_lands_and_survivors_reconverge() -> None:
-    """The dropped drone's vehicle is the simulator's (sitl_sim/autopilot.py): no setpoint for
-    0.5 s, it holds its altitude for 1 s, then lands at 0.7 m/s and disarms on touchdown, intact."""
+    """The dropped drone's vehicle is the simulator's (sitl_sim/vehicle/autopilot.py): no setpoint
+    for 0.5 s, it holds its altitude for 1 s, then lands at 0.7 m/s and disarms on touchdown,
+    intact."""
     flight = ReferenceFlight(_scenario([{"t_s": 12.0, "kind": "dropout", "drone": 3}]))
     rec = flight.run()
     failsafes = _events(flight, "failsafe")
@@ -153,7 +154,7 @@ def test_a_partition_splits_the_groups_estimates_until_it_heals() -> None:
     drift apart; after the heal they agree again and the flight has no lasting error. The
     partition comes as the move does, as flown: the plan climbs from 0 s, so it is held on the
     ground until the swarm takes off (at the end of the 3 s warm-up) and flown that much late,
-    while the fault keeps its scenario time (protocols/plan_timing.py)."""
+    while the fault keeps its scenario time (protocols/model/plan_timing.py)."""
     move_s = 16.0
     moved = {**HOVER, "centre_ned_m": [2.5, 1.5, -3.0]}
     then = [{"t_s": move_s, **HOVER}, {"t_s": move_s + 4.0, **moved}]

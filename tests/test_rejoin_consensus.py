@@ -1,4 +1,4 @@
-"""Rejoin: the incarnation rules of the consensus estimator (drone_agent/consensus.py).
+"""Rejoin: the incarnation rules of the consensus estimator (drone_agent/core/consensus/scalar.py).
 
 A restarted agent (same drone id, a new estimator) must be taken as a new member with fresh edge
 state on both ends of each edge, even when its neighbours' liveliness view never dropped it: its
@@ -17,11 +17,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from drone_agent.consensus import ConsensusEstimator, ConsensusParams
-from drone_agent.consensus_batch import BatchConsensus
-from protocols.consensus_message import ConsensusMessage
-from protocols.frames import FloatArray
-from protocols.wire import decode_consensus, encode_consensus
+from drone_agent.core.consensus.estimator import BatchConsensus
+from drone_agent.core.consensus.scalar import ConsensusEstimator, ConsensusParams
+from protocols.model.frames import FloatArray
+from protocols.wire.consensus_message import ConsensusMessage
+from protocols.wire.format import decode_consensus, encode_consensus
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -46,8 +46,8 @@ from sitl_client import ENV, ROOT, free_port_block, free_udp_port, sim_process, 
 from gcs.report.events import read_events
 from gcs.report.from_logs import absences
 from gcs.report.tlog import TlogTrack, read_tlog
-from protocols.descriptors import descriptors
-from protocols.wire_status import AgentMode
+from protocols.model.descriptors import descriptors
+from protocols.wire.status import AgentMode
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(1800)]
 

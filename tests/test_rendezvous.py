@@ -7,7 +7,7 @@ from __future__ import annotations
 import socket
 import time
 
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, tcp_listen_free
+from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings, tcp_listen_free
 
 
 def _time_wait_on_a_port() -> int:

@@ -11,12 +11,12 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from drone_agent.link_faults import PairRandom
-from drone_agent.memory_bus import MemoryBus
-from drone_agent.round_gate import RoundBook, RoundGate
-from drone_agent.transport_link import AgentLink, LinkSettings
-from protocols.wire import Kind, Reason, WireError
-from protocols.wire_round import RoundDone, decode_round_done, encode_round_done
+from drone_agent.process.link_faults import PairRandom
+from drone_agent.process.round_gate import RoundBook, RoundGate
+from drone_agent.process.transport_link import AgentLink, LinkSettings
+from protocols.bus.memory import MemoryBus
+from protocols.wire.format import Kind, Reason, WireError
+from protocols.wire.round_done import RoundDone, decode_round_done, encode_round_done
 
 SID = "demo"
 ROUND_HEX = "5101050464656d6fdc0500000300000003000700"

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from protocols.scenario import (
+from protocols.scenario.scenario_file import (
     Crash,
     Delay,
     Dropout,

@@ -16,7 +16,7 @@ import pytest
 from paper_flight import min_airborne_separation
 
 from gcs.report.tlog import read_tlog
-from protocols.scenario import load_scenario
+from protocols.scenario.scenario_file import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "MAVLINK20": "1", "MPLBACKEND": "Agg"}

@@ -1,4 +1,4 @@
-"""The scenario generator (protocols/scenario_gen.py, protocols/scenario_layout.py) and the
+"""The scenario generator (protocols/scenario/generator.py, protocols/scenario/layout.py) and the
 library it writes: layouts keep their spacing and are connected, every template x layout
 validates and round-trips through the loader, formations keep the minimum separation, the plan
 stays in the envelope, faults land inside the flight on drones whose loss leaves the graph whole,
@@ -20,8 +20,7 @@ from hypothesis import strategies as st
 
 from gcs.report.scenario_summary import closest_in_formation, envelope_problem
 from protocols.faults import Crash, Dropout, Loss
-from protocols.scenario import load_scenario, parse_scenario
-from protocols.scenario_gen import (
+from protocols.scenario.generator import (
     TEMPLATES,
     FaultRequest,
     GeneratorError,
@@ -29,13 +28,14 @@ from protocols.scenario_gen import (
     generate,
     parse_faults,
 )
-from protocols.scenario_layout import (
+from protocols.scenario.layout import (
     LAYOUTS,
     is_cut_free,
     layout_positions,
     min_spacing,
     radio_graph,
 )
+from protocols.scenario.scenario_file import load_scenario, parse_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 ALL_FAULTS = FaultRequest(dropouts=1, crashes=1, loss=0.2)

@@ -14,13 +14,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog, minimize
 
-from drone_agent.separation import (
+from drone_agent.core.separation.filter import (
     AccelBox,
     SeparationParams,
     filter_accelerations,
     pad_neighbours,
 )
-from protocols.frames import FloatArray
+from protocols.model.frames import FloatArray
 from tests.separation_sim import LIMITS, fly, go_to, realised
 
 pytestmark = pytest.mark.timeout(120)

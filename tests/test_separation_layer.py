@@ -1,6 +1,7 @@
-"""The separation layer wired into the agents' core (drone_agent/separation_layer.py): what each
-agent hears of its neighbours rides on the consensus messages, and the core's command is filtered
-only when a neighbour comes too close; far apart, the command is the controller's, bit for bit."""
+"""The separation layer wired into the agents' core (drone_agent/core/separation/layer.py): what
+each agent hears of its neighbours rides on the consensus messages, and the core's command is
+filtered only when a neighbour comes too close; far apart, the command is the controller's, bit for
+bit."""
 
 from __future__ import annotations
 
@@ -8,10 +9,10 @@ import dataclasses
 
 import numpy as np
 
-from drone_agent.agent_core import AgentConfig, BatchAgentCore
-from drone_agent.config import agent_config
-from drone_agent.separation_layer import SeparationConfig
-from protocols.scenario import parse_scenario
+from drone_agent.core.agent_core import AgentConfig, BatchAgentCore
+from drone_agent.core.config import agent_config
+from drone_agent.core.separation.layer import SeparationConfig
+from protocols.scenario.scenario_file import parse_scenario
 
 SCENARIO = parse_scenario(
     {
@@ -77,7 +78,7 @@ def _random_swarm(rng: np.random.Generator, k: int, spread_m: float) -> tuple[np
 def test_the_pre_check_clears_only_agents_the_filter_leaves_alone() -> None:
     """Exact: wherever ``nobody_near`` is sure, the filter returns the command unchanged (bit for
     bit) and not active; and it is sure of most agents of a spread-out swarm."""
-    from drone_agent.separation import filter_accelerations, nobody_near
+    from drone_agent.core.separation.filter import filter_accelerations, nobody_near
 
     params = SeparationConfig().params(agent_config(SCENARIO).limits)
     rng = np.random.default_rng(3)
@@ -104,9 +105,9 @@ def test_the_pre_check_clears_only_agents_the_filter_leaves_alone() -> None:
 def test_the_layer_gives_the_filter_of_every_agent() -> None:
     """The layer (pre-check, then the filter on the agents it is not sure of) against the
     filter on every agent, from the same heard neighbours, close and far."""
-    from drone_agent.separation import filter_accelerations
-    from drone_agent.separation_layer import SeparationLayer
-    from protocols.consensus_message import ConsensusMessage
+    from drone_agent.core.separation.filter import filter_accelerations
+    from drone_agent.core.separation.layer import SeparationLayer
+    from protocols.wire.consensus_message import ConsensusMessage
 
     config = agent_config(SCENARIO)
     rng = np.random.default_rng(5)

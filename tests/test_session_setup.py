@@ -20,9 +20,9 @@ from gcs.cli.supervisor import SHUT_DOWN, Child, RunPlan, supervise
 from gcs.cli.up import build_plan
 from gcs.station.commands import Request, parse_request, plan_command
 from gcs.station.planner import Envelope, PlanRefused
-from protocols.scenario import load_scenario
-from protocols.scenario_layout import layout_positions
-from protocols.wire_plan import FlightCommand, PlanMessage
+from protocols.scenario.layout import layout_positions
+from protocols.scenario.scenario_file import load_scenario
+from protocols.wire.plan import FlightCommand, PlanMessage
 from sitl_sim.launch import START_LINE_PREFIX
 
 
@@ -203,11 +203,11 @@ def test_a_session_gcs_starts_grounded_and_its_shutdown_gives_up_after_the_timeo
 ) -> None:
     """First plan GROUND; a shutdown while a vehicle is still up waits for it, at most
     ``shutdown_timeout_s``, then ends the run with a report; commands after it are refused."""
-    from drone_agent.zenoh_transport import ZenohSettings
     from gcs.report.events import read_events
     from gcs.station.commands import encode_request
     from gcs.station.ground_station import GcsOptions, GroundStation
     from gcs.station.telemetry import VehicleState
+    from protocols.bus.zenoh_bus import ZenohSettings
 
     request = session_request(_parser().parse_args(["up", "--drones", "4"]))
     assert request is not None

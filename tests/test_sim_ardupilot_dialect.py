@@ -1,5 +1,6 @@
 """``swarm sim --dialect ardupilot``: the simulator speaks ArduCopter's MAVLink
-(sitl_sim/dialect.py, sitl_sim/copter.py), and the default PX4 dialect is unchanged.
+(sitl_sim/mavlink_edge/dialect.py, sitl_sim/vehicle/copter.py), and the default PX4 dialect is
+unchanged.
 
 Three layers: the ArduCopter flight core without sockets (the climb-rate reading, the angle boost,
 arming and mode rules, GUID_TIMEOUT) against closed-form answers; a real ``swarm sim --dialect
@@ -26,8 +27,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega
 from pymavlink.dialects.v20 import common as mavlink
 
-from protocols.geodesy import GeoPoint, ned_to_geodetic
-from protocols.mavlink_conventions import (
+from protocols.mavlink.conventions import (
     EKF_BAD_FLAGS,
     EKF_READY_FLAGS,
     GPS_FIX_3D,
@@ -43,21 +43,22 @@ from protocols.mavlink_conventions import (
     CopterMode,
     Dialect,
 )
-from sitl_sim import messages
-from sitl_sim.attitude_control import AttitudeGains
-from sitl_sim.autopilot import Autopilot, AutopilotConfig, Mode, Result
-from sitl_sim.copter import (
+from protocols.model.geodesy import GeoPoint, ned_to_geodetic
+from sitl_sim.mavlink_edge import messages
+from sitl_sim.mavlink_edge.dialect import CopterModes
+from sitl_sim.physics.attitude_control import AttitudeGains
+from sitl_sim.physics.vehicle_params import VehicleParams
+from sitl_sim.vehicle.autopilot import Autopilot, AutopilotConfig, Mode, Result
+from sitl_sim.vehicle.copter import (
     PREARM_TEXTS,
     READY_TEXT,
     CopterAutopilot,
     angle_boost,
     climb_rate_m_s,
 )
-from sitl_sim.dialect import CopterModes
-from sitl_sim.setpoint import AttitudeSetpoint, validate_attitude_target
-from sitl_sim.tunables import FleetAttitudeGains
-from sitl_sim.vehicle_params import VehicleParams
-from sitl_sim.world import World, WorldConfig
+from sitl_sim.vehicle.setpoint import AttitudeSetpoint, validate_attitude_target
+from sitl_sim.vehicle.tunables import FleetAttitudeGains
+from sitl_sim.vehicle.world import World, WorldConfig
 from tests.sitl_client import HOST, MavPeer, free_udp_port, roll_quat, sim_process
 
 ARM, SET_MODE, SET_INTERVAL = 400, 176, 511

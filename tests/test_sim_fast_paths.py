@@ -7,17 +7,18 @@ import dataclasses
 import numpy as np
 import pytest
 
-from drone_agent.agent_core import AgentOutput, Setpoint
-from drone_agent.consensus import ConsensusParams
-from drone_agent.consensus_batch import BatchConsensus, frozen_factory
-from drone_agent.flight_phase import VehicleView
-from drone_agent.inboxes import Inboxes
-from drone_agent.link_faults import PairRandom
-from drone_agent.moments import SwarmMoments
-from drone_agent.neighbours import NeighbourTable
+from drone_agent.core.agent_core import AgentOutput, Setpoint
+from drone_agent.core.consensus.estimator import BatchConsensus
+from drone_agent.core.consensus.scalar import ConsensusParams
+from drone_agent.core.flight_phase import VehicleView
+from drone_agent.core.inboxes import Inboxes
+from drone_agent.core.moments import SwarmMoments
+from drone_agent.core.neighbours import NeighbourTable
+from drone_agent.process.link_faults import PairRandom
 from gcs.reference.network import DRAW_BLOCK, InProcessNetwork
-from protocols.consensus_message import ConsensusMessage
-from protocols.mavlink_conventions import MAX_VEHICLES
+from protocols.mavlink.conventions import MAX_VEHICLES
+from protocols.runtime.fast_dataclass import frozen_factory
+from protocols.wire.consensus_message import ConsensusMessage
 
 
 def _message() -> ConsensusMessage:
@@ -189,10 +190,10 @@ def test_radio_inboxes_know_their_distinct_messages() -> None:
 
 
 def test_with_level_is_replace_of_the_ready_hops() -> None:
-    """An agent's settled level put on its message (consensus_batch.with_level) is
+    """An agent's settled level put on its message (packing.with_level) is
     ``dataclasses.replace`` of ``ready_hops``: every other field the same object (also after a
     field is added to ConsensusMessage, which with_level must then pass on)."""
-    from drone_agent.consensus_batch import with_level
+    from drone_agent.core.consensus.packing import with_level
 
     ids = (0, 1, 2)
     batch = BatchConsensus(ids, ConsensusParams())

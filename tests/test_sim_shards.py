@@ -18,10 +18,10 @@ import pytest
 from agent_harness import write_scenario
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
 
-from drone_agent.zenoh_transport import free_loopback_endpoint
 from gcs.cli.main import _parser
 from gcs.report.tlog import read_tlog
-from protocols.mavlink_conventions import vehicle_port
+from protocols.bus.zenoh_bus import free_loopback_endpoint
+from protocols.mavlink.conventions import vehicle_port
 from sitl_sim.launch import build_config, start_line
 from sitl_sim.shard_sync import ShardSync
 from sitl_sim.sim_config import SimConfigError

@@ -12,19 +12,19 @@ from typing import Any
 import numpy as np
 import pytest
 
-from protocols.frames import G_M_S2
-from sitl_sim.attitude_control import AttitudeGains
-from sitl_sim.messages import actuator_output_status, rotor_forces_n
-from sitl_sim.streams import (
+from protocols.model.frames import G_M_S2
+from sitl_sim.mavlink_edge.messages import actuator_output_status, rotor_forces_n
+from sitl_sim.mavlink_edge.streams import (
     ACTUATOR_OUTPUT_STATUS,
     AGENT_RATES_HZ,
     GCS_RATES_HZ,
     LOCAL_POSITION_NED,
     StreamSchedule,
 )
-from sitl_sim.tunables import FleetAttitudeGains
-from sitl_sim.vehicle_params import VehicleParams
-from sitl_sim.world import World, WorldConfig
+from sitl_sim.physics.attitude_control import AttitudeGains
+from sitl_sim.physics.vehicle_params import VehicleParams
+from sitl_sim.vehicle.tunables import FleetAttitudeGains
+from sitl_sim.vehicle.world import World, WorldConfig
 from tests.sitl_client import (
     HOST,
     AltitudePD,

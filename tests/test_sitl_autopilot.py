@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sitl_sim.autopilot import Autopilot, AutopilotConfig, Mode, Result, VehicleEvent
-from sitl_sim.setpoint import AttitudeSetpoint, validate_attitude_target
+from sitl_sim.vehicle.autopilot import Autopilot, AutopilotConfig, Mode, Result, VehicleEvent
+from sitl_sim.vehicle.setpoint import AttitudeSetpoint, validate_attitude_target
 
 GROUND, AIR = 0.0, -2.0
 

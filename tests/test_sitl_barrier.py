@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from sitl_sim.lockstep import LockstepBarrier
+from sitl_sim.mavlink_edge.lockstep import LockstepBarrier
 
 
 def test_first_echo_joins_and_then_each_tick_waits_for_it() -> None:

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl_sim import messages
-from sitl_sim.autopilot import Autopilot, AutopilotConfig, Mode
-from sitl_sim.channel import MAX_DATAGRAM_BYTES, Endpoint, decode_datagram, new_codec
-from sitl_sim.messages import RxCounters
+from sitl_sim.mavlink_edge import messages
+from sitl_sim.mavlink_edge.channel import MAX_DATAGRAM_BYTES, Endpoint, decode_datagram, new_codec
+from sitl_sim.mavlink_edge.messages import RxCounters
+from sitl_sim.vehicle.autopilot import Autopilot, AutopilotConfig, Mode
 
 KEY = bytes(range(32))
 

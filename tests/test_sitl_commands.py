@@ -7,15 +7,15 @@ from typing import Any
 import numpy as np
 import pytest
 
-from protocols.mavlink_conventions import Px4AutoSubMode, Px4MainMode
-from sitl_sim.attitude_control import AttitudeGains
-from sitl_sim.autopilot import Mode, Result
-from sitl_sim.commands import CommandHandler, mode_of
-from sitl_sim.setpoint import AttitudeSetpoint, validate_attitude_target
-from sitl_sim.streams import AGENT_RATES_HZ, ATTITUDE, StreamTable
-from sitl_sim.tunables import FleetAttitudeGains, SetStatus, Tunables
-from sitl_sim.vehicle_params import VehicleParams
-from sitl_sim.world import World, WorldConfig
+from protocols.mavlink.conventions import Px4AutoSubMode, Px4MainMode
+from sitl_sim.mavlink_edge.commands import CommandHandler, mode_of
+from sitl_sim.mavlink_edge.streams import AGENT_RATES_HZ, ATTITUDE, StreamTable
+from sitl_sim.physics.attitude_control import AttitudeGains
+from sitl_sim.physics.vehicle_params import VehicleParams
+from sitl_sim.vehicle.autopilot import Mode, Result
+from sitl_sim.vehicle.setpoint import AttitudeSetpoint, validate_attitude_target
+from sitl_sim.vehicle.tunables import FleetAttitudeGains, SetStatus, Tunables
+from sitl_sim.vehicle.world import World, WorldConfig
 
 ARM, SET_MODE, LAND, INJECT = 400, 176, 21, 420
 GET_INTERVAL, SET_INTERVAL, REQUEST, CAPABILITIES = 510, 511, 512, 520

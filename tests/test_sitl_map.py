@@ -14,12 +14,10 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from protocols.geodesy import GeoPoint, ned_to_geodetic
-from sitl_sim.autopilot import Autopilot, AutopilotConfig, Mode
-from sitl_sim.battery import Battery
-from sitl_sim.map_telemetry import landed_state
-from sitl_sim.messages import RxCounters, sys_status
-from sitl_sim.streams import (
+from protocols.model.geodesy import GeoPoint, ned_to_geodetic
+from sitl_sim.mavlink_edge.map_telemetry import landed_state
+from sitl_sim.mavlink_edge.messages import RxCounters, sys_status
+from sitl_sim.mavlink_edge.streams import (
     EXTENDED_SYS_STATE,
     GCS_RATES_HZ,
     GLOBAL_POSITION_INT,
@@ -27,7 +25,9 @@ from sitl_sim.streams import (
     HOME_POSITION,
     StreamSchedule,
 )
-from sitl_sim.world import Snapshot
+from sitl_sim.vehicle.autopilot import Autopilot, AutopilotConfig, Mode
+from sitl_sim.vehicle.battery import Battery
+from sitl_sim.vehicle.world import Snapshot
 from tests.sitl_client import HOST, MavPeer, SimProcess, free_udp_port, of_system, sim_process
 
 HOME = GeoPoint(-33.8568, 151.2153, 42.5)

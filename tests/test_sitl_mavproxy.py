@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from protocols.geodesy import GeoPoint, ned_to_geodetic
+from protocols.model.geodesy import GeoPoint, ned_to_geodetic
 from tests.sitl_client import ENV, HOST, MavPeer, free_udp_port, sim_process
 
 pytestmark = pytest.mark.timeout(120)

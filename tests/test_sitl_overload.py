@@ -1,6 +1,6 @@
 """Overload is visible (realtime): an agent that answers its vehicle's ticks late is measured by
-the simulator (sitl_sim/tick_answers.py): its share of ticks answered in time and its lag go to
-the GCS as NAMED_VALUE_FLOAT, an "Agent late" STATUSTEXT warns on its links, and the status line
+the simulator (sitl_sim/vehicle/tick_answers.py): its share of ticks answered in time and its lag go
+to the GCS as NAMED_VALUE_FLOAT, an "Agent late" STATUSTEXT warns on its links, and the status line
 says OVERLOAD and what to do; an agent that keeps up is not blamed."""
 
 from __future__ import annotations

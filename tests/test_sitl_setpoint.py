@@ -9,15 +9,15 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from protocols.frames import wxyz_from_zyx, zyx_from_wxyz
-from sitl_sim.setpoint import (
+from protocols.model.frames import wxyz_from_zyx, zyx_from_wxyz
+from sitl_sim.vehicle.setpoint import (
     QUAT_NORM_TOLERANCE,
     REJECTIONS,
     AttitudeSetpoint,
     Rejection,
     validate_attitude_target,
 )
-from sitl_sim.setpoint_jit import validate_attitude_targets
+from sitl_sim.vehicle.setpoint_jit import validate_attitude_targets
 
 NAN, INF = float("nan"), float("inf")
 
@@ -73,7 +73,7 @@ angles = st.tuples(
 
 @given(angles)
 def test_a_valid_setpoint_flies_its_quaternions_angles(zyx: tuple[float, float, float]) -> None:
-    """The angles the vehicle flies are those the sender meant (protocols.frames' conversion),
+    """The angles the vehicle flies are those the sender meant (protocols.model.frames' conversion),
     in AttitudeSetpoint's (roll, pitch, yaw) layout."""
     sp = validate_attitude_target(wxyz_from_zyx(*zyx), 0.5)
     assert isinstance(sp, AttitudeSetpoint)

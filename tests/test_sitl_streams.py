@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from sitl_sim.streams import (
+from sitl_sim.mavlink_edge.streams import (
     AGENT_RATES_HZ,
     ATTITUDE,
     HEARTBEAT,

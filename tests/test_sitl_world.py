@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from protocols.frames import wxyz_from_zyx
-from sitl_sim.attitude_control import AttitudeGains
-from sitl_sim.autopilot import Mode, Result
-from sitl_sim.setpoint import AttitudeSetpoint, validate_attitude_target
-from sitl_sim.tunables import FleetAttitudeGains
-from sitl_sim.vehicle_params import VehicleParams
-from sitl_sim.world import World, WorldConfig
+from protocols.model.frames import wxyz_from_zyx
+from sitl_sim.physics.attitude_control import AttitudeGains
+from sitl_sim.physics.vehicle_params import VehicleParams
+from sitl_sim.vehicle.autopilot import Mode, Result
+from sitl_sim.vehicle.setpoint import AttitudeSetpoint, validate_attitude_target
+from sitl_sim.vehicle.tunables import FleetAttitudeGains
+from sitl_sim.vehicle.world import World, WorldConfig
 
 HOVER = 0.5  # default vehicle: thrust-to-weight 2
 

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog, minimize
 
-from drone_agent.small_qp import project
+from drone_agent.core.separation.small_qp import project
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -23,10 +23,10 @@ import pytest
 from agent_harness import write_scenario
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, swarm_command
 
-from drone_agent.transport import Congestion
-from drone_agent.zenoh_config import role_secrets
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
-from protocols.swarm_secrets import ROLES, access_control, init_secrets, load_role, may
+from protocols.bus.interface import Congestion
+from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings, free_loopback_endpoint
+from protocols.bus.zenoh_config import role_secrets
+from protocols.secrets.swarm_secrets import ROLES, access_control, init_secrets, load_role, may
 
 SWARM_ID = "locked"
 
@@ -313,7 +313,7 @@ def test_an_expired_certificate_is_refused_in_one_line(
     from cryptography import x509
     from cryptography.hazmat.primitives import serialization
 
-    from protocols.swarm_secrets import _cert_pem, _issue, _key_pem
+    from protocols.secrets.swarm_secrets import _cert_pem, _issue, _key_pem
 
     expired = _forged(secrets, tmp_path / "expired")
     ca_key = serialization.load_pem_private_key((secrets / "ca.key").read_bytes(), None)

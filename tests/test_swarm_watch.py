@@ -7,7 +7,7 @@ import numpy as np
 
 from gcs.station.swarm_watch import SwarmWatch, text_kind
 from gcs.station.telemetry import VehicleState
-from protocols.wire_status import AgentMode, AgentStatus, Health, StatusCounters
+from protocols.wire.status import AgentMode, AgentStatus, Health, StatusCounters
 
 
 def _status(drone: int, round_: int, rx: int, neighbours: tuple[int, ...]) -> AgentStatus:

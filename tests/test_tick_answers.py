@@ -1,9 +1,9 @@
-"""Whether agents keep up with the control ticks (sitl_sim/tick_answers.py): answered in time,
-late, skipped, a drop-out that is not an overload."""
+"""Whether agents keep up with the control ticks (sitl_sim/vehicle/tick_answers.py): answered in
+time, late, skipped, a drop-out that is not an overload."""
 
 from __future__ import annotations
 
-from sitl_sim.tick_answers import TickAnswers
+from sitl_sim.vehicle.tick_answers import TickAnswers
 
 
 def test_an_agent_that_keeps_up_answers_every_tick_in_time() -> None:

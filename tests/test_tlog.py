@@ -226,7 +226,7 @@ def test_event_log_refuses_what_json_cannot_hold(tmp_path):
 def test_agent_status_carries_the_integrated_neighbour_ids_and_reads_older_logs(tmp_path):
     """Layout 1 carries the ids (the lowest 46 of a larger set, the count whole); a layout-0
     record (what logs held before) reads back with its values and its ids unknown."""
-    from protocols.mavlink_conventions import AGENT_NEIGHBOUR_SLOTS
+    from protocols.mavlink.conventions import AGENT_NEIGHBOUR_SLOTS
 
     estimate = np.arange(9) * 1.5
     many = list(range(100, 150))  # more than the slots

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from protocols.trajectory import (
+from protocols.model.trajectory import (
     DescriptorTrajectory,
     Waypoint,
     quintic_hermite,

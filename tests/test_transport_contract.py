@@ -15,21 +15,15 @@ import numpy as np
 import pytest
 import zenoh
 
-from drone_agent.memory_bus import MemoryBus
-from drone_agent.transport import Bus, Congestion
-from drone_agent.transport_link import AgentLink, LinkSettings, PlanServer
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
-from protocols.consensus_message import ConsensusMessage
-from protocols.trajectory import DescriptorTrajectory
-from protocols.wire import ConsensusPacket, encode_consensus
-from protocols.wire_plan import FlightCommand, PlanMessage, encode_plan
-from protocols.wire_status import (
-    AgentMode,
-    AgentStatus,
-    Health,
-    StatusCounters,
-    decode_status,
-)
+from drone_agent.process.transport_link import AgentLink, LinkSettings, PlanServer
+from protocols.bus.interface import Bus, Congestion
+from protocols.bus.memory import MemoryBus
+from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings, free_loopback_endpoint
+from protocols.model.trajectory import DescriptorTrajectory
+from protocols.wire.consensus_message import ConsensusMessage
+from protocols.wire.format import ConsensusPacket, encode_consensus
+from protocols.wire.plan import FlightCommand, PlanMessage, encode_plan
+from protocols.wire.status import AgentMode, AgentStatus, Health, StatusCounters, decode_status
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -384,9 +378,9 @@ def test_client_sessions_through_a_router() -> None:
 PEER = """
 import sys, time
 import numpy as np
-from protocols.consensus_message import ConsensusMessage
-from drone_agent.transport_link import AgentLink, LinkSettings
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
+from protocols.wire.consensus_message import ConsensusMessage
+from drone_agent.process.transport_link import AgentLink, LinkSettings
+from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings
 
 bus = ZenohBus.open(ZenohSettings(connect=(sys.argv[1],), lease_ms=int(sys.argv[2])))
 link = AgentLink(bus, 7, (2.0, 1.0, -1.0), LinkSettings(sys.argv[3], comm_range_m=10.0))

@@ -1,5 +1,5 @@
-"""The vehicle link's fast path (drone_agent/vehicle_link.py on protocols/mavlink_fast.py): its
-datagrams read and its messages packed without pymavlink's per-frame machinery give the same
+"""The vehicle link's fast path (drone_agent/process/vehicle_link.py on protocols/mavlink/fast.py):
+its datagrams read and its messages packed without pymavlink's per-frame machinery give the same
 samples, counters, status and bytes as pymavlink's codec; what the fast parser does not take (bad
 CRCs, signed links) still goes through pymavlink."""
 
@@ -15,9 +15,9 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import common
 
-from drone_agent.vehicle_link import VehicleLink, VehicleSample
-from protocols import mavlink_fast
-from protocols.mavlink_conventions import AGENT_COMPID, AUTOPILOT_COMPID, sysid_of
+from drone_agent.process.vehicle_link import VehicleLink, VehicleSample
+from protocols.mavlink import fast as mavlink_fast
+from protocols.mavlink.conventions import AGENT_COMPID, AUTOPILOT_COMPID, sysid_of
 
 pytestmark = pytest.mark.timeout(60)
 

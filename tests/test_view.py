@@ -30,7 +30,7 @@ from gcs.reference.simulate import simulate
 from gcs.report.events import read_events
 from gcs.report.tlog import read_tlog
 from gcs.view import recording as recording_module
-from protocols.scenario import load_scenario
+from protocols.scenario.scenario_file import load_scenario
 
 pytestmark = pytest.mark.timeout(120)
 SQUARE = [(0.0, 0.0, 0.0), (0.0, 3.0, 0.0), (4.0, 0.0, 0.0), (4.0, 3.0, 0.0)]
@@ -583,7 +583,7 @@ def test_nothing_else_imports_rerun() -> None:
     code = (
         "import sys, gcs.cli.main, gcs.reference.simulate, gcs.station.ground_station, "
         "gcs.report.from_logs, gcs.cli.view, "
-        "sitl_sim.server, drone_agent.agent_cli; "
+        "sitl_sim.server, drone_agent.process.agent_cli; "
         "sys.exit(1 if any(m == 'rerun' or m.startswith('rerun.') for m in sys.modules) else 0)"
     )
     assert subprocess.run([sys.executable, "-c", code], env=ENV, cwd=ROOT).returncode == 0
@@ -641,7 +641,7 @@ def test_swarm_up_view_serves_the_live_viewer(tmp_path: Path) -> None:
 @pytest.mark.parametrize("euler", [(0.0, 0.0, 1.2), (0.3, -0.2, 2.9), (-0.5, 0.4, -1.0)])
 def test_ellipsoid_quaternion_is_the_descriptor_orientation(euler: tuple[float, ...]) -> None:
     from gcs.view.rerun_log import quaternions_xyzw
-    from protocols.frames import rot_zyx
+    from protocols.model.frames import rot_zyx
 
     x, y, z, w = quaternions_xyzw(np.array([euler]))[0]
     rot = np.array([

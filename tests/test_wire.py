@@ -13,9 +13,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from protocols.consensus_message import ConsensusMessage
-from protocols.trajectory import DescriptorTrajectory
-from protocols.wire import (
+from protocols.model.trajectory import DescriptorTrajectory
+from protocols.wire.consensus_message import ConsensusMessage
+from protocols.wire.format import (
     CONSENSUS_VERSION,
     MAX_CONSENSUS_BYTES,
     WIRE_VERSION,
@@ -26,8 +26,8 @@ from protocols.wire import (
     decode_consensus,
     encode_consensus,
 )
-from protocols.wire_plan import FlightCommand, PlanMessage, decode_plan, encode_plan
-from protocols.wire_status import (
+from protocols.wire.plan import FlightCommand, PlanMessage, decode_plan, encode_plan
+from protocols.wire.status import (
     STATUS_VERSION,
     AgentMode,
     AgentStatus,
@@ -759,7 +759,7 @@ def test_mutated_payloads_raise_only_wire_errors(
 
 
 def test_consensus_head_reads_sender_round_and_origin_of_every_version() -> None:
-    from protocols.wire import consensus_head
+    from protocols.wire.format import consensus_head
 
     data = encode_consensus(MESSAGE, POSITION, SID)
     assert consensus_head(data, SID) == (MESSAGE.sender, MESSAGE.round, POSITION)

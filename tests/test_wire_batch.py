@@ -1,4 +1,4 @@
-"""The consensus batch (protocols/wire_batch.py) and the status batch (protocols/wire_status.py):
+"""The consensus batch (protocols/wire/batch.py) and the status batch (protocols/wire/status.py):
 golden bytes, round trip, malformed input, and the process hub that sends and takes batches
 (drone_agent/transport_link.ConsensusHub) on the in-memory bus: several hosted agents' messages
 (statuses) of a pass go as one sample per cell (one sample), each agent still applies its own
@@ -15,11 +15,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drone_agent.memory_bus import MemoryBus
-from drone_agent.transport import Congestion
-from drone_agent.transport_link import AgentLink, ConsensusHub, LinkSettings
-from protocols.consensus_message import ConsensusMessage, EdgeIncarnations, EdgeSums
-from protocols.wire import (
+from drone_agent.process.transport_link import AgentLink, ConsensusHub, LinkSettings
+from protocols.bus.interface import Congestion
+from protocols.bus.memory import MemoryBus
+from protocols.wire.batch import (
+    BATCH_VERSION,
+    encode_batch,
+    encode_columns,
+    open_batch,
+    split_batch,
+)
+from protocols.wire.consensus_message import ConsensusMessage, EdgeIncarnations, EdgeSums
+from protocols.wire.format import (
     Kind,
     Reason,
     WireError,
@@ -27,14 +34,7 @@ from protocols.wire import (
     decode_consensus,
     encode_consensus,
 )
-from protocols.wire_batch import (
-    BATCH_VERSION,
-    encode_batch,
-    encode_columns,
-    open_batch,
-    split_batch,
-)
-from protocols.wire_status import (
+from protocols.wire.status import (
     STATUS_BATCH_VERSION,
     STATUS_VERSION,
     AgentMode,
@@ -519,7 +519,7 @@ def test_batch_lengths_are_little_endian_u32() -> None:
 
 
 def test_messages_of_the_batched_core_encode_to_the_same_bytes_as_plain_ones() -> None:
-    from protocols.consensus_message import EdgeIncarnations, EdgeSums
+    from protocols.wire.consensus_message import EdgeIncarnations, EdgeSums
 
     rng = np.random.default_rng(3)
     for n in (0, 1, 4, 17):
@@ -565,7 +565,7 @@ def test_messages_of_the_batched_core_encode_to_the_same_bytes_as_plain_ones() -
         encode_consensus(bad, (0, 0, 0), SID)
 
 
-# -- the status batch (protocols/wire_status.py, Kind.STATUS_BATCH) ----------------------------
+# -- the status batch (protocols/wire/status.py, Kind.STATUS_BATCH) ----------------------------
 
 
 def _status(drone: int, takeoff_round: int | None = None) -> AgentStatus:
@@ -670,16 +670,17 @@ def test_hosted_agents_send_their_statuses_of_a_pass_in_one_sample() -> None:
 
 def test_a_steps_messages_are_laid_out_in_columns_as_one_by_one() -> None:
     """The messages of a batched consensus step, laid out together from the step's arrays
-    (transport_link.wire_parts: protocols.wire.column_parts), are byte for byte what
+    (transport_link.wire_parts: protocols.wire.format.column_parts), are byte for byte what
     consensus_parts makes of each: over rounds with partial hearing, a listening row, a restart
     (edges with and without incarnations), messages without motion, two steps mixed, a message
     rebuilt by hand; and one that cannot be sent still raises."""
     from dataclasses import replace
 
-    from drone_agent.consensus import ConsensusParams
-    from drone_agent.consensus_batch import BatchConsensus, message_columns
-    from drone_agent.transport_link import wire_parts
-    from protocols.wire import column_parts
+    from drone_agent.core.consensus.estimator import BatchConsensus
+    from drone_agent.core.consensus.packing import message_columns
+    from drone_agent.core.consensus.scalar import ConsensusParams
+    from drone_agent.process.transport_link import wire_parts
+    from protocols.wire.format import column_parts
 
     ids = (0, 3, 4, 9, 12)
     rng = np.random.default_rng(11)
@@ -756,13 +757,14 @@ def test_a_steps_messages_are_laid_out_in_columns_as_one_by_one() -> None:
 
 def test_a_steps_messages_carry_their_take_off_rounds_to_the_wire() -> None:
     """Outgoing.messages puts each row's take-off round on its message (None: None each), and
-    consensus_batch.with_level puts a level and a take-off round on one (the same message when
+    packing.with_level puts a level and a take-off round on one (the same message when
     both are already its): what the columns and the single payloads then carry."""
     import dataclasses
 
-    from drone_agent.consensus import ConsensusParams
-    from drone_agent.consensus_batch import BatchConsensus, with_level
-    from drone_agent.transport_link import wire_parts
+    from drone_agent.core.consensus.estimator import BatchConsensus
+    from drone_agent.core.consensus.packing import with_level
+    from drone_agent.core.consensus.scalar import ConsensusParams
+    from drone_agent.process.transport_link import wire_parts
 
     ids = (0, 1, 2)
     batch = BatchConsensus(ids, ConsensusParams())
@@ -805,8 +807,8 @@ def test_a_sole_hub_hands_its_agents_messages_over_and_sends_them_to_other_sessi
     from its bytes), range and counters applied as before."""
     from dataclasses import replace
 
-    from drone_agent.consensus import ConsensusParams
-    from drone_agent.consensus_batch import BatchConsensus
+    from drone_agent.core.consensus.estimator import BatchConsensus
+    from drone_agent.core.consensus.scalar import ConsensusParams
 
     where = [(1.0, 1.0, -1.0), (9.0, 1.0, -1.0), (2.0, 2.0, -1.0)]
     batch = BatchConsensus((0, 1), ConsensusParams())

@@ -22,9 +22,9 @@ from protocols.faults import (
     Partition,
     Restart,
 )
-from protocols.scenario import parse_scenario
-from protocols.wire import WIRE_VERSION, Kind, Reason, WireError, open_versioned
-from protocols.wire_fault import FaultOp, decode_fault, encode_fault, fault_op
+from protocols.scenario.scenario_file import parse_scenario
+from protocols.wire.fault import FaultOp, decode_fault, encode_fault, fault_op
+from protocols.wire.format import WIRE_VERSION, Kind, Reason, WireError, open_versioned
 
 SID = "demo"
 HEAD = bytes([0x51, WIRE_VERSION, Kind.FAULT, 4]) + b"demo"

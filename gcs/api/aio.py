@@ -16,7 +16,7 @@ if TYPE_CHECKING:
     from gcs.api.report import FlightReport
     from gcs.api.state import Descriptors, Status
     from gcs.station.commands import Reply
-    from protocols.swarm_secrets import RoleSecrets
+    from protocols.secrets.swarm_secrets import RoleSecrets
 
 
 class AsyncCommand:

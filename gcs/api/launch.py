@@ -80,8 +80,8 @@ def free_udp_block(n: int, host: str = "127.0.0.1", attempts: int = 50) -> int:
 
 def n_drones_of(scenario: Path) -> int:
     """The number of drones of a scenario file; UsageError with the file's problem."""
-    from protocols.scenario import load_scenario
-    from protocols.scenario_schema import ScenarioError
+    from protocols.scenario.scenario_file import load_scenario
+    from protocols.scenario.schema import ScenarioError
 
     try:
         return load_scenario(scenario).n_drones

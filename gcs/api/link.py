@@ -11,10 +11,10 @@ from typing import TYPE_CHECKING
 from gcs.api.errors import NoGroundStation, UsageError
 
 if TYPE_CHECKING:
-    from drone_agent.zenoh_transport import ZenohBus
     from gcs.station.commands import Reply, Request
+    from protocols.bus.zenoh_bus import ZenohBus
     from protocols.faults import FaultCommand
-    from protocols.swarm_secrets import RoleSecrets
+    from protocols.secrets.swarm_secrets import RoleSecrets
 
 #: How long the ground station gets to answer a request (wall s).
 ANSWER_TIMEOUT_S = 2.0
@@ -30,7 +30,7 @@ def role_secrets(
     credentials already loaded; UsageError (one line) when they do not fit ``swarm_id``."""
     if secrets is None or not isinstance(secrets, str | Path):
         return secrets
-    from drone_agent.zenoh_config import role_secrets as load
+    from protocols.bus.zenoh_config import role_secrets as load
 
     try:
         return load(secrets, role, swarm_id)
@@ -41,7 +41,7 @@ def role_secrets(
 def refusal(secrets: RoleSecrets | None, kind: str, suffix: str, what: str) -> str | None:
     """Why ``secrets``' role may not send ``kind`` on ``swarm/<sid>/<suffix>`` (None: it may, or
     the network is open); checked before anything is sent, as the router would drop it."""
-    from protocols.swarm_secrets import may
+    from protocols.secrets.swarm_secrets import may
 
     if secrets is None or may(secrets.role, kind, suffix):
         return None
@@ -62,8 +62,8 @@ class Link:
         secrets: RoleSecrets | None = None,
         bus: ZenohBus | None = None,
     ) -> None:
-        from drone_agent.zenoh_transport import open_client
-        from protocols.keys import SwarmKeys
+        from protocols.bus.zenoh_bus import open_client
+        from protocols.wire.keys import SwarmKeys
 
         self.endpoint, self.swarm_id, self.secrets = endpoint, swarm_id, secrets
         try:
@@ -113,8 +113,8 @@ class Link:
 
     def publish_fault(self, command: FaultCommand) -> None:
         """Publish a drill once, reliably, to every agent on the swarm's fault key."""
-        from drone_agent.transport import Congestion
-        from protocols.wire_fault import encode_fault
+        from protocols.bus.interface import Congestion
+        from protocols.wire.fault import encode_fault
 
         try:
             payload = encode_fault(command, self.swarm_id)

@@ -7,7 +7,7 @@ The flight is rebuilt from the report's own files, by the code that wrote its ``
 telemetry rate, held from the newest sample (an agent's estimate: at most 1 s old, else NaN).
 
 Arrays: T samples, N drones (index i is MAVLink system id i + 1); NED metres, radians,
-descriptor rows in the order of :data:`protocols.descriptor_vector.NAMES`.
+descriptor rows in the order of :data:`protocols.model.descriptor_vector.NAMES`.
 """
 
 from __future__ import annotations
@@ -23,13 +23,13 @@ import numpy.typing as npt
 
 from gcs.api.errors import UsageError
 from gcs.report.flight_record import FlightRecord
-from protocols.frames import FloatArray
-from protocols.trajectory import DescriptorTrajectory
+from protocols.model.frames import FloatArray
+from protocols.model.trajectory import DescriptorTrajectory
 
 if TYPE_CHECKING:
     import pandas as pd
 
-    from protocols.scenario import Scenario
+    from protocols.scenario.scenario_file import Scenario
 
 #: The telemetry rate of a report's record (Hz): ``swarm up``'s and ``swarm simulate``'s default.
 REPORT_RATE_HZ = 25.0
@@ -96,7 +96,7 @@ class FlightReport:
             import pandas as pd
         except ImportError:
             raise UsageError("to_pandas needs pandas: pip install 'quadswarm[pandas]'") from None
-        from protocols.descriptor_vector import NAMES
+        from protocols.model.descriptor_vector import NAMES
 
         t, n = self.t_s.size, self.n_drones
         columns: dict[str, Any] = {}
@@ -136,9 +136,9 @@ def load_report(
     from gcs.report.metrics import true_descriptors
     from gcs.report.tlog import read_tlog
     from gcs.report.trajectory_file import read_trajectory
-    from protocols.scenario import Scenario, load_scenario
-    from sitl_sim.config import vehicle_params
-    from sitl_sim.vehicle_params import VehicleParams
+    from protocols.scenario.scenario_file import Scenario, load_scenario
+    from sitl_sim.physics.vehicle_params import VehicleParams
+    from sitl_sim.vehicle.config import vehicle_params
 
     root = Path(folder)
     for name in ("flight.tlog", "trajectory.json"):

@@ -2,7 +2,7 @@
 arrived. Pure: no I/O.
 
 Frames and units: positions NED (north, east, down), metres; descriptors in the order of
-:mod:`protocols.descriptor_vector` (centre NED m, roll/pitch/yaw rad, variances m²). Times are
+:mod:`protocols.model.descriptor_vector` (centre NED m, roll/pitch/yaw rad, variances m²). Times are
 the swarm's simulated seconds.
 """
 
@@ -17,8 +17,8 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.api.errors import Failsafe, Superseded
-from protocols.descriptors import descriptors as descriptors_of
-from protocols.frames import FloatArray
+from protocols.model.descriptors import descriptors as descriptors_of
+from protocols.model.frames import FloatArray
 
 #: The agent mode of a drone back on the ground, disarmed, after a landing.
 LANDED = "LANDED"

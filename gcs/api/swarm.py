@@ -40,7 +40,7 @@ if TYPE_CHECKING:
     from gcs.api.report import FlightReport
     from gcs.station.commands import Reply, Request
     from protocols.faults import FaultCommand
-    from protocols.swarm_secrets import RoleSecrets
+    from protocols.secrets.swarm_secrets import RoleSecrets
 
 #: The ground station's endpoint ``swarm up`` uses on the default ports.
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -170,8 +170,8 @@ class Swarm:
         (default: a new temporary folder). On free ports. Returns once the ground station
         answers; use it as a context manager, which ends the run (a session lands first) and
         reads the report into :attr:`report`, also when the block raises."""
-        from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
         from gcs.api.launch import launch, stop, up_words, wait_started
+        from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings, free_loopback_endpoint
 
         what, n = up_words(
             scenario, drones, clock, seed=seed, layout=layout, spacing_m=spacing_m,
@@ -359,7 +359,7 @@ class Swarm:
         if name not in AGENT_DRILLS:
             known = ", ".join(AGENT_DRILLS + GCS_DRILLS)
             raise UsageError(f"unknown drill {name!r}; known: {known}")
-        from drone_agent.fault_drills import describe
+        from drone_agent.process.fault_drills import describe
 
         command = fault_command(name, **kwargs)
         self.link.publish_fault(command)

@@ -6,7 +6,7 @@ it. One ``arducopter`` process per drone, each with
 
 - its system id (``--sysid i+1``) and instance number (``-I i``: its own TCP and simulator ports),
 - its home where the scenario puts the drone: the drone's start position about the scenario's
-  ``[home]`` (protocols/geodesy.py) and its heading, so that the scenario's layout holds,
+  ``[home]`` (protocols/model/geodesy.py) and its heading, so that the scenario's layout holds,
 - ``--serial0 udpclient:127.0.0.1:PORT``: its agent's link (the drone's usual port; the agent
   binds it, ``swarm agent --vehicle-listen``), ``--serial1 udpclient:127.0.0.1:GCS``: the ground
   station's,
@@ -18,7 +18,7 @@ it. One ``arducopter`` process per drone, each with
 The instances run on ArduPilot's own physics model (``--model quad``) in real time, each on its
 own clock from its own boot. Before the swarm starts, :func:`wait_ready` waits until every vehicle
 is ready to fly (EKF using GPS, a 3-D fix, pre-arm checks passing, GUID_OPTIONS set: the agents'
-own rule, drone_agent/dialects.py), however long that takes; the swarm's clock starts then
+own rule, drone_agent/process/dialects.py), however long that takes; the swarm's clock starts then
 (``--swarm-epoch``), so the scenario's plan starts with every vehicle able to follow it.
 
 What does not work (yet), and why: ``--clock lockstep`` (ArduPilot's SITL steps its own physics:
@@ -36,10 +36,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gcs.cli.supervisor import Child, SupervisorError
-from protocols.mavlink_conventions import Dialect, sysid_of
+from protocols.mavlink.conventions import Dialect, sysid_of
 
 if TYPE_CHECKING:  # numpy: imported when a swarm comes up, not by the parser
-    from protocols.scenario import Scenario
+    from protocols.scenario.scenario_file import Scenario
 
 #: The environment variable naming the ArduCopter SITL binary (``--ardupilot-bin`` wins).
 ENV = "ARDUPILOT_SITL"
@@ -89,7 +89,7 @@ def default_params(binary: Path) -> Path | None:
 def homes(scenario: Scenario) -> list[tuple[float, float, float, float]]:
     """Each drone's start as ArduPilot's ``--home``: latitude, longitude (deg), altitude (m MSL),
     heading (deg), from its start position about the scenario's home."""
-    from protocols.geodesy import ned_to_geodetic
+    from protocols.model.geodesy import ned_to_geodetic
 
     start = scenario.positions_ned_m()
     lat, lon, alt = ned_to_geodetic(scenario.home, start)
@@ -133,12 +133,12 @@ def wait_ready(
     progress: Callable[[str], None] | None,
     timeout_s: float = READY_TIMEOUT_S,
 ) -> None:
-    """Wait until every vehicle is ready to fly by its agents' own rule (drone_agent/dialects.py,
-    read on each vehicle's agent port before the agents start), saying which are not and why.
-    SupervisorError if an instance ends or the timeout passes."""
-    from drone_agent.config import agent_config
-    from drone_agent.vehicle_link import VehicleLink
-    from protocols.frames import G_M_S2
+    """Wait until every vehicle is ready to fly by its agents' own rule
+    (drone_agent/process/dialects.py, read on each vehicle's agent port before the agents start),
+    saying which are not and why. SupervisorError if an instance ends or the timeout passes."""
+    from drone_agent.core.config import agent_config
+    from drone_agent.process.vehicle_link import VehicleLink
+    from protocols.model.frames import G_M_S2
 
     limits = agent_config(scenario).limits
     t2w = limits.max_thrust_n / (limits.mass_kg * G_M_S2)

@@ -14,13 +14,13 @@ def warm_compiled(command: str, sim: bool, agents: bool, scenario: Path) -> None
     not silently (a first compile takes ~15 s)."""
     started = time.monotonic()
     if sim:
-        from sitl_sim import physics_jit
+        from sitl_sim.physics import jit as physics_jit
 
         physics_jit.ready()
     if agents:
-        from drone_agent.agent_core import warm_up
-        from drone_agent.config import agent_config
-        from protocols.scenario import load_scenario
+        from drone_agent.core.agent_core import warm_up
+        from drone_agent.core.config import agent_config
+        from protocols.scenario.scenario_file import load_scenario
 
         try:
             config = agent_config(load_scenario(scenario))

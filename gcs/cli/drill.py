@@ -1,15 +1,16 @@
 """``swarm drill``: faults against a running swarm.
 
 Link faults (``link-cut``, ``loss``, ``delay``, ``partition``, ``clear``) are published once on
-``swarm/<sid>/fault`` (:mod:`protocols.wire_fault`, BLOCK congestion) from a short-lived Zenoh
+``swarm/<sid>/fault`` (:mod:`protocols.wire.fault`, BLOCK congestion) from a short-lived Zenoh
 client session; every agent applies them on its receive side and the ground station records them
 in events.jsonl. ``restart --drone I --gap-s S`` goes the same way: the agent process hosting
 drone I kills that agent at once and starts a new one (a new incarnation) S simulated seconds
-later, in one-process-per-drone and hosted runs alike (:meth:`drone_agent.host.AgentHost.restart`).
-``crash --drone I`` asks the ground station (its command queryable) to stop every
-motor of vehicle I, ``dropout --drone I`` to SIGKILL drone I's agent process and ``gcs-restart``
-to stop itself so that ``swarm up`` starts it again (both need a swarm started by ``swarm up``).
-Exit codes: 0 done, 1 refused by the ground station, 2 usage error or nobody reachable.
+later, in one-process-per-drone and hosted runs alike
+(:meth:`drone_agent.process.host.AgentHost.restart`). ``crash --drone I`` asks the ground station
+(its command queryable) to stop every motor of vehicle I, ``dropout --drone I`` to SIGKILL drone I's
+agent process and ``gcs-restart`` to stop itself so that ``swarm up`` starts it again (both need a
+swarm started by ``swarm up``). Exit codes: 0 done, 1 refused by the ground station, 2 usage error
+or nobody reachable.
 
 The reply, for scripts (``--json``: one JSON object on stdout instead of the line): a drill sent
 to the agents prints ``drill NAME: sent WHAT`` (``{"drill": NAME, "sent": true, "what": WHAT}``

@@ -186,7 +186,7 @@ def _n_drones(args: argparse.Namespace) -> int:
     if args.scenario is not None:
         if args.drones is not None or args.seed is not None:
             raise DrillsError("--drones and --seed go without a scenario file (it has its own)")
-        from protocols.scenario import ScenarioError, load_scenario
+        from protocols.scenario.scenario_file import ScenarioError, load_scenario
 
         try:
             return load_scenario(args.scenario).n_drones
@@ -218,7 +218,7 @@ class Swarm:
 
     # -- what the agents say -------------------------------------------------------------------
     def on_status(self, _key: str, payload: bytes) -> None:
-        from protocols.wire_status import decode_statuses
+        from protocols.wire.status import decode_statuses
 
         try:  # one status, or a process's batch of them
             statuses = decode_statuses(payload, self.swarm_id)
@@ -274,7 +274,7 @@ class Swarm:
     def requests(self, payloads: Sequence[bytes], timeout_s: float = 10.0) -> list[Any]:
         """Send every payload to the command queryable at once; the replies (None: none)."""
         from gcs.station.commands import CommandError, decode_reply
-        from protocols.keys import SwarmKeys
+        from protocols.wire.keys import SwarmKeys
 
         key = SwarmKeys(self.swarm_id, 1.0).command
         handlers = [self.bus.session.get(key, payload=p, timeout=timeout_s) for p in payloads]
@@ -291,9 +291,9 @@ class Swarm:
 
     def fault(self, command: Any) -> None:
         """Publish a link-fault command (what ``swarm drill`` sends)."""
-        from drone_agent.transport import Congestion
-        from protocols.keys import SwarmKeys
-        from protocols.wire_fault import encode_fault
+        from protocols.bus.interface import Congestion
+        from protocols.wire.fault import encode_fault
+        from protocols.wire.keys import SwarmKeys
 
         pub = self.bus.publisher(SwarmKeys(self.swarm_id, 1.0).fault, Congestion.BLOCK)
         pub.put(encode_fault(command, self.swarm_id))
@@ -302,7 +302,7 @@ class Swarm:
 
     def consensus_keys(self, listen_s: float = 0.5) -> set[str]:
         """The consensus keys the agents publish on (heard for ``listen_s`` wall s)."""
-        from protocols.keys import SwarmKeys
+        from protocols.wire.keys import SwarmKeys
 
         keys: set[str] = set()
         sub = self.bus.subscribe_callback(
@@ -355,11 +355,11 @@ def _swarm(args: argparse.Namespace, n: int, folder: Path) -> Iterator[Swarm]:
     """``swarm up`` on free ports with its report in ``folder``, meeting at a Zenoh peer of this
     process on a free port (never the default rendezvous port, which another swarm on the
     machine may hold or take at the same moment)."""
-    from drone_agent.zenoh_transport import ZenohBus, ZenohSettings, free_loopback_endpoint
     from gcs.api.errors import SwarmError
     from gcs.api.launch import launch, stop, wait_started
     from gcs.station.commands import Request, encode_request
-    from protocols.keys import SwarmKeys
+    from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings, free_loopback_endpoint
+    from protocols.wire.keys import SwarmKeys
 
     what = [str(args.scenario)] if args.scenario else ["--drones", str(n)]
     if args.scenario is None and args.seed is not None:
@@ -467,7 +467,7 @@ def _do(swarm: Swarm, step: Step) -> dict[str, Any]:
 
             command = Partition(split_north(_positions(swarm)))
         swarm.fault(command)
-        from drone_agent.fault_drills import describe
+        from drone_agent.process.fault_drills import describe
 
         return {"action": f"sent {describe(command)}"}
     if step.kind == "gcs":
@@ -511,9 +511,9 @@ def _garbage(swarm: Swarm, count: int, spread_s: float) -> dict[str, Any]:
     """``count`` bad payloads on the consensus keys the agents use, over ``spread_s`` wall s."""
     import numpy as np
 
-    from drone_agent.transport import Congestion
-    from protocols.consensus_message import ConsensusMessage
-    from protocols.wire import encode_consensus
+    from protocols.bus.interface import Congestion
+    from protocols.wire.consensus_message import ConsensusMessage
+    from protocols.wire.format import encode_consensus
 
     keys = sorted(swarm.consensus_keys())
     if not keys:

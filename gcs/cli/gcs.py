@@ -13,12 +13,12 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING
 
-from drone_agent.agent_cli import RENDEZVOUS_PORT
-from protocols.mavlink_conventions import DEFAULT_GCS_PORT
-from protocols.swarm_clock import EPOCH_HELP, epoch_arg
+from protocols.bus.zenoh_config import RENDEZVOUS_PORT
+from protocols.mavlink.conventions import DEFAULT_GCS_PORT
+from protocols.mavlink.swarm_clock import EPOCH_HELP, epoch_arg
 
 if TYPE_CHECKING:  # Zenoh: imported when the ground station runs, not by the parser
-    from drone_agent.zenoh_transport import ZenohSettings
+    from protocols.bus.zenoh_bus import ZenohSettings
 
 #: Exit code of a ground station that ends for the gcs-restart drill (EX_TEMPFAIL).
 RESTART_EXIT_CODE = 75
@@ -153,10 +153,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 def _zenoh(args: argparse.Namespace) -> ZenohSettings:
-    from drone_agent.zenoh_transport import ZenohSettings
+    from protocols.bus.zenoh_bus import ZenohSettings
 
     if args.secrets is not None:
-        from drone_agent.zenoh_config import (
+        from protocols.bus.zenoh_config import (
             ROUTER_LEASE_MS,
             ROUTER_WAIT_MS,
             role_secrets,
@@ -180,7 +180,7 @@ def _zenoh(args: argparse.Namespace) -> ZenohSettings:
     if listen is None:
         listen = [f"tcp/127.0.0.1:{RENDEZVOUS_PORT}"] if args.zenoh_mode == "peer" else []
     try:
-        from drone_agent.zenoh_config import ROUTER_LEASE_MS, ROUTER_WAIT_MS
+        from protocols.bus.zenoh_config import ROUTER_LEASE_MS, ROUTER_WAIT_MS
 
         client = args.zenoh_mode == "client"
         return ZenohSettings(
@@ -198,8 +198,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the ground station; prints a status line per second on stderr unless --quiet."""
     from gcs.station.ground_station import GcsOptions, GroundStation
     from gcs.station.planner import envelope_of
-    from protocols.keys import validate_swarm_id
-    from protocols.scenario import ScenarioError, load_scenario
+    from protocols.scenario.scenario_file import ScenarioError, load_scenario
+    from protocols.wire.keys import validate_swarm_id
 
     try:
         scenario = load_scenario(args.scenario)
@@ -211,7 +211,7 @@ def run(args: argparse.Namespace) -> int:
     if key_file is None and args.secrets is not None:
         key_file = args.secrets / "mavlink.key"
     if key_file is not None:
-        from protocols.mavlink_signing import SigningKeyError, load_signing_key
+        from protocols.mavlink.signing import SigningKeyError, load_signing_key
 
         try:
             key = load_signing_key(key_file)
@@ -258,7 +258,7 @@ def run(args: argparse.Namespace) -> int:
             f"cannot bind UDP {args.gcs_bind}:{args.gcs_port}: {exc.strerror}"
         ) from None
     except Exception as exc:  # zenoh raises ZError with the reason
-        from drone_agent.zenoh_config import open_error
+        from protocols.bus.zenoh_config import open_error
 
         reason = str(exc).split(" at /", 1)[0]
         if zenoh_settings.mode == "client":

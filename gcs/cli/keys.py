@@ -1,11 +1,11 @@
-"""``swarm keys init DIR``: create a swarm's secrets (protocols/swarm_secrets.py)."""
+"""``swarm keys init DIR``: create a swarm's secrets (protocols/secrets/swarm_secrets.py)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from protocols.swarm_secrets import CLIENT_ROLES, SecretsError, init_secrets
+from protocols.secrets.swarm_secrets import CLIENT_ROLES, SecretsError, init_secrets
 
 
 class KeysError(Exception):

@@ -12,7 +12,7 @@ from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")  # before anything imports pymavlink
 
-from drone_agent.agent_cli import add_parser as add_agent_parser
+from drone_agent.process.agent_cli import add_parser as add_agent_parser
 from gcs.cli.drill import add_parser as add_drill_parser
 from gcs.cli.drills import add_parser as add_drills_parser
 from gcs.cli.gcs import add_parser as add_gcs_parser
@@ -148,11 +148,11 @@ def _up(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from drone_agent.config import agent_config
+    from drone_agent.core.config import agent_config
     from gcs.cli.compiled import warm_compiled
     from gcs.reference.simulate import simulate
     from gcs.report.summary import summary_lines
-    from protocols.scenario import ScenarioError, load_scenario
+    from protocols.scenario.scenario_file import ScenarioError, load_scenario
 
     try:
         scenario = load_scenario(args.scenario)
@@ -212,7 +212,7 @@ def _sim(args: argparse.Namespace) -> int:
 
 
 def _agent(args: argparse.Namespace) -> int:
-    from drone_agent.agent_cli import AgentCliError, run
+    from drone_agent.process.agent_cli import AgentCliError, run
 
     try:
         return run(args)

@@ -13,13 +13,13 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING, Any
 
-from drone_agent.agent_cli import RENDEZVOUS_PORT
 from gcs.cli.secured import add_secrets_flags
+from protocols.bus.zenoh_config import RENDEZVOUS_PORT
 
 if TYPE_CHECKING:  # numpy (the planner), imported when a command is sent, not by the parser
     from gcs.api.swarm import Swarm
     from gcs.station.commands import Reply, Request
-    from protocols.swarm_secrets import RoleSecrets
+    from protocols.secrets.swarm_secrets import RoleSecrets
 
 ANSWER_TIMEOUT_S = 2.0
 OPERATOR_COMMANDS = (
@@ -213,7 +213,7 @@ def run(args: argparse.Namespace) -> int:
     for line in format_reply(args.command, reply, elapsed_s):
         print(line)
     if args.command == "status":
-        from drone_agent.zenoh_config import describe
+        from protocols.bus.zenoh_config import describe
 
         print(f"network: {describe(secrets)}")
     return 0 if reply.accepted else 1

@@ -15,7 +15,7 @@ import sys
 import threading
 from pathlib import Path
 
-from drone_agent.zenoh_config import (
+from protocols.bus.zenoh_config import (
     ROUTER_LEASE_MS,
     ROUTER_PORT,
     describe,
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace, stop: threading.Event | None = None) -> int:
     """Run the router until SIGINT/SIGTERM (or ``stop``)."""
     import zenoh
 
-    from drone_agent.zenoh_transport import ZenohSettings
+    from protocols.bus.zenoh_bus import ZenohSettings
 
     stop = stop or threading.Event()
     try:

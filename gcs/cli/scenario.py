@@ -8,7 +8,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from protocols.layout_names import LAYOUTS
+from protocols.scenario.layout_names import LAYOUTS
 
 TEMPLATE_HELP = (
     "hover: take off and hold; "
@@ -136,7 +136,12 @@ def run(args: argparse.Namespace) -> int:
 
 def _new(args: argparse.Namespace) -> int:
     from gcs.report.scenario_summary import envelope_problem, summary_lines
-    from protocols.scenario_gen import GeneratorError, GeneratorOptions, generate, parse_faults
+    from protocols.scenario.generator import (
+        GeneratorError,
+        GeneratorOptions,
+        generate,
+        parse_faults,
+    )
 
     out: Path | None = args.output
     if out is not None and out.exists() and not args.force:
@@ -184,9 +189,9 @@ def _as_flag(message: str) -> str:
 
 
 def _check(path: Path) -> int:
-    from drone_agent.config import agent_config
+    from drone_agent.core.config import agent_config
     from gcs.report.scenario_summary import envelope_problem, summary_lines, takeoff_lines
-    from protocols.scenario import ScenarioError, load_scenario
+    from protocols.scenario.scenario_file import ScenarioError, load_scenario
 
     try:
         scenario = load_scenario(path)

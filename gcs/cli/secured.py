@@ -7,10 +7,10 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from protocols.swarm_secrets import ROLES
+from protocols.secrets.swarm_secrets import ROLES
 
 if TYPE_CHECKING:
-    from protocols.swarm_secrets import RoleSecrets
+    from protocols.secrets.swarm_secrets import RoleSecrets
 
 
 def add_secrets_flags(p: argparse.ArgumentParser, role: str) -> None:
@@ -32,7 +32,7 @@ def add_secrets_flags(p: argparse.ArgumentParser, role: str) -> None:
 
 def secrets_of(args: argparse.Namespace) -> RoleSecrets | None:
     """The role's secrets of ``--secrets`` (None without it); ValueError: one line."""
-    from drone_agent.zenoh_config import role_secrets
+    from protocols.bus.zenoh_config import role_secrets
 
     return role_secrets(
         getattr(args, "secrets", None), getattr(args, "role", "operator"), args.swarm_id

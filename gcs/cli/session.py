@@ -1,7 +1,7 @@
 """``swarm up --drones N``: an operator session, without a scenario file.
 
-The scenario of a session is made by the scenario generator (:mod:`protocols.scenario_gen`, the
-one implementation of layouts, radio graphs and consensus settings behind ``swarm scenario
+The scenario of a session is made by the scenario generator (:mod:`protocols.scenario.generator`,
+the one implementation of layouts, radio graphs and consensus settings behind ``swarm scenario
 new``) with its ``ground`` plan: N drones in a layout on the ground, resting there. ``swarm up``
 writes it into the report's ``logs/session.toml`` (the simulator, the agents and the ground
 station read it from there; ``swarm scenario check`` sums it up) and starts the ground station in
@@ -21,15 +21,15 @@ from pathlib import Path
 from typing import Any
 
 from gcs.cli.supervisor import SupervisorError
-from protocols.scenario_gen import (
+from protocols.scenario.generator import (
     MAX_DRONES,
     MIN_DRONES,
     Generated,
     GeneratorError,
     GeneratorOptions,
 )
-from protocols.scenario_gen import generate as generate_scenario
-from protocols.scenario_templates import SESSION_TEMPLATE
+from protocols.scenario.generator import generate as generate_scenario
+from protocols.scenario.templates import SESSION_TEMPLATE
 
 #: The session's scenario, in the report's logs folder.
 SESSION_FILE = "session.toml"

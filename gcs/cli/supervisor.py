@@ -183,8 +183,8 @@ def free_tcp_port() -> int:
 def rendezvous_port() -> int:
     """The agents' default rendezvous port (where ``swarm status`` etc. look by default) if it is
     free, else any free TCP port."""
-    from drone_agent.agent_cli import RENDEZVOUS_PORT
-    from drone_agent.zenoh_transport import tcp_listen_free
+    from protocols.bus.zenoh_bus import tcp_listen_free
+    from protocols.bus.zenoh_config import RENDEZVOUS_PORT
 
     return RENDEZVOUS_PORT if tcp_listen_free(RENDEZVOUS_PORT) else free_tcp_port()
 

@@ -35,8 +35,8 @@ from gcs.cli.supervisor import (
 from gcs.cli.up_hosts import add_multihost_flags, host_layout, multihost_plan
 from gcs.cli.view import LAYOUTS as VIEW_LAYOUTS
 from gcs.view.recording import INSTALL_HINT, rerun_available
-from protocols.layout_names import LAYOUTS
-from protocols.mavlink_conventions import DEFAULT_GCS_PORT, port_clash, vehicle_ports
+from protocols.mavlink.conventions import DEFAULT_GCS_PORT, port_clash, vehicle_ports
+from protocols.scenario.layout_names import LAYOUTS
 
 if TYPE_CHECKING:  # numpy and pymavlink: imported when a swarm comes up, not by the parser
     from gcs.cli.session import SessionRequest
@@ -229,10 +229,10 @@ def build_plan(
 ) -> tuple[RunPlan, int]:
     """The children of the run and the number of drones. With ``session``, the session's
     scenario is generated and written to ``scenario_path`` (in the report's logs folder)."""
-    from drone_agent.config import agent_config
+    from drone_agent.core.config import agent_config
     from gcs.cli.session import session_scenario, write_text
     from gcs.station.drills import RUN_FILE
-    from protocols.scenario import ScenarioError, load_scenario
+    from protocols.scenario.scenario_file import ScenarioError, load_scenario
 
     if session is None:
         try:

@@ -25,8 +25,8 @@ import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
-from drone_agent.zenoh_config import ROUTER_PORT, role_secrets, secured_endpoint
 from gcs.cli.supervisor import Child, RunPlan, SupervisorError, flags, free_tcp_port, swarm_argv
+from protocols.bus.zenoh_config import ROUTER_PORT, role_secrets, secured_endpoint
 
 PARTS = ("router", "gcs", "sim", "agents")
 #: Telemetry rate of every vehicle to the ground station (Hz), as up_cli.TELEMETRY_HZ.
@@ -206,7 +206,7 @@ def host_layout(args: argparse.Namespace, n: int) -> HostLayout:
 
 
 def _tcp_free(port: int) -> bool:
-    from drone_agent.zenoh_transport import tcp_listen_free
+    from protocols.bus.zenoh_bus import tcp_listen_free
 
     return tcp_listen_free(port)
 

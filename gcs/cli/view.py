@@ -160,7 +160,7 @@ def _view(args: argparse.Namespace, stop: Stop, out: TextIO) -> int:
 
     plan = None
     if args.scenario is not None:
-        from protocols.scenario import ScenarioError, load_scenario
+        from protocols.scenario.scenario_file import ScenarioError, load_scenario
 
         try:
             plan = load_scenario(args.scenario).trajectory()

@@ -1,9 +1,9 @@
 """The in-process agents' link to their vehicles: what each reads of its autopilot, asks of it and
 hands it, as a ``swarm agent`` does over MAVLink. Pure: no I/O, no clock.
 
-A ``swarm agent`` (drone_agent/hosted_agent.py over drone_agent/vehicle_link.py) reads its
-vehicle's state in the telemetry's float32 (:func:`reported`) and its armed state and mode from
-its HEARTBEAT, which the simulator sends again after every event that may change them
+A ``swarm agent`` (drone_agent/process/hosted_agent.py over drone_agent/process/vehicle_link.py)
+reads its vehicle's state in the telemetry's float32 (:func:`reported`) and its armed state and mode
+from its HEARTBEAT, which the simulator sends again after every event that may change them
 (sitl_sim/server.py: ``report``), so that at a tick the agent sees the autopilot as it is
 (:meth:`AutopilotLink.views`). It asks the autopilot to arm and take offboard, to hold or to land
 (:meth:`AutopilotLink.request`: the same commands, retried at most every ``command_retry_s`` of
@@ -20,17 +20,17 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from drone_agent.consensus_batch import frozen_factory
-from drone_agent.flight_phase import Request, VehicleView
-from drone_agent.hosted_agent import RunOptions
-from protocols.frames import FloatArray, quat_from_zyx
-from protocols.wire_status import AgentMode
-from sitl_sim.autopilot import Mode, VehicleEvent
-from sitl_sim.setpoint_jit import validate_attitude_targets
-from sitl_sim.world import World
+from drone_agent.core.flight_phase import Request, VehicleView
+from drone_agent.process.hosted_agent import RunOptions
+from protocols.model.frames import FloatArray, quat_from_zyx
+from protocols.runtime.fast_dataclass import frozen_factory
+from protocols.wire.status import AgentMode
+from sitl_sim.vehicle.autopilot import Mode, VehicleEvent
+from sitl_sim.vehicle.setpoint_jit import validate_attitude_targets
+from sitl_sim.vehicle.world import World
 
 #: Agent modes in which the vehicle flies the agent's setpoints: disarmed under them, it is lost
-#: (drone_agent/hosted_agent.py).
+#: (drone_agent/process/hosted_agent.py).
 FLYING_MODES = frozenset({AgentMode.FLYING, AgentMode.HOLDING})
 _new_vehicle_view = frozen_factory(VehicleView)
 _OFFBOARD, _LAND, _HOLD = int(Mode.OFFBOARD), int(Mode.LAND), int(Mode.HOLD)
@@ -38,10 +38,10 @@ _OFFBOARD, _LAND, _HOLD = int(Mode.OFFBOARD), int(Mode.LAND), int(Mode.HOLD)
 
 def reported(values: FloatArray) -> FloatArray:
     """``values`` as a vehicle reports them to its agent: LOCAL_POSITION_NED and ATTITUDE carry
-    float32 (drone_agent/vehicle_link.py reads them back as float64). The in-process agents read
-    their vehicles through this, as every ``swarm agent`` does, so the two runners compute on the
-    same inputs: a square grid's orientation estimate is ill-conditioned (equal spreads: its axes
-    are any), and the rounding alone turned one agent's estimated heading by 0.13 rad at the
+    float32 (drone_agent/process/vehicle_link.py reads them back as float64). The in-process agents
+    read their vehicles through this, as every ``swarm agent`` does, so the two runners compute on
+    the same inputs: a square grid's orientation estimate is ill-conditioned (equal spreads: its
+    axes are any), and the rounding alone turned one agent's estimated heading by 0.13 rad at the
     take-off of the 25-drone grid, which the formation then flew (up to 14 mm apart at N = 25,
     12 cm at N = 100)."""
     return np.asarray(values, dtype=np.float64).astype(np.float32).astype(np.float64)
@@ -51,15 +51,15 @@ def received(
     drones: Sequence[int], commands: Sequence[tuple[float, float, float, float]]
 ) -> tuple[npt.NDArray[np.intp], FloatArray, FloatArray, FloatArray]:
     """The setpoints ``commands`` (roll, pitch, yaw rad, normalised thrust) of ``drones`` as their
-    vehicles take them from a swarm agent: the agent's quaternion (drone_agent/hosted_agent.py:
-    ``quat_from_zyx``, the same values over an array as one by one), SET_ATTITUDE_TARGET's
-    float32, the simulator's validation (sitl_sim/setpoint.py: normalised, back to ZYX angles).
-    Returns the drones whose setpoint was valid (the others keep their last one, as the
-    simulator's vehicles do), their unit quaternions (4, K), attitudes (3, K) and thrusts (K,).
-    A square grid's take-off turned on the last bit of a command: 1e-13 m of one vehicle's
-    position flipped its agent's estimated heading by 90 degrees at N = 100. The simulator's
-    checks run over all the drones at once (the same rule, compiled:
-    :func:`~sitl_sim.setpoint_jit.validate_attitude_targets`)."""
+    vehicles take them from a swarm agent: the agent's quaternion
+    (drone_agent/process/hosted_agent.py: ``quat_from_zyx``, the same values over an array as one by
+    one), SET_ATTITUDE_TARGET's float32, the simulator's validation (sitl_sim/vehicle/setpoint.py:
+    normalised, back to ZYX angles). Returns the drones whose setpoint was valid (the others keep
+    their last one, as the simulator's vehicles do), their unit quaternions (4, K), attitudes (3, K)
+    and thrusts (K,). A square grid's take-off turned on the last bit of a command: 1e-13 m of one
+    vehicle's position flipped its agent's estimated heading by 90 degrees at N = 100. The
+    simulator's checks run over all the drones at once (the same rule, compiled:
+    :func:`~sitl_sim.vehicle.setpoint_jit.validate_attitude_targets`)."""
     values = np.array(commands).T
     quats = quat_from_zyx(values[2], values[1], values[0]).astype(np.float32).T
     thrusts = values[3].astype(np.float32)

@@ -2,12 +2,14 @@
 
 A composition and nothing else, of the parts every ``swarm up`` flight runs as processes:
 
-- the vehicles are the simulator's pure :class:`~sitl_sim.world.World` (sitl_sim/world.py): the
+- the vehicles are the simulator's pure :class:`~sitl_sim.vehicle.world.World`
+(sitl_sim/vehicle/world.py): the
   same dynamics and inner loop, the same autopilots (modes, arming, the offboard-loss failsafe,
   land detection, the crash rules) and the scenario's crashes, stepped once a control tick;
-- the agents are the rows of one :class:`~drone_agent.agent_core.BatchAgentCore` (one call per
-  control tick), each with its flight phase (drone_agent/flight_phase.py), reading and commanding
-  its vehicle as a ``swarm agent`` does over MAVLink (:mod:`gcs.reference.autopilot_link`);
+- the agents are the rows of one :class:`~drone_agent.core.agent_core.BatchAgentCore` (one call per
+  control tick), each with its flight phase (drone_agent/core/flight_phase.py), reading and
+  commanding its vehicle as a ``swarm agent`` does over MAVLink
+  (:mod:`gcs.reference.autopilot_link`);
 - consensus messages pass through an in-memory radio with the scenario's faults
   (:mod:`gcs.reference.network`).
 
@@ -24,28 +26,28 @@ from typing import Any
 
 import numpy as np
 
-from drone_agent.agent_core import AgentCore, BatchAgentCore, BatchOutputs
-from drone_agent.config import agent_config
-from drone_agent.fault_timeline import TimedAction, timeline
-from drone_agent.flight_phase import BatchReadiness, BatchTakeoff, FlightPhase
-from drone_agent.link_faults import LinkFaults, PairRandom
+from drone_agent.core.agent_core import AgentCore, BatchAgentCore, BatchOutputs
+from drone_agent.core.config import agent_config
+from drone_agent.core.flight_phase import BatchReadiness, BatchTakeoff, FlightPhase
+from drone_agent.process.fault_timeline import TimedAction, timeline
+from drone_agent.process.link_faults import LinkFaults, PairRandom
 from gcs.reference.autopilot_link import AutopilotLink, reported
 from gcs.reference.network import InProcessNetwork
 from gcs.report.flight_record import FlightRecord, scenario_link_cuts
-from protocols.collector import flight_collector
 from protocols.faults import Crash
-from protocols.plan_timing import flown_plan, flown_time_s, shift_s, tick_time_s
-from protocols.scenario import Scenario
-from protocols.trajectory import DescriptorTrajectory
-from protocols.wire_plan import FlightCommand
-from protocols.wire_status import AgentMode
-from sitl_sim.attitude_control import euler_from_quat_batch, yaw_from_quat_batch
-from sitl_sim.autopilot import VehicleEvent
-from sitl_sim.config import attitude_gains, vehicle_params
-from sitl_sim.dynamics import POS, QUAT, RATES, VEL, wrench_from_rotor_speeds
+from protocols.model.plan_timing import flown_plan, flown_time_s, shift_s, tick_time_s
+from protocols.model.trajectory import DescriptorTrajectory
+from protocols.runtime.collector import flight_collector
+from protocols.scenario.scenario_file import Scenario
+from protocols.wire.plan import FlightCommand
+from protocols.wire.status import AgentMode
+from sitl_sim.physics.attitude_control import euler_from_quat_batch, yaw_from_quat_batch
+from sitl_sim.physics.dynamics import POS, QUAT, RATES, VEL, wrench_from_rotor_speeds
 from sitl_sim.sim_config import crash_timeline
-from sitl_sim.tunables import FleetAttitudeGains
-from sitl_sim.world import World, WorldConfig
+from sitl_sim.vehicle.autopilot import VehicleEvent
+from sitl_sim.vehicle.config import attitude_gains, vehicle_params
+from sitl_sim.vehicle.tunables import FleetAttitudeGains
+from sitl_sim.vehicle.world import World, WorldConfig
 
 AIRBORNE_ALTITUDE_M = 0.1
 
@@ -275,13 +277,14 @@ class ReferenceFlight:
         pos, vel = reported(state[POS].T), reported(state[VEL].T)
         live, rows, now_live = self._live()
         # the membership view of tick k: the agents that finished round k - 1, as the lockstep
-        # round gate of every swarm agent has it (drone_agent/round_gate.py: an agent that died
-        # before its tick k - 1 is known dead only when its round k - 1 does not come)
+        # round gate of every swarm agent has it (drone_agent/process/round_gate.py: an agent that
+        # died before its tick k - 1 is known dead only when its round k - 1 does not come)
         members = now_live if self._finished is None else self._finished
         self._finished = now_live
         inboxes = self.network.receive_inboxes(k, live)
-        # the tick's time as the agents read it: the vehicle's time_boot_ms (sitl_sim/world.py),
-        # not k * dt (6.0200000000000005 s at k = 301, where the plan's climb starts)
+        # the tick's time as the agents read it: the vehicle's time_boot_ms
+        # (sitl_sim/vehicle/world.py), not k * dt (6.0200000000000005 s at k = 301, where the plan's
+        # climb starts)
         t_s = self.world.time_boot_ms(k) / 1000.0
         if not live:
             self._fly_none(k, rec)
@@ -327,10 +330,10 @@ class ReferenceFlight:
         state: np.ndarray,
         t_s: float,
     ) -> list[tuple[float, float, float, float]]:
-        """What each live agent's flight phase decides for its vehicle (drone_agent/flight_phase.py,
-        the same decision as every ``swarm agent``; the scenario's plan always says FLY): the
-        requests go to its autopilot, and the setpoints (roll, pitch, yaw, thrust) that answer
-        the tick are returned, one per agent."""
+        """What each live agent's flight phase decides for its vehicle
+        (drone_agent/core/flight_phase.py, the same decision as every ``swarm agent``; the
+        scenario's plan always says FLY): the requests go to its autopilot, and the setpoints (roll,
+        pitch, yaw, thrust) that answer the tick are returned, one per agent."""
         phases, separating, modes = self.phases, self.separating, self.agent_modes
         committed = [phases[i].committed for i in live]
         ready_all = self._ready(live, cols, members, committed)
@@ -368,7 +371,7 @@ class ReferenceFlight:
         self._record_vehicles(k, rec)
 
     def _plan_times(self, live: list[int], t_s: float) -> list[float]:
-        """Each live agent's plan time (protocols/plan_timing.py) on its take-off round."""
+        """Each live agent's plan time (protocols/model/plan_timing.py) on its take-off round."""
         times: dict[int | None, float] = {}
         out = []
         for takeoff in self.takeoff.rounds(live):
@@ -386,7 +389,7 @@ class ReferenceFlight:
         self._event("takeoff", takeoff_s=self.takeoff_s, round=takeoff_round, retimed_by_s=late)
 
     def flown_plan(self) -> DescriptorTrajectory:
-        """The plan as flown: re-timed to the take-off (protocols/plan_timing.py)."""
+        """The plan as flown: re-timed to the take-off (protocols/model/plan_timing.py)."""
         return flown_plan(self.plan, self.t_s if self.takeoff_s is None else self.takeoff_s)
 
     def _record_vehicles(self, k: int, rec: _Recorder) -> None:
@@ -409,7 +412,7 @@ class ReferenceFlight:
         committed: list[bool],
     ) -> list[bool]:
         """Whether each live agent's swarm is ready to leave the ground (the one rule of
-        drone_agent/flight_phase.py, :class:`BatchReadiness`: all agents in one call), from the
+        drone_agent/core/flight_phase.py, :class:`BatchReadiness`: all agents in one call), from the
         tick's outputs and the messages that arrived (the network's arrivals)."""
         ready = self.readiness.update(
             live,

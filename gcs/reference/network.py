@@ -12,12 +12,12 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from drone_agent.flight_phase import Arrivals
-from drone_agent.inboxes import Inboxes
-from drone_agent.jit_math import jit
-from drone_agent.link_faults import LinkFaults, PairRandom
-from protocols.consensus_message import ConsensusMessage
-from protocols.frames import FloatArray
+from drone_agent.core.flight_phase import Arrivals
+from drone_agent.core.inboxes import Inboxes
+from drone_agent.core.jit_math import jit
+from drone_agent.process.link_faults import LinkFaults, PairRandom
+from protocols.model.frames import FloatArray
+from protocols.wire.consensus_message import ConsensusMessage
 
 #: Loss draws made ahead per link at a time (one ``random(size)`` call instead of one call each).
 DRAW_BLOCK = 256
@@ -68,8 +68,8 @@ class InProcessNetwork:
         Per (message, receiver in range) in message order, receivers ascending: a cut or the
         partition stops it; else it is lost with its link's probability (one draw per link with a
         loss: from that link's own generator when ``rng`` is a :class:`PairRandom` — as every
-        agent of ``swarm up`` draws them (drone_agent.link_faults), so both runners lose the same
-        messages —, else from ``rng`` in that order); else it arrives after the base plus its
+        agent of ``swarm up`` draws them (drone_agent.process.link_faults), so both runners lose the
+        same messages —, else from ``rng`` in that order); else it arrives after the base plus its
         link's delay."""
         if not messages:
             return
@@ -203,7 +203,7 @@ class InProcessNetwork:
 
     def receive_inboxes(self, round_: int, drones: Sequence[int]) -> Inboxes:
         """:meth:`receive` of round ``round_``, the inboxes of drones ``drones`` (ascending) as
-        :class:`~drone_agent.inboxes.Inboxes`, each distinct message among them known from the
+        :class:`~drone_agent.core.inboxes.Inboxes`, each distinct message among them known from the
         lists they were sent in (when no message object was sent twice) instead of found again
         by the agents. :attr:`arrivals` are every drone's."""
         batches = self._in_flight.pop(round_, [])

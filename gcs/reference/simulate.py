@@ -25,8 +25,8 @@ from gcs.report.plots import write_plots
 from gcs.report.tlog import TlogWriter
 from gcs.report.trajectory_file import write_trajectory
 from gcs.view.recording import write_recording
-from protocols.plan_timing import takeoff_metrics
-from protocols.scenario import Scenario
+from protocols.model.plan_timing import takeoff_metrics
+from protocols.scenario.scenario_file import Scenario
 
 #: MAVLink MAV_STATE values used in heartbeats.
 MAV_STATE_STANDBY, MAV_STATE_ACTIVE, MAV_STATE_EMERGENCY = 3, 4, 6
@@ -199,7 +199,7 @@ READY_LIMIT_S = 60.0
 def ready_time_s(scenario: Scenario, limit_s: float = READY_LIMIT_S) -> float | None:
     """When the scenario's swarm is ready to leave the ground (s): measured by flying it in
     process, without its faults, until its agents agree to take off (the one readiness rule,
-    drone_agent/flight_phase.py); None if not within ``limit_s``. The plan does not change it:
-    a plan that starts on the ground is held until then (protocols/plan_timing.py)."""
+    drone_agent/core/flight_phase.py); None if not within ``limit_s``. The plan does not change it:
+    a plan that starts on the ground is held until then (protocols/model/plan_timing.py)."""
     calm = replace(scenario, faults=(), duration_s=max(scenario.duration_s, limit_s))
     return ReferenceFlight(calm).run_until_takeoff(limit_s)

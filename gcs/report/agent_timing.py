@@ -1,12 +1,12 @@
 """Did the agents keep up? The report's answer, from the ground station's own logs. Pure.
 
 In realtime the simulator measures, once per status interval, each agent's share of control ticks
-answered in time and its worst lag (sitl_sim/tick_answers.py), sends both to the ground station as
-NAMED_VALUE_FLOAT (logged in flight.tlog), and an "Agent late" STATUSTEXT for an agent below 90 %
-(an ``overload`` event in events.jsonl). :func:`timing_metrics` turns them into the report's
-``agent_timing`` block and explains each failsafe: a vehicle fails safe when its setpoints stop;
-if its agent had left the swarm (a drop-out, a drill), that is why; else if its agent was reported
-late just before, the machine could not keep up; else the agent stopped.
+answered in time and its worst lag (sitl_sim/vehicle/tick_answers.py), sends both to the ground
+station as NAMED_VALUE_FLOAT (logged in flight.tlog), and an "Agent late" STATUSTEXT for an agent
+below 90 % (an ``overload`` event in events.jsonl). :func:`timing_metrics` turns them into the
+report's ``agent_timing`` block and explains each failsafe: a vehicle fails safe when its setpoints
+stop; if its agent had left the swarm (a drop-out, a drill), that is why; else if its agent was
+reported late just before, the machine could not keep up; else the agent stopped.
 Lockstep runs have no timing figures (time waits for the agents).
 """
 
@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 
 from gcs.report.tlog import TlogTrack
-from sitl_sim.messages import AGENT_IN_TIME, AGENT_LAG_MS
-from sitl_sim.tick_answers import OVERLOAD_LAG_MS, OVERLOAD_SHARE
+from sitl_sim.mavlink_edge.messages import AGENT_IN_TIME, AGENT_LAG_MS
+from sitl_sim.vehicle.tick_answers import OVERLOAD_LAG_MS, OVERLOAD_SHARE
 
 #: A failsafe is blamed on an overload reported at most this long (s) before or after it.
 BLAME_WINDOW_S = 3.0

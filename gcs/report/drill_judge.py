@@ -35,8 +35,8 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.report.metrics import descriptors_of, separation
-from protocols.descriptor_vector import CENTRE, SHAPE
-from protocols.frames import FloatArray
+from protocols.model.descriptor_vector import CENTRE, SHAPE
+from protocols.model.frames import FloatArray
 
 BoolArray = npt.NDArray[np.bool_]
 #: Formation converged: centroid within this of the plan (m) ...
@@ -69,7 +69,7 @@ STRETCH_S = 6.0
 class Step:
     """One action of a drill at ``at_s`` simulated seconds after its start. ``kind``:
 
-    - ``fault``: a link fault (``args["fault"]``: a protocols.wire_fault command; a partition
+    - ``fault``: a link fault (``args["fault"]``: a protocols.wire.fault command; a partition
       with ``args["split"] = "north"`` is resolved by the runner with :func:`split_north`);
     - ``gcs``: a ground-station drill request (``args["name"]``: crash, dropout, gcs-restart;
       ``args["drone"]``);

@@ -2,7 +2,7 @@
 collects at the control rate, and what metrics, plots and logs are made from.
 
 Arrays are sampled at the times ``t_s`` (T,); N is the number of drones in the scenario (index i has
-MAVLink system id i + 1). Descriptor vectors follow protocols.descriptor_vector order.
+MAVLink system id i + 1). Descriptor vectors follow protocols.model.descriptor_vector order.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from protocols.scenario import LinkCut, Scenario
+from protocols.scenario.scenario_file import LinkCut, Scenario
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]

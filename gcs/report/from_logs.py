@@ -26,7 +26,7 @@ from gcs.report.metrics import compute_metrics
 from gcs.report.plots import write_plots
 from gcs.report.trajectory_file import write_trajectory
 from gcs.view.recording import write_recording
-from protocols.trajectory import DescriptorTrajectory
+from protocols.model.trajectory import DescriptorTrajectory
 
 #: the record's reading, by the names its callers import from here
 __all__ = [

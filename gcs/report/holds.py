@@ -16,8 +16,8 @@ import numpy as np
 
 from gcs.report.tlog import read_tlog
 from gcs.report.trajectory_file import read_trajectory
-from protocols.descriptor_vector import CENTRE, SHAPE
-from protocols.descriptors import descriptors
+from protocols.model.descriptor_vector import CENTRE, SHAPE
+from protocols.model.descriptors import descriptors
 
 
 @dataclass(frozen=True)

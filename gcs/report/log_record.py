@@ -7,9 +7,10 @@ Sampling: a uniform grid of simulated time at ``rate_hz`` (the telemetry rate), 
 Estimates are NaN where no status of that agent is younger than ``max_age_s``.
 
 Controls: the simulator streams each vehicle's rotor forces (N) to the GCS in
-ACTUATOR_OUTPUT_STATUS (protocols/mavlink_conventions.py); collective thrust (N) and body moments
-(N m) follow from them with the mixer's geometry (:func:`sitl_sim.mixer.wrench_from_rotor_forces`)
-and the scenario's vehicle parameters. A vehicle that sent none has zero thrust and moments.
+ACTUATOR_OUTPUT_STATUS (protocols/mavlink/conventions.py); collective thrust (N) and body moments
+(N m) follow from them with the mixer's geometry
+(:func:`sitl_sim.physics.mixer.wrench_from_rotor_forces`) and the scenario's vehicle parameters. A
+vehicle that sent none has zero thrust and moments.
 
 Link cuts (shaded in the plots): the scenario's own
 (:func:`gcs.report.flight_record.scenario_link_cuts`; the agents apply them) and the ``link_cut``
@@ -30,12 +31,12 @@ import numpy.typing as npt
 from gcs.report.events import read_events
 from gcs.report.flight_record import FlightRecord, LinkFault, scenario_link_cuts
 from gcs.report.tlog import TlogTrack, VehicleTrack, read_tlog
-from protocols.frames import FloatArray
-from protocols.scenario import Scenario
-from protocols.trajectory import DescriptorTrajectory
-from sitl_sim.config import vehicle_params
-from sitl_sim.mixer import wrench_from_rotor_forces
-from sitl_sim.vehicle_params import VehicleParams
+from protocols.model.frames import FloatArray
+from protocols.model.trajectory import DescriptorTrajectory
+from protocols.scenario.scenario_file import Scenario
+from sitl_sim.physics.mixer import wrench_from_rotor_forces
+from sitl_sim.physics.vehicle_params import VehicleParams
+from sitl_sim.vehicle.config import vehicle_params
 
 AIRBORNE_M = 0.1  # above this altitude (m) a vehicle counts as airborne
 MAX_AGE_S = 1.0

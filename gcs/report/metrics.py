@@ -1,7 +1,7 @@
 """Run metrics from a FlightRecord, as a JSON-able dict (written as ``metrics.json``). Pure.
 
-Definitions (descriptor order and names from protocols.descriptor_vector; errors a − a_ref with the
-three angle rows wrapped to [−π, π); "RMS" is sqrt(mean(e²)), "max" is max |e|):
+Definitions (descriptor order and names from protocols.model.descriptor_vector; errors a − a_ref
+with the three angle rows wrapped to [−π, π); "RMS" is sqrt(mean(e²)), "max" is max |e|):
 
 - **True descriptors** ``a_true(t)``: the descriptors (ALGORITHM.md §2) of the drones that are
   members of the swarm at ``t`` (and have a finite position), with the principal axes assigned to
@@ -46,9 +46,22 @@ import numpy.typing as npt
 
 from gcs.report.events import jsonable
 from gcs.report.flight_record import FlightRecord
-from protocols.descriptor_vector import CENTRE, I_PITCH, I_ROLL, I_YAW, NAMES, ORIENTATION, SHAPE
-from protocols.descriptors import covariance, desired_axes, frame_from_moments, heading_defined
-from protocols.frames import FloatArray, wrap_pi
+from protocols.model.descriptor_vector import (
+    CENTRE,
+    I_PITCH,
+    I_ROLL,
+    I_YAW,
+    NAMES,
+    ORIENTATION,
+    SHAPE,
+)
+from protocols.model.descriptors import (
+    covariance,
+    desired_axes,
+    frame_from_moments,
+    heading_defined,
+)
+from protocols.model.frames import FloatArray, wrap_pi
 
 BoolArray = npt.NDArray[np.bool_]
 CENTROID_TOL_M = 0.05

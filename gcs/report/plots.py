@@ -25,8 +25,8 @@ from mpl_toolkits.mplot3d.axes3d import Axes3D
 
 from gcs.report.flight_record import FlightRecord
 from gcs.report.metrics import BoolArray, heading_mask, true_descriptors
-from protocols.descriptor_vector import I_PITCH, I_ROLL, I_YAW
-from protocols.frames import FloatArray, wrap_pi
+from protocols.model.descriptor_vector import I_PITCH, I_ROLL, I_YAW
+from protocols.model.frames import FloatArray, wrap_pi
 
 DPI = 110
 _MAX_POINTS = 20_000

@@ -14,10 +14,10 @@ import numpy as np
 
 from gcs.station.planner import Envelope, PlanRefused, check_target, envelope_of
 from protocols.faults import Crash, Delay, Dropout, Fault, LinkCut, Loss, Partition
-from protocols.formation_fit import closest_pair, formation_positions
-from protocols.plan_timing import departure_s
-from protocols.scenario import Scenario, WaypointConfig
-from protocols.scenario_layout import radio_graph
+from protocols.model.formation_fit import closest_pair, formation_positions
+from protocols.model.plan_timing import departure_s
+from protocols.scenario.layout import radio_graph
+from protocols.scenario.scenario_file import Scenario, WaypointConfig
 
 #: Plan samples per simulated second for the envelope check.
 ENVELOPE_SAMPLES_PER_S = 2.0
@@ -44,7 +44,8 @@ def envelope_problem(scenario: Scenario, envelope: Envelope | None = None) -> st
 
 def closest_in_formation(scenario: Scenario) -> tuple[float, float]:
     """The smallest predicted distance (m) between two drones over the plan's waypoints, and the
-    waypoint time (s) where it occurs (protocols/formation_fit.py: the field maps the start)."""
+    waypoint time (s) where it occurs (protocols/model/formation_fit.py: the field maps the
+    start)."""
     start = scenario.positions_ned_m()
     best, when = math.inf, 0.0
     for w in scenario.waypoints:
@@ -134,7 +135,8 @@ def summary_lines(scenario: Scenario) -> list[str]:
 def takeoff_lines(scenario: Scenario, ready_s: float | None, limit_s: float) -> list[str]:
     """What ``swarm scenario check`` says of the take-off, given when the swarm was measured
     ready to leave the ground (``ready_s``; None: not within ``limit_s``): the time, and a
-    warning when the plan moves before it (it is then flown late: protocols/plan_timing.py)."""
+    warning when the plan moves before it (it is then flown late:
+    protocols/model/plan_timing.py)."""
     plan = scenario.trajectory()
     hold = departure_s(plan, plan.start_s)
     if ready_s is None:

@@ -9,17 +9,17 @@ byte-identical logs). As MAVProxy does, the two low bits of the timestamp carry 
 (here always 0), so a record time is rounded down to a multiple of 4 µs. Messages that carry
 ``time_boot_ms`` (LOCAL_POSITION_NED, ATTITUDE) hold the simulated time in ms; the reader takes
 vehicle time from that field, not from the record timestamp, and from ``time_usec`` (µs) for
-ACTUATOR_OUTPUT_STATUS (the rotor forces, N, of rotors 1..4: protocols/mavlink_conventions.py).
+ACTUATOR_OUTPUT_STATUS (the rotor forces, N, of rotors 1..4: protocols/mavlink/conventions.py).
 The ground station also logs each agent's status as DEBUG_FLOAT_ARRAY "AGENT" from the agent's
 component (191), ``time_usec`` = simulated time (same file), so the log alone holds the flight;
 layout 1 (``array_id``) carries the ids of the neighbours the agent integrated, layout 0 (older
-logs) does not and reads back with those ids unknown (protocols/mavlink_conventions.py).
+logs) does not and reads back with those ids unknown (protocols/mavlink/conventions.py).
 
 pymavlink is used only as a codec, one per (system id, component): the autopilot (1) for vehicle
 telemetry, the onboard computer (191) for agent statuses; each carries its own sequence numbers.
 
 ArduCopter-dialect vehicles (their HEARTBEAT's autopilot is ArduPilot; protocols/
-mavlink_conventions.py) each keep their own EKF origin and their own boot clock: the reader takes
+mavlink/conventions.py) each keep their own EKF origin and their own boot clock: the reader takes
 their position from GLOBAL_POSITION_INT about the swarm frame's origin (the GPS_GLOBAL_ORIGIN the
 ground station, system 255, wrote at the start; the default home without one), and the time of
 their positions and attitudes from the record timestamps (the swarm's clock, on which the ground
@@ -43,9 +43,7 @@ import numpy as np
 import numpy.typing as npt
 from pymavlink.dialects.v20 import ardupilotmega, common
 
-from protocols.frames import FloatArray
-from protocols.geodesy import GeoPoint, ned_of_global_int
-from protocols.mavlink_conventions import (
+from protocols.mavlink.conventions import (
     ACTUATOR_ROTORS,
     AGENT_COMPID,
     AGENT_NEIGHBOUR_SLOTS,
@@ -55,7 +53,9 @@ from protocols.mavlink_conventions import (
     GCS_SYSID,
     MAV_AUTOPILOT_ARDUPILOTMEGA,
 )
-from protocols.mavlink_fast import pack, parse
+from protocols.mavlink.fast import pack, parse
+from protocols.model.frames import FloatArray
+from protocols.model.geodesy import GeoPoint, ned_of_global_int
 
 _TS = struct.Struct(">Q")
 _Rows = list[tuple[float, ...]]
@@ -155,7 +155,7 @@ class TlogWriter:
         values: FloatArray,
         neighbour_ids: Sequence[int] | None = None,
     ) -> None:
-        """An agent's status (``values``: protocols/mavlink_conventions.py AGENT_STATUS_VALUES,
+        """An agent's status (``values``: protocols/mavlink/conventions.py AGENT_STATUS_VALUES,
         NaN allowed) as DEBUG_FLOAT_ARRAY "AGENT" from (``sysid``, 191) at simulated ``t_s``.
 
         ``neighbour_ids``: the indices of the neighbours whose messages the agent integrated
@@ -230,9 +230,9 @@ class VehicleTrack:
       ``status_neighbours`` (S, AGENT_NEIGHBOUR_SLOTS) the ids of the neighbours integrated
       (ascending, NaN-padded; all NaN in layout 0): :meth:`neighbour_ids`.
     - ``heartbeat_t_s`` (H,): record times of the autopilot's HEARTBEATs, s; ``armed`` (H,) its
-      armed flag; ``custom_mode`` (H,) its PX4 custom mode (protocols/mavlink_conventions.py).
+      armed flag; ``custom_mode`` (H,) its PX4 custom mode (protocols/mavlink/conventions.py).
     - ``named`` : NAMED_VALUE_FLOAT name -> (K, 2) rows of (time_boot_ms / 1000 s, value), e.g.
-      the simulator's ``agt_intime`` and ``agt_lag_ms`` (sitl_sim/messages.py).
+      the simulator's ``agt_intime`` and ``agt_lag_ms`` (sitl_sim/mavlink_edge/messages.py).
     Samples are sorted by time.
     """
 

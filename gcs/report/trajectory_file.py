@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from protocols.trajectory import DescriptorTrajectory
+from protocols.model.trajectory import DescriptorTrajectory
 
 
 def write_trajectory(plan: DescriptorTrajectory, path: Path) -> Path:

@@ -31,10 +31,10 @@ from gcs.station.planner import (
     land,
     plan_move,
 )
-from protocols.descriptor_vector import I_YAW, SHAPE
-from protocols.formation_fit import fit_problem
-from protocols.frames import FloatArray
-from protocols.wire_plan import LAND_HANDOVER_ALTITUDE_M, FlightCommand, PlanMessage
+from protocols.model.descriptor_vector import I_YAW, SHAPE
+from protocols.model.formation_fit import fit_problem
+from protocols.model.frames import FloatArray
+from protocols.wire.plan import LAND_HANDOVER_ALTITUDE_M, FlightCommand, PlanMessage
 
 VERSION = 1
 MAX_REQUEST_BYTES = 4096

@@ -22,15 +22,15 @@ from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 
-from drone_agent.fault_drills import describe
-from drone_agent.transport import Bus, Closeable, Congestion
+from drone_agent.process.fault_drills import describe
 from gcs.report.events import EventLog
 from gcs.station.commands import Reply
 from gcs.station.telemetry import TelemetryReceiver
+from protocols.bus.interface import Bus, Closeable, Congestion
 from protocols.faults import Dropout, LinkCut, LinkRestore, Restart
-from protocols.keys import SwarmKeys
-from protocols.wire import WireError
-from protocols.wire_fault import decode_fault, encode_fault, fault_op
+from protocols.wire.fault import decode_fault, encode_fault, fault_op
+from protocols.wire.format import WireError
+from protocols.wire.keys import SwarmKeys
 
 MAV_CMD_INJECT_FAILURE = 420
 FAILURE_UNIT_SYSTEM_MOTOR = 101

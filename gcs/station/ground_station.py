@@ -37,10 +37,9 @@ from typing import Any
 
 import zenoh
 
-from drone_agent.fault_timeline import TimedAction, timeline
-from drone_agent.flight_phase import AIRBORNE_ALTITUDE_M
-from drone_agent.transport_link import PlanServer
-from drone_agent.zenoh_transport import ZenohBus, ZenohSettings
+from drone_agent.core.flight_phase import AIRBORNE_ALTITUDE_M
+from drone_agent.process.fault_timeline import TimedAction, timeline
+from drone_agent.process.transport_link import PlanServer
 from gcs.report.agent_timing import timing_metrics
 from gcs.report.events import EventLog, read_events
 from gcs.report.from_logs import build_record, write_report
@@ -59,14 +58,21 @@ from gcs.station.drills import GcsDrills
 from gcs.station.planner import Envelope, PlanRefused
 from gcs.station.swarm_watch import SwarmWatch
 from gcs.station.telemetry import TelemetryReceiver
-from protocols.keys import SwarmKeys
-from protocols.plan_timing import departure_s, flown_plan, shift_s, takeoff_metrics, tick_time_s
-from protocols.scenario import Scenario
-from protocols.trajectory import DescriptorTrajectory
-from protocols.wire import WireError
-from protocols.wire_plan import FlightCommand, PlanMessage, decode_plan
-from protocols.wire_status import decode_statuses
-from sitl_sim.config import vehicle_params
+from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings
+from protocols.model.plan_timing import (
+    departure_s,
+    flown_plan,
+    shift_s,
+    takeoff_metrics,
+    tick_time_s,
+)
+from protocols.model.trajectory import DescriptorTrajectory
+from protocols.scenario.scenario_file import Scenario
+from protocols.wire.format import WireError
+from protocols.wire.keys import SwarmKeys
+from protocols.wire.plan import FlightCommand, PlanMessage, decode_plan
+from protocols.wire.status import decode_statuses
+from sitl_sim.vehicle.config import vehicle_params
 
 _POLL_S = 0.02
 #: Shortest time between two passes of the main loop (s).
@@ -109,7 +115,7 @@ class GcsOptions:
     shutdown_timeout_s: float = 120.0
     on_recording: Callable[[], None] | None = None
     #: vehicles that each count from their own boot: the swarm clock's epoch (Unix s;
-    #: protocols/swarm_clock.py), None when one simulator's time is the swarm's
+    #: protocols/mavlink/swarm_clock.py), None when one simulator's time is the swarm's
     swarm_epoch_s: float | None = None
     #: at the end time, land the swarm (the ``land`` plan) and end the run once it is down, as
     #: a shutdown does (vehicles that outlive the run: another project's SITL, hardware)
@@ -248,7 +254,7 @@ class GroundStation:
         return None if t is None else tick_time_s(t, self._period_ms)
 
     def flown(self, now_s: float | None = None) -> DescriptorTrajectory:
-        """The plan in force as the swarm flies it (protocols/plan_timing.py): re-timed to the
+        """The plan in force as the swarm flies it (protocols/model/plan_timing.py): re-timed to the
         take-off; before it, held until ``now_s`` (default: now)."""
         takeoff = self.takeoff_s
         when = takeoff if takeoff is not None else (self.now_s if now_s is None else now_s)
@@ -477,7 +483,7 @@ class GroundStation:
 
     def plan_summary(self) -> dict[str, Any]:
         """The plan in force, for ``status``: its ``seq``, ``command`` (FLY, GROUND, LAND) and
-        ``late_s``, how many seconds late the swarm flies it (protocols/plan_timing.py); None
+        ``late_s``, how many seconds late the swarm flies it (protocols/model/plan_timing.py); None
         while a plan that leaves the ground still waits there for the swarm's take-off."""
         takeoff, trajectory = self.takeoff_s, self.plan.trajectory
         waiting = (

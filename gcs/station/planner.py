@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from protocols.descriptor_vector import (
+from protocols.model.descriptor_vector import (
     CENTRE,
     I_PITCH,
     I_ROLL,
@@ -25,9 +25,9 @@ from protocols.descriptor_vector import (
     ORIENTATION,
     SHAPE,
 )
-from protocols.frames import FloatArray
-from protocols.scenario import SafetyConfig
-from protocols.trajectory import DescriptorTrajectory, Waypoint, quintic_hermite
+from protocols.model.frames import FloatArray
+from protocols.model.trajectory import DescriptorTrajectory, Waypoint, quintic_hermite
+from protocols.scenario.scenario_file import SafetyConfig
 
 #: Peak speed and acceleration of a rest-to-rest minimum-jerk quintic over distance D and time T
 #: are 1.875 D/T and 5.7735 D/T^2.
@@ -383,7 +383,7 @@ def land(plan: DescriptorTrajectory, now_s: float, env: Envelope) -> DescriptorT
     Never refused: the geofence is not checked (landing is how a swarm leaves it); the durations
     are stretched until the speed and acceleration limits hold. The agents follow the formation
     down and hand each vehicle to its autopilot's LAND mode once the commanded altitude is below
-    :data:`protocols.wire_plan.LAND_HANDOVER_ALTITUDE_M` (see :mod:`drone_agent.flight_phase`).
+    :data:`protocols.wire.plan.LAND_HANDOVER_ALTITUDE_M` (see :mod:`drone_agent.core.flight_phase`).
     """
     a0, _, _ = plan.evaluate(now_s)
     stop, t_stop = _stop(plan, now_s, env)

@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 
 from gcs.station.telemetry import VehicleState
-from protocols.descriptors import descriptors
-from protocols.mavlink_conventions import MavSeverity
-from protocols.wire_status import AgentStatus, Health
+from protocols.mavlink.conventions import MavSeverity
+from protocols.model.descriptors import descriptors
+from protocols.wire.status import AgentStatus, Health
 
 _CRASH_WORDS = ("crash", "destroyed", "all motors off")
 #: Smoothing of the link quality: weight of the newest status (about ten statuses).
@@ -26,7 +26,7 @@ _LINK_SMOOTHING = 0.1
 def text_kind(severity: int, text: str) -> str:
     """The event kind of a vehicle's STATUSTEXT: ``crash`` (MAV_SEVERITY_EMERGENCY, motors off,
     destroyed), ``failsafe``, ``overload`` (its agent answers too few ticks in time, realtime:
-    sitl_sim/tick_answers.py) or ``vehicle_text``."""
+    sitl_sim/vehicle/tick_answers.py) or ``vehicle_text``."""
     lower = text.lower()
     if severity == MavSeverity.EMERGENCY or any(w in lower for w in _CRASH_WORDS):
         return "crash"

@@ -7,13 +7,13 @@ The simulator sends to the ground station's address; the ground station sends ba
 telemetry comes from. The record time of a packet is its own ``time_boot_ms`` (s) when it has one,
 else its vehicle's last known time, else the newest simulated time heard from any vehicle.
 
-Vehicles of either autopilot dialect (protocols/mavlink_conventions.py), known by their HEARTBEAT:
+Vehicles of either autopilot dialect (protocols/mavlink/conventions.py), known by their HEARTBEAT:
 a PX4-dialect vehicle's position is its LOCAL_POSITION_NED (one simulator, one frame); an
 ArduCopter's is its GLOBAL_POSITION_INT about the swarm's origin (``origin``, written into the log
 as a GPS_GLOBAL_ORIGIN of the ground station's system id, 255, so that the report reads it back),
 since each ArduCopter keeps its own EKF origin. With ``epoch_s`` (autopilots that each count from
-their own boot: protocols/swarm_clock.py) a ``time_boot_ms`` is put on the swarm's clock first.
-Commands go back to the address each vehicle's telemetry comes from (one simulator, or one
+their own boot: protocols/mavlink/swarm_clock.py) a ``time_boot_ms`` is put on the swarm's clock
+first. Commands go back to the address each vehicle's telemetry comes from (one simulator, or one
 ArduCopter instance each).
 """
 
@@ -29,12 +29,12 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega, common
 
 from gcs.report.tlog import TlogWriter
-from protocols.geodesy import GeoPoint, ned_of_global_int
-from protocols.mavlink_conventions import GCS_COMPID, GCS_SYSID, MAV_AUTOPILOT_ARDUPILOTMEGA
-from protocols.mavlink_fast import fast_receive_ok, pack, parse
-from protocols.mavlink_signing import setup_signing
-from protocols.swarm_clock import VehicleClock
-from protocols.wire_status import AgentStatus
+from protocols.mavlink.conventions import GCS_COMPID, GCS_SYSID, MAV_AUTOPILOT_ARDUPILOTMEGA
+from protocols.mavlink.fast import fast_receive_ok, pack, parse
+from protocols.mavlink.signing import setup_signing
+from protocols.mavlink.swarm_clock import VehicleClock
+from protocols.model.geodesy import GeoPoint, ned_of_global_int
+from protocols.wire.status import AgentStatus
 
 _MAX_DATAGRAM = 65535
 _ARMED_FLAG = 128  # MAV_MODE_FLAG_SAFETY_ARMED
@@ -159,7 +159,7 @@ class TelemetryReceiver:
                     texts.append(text)
 
     def log_agent_status(self, status: AgentStatus) -> None:
-        """Record an agent's status in the tlog (protocols/mavlink_conventions.py "AGENT")."""
+        """Record an agent's status in the tlog (protocols/mavlink/conventions.py "AGENT")."""
         values = [*status.estimate, len(status.neighbours), int(status.mode), int(status.armed)]
         self._tlog.write_agent_status(
             status.t_s, status.drone + 1, np.array(values, dtype=float), status.neighbours

@@ -42,8 +42,8 @@ from gcs.view.scene import (
     scene_from_record,
     tlog_rate_hz,
 )
-from protocols.frames import FloatArray
-from protocols.trajectory import DescriptorTrajectory
+from protocols.model.frames import FloatArray
+from protocols.model.trajectory import DescriptorTrajectory
 
 
 @dataclass

@@ -45,7 +45,7 @@ from gcs.view.rerun_series import (
     scalar_series,
 )
 from gcs.view.scene import Mode, Scene, link_pairs
-from protocols.frames import FloatArray, rot_zyx_batch
+from protocols.model.frames import FloatArray, rot_zyx_batch
 
 APP_ID = "quadswarm"
 TRAIL_S = 2.0

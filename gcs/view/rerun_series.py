@@ -20,7 +20,7 @@ import numpy.typing as npt
 import rerun as rr
 
 from gcs.view.scene import Scene
-from protocols.frames import FloatArray, wrap_pi
+from protocols.model.frames import FloatArray, wrap_pi
 
 TIMELINE = "sim_time"
 #: (index in the descriptor vector, entity name under ``descriptors/``, plot title), in the order

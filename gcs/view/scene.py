@@ -34,12 +34,12 @@ from gcs.report.flight_record import FlightRecord
 from gcs.report.log_record import MAX_AGE_S, build_record, hold
 from gcs.report.metrics import heading_mask, true_descriptors
 from gcs.report.tlog import TlogTrack, read_tlog
-from protocols.frames import FloatArray
-from protocols.trajectory import DescriptorTrajectory
+from protocols.model.frames import FloatArray
+from protocols.model.trajectory import DescriptorTrajectory
 
 _LOST_KINDS = ("agent_left", "dropout_detected", "crash")
 TLOG, EVENTS, TRAJECTORY = "flight.tlog", "events.jsonl", "trajectory.json"
-#: Descriptor names in protocols/descriptor_vector.py order, and their units in the view.
+#: Descriptor names in protocols/model/descriptor_vector.py order, and their units in the view.
 DESCRIPTORS = ("centre_n", "centre_e", "centre_d", "roll", "pitch", "yaw", "s_length", "s_width",
                "s_height")  # fmt: skip
 UNITS = ("m", "m", "m", "deg", "deg", "deg", "m2", "m2", "m2")

@@ -1,0 +1,117 @@
+"""The compiled loops of the consensus step (drone_agent/core/consensus/estimator.py): the pairing
+rules and the increments over a step's due values, and each row's edge sums
+(drone_agent/core/jit_math.py: numba, compiled on first use). Pure and I/O-free."""
+
+from __future__ import annotations
+
+from drone_agent.core.jit_math import jit, nmax, nmin
+
+
+@jit
+def pair_rounds(  # type: ignore[no-untyped-def]
+    rows,
+    pos,
+    sender,
+    rounds,
+    msg,
+    ids,
+    round_,
+    hist_round,
+    hist_heard,
+    hist_gamma,
+    hist_degree,
+    hist_largest,
+    edge,
+    edge_round,
+    heard_by,
+    gamma_msg,
+    degree_msg,
+    gains,
+    scales,
+    disagreement,
+    integrated,
+    heads,
+    steps,
+    args,
+):
+    """:meth:`~drone_agent.core.consensus.estimator.BatchConsensus._integrate` over the due values
+    (T,), ordered by (agent, neighbour, round): which pass rules 2, 3 and 6 (``integrated``),
+    the disagreement per position (the largest scaled difference), ``heads`` (the first
+    integrated value of each (agent, neighbour)), and for the integrated ones, in order, the
+    gain ``rho dt`` (``steps``) and the tanh arguments ``c diff / scale`` per channel (``args``,
+    rows 0..n). Returns n."""
+    rho0, rho_cap, dt, c, normalised = gains
+    h = hist_round.shape[1]
+    n_ok = 0
+    last_pos, last_j = -1, -1
+    for t in range(pos.shape[0]):
+        p, j, q, u = pos[t], sender[t], rounds[t], msg[t]
+        r = rows[p]
+        slot = q % h
+        if not (
+            hist_round[r, slot] == q
+            and hist_heard[r, slot, j]
+            and (not edge[r, j] or q > edge_round[r, j])
+            and heard_by[u, ids[r]]
+        ):
+            continue
+        integrated[t] = True
+        pair_degree = max(max(hist_degree[r, slot], degree_msg[u]), 1)
+        rho = rho0
+        if normalised:
+            rho = rho / pair_degree
+        rho = nmin(rho, rho_cap / pair_degree)  # the step cap (consensus.py)
+        rho = rho / max(round_ - q, 1)  # delay-scaled gain (module doc)
+        largest_j, worst = 0.0, 0.0
+        for ch in range(scales.shape[0]):  # per channel scale (consensus.py)
+            diff = hist_gamma[r, slot, ch] - gamma_msg[u, ch]
+            largest_j = nmax(largest_j, abs(gamma_msg[u, ch]))
+            worst = nmax(worst, abs(diff))
+            args[n_ok, ch] = c * diff / scales[ch]
+        # max |gamma| per own round (kept with the history) and per message
+        scaled = worst / (1.0 + nmax(hist_largest[r, slot], largest_j))
+        first_of_row = p != last_pos
+        disagreement[p] = scaled if first_of_row else nmax(disagreement[p], scaled)
+        steps[n_ok] = rho * dt
+        heads[t] = first_of_row or j != last_j
+        last_pos, last_j = p, j
+        n_ok += 1
+    return n_ok
+
+
+@jit
+def pair_increments(  # type: ignore[no-untyped-def]
+    rows, pos, sender, rounds, integrated, steps, tanh_args, scales, q_own, edge, edge_round
+):
+    """Each integrated value's increment ``rho dt scale tanh(...)`` subtracted from ``q_own`` in
+    order (several rounds on one edge add up in round order, as one agent integrating them one
+    after the other), the edge marked with its newest integrated round."""
+    k = 0
+    for t in range(pos.shape[0]):
+        if not integrated[t]:
+            continue
+        r, j, q = rows[pos[t]], sender[t], rounds[t]
+        for ch in range(scales.shape[0]):
+            q_own[r, j, ch] = q_own[r, j, ch] - steps[k] * scales[ch] * tanh_args[k, ch]
+        edge_round[r, j] = max(edge_round[r, j], q) if edge[r, j] else q
+        edge[r, j] = True
+        k += 1
+
+
+@jit
+def edge_sums(rows, edge, has_q_for_me, q_for_me, q_own, q_recv, total):  # type: ignore[no-untyped-def]
+    """:meth:`~drone_agent.core.consensus.estimator.BatchConsensus._eta_total` per row, its edges in
+    neighbour order."""
+    for p in range(rows.shape[0]):
+        r = rows[p]
+        started = False
+        for j in range(edge.shape[1]):
+            if not edge[r, j]:
+                continue
+            fresh = has_q_for_me[r, j]  # rule 1: the newest Q_ji heard
+            for ch in range(total.shape[1]):
+                if fresh:
+                    q_recv[r, j, ch] = q_for_me[r, j, ch]
+                d = q_own[r, j, ch] - q_recv[r, j, ch]
+                total[p, ch] = total[p, ch] + d if started else d
+            started = True

@@ -1,0 +1,582 @@
+"""What an agent does with its vehicle each control tick: the flight phases. Pure.
+
+From the plan's flight command, the agent's readiness, the core's setpoint and what the vehicle
+reports (armed, mode, altitude), :meth:`FlightPhase.decide` returns an :class:`Order`: the agent's
+mode, the setpoint to send (every tick has one: in lockstep it also acknowledges the tick) and
+what to ask of the autopilot (arm and take offboard, LAND mode, HOLD mode).
+
+Phases, by plan command (protocols/wire/plan.py):
+
+- ``FLY``: once the estimator has settled (``converged``) and arming is allowed, fly the
+  formation: arm, offboard, the core's setpoint every tick. The decision is latched
+  (``committed``) until the vehicle is back on the ground.
+- ``LAND``: an airborne vehicle flies the landing plan (stop, level, flatten, descend) with the
+  formation until the commanded centre altitude is at or below
+  :data:`~protocols.wire.plan.LAND_HANDOVER_ALTITUDE_M` (or its own altitude is below
+  :data:`TOUCHDOWN_FLOOR_M`, or it has no valid setpoint), then it is handed to the autopilot's
+  LAND mode: level, sink at the land speed, touchdown detector, disarm. Disarmed on the ground it
+  is ``LANDED``; a ``FLY`` plan (``swarm takeoff``) arms it and flies again, also in mid-descent.
+- ``GROUND``: stay on the ground; an airborne vehicle is handed to LAND at once.
+
+Safety invariant (tested over every command, mode and vehicle state): a vehicle that is armed or
+above :data:`AIRBORNE_ALTITUDE_M` is never sent a thrust below the controller's minimum
+(``ThrustLimits.min_thrust_ratio`` of its weight). Zero thrust goes only to a disarmed vehicle on
+the ground. The only way to stop the motors of a flying vehicle is an explicit kill (the ground
+station's crash drill, MAV_CMD_INJECT_FAILURE, or a forced disarm), never an agent's setpoint.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+import numpy.typing as npt
+
+from drone_agent.core.agent_core import AgentConfig, AgentOutput, Setpoint
+from drone_agent.core.jit_math import jit
+from drone_agent.core.thrust_attitude import ThrustLimits
+from protocols.model.frames import G_M_S2
+from protocols.runtime.fast_dataclass import frozen_factory
+from protocols.wire.consensus_message import ConsensusMessage
+from protocols.wire.plan import LAND_HANDOVER_ALTITUDE_M, FlightCommand
+from protocols.wire.status import AgentMode
+
+#: A vehicle above this altitude (m) is airborne whatever it says about arming.
+AIRBORNE_ALTITUDE_M = 0.1
+#: Under a LAND plan a vehicle this low (m) is handed to the autopilot's LAND mode at once.
+TOUCHDOWN_FLOOR_M = 0.3
+
+
+class Request(Enum):
+    """What the agent asks of the autopilot this tick (the adapter rate-limits the asking)."""
+
+    NONE = "none"
+    ARM_OFFBOARD = "arm and offboard"
+    LAND_MODE = "land mode"
+    HOLD_MODE = "hold mode"
+
+
+@dataclass(frozen=True)
+class VehicleView:
+    """What the vehicle last reported: armed, whether it flies offboard setpoints or its own
+    LAND or HOLD mode, and its altitude (m, up)."""
+
+    armed: bool
+    in_offboard: bool
+    in_land: bool
+    in_hold: bool
+    altitude_m: float
+
+    @property
+    def airborne(self) -> bool:
+        """Armed, or off the ground: its motors must not be cut by a setpoint."""
+        return self.armed or self.altitude_m > AIRBORNE_ALTITUDE_M
+
+
+@dataclass(frozen=True)
+class Order:
+    """This tick's decision: the agent's mode, the setpoint to send, the autopilot request."""
+
+    mode: AgentMode
+    setpoint: Setpoint
+    request: Request = Request.NONE
+
+
+#: ``Order(mode, setpoint, request)``, made without the frozen ``__init__`` (every agent makes
+#: one a tick)
+_new_order = frozen_factory(Order)
+
+
+def idle_setpoint(yaw_rad: float) -> Setpoint:
+    """Level, zero thrust: for a disarmed vehicle on the ground only."""
+    return Setpoint(0.0, 0.0, yaw_rad, 0.0, False)
+
+
+def hover_setpoint(limits: ThrustLimits, yaw_rad: float) -> Setpoint:
+    """Level at ``yaw_rad`` with the thrust that carries the weight."""
+    return Setpoint(0.0, 0.0, yaw_rad, limits.mass_kg * G_M_S2 / limits.max_thrust_n, False)
+
+
+class Settling:
+    """Whether an agent's estimate has settled, the condition to arm (with the plan's FLY):
+    warm-up over (``AgentOutput.ready_to_fly``) and the estimator agreeing with its neighbours
+    (disagreement below ``settle_tolerance``) for ``settle_ticks`` ticks in a row while the
+    membership stayed the same (a drone joining or leaving restarts the count). The same rule for
+    ``swarm simulate`` and every ``swarm agent``."""
+
+    def __init__(self, config: AgentConfig) -> None:
+        self.ticks = config.settle_ticks
+        self.tolerance = config.settle_tolerance
+        self.calm_ticks = 0
+        self._members: frozenset[int] | None = None
+        self.settled = False
+
+    def update(self, out: AgentOutput, members: frozenset[int]) -> bool:
+        """Take one tick's output and the membership; whether the estimate has settled."""
+        # (the same view object tick after tick: identity first, before comparing the sets)
+        calm = out.disagreement < self.tolerance and (
+            members is self._members or members == self._members
+        )
+        self._members = members
+        self.calm_ticks = self.calm_ticks + 1 if calm else 0
+        self.settled = out.ready_to_fly and self.agrees
+        return self.settled
+
+    @property
+    def agrees(self) -> bool:
+        """The estimate agrees with the neighbours' (``settle_ticks`` calm ticks), warm-up or not:
+        what the agent tells its neighbours (:class:`SwarmSettled`), so that word of a settled
+        swarm crosses it during the warm-up instead of after."""
+        return self.calm_ticks >= self.ticks
+
+
+class SwarmSettled:
+    """Climb together: whether every agent of the swarm has settled, known to each agent from its
+    radio neighbours alone (a flood of settled levels over the consensus messages).
+
+    Each tick an agent advertises a level on its consensus message (``ready_hops``)::
+
+        level_i = 0                                   if i has not settled
+                = min(cap, 1 + min_j level_j)         otherwise (j: neighbours heard recently)
+
+    with ``cap`` the number of live members. ``level_i >= h`` means every agent within ``h - 1``
+    hops of i had settled within the last ``h`` ticks; since no radio graph of ``cap`` drones has a
+    diameter of ``cap`` hops or more, ``level_i == cap`` means the whole (connected) swarm has
+    settled. Once the last agent settles, every level rises by one per tick, so all agents reach
+    the cap within the graph's diameter in ticks of each other (a 10 x 10 grid at range 6 m: 6
+    ticks, 0.12 s) and ``cap`` ticks after that last agent (2 s at N = 100, 50 Hz): the swarm leaves
+    the ground together instead of drone by drone as each settles (measured before this rule on a
+    sparse 5-drone line: the centre armed at 3.0 s, the ends at 6.2 s).
+
+    An agent that already flies (``committed``) counts as settled, so a late joiner waits only for
+    itself and is not held on the ground by a formation manoeuvring above it. An agent with no
+    neighbour (alone, or cut off) reaches the cap on its own settling.
+    """
+
+    def __init__(self, heard_timeout_ticks: int) -> None:
+        self.timeout = heard_timeout_ticks
+        self.level = 0
+        self._latest: dict[int, tuple[int, int]] = {}  # sender -> (round, level)
+
+    def update(
+        self,
+        round_: int,
+        settled: bool,
+        inbox: Iterable[ConsensusMessage],
+        members: frozenset[int],
+    ) -> bool:
+        """Take this tick's own settled flag, the neighbour messages that arrived and the live
+        membership; whether the whole swarm has settled (this agent's new level is the cap)."""
+        latest = self._latest
+        for msg in inbox:
+            sender, round_j = msg.sender, msg.round
+            seen = latest.get(sender)
+            if seen is None or round_j > seen[0]:
+                latest[sender] = (round_j, msg.ready_hops)
+        recent = round_ - 1 - self.timeout
+        for j in [j for j, (r, _) in latest.items() if r < recent or j not in members]:
+            del latest[j]
+        cap = max(len(members), 1)
+        if not settled:
+            self.level = 0
+        else:
+            lowest = min([lvl for _, lvl in latest.values()], default=cap)
+            self.level = min(cap, 1 + lowest)
+        return self.level >= cap
+
+
+class Readiness:
+    """The one rule for leaving the ground, used by ``swarm simulate`` and every ``swarm agent``:
+    the warm-up is over, the agent's own estimate has settled (:class:`Settling`) and so has
+    every agent's (:class:`SwarmSettled`). The flood runs during the warm-up too (an agent
+    advertises that it agrees with its neighbours before the warm-up ends), so a swarm that
+    settled on the ground leaves it as the warm-up ends: measured on a 10 x 10 grid whose plan
+    starts climbing at the end of its 5 s warm-up, waiting for the warm-up first kept it on the
+    ground for 33 s, because the climbing reference then kept the estimates from agreeing to 2 %
+    until the drop-outs of the scenario were over. Call :meth:`update` once per tick after the
+    core; put :attr:`level` on the tick's consensus message."""
+
+    def __init__(self, config: AgentConfig) -> None:
+        self.settling = Settling(config)
+        self.swarm = SwarmSettled(config.consensus.heard_timeout_ticks)
+        self.ready = False
+
+    @property
+    def level(self) -> int:
+        """This agent's settled level, advertised as ``ConsensusMessage.ready_hops``."""
+        return self.swarm.level
+
+    def update(
+        self,
+        out: AgentOutput,
+        inbox: Iterable[ConsensusMessage],
+        members: frozenset[int],
+        committed: bool,
+        vehicle_ready: bool = True,
+    ) -> bool:
+        """This tick's core output, the inbox it was computed from, the live membership,
+        whether the agent already flies and whether its vehicle can fly (its autopilot dialect's
+        checks: drone_agent/process/dialects.py); whether the swarm is ready to leave the ground. An
+        agent whose vehicle is not ready does not agree, so nobody leaves without it."""
+        self.settling.update(out, members)
+        agrees = (self.settling.agrees and vehicle_ready) or committed
+        swarm = self.swarm.update(out.message.round, agrees, inbox, members)
+        self.ready = swarm and (out.ready_to_fly or committed)
+        return self.ready
+
+
+#: Round of an empty slot of :class:`BatchReadiness`'s table (no message is this old).
+_NO_ROUND = -(2**62)
+
+
+class BatchReadiness:
+    """:class:`Readiness` of K agents at once (rows ``0..k-1``), as array operations: the same
+    rule and the same results, row by row, as K :class:`Readiness` objects given the same
+    inputs (tests/test_flight_phase.py compares them over random traffic, losses, delays,
+    membership changes and commitments). ``swarm simulate`` uses it for all its agents in one
+    call per tick instead of one :meth:`Readiness.update` each (a hundred agents hear about
+    2500 messages a tick: a Python loop over them cost ~0.8 ms a tick)."""
+
+    def __init__(self, k: int, config: AgentConfig) -> None:
+        self.k = k
+        self.ticks = config.settle_ticks
+        self.tolerance = config.settle_tolerance
+        self.timeout = config.consensus.heard_timeout_ticks
+        self.calm_ticks = np.zeros(k, dtype=np.int64)
+        self._members: list[frozenset[int] | None] = [None] * k
+        self.level = np.zeros(k, dtype=np.int64)
+        self.ready = np.zeros(k, dtype=bool)
+        self._m = 0
+        self._round = np.zeros((k, 0), dtype=np.int64)  # newest round heard [row, sender]
+        self._level = np.zeros((k, 0), dtype=np.int64)  # its level
+        self._mask: tuple[frozenset[int] | None, npt.NDArray[np.bool_]] = (None, np.zeros(0, bool))
+
+    def _grow(self, m: int) -> None:
+        pad = max(m, 2 * self._m) - self._m
+        self._round = np.hstack([self._round, np.full((self.k, pad), _NO_ROUND, np.int64)])
+        self._level = np.hstack([self._level, np.zeros((self.k, pad), np.int64)])
+        self._m += pad
+
+    def _member_mask(self, members: frozenset[int]) -> npt.NDArray[np.bool_]:
+        view, mask = self._mask
+        if view is not members or mask.shape[0] != self._m:
+            mask = np.zeros(self._m, dtype=bool)
+            mask[[j for j in members if 0 <= j < self._m]] = True
+            self._mask = (members, mask)
+        return mask
+
+    def update(
+        self,
+        rows: Sequence[int],
+        round_: int,
+        disagreement: Sequence[float] | npt.NDArray[np.float64],
+        ready_to_fly: Sequence[bool] | npt.NDArray[np.bool_],
+        arrivals: Arrivals,
+        members: frozenset[int],
+        committed: Sequence[bool],
+    ) -> npt.NDArray[np.bool_]:
+        """:meth:`Readiness.update` of rows ``rows`` (distinct) at round ``round_`` (their
+        outputs' message round), with their outputs' ``disagreement`` and ``ready_to_fly``, the
+        messages that arrived (``arrivals``, in each row's inbox order; those to other rows are
+        ignored), one membership view for all and whether each already flies; whether each is
+        ready (also :attr:`ready`, and the new levels :attr:`level`, by row)."""
+        rows_arr = np.asarray(rows, dtype=np.intp)
+        # Settling: calm ticks in a row with the same membership
+        last = self._members
+        same = np.fromiter(
+            ((m is members or m == members) for m in (last[r] for r in rows_arr.tolist())),
+            dtype=bool,
+            count=rows_arr.shape[0],
+        )
+        for r in rows_arr.tolist():
+            last[r] = members
+        calm = (np.asarray(disagreement, dtype=float) < self.tolerance) & same
+        calm_ticks = np.where(calm, self.calm_ticks[rows_arr] + 1, 0)
+        self.calm_ticks[rows_arr] = calm_ticks
+        fly = np.asarray(ready_to_fly, dtype=bool)
+        flying = np.asarray(committed, dtype=bool)
+        agrees = (calm_ticks >= self.ticks) | flying
+        # SwarmSettled: the newest (round, level) per sender, the first copy of its highest round
+        receiver, sender = arrivals.receiver, arrivals.sender
+        if sender.shape[0]:
+            top = max(int(sender.max()), int(receiver.max()))
+            if top >= self._m:
+                self._grow(top + 1)
+        if rows_arr.shape[0] and int(rows_arr.max()) >= self._m:
+            self._grow(int(rows_arr.max()) + 1)
+        updating = np.zeros(self.k, dtype=bool)
+        updating[rows_arr] = True
+        cap = max(len(members), 1)
+        level = np.empty(rows_arr.shape[0], dtype=np.int64)
+        _settled_levels(
+            rows_arr,
+            updating,
+            np.ascontiguousarray(receiver, dtype=np.intp),
+            np.ascontiguousarray(sender, dtype=np.intp),
+            np.ascontiguousarray(arrivals.round, dtype=np.int64),
+            np.ascontiguousarray(arrivals.level, dtype=np.int64),
+            self._round,
+            self._level,
+            int(round_) - 1 - self.timeout,
+            self._member_mask(members),
+            np.ascontiguousarray(agrees, dtype=np.bool_),
+            cap,
+            level,
+        )
+        self.level[rows_arr] = level
+        ready = (level >= cap) & (fly | flying)
+        self.ready[rows_arr] = ready
+        return ready
+
+
+@dataclass(frozen=True)
+class Arrivals:
+    """The consensus messages that arrived at a tick, as arrays (M,) in delivery order (each
+    receiver's messages in its inbox order): ``receiver`` row, the message's ``sender``,
+    ``round``, ``level`` (its ``ready_hops``) and ``takeoff`` (its ``takeoff_round``, -1 for
+    None; None: no message says one)."""
+
+    receiver: npt.NDArray[np.intp]
+    sender: npt.NDArray[np.intp]
+    round: npt.NDArray[np.int64]
+    level: npt.NDArray[np.int64]
+    takeoff: npt.NDArray[np.int64] | None = None
+
+
+class TakeoffClock:
+    """The round the swarm left the ground, agreed by its agents: the clock the plan is flown
+    on (protocols/model/plan_timing.py). The same rule for ``swarm simulate``
+    (:class:`BatchTakeoff`) and every ``swarm agent``.
+
+    An agent that flies (``committed``) advertises a take-off round on its consensus messages
+    (``takeoff_round``): the round it decided to fly, lowered to the least one its neighbours
+    advertise. Agents that leave together decide at the same round (the settled-level flood,
+    :class:`SwarmSettled`, brings every agent to the cap at the same round when no message is
+    lost); where losses split them by a few ticks, the least round floods through the flying
+    swarm within its diameter in ticks, while the plan's climb is still at rest. An agent that
+    does not fly (on the ground, or climbing back to rejoin) flies the plan on the least round
+    its neighbours advertise (heard within the heard timeout): a drone re-armed after a rejoin
+    joins the swarm's clock, not one of its own. Landed, it forgets its round: the next take-off
+    has its own. Call :meth:`update` once per tick after the flight phase decided; put
+    :attr:`advertised` on the tick's consensus message; :attr:`round` is what the next tick's
+    plan time uses."""
+
+    def __init__(self, heard_timeout_ticks: int) -> None:
+        self.timeout = heard_timeout_ticks
+        #: the round this flying agent advertises (None when it does not fly)
+        self.advertised: int | None = None
+        self._heard: int | None = None
+        self._heard_at = 0
+
+    @property
+    def round(self) -> int | None:
+        """The take-off round the plan is flown on: its own while it flies, else the least one
+        heard lately, else None (the swarm has not left the ground)."""
+        return self.advertised if self.advertised is not None else self._heard
+
+    def update(self, round_: int, committed: bool, inbox: Iterable[ConsensusMessage]) -> int | None:
+        """This tick's round, whether the agent flies (after this tick's decision) and the
+        messages that arrived; the round to advertise (None: none)."""
+        heard = min((t for t in (m.takeoff_round for m in inbox) if t is not None), default=None)
+        self._heard, self._heard_at = _heard_takeoff(
+            self._heard, self._heard_at, heard, round_, self.timeout
+        )
+        if not committed:
+            self.advertised = None
+        else:
+            own = round_ if self.advertised is None else self.advertised
+            self.advertised = own if self._heard is None else min(own, self._heard)
+        return self.advertised
+
+
+def _heard_takeoff(
+    held: int | None, held_at: int, heard: int | None, round_: int, timeout: int
+) -> tuple[int | None, int]:
+    """The take-off round heard (this tick's least, else the one held until ``timeout`` ticks
+    without any) and the round it was last heard."""
+    if heard is not None:
+        return heard, round_
+    if held is not None and round_ - held_at > timeout:
+        return None, held_at
+    return held, held_at
+
+
+#: No take-off round (:class:`BatchTakeoff`'s arrays).
+_NO_TAKEOFF = -1
+
+
+class BatchTakeoff:
+    """:class:`TakeoffClock` of K agents at once (rows ``0..k-1``), as array operations: the
+    same rule and results row by row (tests/test_flight_phase.py compares them), for
+    ``swarm simulate``'s hundred agents in one call a tick."""
+
+    def __init__(self, k: int, heard_timeout_ticks: int) -> None:
+        self.timeout = heard_timeout_ticks
+        self.advertised = np.full(k, _NO_TAKEOFF, dtype=np.int64)
+        self._heard = np.full(k, _NO_TAKEOFF, dtype=np.int64)
+        self._heard_at = np.zeros(k, dtype=np.int64)
+
+    def rounds(self, rows: Sequence[int]) -> list[int | None]:
+        """:attr:`TakeoffClock.round` of each row of ``rows``."""
+        r = np.asarray(rows, dtype=np.intp)
+        out = np.where(self.advertised[r] >= 0, self.advertised[r], self._heard[r])
+        return [None if t < 0 else t for t in out.tolist()]
+
+    def update(
+        self,
+        rows: Sequence[int],
+        round_: int,
+        committed: Sequence[bool],
+        arrivals: Arrivals,
+    ) -> list[int | None]:
+        """:meth:`TakeoffClock.update` of rows ``rows`` (distinct), from the messages that
+        arrived (those to other rows are ignored); the rounds each advertises."""
+        r = np.asarray(rows, dtype=np.intp)
+        k = self.advertised.shape[0]
+        least = np.full(k, np.iinfo(np.int64).max, dtype=np.int64)
+        if arrivals.takeoff is not None and arrivals.takeoff.shape[0]:
+            says = arrivals.takeoff >= 0
+            np.minimum.at(least, arrivals.receiver[says], arrivals.takeoff[says])
+        heard_now = least[r] != np.iinfo(np.int64).max
+        held, held_at = self._heard[r], self._heard_at[r]
+        expired = (held >= 0) & (round_ - held_at > self.timeout)
+        heard = np.where(heard_now, least[r], np.where(expired, _NO_TAKEOFF, held))
+        self._heard[r] = heard
+        self._heard_at[r] = np.where(heard_now, round_, held_at)
+        flies = np.asarray(committed, dtype=bool)
+        own = np.where(self.advertised[r] >= 0, self.advertised[r], round_)
+        own = np.where(heard >= 0, np.minimum(own, heard), own)
+        self.advertised[r] = np.where(flies, own, _NO_TAKEOFF)
+        return [None if t < 0 else t for t in self.advertised[r].tolist()]
+
+
+class FlightPhase:
+    """One agent's flight phase (see the module doc). Call :meth:`decide` once per tick."""
+
+    def __init__(self, limits: ThrustLimits) -> None:
+        self.limits = limits
+        #: decided to fly; latched until the vehicle is disarmed on the ground again
+        self.committed = False
+        #: has landed (disarmed on the ground after flying) and not flown since
+        self.landed = False
+        #: the vehicle was handed to the autopilot's LAND mode: its disarm is expected
+        self.handed_over = False
+
+    @property
+    def min_thrust_normalised(self) -> float:
+        """The least thrust (0..1 of the maximum) an airborne vehicle may be sent."""
+        return self.limits.thrust_range_n[0] / self.limits.max_thrust_n
+
+    def decide(
+        self,
+        command: FlightCommand,
+        arm_allowed: bool,
+        converged: bool,
+        setpoint: Setpoint | None,
+        commanded_altitude_m: float,
+        vehicle: VehicleView,
+        yaw_rad: float,
+    ) -> Order:
+        """The order of this tick.
+
+        ``converged``: the estimator has settled (the adapter's rule); ``setpoint``: the core's
+        checked setpoint, None if it has none; ``commanded_altitude_m``: the plan's centre
+        altitude now (m, up); ``yaw_rad``: the vehicle's heading, for level setpoints.
+        """
+        order = self._decide(
+            command, arm_allowed, converged, setpoint, commanded_altitude_m, vehicle, yaw_rad
+        )
+        return self._safe(order, vehicle, yaw_rad)
+
+    def _decide(
+        self,
+        command: FlightCommand,
+        arm_allowed: bool,
+        converged: bool,
+        setpoint: Setpoint | None,
+        commanded_altitude_m: float,
+        vehicle: VehicleView,
+        yaw_rad: float,
+    ) -> Order:
+        if command == FlightCommand.FLY:
+            if setpoint is not None and arm_allowed and (self.committed or converged):
+                self.committed, self.landed = True, False
+                if vehicle.armed and vehicle.in_offboard:
+                    self.handed_over = False
+                    return _new_order(AgentMode.FLYING, setpoint, Request.NONE)
+                # arming, or taking the vehicle back from a failsafe or from LAND
+                mode = AgentMode.FLYING if vehicle.armed else AgentMode.READY
+                return _new_order(mode, setpoint, Request.ARM_OFFBOARD)
+            if vehicle.airborne:  # nothing valid to fly: the autopilot holds its altitude
+                request = Request.NONE if vehicle.in_hold else Request.HOLD_MODE
+                return _new_order(AgentMode.HOLDING, hover_setpoint(self.limits, yaw_rad), request)
+        elif vehicle.airborne:  # LAND or GROUND
+            if vehicle.in_land:  # handed over (or its own failsafe): it lands and disarms
+                self.handed_over = True
+                return _new_order(
+                    AgentMode.LANDING, hover_setpoint(self.limits, yaw_rad), Request.NONE
+                )
+            handover = (
+                command == FlightCommand.GROUND
+                or commanded_altitude_m <= LAND_HANDOVER_ALTITUDE_M
+                or vehicle.altitude_m <= TOUCHDOWN_FLOOR_M
+            )
+            if handover or setpoint is None:
+                self.handed_over = True
+                landing = setpoint or hover_setpoint(self.limits, yaw_rad)
+                return _new_order(AgentMode.LANDING, landing, Request.LAND_MODE)
+            return _new_order(AgentMode.LANDING, setpoint, Request.NONE)
+        # disarmed on the ground
+        self.handed_over = False
+        if self.committed:
+            self.committed, self.landed = False, True
+        if self.landed:
+            return _new_order(AgentMode.LANDED, idle_setpoint(yaw_rad), Request.NONE)
+        return _new_order(
+            AgentMode.READY if converged else AgentMode.WARMUP, idle_setpoint(yaw_rad), Request.NONE
+        )
+
+    def _safe(self, order: Order, vehicle: VehicleView, yaw_rad: float) -> Order:
+        """The invariant, enforced: an airborne vehicle gets at least the minimum thrust."""
+        sp = order.setpoint
+        if vehicle.airborne and not sp.thrust_normalised >= self.min_thrust_normalised:
+            return _new_order(order.mode, hover_setpoint(self.limits, yaw_rad), order.request)
+        return order
+
+
+@jit
+def _settled_levels(  # type: ignore[no-untyped-def]
+    rows,
+    updating,
+    receiver,
+    sender,
+    rounds,
+    levels,
+    round_table,
+    level_table,
+    oldest,
+    member,
+    agrees,
+    cap,
+    out,
+):
+    """:meth:`BatchReadiness.update`'s SwarmSettled part: the arrivals filed in delivery order
+    (per (row, sender) the first copy of its highest round, newer than the one held), senders
+    not heard since round ``oldest`` or not members dropped, and each row's level: 0 unless it
+    agrees, else ``min(cap, 1 + the lowest level held)`` (``cap`` with none)."""
+    for t in range(receiver.shape[0]):
+        r, j = receiver[t], sender[t]
+        if updating[r] and rounds[t] > round_table[r, j]:
+            round_table[r, j] = rounds[t]
+            level_table[r, j] = levels[t]
+    for p in range(rows.shape[0]):
+        r = rows[p]
+        lowest = cap
+        for j in range(round_table.shape[1]):
+            if round_table[r, j] < oldest or not member[j]:
+                round_table[r, j] = _NO_ROUND
+            elif round_table[r, j] != _NO_ROUND:
+                lowest = min(lowest, level_table[r, j])
+        out[p] = min(cap, 1 + lowest) if agrees[p] else 0

@@ -1,0 +1,95 @@
+"""The compiled loop of :class:`sitl_sim.physics.kernel.PhysicsKernel` (numba).
+
+:func:`advance` runs sub-steps of every vehicle under an attitude setpoint (the autopilot's inner
+loop, then the rigid body), one vehicle after the other (each vehicle's state stays in registers
+through its sub-steps; vehicles never mix): a loop that calls the per-vehicle rules of
+:mod:`sitl_sim.physics.rules` (inlined). Compiled on first use (protocols/runtime/compiled.py) and
+cached beside this file (``__pycache__``), so that later processes load it (~0.3 s of CPU with
+numba's import) instead of compiling it (~3 s).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from protocols.model.frames import FloatArray
+from protocols.runtime.compiled import jit
+from sitl_sim.physics import rules as physics_rules
+from sitl_sim.physics.attitude_control import MIN_COS_PITCH
+from sitl_sim.physics.rules import (
+    attitude_moments,
+    collective_thrust,
+    ground_contact,
+    mix,
+    rk4_into,
+    rotor_wrench,
+)
+from sitl_sim.physics.vehicle_params import VehicleParams
+
+__all__ = ["advance", "constants", "ready"]
+
+
+def constants(params: VehicleParams, dt_s: float) -> FloatArray:
+    """The fleet's constants for :func:`advance` (:func:`sitl_sim.physics.rules.constants` with
+    the attitude controller's smallest cos(pitch))."""
+    return physics_rules.constants(params, dt_s, MIN_COS_PITCH)
+
+
+@jit
+def advance(
+    state: FloatArray,
+    euler_des: FloatArray,
+    thrust_normalised: FloatArray,
+    enable: FloatArray,
+    kp: FloatArray,
+    kd: FloatArray,
+    c: FloatArray,
+    count: int,
+    new: FloatArray,
+    rotor: FloatArray,
+    impacts: FloatArray,
+    touched: npt.NDArray[np.bool_],
+) -> None:  # pragma: no cover - compiled (its Python body runs with NUMBA_DISABLE_JIT=1)
+    """``count`` sub-steps of every vehicle under the attitude setpoint ``euler_des`` (3, N)
+    and normalised thrust (N,), rotor speeds times ``enable`` (4, N): ``new`` (13, N) the last
+    state, ``rotor`` (4, N) the last rotor speeds, ``impacts[k]`` (N,) the touchdown speeds of
+    sub-step ``k`` and ``touched[k]`` whether any vehicle was on the ground after it."""
+    s, xt = np.empty(13), np.empty(13)
+    k1, k2, k3, k4 = np.empty(13), np.empty(13), np.empty(13), np.empty(13)
+    for i in range(state.shape[1]):
+        s[:] = state[:, i]
+        ry, py_, yy = euler_des[0, i], euler_des[1, i], euler_des[2, i]
+        kp0, kp1, kp2 = kp[0, i], kp[1, i], kp[2, i]
+        kd0, kd1, kd2 = kd[0, i], kd[1, i], kd[2, i]
+        t_dem = collective_thrust(thrust_normalised[i], c)
+        en0, en1, en2, en3 = enable[0, i], enable[1, i], enable[2, i], enable[3, i]
+        w0 = w1 = w2 = w3 = 0.0
+        for k in range(count):
+            m_l, m_m, m_n = attitude_moments(s, ry, py_, yy, kp0, kp1, kp2, kd0, kd1, kd2, c)
+            w0, w1, w2, w3 = mix(t_dem, m_l, m_m, m_n, c)
+            w0, w1, w2, w3 = w0 * en0, w1 * en1, w2 * en2, w3 * en3
+            thrust, t_m, a0, a1, a2 = rotor_wrench(w0, w1, w2, w3, c)
+            x0, y0, z0, vz0 = s[0], s[1], s[2], s[5]
+            rk4_into(s, t_m, a0, a1, a2, c, k1, k2, k3, k4, xt)
+            on_ground, moving_down, impact = ground_contact(s, x0, y0, z0, vz0, thrust, c)
+            if on_ground:
+                touched[k] = True
+                if moving_down:
+                    impacts[k, i] = impact
+        new[:, i] = s
+        rotor[0, i], rotor[1, i], rotor[2, i], rotor[3, i] = w0, w1, w2, w3
+
+
+def ready() -> None:
+    """Compile :func:`advance` (or load it from the cache) now, on one vehicle at rest, so that
+    the first sub-step of a flight does not pay for it: a simulator calls this before it serves
+    (a first compile takes seconds, longer than an agent waits for its vehicle in realtime)."""
+    state = np.zeros((13, 1))
+    state[6] = 1.0
+    gains = np.ones((3, 1))
+    advance(
+        state, np.zeros((3, 1)), np.zeros(1), np.ones((4, 1)), gains, gains,
+        constants(VehicleParams(), 0.002), 1, np.empty((13, 1)), np.empty((4, 1)),
+        np.zeros((1, 1)), np.zeros(1, dtype=np.bool_),
+    )  # fmt: skip

@@ -1,0 +1,115 @@
+"""Physical parameters of one quadcopter (paper Table II) and its rotor model (paper eq. 4).
+
+Rotor ``i`` spinning at ``omega_i`` (rad/s) produces a thrust ``F_i = c * omega_i**2`` (N) along
+body ``-z`` and a reaction yaw moment ``M_i = a * D * omega_i**2`` (N m), where ``c`` is
+``thrust_coeff``, ``a`` is ``drag_coeff`` and ``D`` is ``arm_m``. The defaults give a
+thrust-to-weight ratio of 2 at ``rotor_speed_max_rad_s = 1000`` and a yaw-moment-to-thrust ratio
+``a * D / c = 0.016 m``.
+
+A first-order motor lag is deliberately not modelled: the rotor speeds commanded by the inner loop
+act instantly, which keeps the vehicle state at 13 rows (see ``sitl_sim.physics.dynamics``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from protocols.model.frames import G_M_S2, FloatArray
+
+_MASS_KG = 0.34
+_ARM_M = 0.089
+_ROTOR_SPEED_MAX_RAD_S = 1000.0
+_THRUST_TO_WEIGHT = 2.0
+_YAW_MOMENT_PER_THRUST_M = 0.016
+
+#: ``c`` such that four rotors at full speed lift twice the weight (N s^2 / rad^2).
+DEFAULT_THRUST_COEFF = _THRUST_TO_WEIGHT * _MASS_KG * G_M_S2 / (4.0 * _ROTOR_SPEED_MAX_RAD_S**2)
+#: ``a`` such that ``a * D / c = 0.016 m`` (N s^2 / rad^2).
+DEFAULT_DRAG_COEFF = _YAW_MOMENT_PER_THRUST_M * DEFAULT_THRUST_COEFF / _ARM_M
+
+
+@dataclass(frozen=True)
+class VehicleParams:
+    """Mass, inertia, geometry and rotor model of a quadcopter (SI units).
+
+    Attributes:
+        mass_kg: total mass (kg).
+        ixx, iyy, izz: principal moments of inertia about body FRD axes (kg m^2).
+        arm_m: distance ``D`` from the centre of mass to each rotor (m).
+        thrust_coeff: ``c`` in ``F = c omega^2`` (N s^2 / rad^2).
+        drag_coeff: ``a`` in ``M = a D omega^2`` (N s^2 / rad^2).
+        rotor_speed_min_rad_s: lowest rotor speed the motors hold (rad/s), may be 0.
+        rotor_speed_max_rad_s: highest rotor speed (rad/s).
+    """
+
+    mass_kg: float = _MASS_KG
+    ixx: float = 3.22e-4
+    iyy: float = 3.06e-4
+    izz: float = 5.78e-4
+    arm_m: float = _ARM_M
+    thrust_coeff: float = DEFAULT_THRUST_COEFF
+    drag_coeff: float = DEFAULT_DRAG_COEFF
+    rotor_speed_min_rad_s: float = 0.0
+    rotor_speed_max_rad_s: float = _ROTOR_SPEED_MAX_RAD_S
+
+    @property
+    def weight_n(self) -> float:
+        """Weight ``m g`` (N)."""
+        return self.mass_kg * G_M_S2
+
+    @property
+    def hover_thrust_n(self) -> float:
+        """Collective thrust that balances gravity when level (N); equals ``weight_n``."""
+        return self.weight_n
+
+    @property
+    def rotor_force_min_n(self) -> float:
+        """Smallest thrust of one rotor, ``c omega_min^2`` (N)."""
+        return self.thrust_coeff * self.rotor_speed_min_rad_s**2
+
+    @property
+    def rotor_force_max_n(self) -> float:
+        """Largest thrust of one rotor, ``c omega_max^2`` (N)."""
+        return self.thrust_coeff * self.rotor_speed_max_rad_s**2
+
+    @property
+    def max_thrust_n(self) -> float:
+        """Collective thrust with all four rotors at full speed (N)."""
+        return 4.0 * self.rotor_force_max_n
+
+    @property
+    def yaw_moment_per_thrust_m(self) -> float:
+        """``k = a D / c``: reaction yaw moment per newton of rotor thrust (m)."""
+        return self.drag_coeff * self.arm_m / self.thrust_coeff
+
+    @property
+    def inertia(self) -> FloatArray:
+        """Principal moments of inertia ``(Ixx, Iyy, Izz)`` as a (3,) array (kg m^2)."""
+        return np.array([self.ixx, self.iyy, self.izz])
+
+    def validate(self) -> VehicleParams:
+        """Check every field; return ``self`` so it can be chained.
+
+        Raises:
+            ValueError: naming the first field that is not finite, or not positive (the minimum
+                rotor speed may be zero), or a maximum rotor speed not above the minimum.
+        """
+        for f in fields(self):
+            value = getattr(self, f.name)
+            is_number = isinstance(value, int | float) and not isinstance(value, bool)
+            if not is_number or not math.isfinite(value):
+                raise ValueError(f"VehicleParams.{f.name} must be a finite number, got {value!r}")
+            if f.name == "rotor_speed_min_rad_s":
+                if value < 0.0:
+                    raise ValueError(f"VehicleParams.{f.name} must be >= 0, got {value!r}")
+            elif value <= 0.0:
+                raise ValueError(f"VehicleParams.{f.name} must be > 0, got {value!r}")
+        if self.rotor_speed_max_rad_s <= self.rotor_speed_min_rad_s:
+            raise ValueError(
+                "VehicleParams.rotor_speed_max_rad_s must exceed rotor_speed_min_rad_s, got "
+                f"{self.rotor_speed_max_rad_s!r} <= {self.rotor_speed_min_rad_s!r}"
+            )
+        return self

@@ -1,0 +1,31 @@
+"""Vehicle parameters and inner-loop gains from a scenario's [vehicle] and [gains] sections."""
+
+from __future__ import annotations
+
+from protocols.model.frames import G_M_S2
+from protocols.scenario.scenario_file import Scenario
+from sitl_sim.physics.attitude_control import AttitudeGains
+from sitl_sim.physics.vehicle_params import VehicleParams
+
+
+def vehicle_params(scenario: Scenario) -> VehicleParams:
+    """The motor model follows from the thrust-to-weight ratio and the top rotor speed:
+    ``c = T/W m g / (4 w_max^2)``, ``a = (yaw moment per thrust) c / D``."""
+    v = scenario.vehicle
+    c = v.thrust_to_weight * v.mass_kg * G_M_S2 / (4.0 * v.rotor_speed_max_rad_s**2)
+    return VehicleParams(
+        mass_kg=v.mass_kg,
+        ixx=v.ixx,
+        iyy=v.iyy,
+        izz=v.izz,
+        arm_m=v.arm_m,
+        thrust_coeff=c,
+        drag_coeff=v.yaw_moment_per_thrust_m * c / v.arm_m,
+        rotor_speed_max_rad_s=v.rotor_speed_max_rad_s,
+    ).validate()
+
+
+def attitude_gains(scenario: Scenario) -> AttitudeGains:
+    """The attitude PD of the vehicles' inner loop."""
+    g = scenario.gains
+    return AttitudeGains(kp=g.attitude_kp, kd=g.attitude_kd).validate()
