@@ -27,7 +27,7 @@ from gcs.report.drill_judge import (
     table,
     to_json,
 )
-from gcs.report.from_logs import membership
+from gcs.report.log_record import membership
 from protocols.model.descriptors import descriptors
 
 RATE = 25.0

@@ -12,7 +12,7 @@ from agent_harness import write_scenario
 
 from gcs.report.events import EventLog
 from gcs.report.flight_record import LinkFault
-from gcs.report.from_logs import build_record, drill_link_faults, membership
+from gcs.report.log_record import build_record, drill_link_faults, membership
 from gcs.report.tlog import TlogWriter, read_tlog
 from gcs.station.drills import GcsDrills
 from protocols.bus.memory import MemoryBus

@@ -113,18 +113,20 @@ def test_no_import_cycles() -> None:
     assert not cycles, f"import cycles: {cycles}"
 
 
-def _imports(path: Path) -> set[str]:
-    """The top-level project packages that ``path`` imports."""
-    found = set()
+def _imported_names(path: Path) -> set[str]:
+    """The modules ``path`` imports by absolute name, anywhere in it."""
+    found: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
-            names = [a.name for a in node.names]
+            found |= {a.name for a in node.names}
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            names = [node.module]
-        else:
-            continue
-        found |= {n.split(".")[0] for n in names} & PROJECT
+            found.add(node.module)
     return found
+
+
+def _imports(path: Path) -> set[str]:
+    """The top-level project packages that ``path`` imports."""
+    return {n.split(".")[0] for n in _imported_names(path)} & PROJECT
 
 
 @pytest.mark.parametrize("package", sorted(ALLOWED))
@@ -244,3 +246,15 @@ def test_no_folder_is_a_drawer() -> None:
         for package in ("protocols", "drone_agent")
     }
     assert flat == {"protocols": ["faults"], "drone_agent": []}
+
+
+def test_numba_is_reached_through_one_helper() -> None:
+    """Only protocols/runtime/compiled.py imports numba: every compiled function follows its
+    rules (lazy, cached, the plain function's own code)."""
+    importers = sorted(
+        str(p.relative_to(ROOT))
+        for package in sorted(PROJECT)
+        for p in (ROOT / package).rglob("*.py")
+        if "numba" in {n.split(".")[0] for n in _imported_names(p)}
+    )
+    assert importers == ["protocols/runtime/compiled.py"]

@@ -44,7 +44,7 @@ from agent_harness import (
 from sitl_client import ENV, ROOT, free_port_block, free_udp_port, sim_process, swarm_command
 
 from gcs.report.events import read_events
-from gcs.report.from_logs import absences
+from gcs.report.log_record import absences
 from gcs.report.tlog import TlogTrack, read_tlog
 from protocols.model.descriptors import descriptors
 from protocols.wire.status import AgentMode

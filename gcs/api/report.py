@@ -132,7 +132,7 @@ def load_report(
     lost (give its ``scenario``: the drop-outs and crashes say who was in the swarm); consensus
     figures come from the agents' 5 Hz statuses and differ where the estimates move fast."""
     from gcs.report.events import read_events
-    from gcs.report.from_logs import build_record
+    from gcs.report.log_record import build_record
     from gcs.report.metrics import true_descriptors
     from gcs.report.tlog import read_tlog
     from gcs.report.trajectory_file import read_trajectory

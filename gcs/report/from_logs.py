@@ -2,7 +2,7 @@
 its own logs (:func:`gcs.report.log_record.build_record`) and the final plan, then
 ``metrics.json``, ``trajectory.json``, the paper-style PNG plots and ``flight.rrd`` (with Rerun
 installed), the same files as ``swarm simulate`` writes. The record's reading (sampling, controls,
-link cuts, membership) is gcs/report/log_record.py, whose names are also importable from here.
+link cuts, membership) is gcs/report/log_record.py.
 """
 
 from __future__ import annotations
@@ -12,35 +12,11 @@ from pathlib import Path
 from typing import Any
 
 from gcs.report.flight_record import FlightRecord
-from gcs.report.log_record import (
-    AIRBORNE_M,
-    MAX_AGE_S,
-    absences,
-    build_record,
-    controls,
-    drill_link_faults,
-    hold,
-    membership,
-)
 from gcs.report.metrics import compute_metrics
 from gcs.report.plots import write_plots
 from gcs.report.trajectory_file import write_trajectory
 from gcs.view.recording import write_recording
 from protocols.model.trajectory import DescriptorTrajectory
-
-#: the record's reading, by the names its callers import from here
-__all__ = [
-    "AIRBORNE_M",
-    "MAX_AGE_S",
-    "absences",
-    "build_record",
-    "controls",
-    "drill_link_faults",
-    "hold",
-    "membership",
-    "record_metrics",
-    "write_report",
-]
 
 
 def record_metrics(

@@ -42,7 +42,8 @@ from drone_agent.process.fault_timeline import TimedAction, timeline
 from drone_agent.process.transport_link import PlanServer
 from gcs.report.agent_timing import timing_metrics
 from gcs.report.events import EventLog, read_events
-from gcs.report.from_logs import build_record, write_report
+from gcs.report.from_logs import write_report
+from gcs.report.log_record import build_record
 from gcs.report.tlog import read_tlog
 from gcs.report.trajectory_file import write_trajectory
 from gcs.station.commands import (

@@ -11,27 +11,18 @@ the plain functions' files. This module imports the plain one, never the reverse
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
-
-import numba
 import numpy as np
 import numpy.typing as npt
 
 from protocols.model.frames import yaw_from_wxyz, zyx_from_wxyz
-from protocols.runtime.same_code import same_code
+from protocols.runtime.compiled import jit
 from sitl_sim.vehicle import setpoint
 
-
-def _compiled(fn: Callable[..., Any], **helpers: Any) -> Any:
-    """``fn`` compiled by numba, the functions it calls by name resolved to ``helpers``
-    (compiled ones) instead of its module's plain ones: its own code, another scope."""
-    return numba.njit(cache=True, inline="always")(same_code(fn, **helpers))
-
-
-_yaw = _compiled(yaw_from_wxyz)
-_zyx = _compiled(zyx_from_wxyz, yaw_from_wxyz=_yaw)
-_checked = _compiled(setpoint.checked_setpoint, zyx_from_wxyz=_zyx)
+# each compiled from the plain function's own code, the functions it calls by name bound to
+# compiled ones (protocols/runtime/compiled.py)
+_yaw = jit(yaw_from_wxyz, inline="always")
+_zyx = jit(zyx_from_wxyz, calls={"yaw_from_wxyz": _yaw}, inline="always")
+_checked = jit(setpoint.checked_setpoint, calls={"zyx_from_wxyz": _zyx}, inline="always")
 
 
 def validate_attitude_targets(
@@ -50,7 +41,7 @@ def validate_attitude_targets(
     return codes, unit, euler
 
 
-@numba.njit(cache=True)
+@jit
 def check_all(quats, thrusts, codes, unit, euler):  # type: ignore[no-untyped-def]
     """:func:`validate_attitude_targets` into ``codes`` (K,), ``unit`` (K, 4) and ``euler``
     (K, 3)."""
