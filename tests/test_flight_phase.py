@@ -16,8 +16,6 @@ from drone_agent.core.flight_phase import (
     FlightPhase,
     Readiness,
     Request,
-    Settling,
-    SwarmSettled,
     VehicleView,
 )
 from drone_agent.core.thrust_attitude import ThrustLimits
@@ -157,22 +155,36 @@ def test_on_the_ground_it_waits_for_convergence_and_the_fly_command() -> None:
     assert no_arm.request == Request.NONE and no_arm.setpoint.thrust_normalised == 0.0
 
 
-def _output(disagreement: float, ready: bool = True) -> AgentOutput:
-    return AgentOutput(None, np.zeros(9), None, None, (), ready, disagreement)  # type: ignore[arg-type]
+def _output(disagreement: float, ready: bool = True, round_: int = 0) -> AgentOutput:
+    message = _level_message(0, round_, 0)
+    return AgentOutput(message, np.zeros(9), None, None, (), ready, disagreement)  # type: ignore[arg-type]
+
+
+def _config(settle_ticks: int, heard_timeout_ticks: int = 5) -> AgentConfig:
+    params = ConsensusParams(heard_timeout_ticks=heard_timeout_ticks)
+    return AgentConfig(params, None, LIMITS, settle_ticks=settle_ticks, settle_tolerance=0.02)  # type: ignore[arg-type]
 
 
 def test_settling_needs_calm_ticks_with_a_steady_membership() -> None:
-    config = AgentConfig(None, None, LIMITS, settle_ticks=5, settle_tolerance=0.02)  # type: ignore[arg-type]
-    settling = Settling(config)
+    """Alone (no neighbour heard), an agent is ready as soon as its own estimate has settled:
+    ``settle_ticks`` calm ticks in a row with the same membership view, warm-up over."""
+    readiness = Readiness(_config(settle_ticks=5))
     members = frozenset({0, 1, 2})
-    assert not any(settling.update(_output(0.001), members) for _ in range(5))  # 1st sets members
-    assert settling.update(_output(0.001), members)
-    assert not settling.update(_output(0.001), frozenset({0, 1}))  # a drone left: start again
-    assert not any(settling.update(_output(0.001), frozenset({0, 1})) for _ in range(4))
-    assert settling.update(_output(0.001), frozenset({0, 1}))
-    assert not settling.update(_output(0.05), frozenset({0, 1}))  # disagreeing again
-    calm_but_warming_up = [settling.update(_output(0.0, ready=False), members) for _ in range(9)]
-    assert not any(calm_but_warming_up)
+
+    def update(out: AgentOutput, view: frozenset[int]) -> bool:
+        return readiness.update(out, [], view, False)
+
+    assert not any(update(_output(0.001), members) for _ in range(5))  # 1st sets members
+    assert update(_output(0.001), members) and readiness.agrees
+    assert not update(_output(0.001), frozenset({0, 1}))  # a drone left: start again
+    assert not readiness.agrees
+    assert not any(update(_output(0.001), frozenset({0, 1})) for _ in range(4))
+    assert update(_output(0.001), frozenset({0, 1}))
+    assert not update(_output(0.05), frozenset({0, 1}))  # disagreeing again
+    calm_but_warming_up = [update(_output(0.0, ready=False), members) for _ in range(9)]
+    assert not any(calm_but_warming_up) and readiness.agrees  # agrees, says so, does not go
+    readiness.reset()  # a new life: nothing carried over
+    assert not readiness.agrees and readiness.level == 0 and not readiness.ready
 
 
 def _level_message(sender: int, round_: int, level: int) -> ConsensusMessage:
@@ -182,18 +194,20 @@ def _level_message(sender: int, round_: int, level: int) -> ConsensusMessage:
 def _flood(
     neighbours: dict[int, list[int]], settled_from: dict[int, int], ticks: int, lost: float = 0.0
 ) -> dict[int, int | None]:
-    """Run SwarmSettled on a graph with one-tick message delay; per agent the first tick at which
-    it knows the whole swarm has settled (None if never). ``lost``: share of messages dropped."""
+    """Run the readiness flood on a graph with one-tick message delay, each agent's estimate
+    calm from ``settled_from[i]`` on; per agent the first tick at which it knows the whole swarm
+    has settled (None if never). ``lost``: share of messages dropped."""
     rng = np.random.default_rng(3)
     members = frozenset(neighbours)
-    gates = {i: SwarmSettled(heard_timeout_ticks=5) for i in members}
+    gates = {i: Readiness(_config(settle_ticks=1)) for i in members}
     first: dict[int, int | None] = dict.fromkeys(members)
     sent: dict[int, ConsensusMessage] = {}
     for k in range(ticks):
         new = {}
         for i, gate in gates.items():
             inbox = [sent[j] for j in neighbours[i] if j in sent and rng.random() >= lost]
-            if gate.update(k, k >= settled_from[i], inbox, members) and first[i] is None:
+            out = _output(0.0 if k >= settled_from[i] else 1.0, round_=k)
+            if gate.update(out, inbox, members, False) and first[i] is None:
                 first[i] = k
             new[i] = _level_message(i, k, gate.level)
         sent = new
@@ -225,8 +239,11 @@ def test_one_unsettled_agent_holds_the_whole_swarm_on_the_ground() -> None:
     assert all(t is None for t in first.values()), first
     # a member that is not heard from at all (cut off) does not block the others forever once it
     # leaves the membership: alone, an agent goes on its own settling
-    alone = SwarmSettled(heard_timeout_ticks=5)
-    assert alone.update(0, True, [], frozenset({0}))
+    alone = Readiness(_config(settle_ticks=1))
+    assert [alone.update(_output(0.0, round_=k), [], frozenset({0}), False) for k in (0, 1)] == [
+        False,  # (its first tick sets its membership view)
+        True,
+    ]
 
 
 def test_readiness_combines_own_settling_and_the_swarm() -> None:
@@ -248,10 +265,12 @@ def test_readiness_combines_own_settling_and_the_swarm() -> None:
 
 
 def test_batch_readiness_is_readiness_row_by_row() -> None:
-    """BatchReadiness (swarm simulate's, all agents in one call) gives each row the levels and
-    the readiness K Readiness objects give, over random traffic: losses, late and duplicated
-    messages (a sender twice in one inbox), senders outside the membership, membership changes,
-    rows skipped for a tick, commitments and agents that never settle."""
+    """BatchReadiness (swarm simulate's and a host's, all agents in one call) gives each row the
+    levels and the readiness K one-row Readiness objects give: the rows do not leak into each
+    other, over random traffic: losses, late and duplicated messages (a sender twice in one
+    inbox), senders outside the membership, membership changes, one view for all rows or one
+    per row, rows skipped for a tick, commitments, vehicles not ready and agents that never
+    settle."""
     from types import SimpleNamespace
 
     from drone_agent.core.flight_phase import Arrivals, BatchReadiness
@@ -293,6 +312,12 @@ def test_batch_readiness_is_readiness_row_by_row() -> None:
         fly = rng.random(k) < 0.9
         committed |= rng.random(k) < 0.01
         committed &= rng.random(k) > 0.02
+        vehicle_ready = rng.random(k) < 0.97
+        per_row = 100 <= round_ < 250  # each row its own view (a host's agents)
+        views = [
+            members - {int(j) for j in rng.integers(0, k, 1)} if per_row else members
+            for _ in range(k)
+        ]
         expected = []
         for i in rows:
             out = SimpleNamespace(
@@ -300,7 +325,10 @@ def test_batch_readiness_is_readiness_row_by_row() -> None:
                 ready_to_fly=bool(fly[i]),
                 message=SimpleNamespace(round=round_),
             )
-            expected.append(scalar[i].update(out, inboxes[i], members, bool(committed[i])))
+            done = scalar[i].update(
+                out, inboxes[i], views[i], bool(committed[i]), bool(vehicle_ready[i])
+            )  # type: ignore[arg-type]
+            expected.append(done)
         arrivals = Arrivals(
             np.array(receiver, dtype=np.intp),
             np.array(sender, dtype=np.intp),
@@ -313,8 +341,9 @@ def test_batch_readiness_is_readiness_row_by_row() -> None:
             dis[rows].tolist(),
             fly[rows].tolist(),
             arrivals,
-            members,
+            [views[i] for i in rows] if per_row else members,
             committed[rows].tolist(),
+            vehicle_ready[rows].tolist(),
         )
         assert got.tolist() == expected, round_
         assert batch.level[rows].tolist() == [scalar[i].level for i in rows], round_

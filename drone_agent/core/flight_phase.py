@@ -99,132 +99,58 @@ def hover_setpoint(limits: ThrustLimits, yaw_rad: float) -> Setpoint:
     return Setpoint(0.0, 0.0, yaw_rad, limits.mass_kg * G_M_S2 / limits.max_thrust_n, False)
 
 
-class Settling:
-    """Whether an agent's estimate has settled, the condition to arm (with the plan's FLY):
-    warm-up over (``AgentOutput.ready_to_fly``) and the estimator agreeing with its neighbours
-    (disagreement below ``settle_tolerance``) for ``settle_ticks`` ticks in a row while the
-    membership stayed the same (a drone joining or leaving restarts the count). The same rule for
-    ``swarm simulate`` and every ``swarm agent``."""
-
-    def __init__(self, config: AgentConfig) -> None:
-        self.ticks = config.settle_ticks
-        self.tolerance = config.settle_tolerance
-        self.calm_ticks = 0
-        self._members: frozenset[int] | None = None
-        self.settled = False
-
-    def update(self, out: AgentOutput, members: frozenset[int]) -> bool:
-        """Take one tick's output and the membership; whether the estimate has settled."""
-        # (the same view object tick after tick: identity first, before comparing the sets)
-        calm = out.disagreement < self.tolerance and (
-            members is self._members or members == self._members
-        )
-        self._members = members
-        self.calm_ticks = self.calm_ticks + 1 if calm else 0
-        self.settled = out.ready_to_fly and self.agrees
-        return self.settled
-
-    @property
-    def agrees(self) -> bool:
-        """The estimate agrees with the neighbours' (``settle_ticks`` calm ticks), warm-up or not:
-        what the agent tells its neighbours (:class:`SwarmSettled`), so that word of a settled
-        swarm crosses it during the warm-up instead of after."""
-        return self.calm_ticks >= self.ticks
-
-
-class SwarmSettled:
-    """Climb together: whether every agent of the swarm has settled, known to each agent from its
-    radio neighbours alone (a flood of settled levels over the consensus messages).
-
-    Each tick an agent advertises a level on its consensus message (``ready_hops``)::
-
-        level_i = 0                                   if i has not settled
-                = min(cap, 1 + min_j level_j)         otherwise (j: neighbours heard recently)
-
-    with ``cap`` the number of live members. ``level_i >= h`` means every agent within ``h - 1``
-    hops of i had settled within the last ``h`` ticks; since no radio graph of ``cap`` drones has a
-    diameter of ``cap`` hops or more, ``level_i == cap`` means the whole (connected) swarm has
-    settled. Once the last agent settles, every level rises by one per tick, so all agents reach
-    the cap within the graph's diameter in ticks of each other (a 10 x 10 grid at range 6 m: 6
-    ticks, 0.12 s) and ``cap`` ticks after that last agent (2 s at N = 100, 50 Hz): the swarm leaves
-    the ground together instead of drone by drone as each settles (measured before this rule on a
-    sparse 5-drone line: the centre armed at 3.0 s, the ends at 6.2 s).
-
-    An agent that already flies (``committed``) counts as settled, so a late joiner waits only for
-    itself and is not held on the ground by a formation manoeuvring above it. An agent with no
-    neighbour (alone, or cut off) reaches the cap on its own settling.
-    """
-
-    def __init__(self, heard_timeout_ticks: int) -> None:
-        self.timeout = heard_timeout_ticks
-        self.level = 0
-        self._latest: dict[int, tuple[int, int]] = {}  # sender -> (round, level)
-
-    def update(
-        self,
-        round_: int,
-        settled: bool,
-        inbox: Iterable[ConsensusMessage],
-        members: frozenset[int],
-    ) -> bool:
-        """Take this tick's own settled flag, the neighbour messages that arrived and the live
-        membership; whether the whole swarm has settled (this agent's new level is the cap)."""
-        latest = self._latest
-        for msg in inbox:
-            sender, round_j = msg.sender, msg.round
-            seen = latest.get(sender)
-            if seen is None or round_j > seen[0]:
-                latest[sender] = (round_j, msg.ready_hops)
-        recent = round_ - 1 - self.timeout
-        for j in [j for j, (r, _) in latest.items() if r < recent or j not in members]:
-            del latest[j]
-        cap = max(len(members), 1)
-        if not settled:
-            self.level = 0
-        else:
-            lowest = min([lvl for _, lvl in latest.values()], default=cap)
-            self.level = min(cap, 1 + lowest)
-        return self.level >= cap
-
-
 class Readiness:
-    """The one rule for leaving the ground, used by ``swarm simulate`` and every ``swarm agent``:
-    the warm-up is over, the agent's own estimate has settled (:class:`Settling`) and so has
-    every agent's (:class:`SwarmSettled`). The flood runs during the warm-up too (an agent
-    advertises that it agrees with its neighbours before the warm-up ends), so a swarm that
-    settled on the ground leaves it as the warm-up ends: measured on a 10 x 10 grid whose plan
-    starts climbing at the end of its 5 s warm-up, waiting for the warm-up first kept it on the
-    ground for 33 s, because the climbing reference then kept the estimates from agreeing to 2 %
-    until the drop-outs of the scenario were over. Call :meth:`update` once per tick after the
-    core; put :attr:`level` on the tick's consensus message."""
+    """One agent's readiness to leave the ground: row ``row`` of a :class:`BatchReadiness` (a
+    batch of its own unless ``batch`` is given). The one rule is the batch's; this is a view of
+    one row, for an agent that is not ticked with others."""
 
-    def __init__(self, config: AgentConfig) -> None:
-        self.settling = Settling(config)
-        self.swarm = SwarmSettled(config.consensus.heard_timeout_ticks)
-        self.ready = False
+    def __init__(
+        self, config: AgentConfig, batch: BatchReadiness | None = None, row: int = 0
+    ) -> None:
+        self.batch = batch if batch is not None else BatchReadiness(1, config)
+        self.row = row
 
     @property
     def level(self) -> int:
         """This agent's settled level, advertised as ``ConsensusMessage.ready_hops``."""
-        return self.swarm.level
+        return int(self.batch.level[self.row])
+
+    @property
+    def ready(self) -> bool:
+        """Whether the swarm was ready to leave the ground at this agent's last update."""
+        return bool(self.batch.ready[self.row])
+
+    @property
+    def agrees(self) -> bool:
+        """Its estimate agrees with its neighbours' (``settle_ticks`` calm ticks)."""
+        return self.batch.agrees(self.row)
+
+    def reset(self) -> None:
+        """Start again: a new life of the agent (no calm tick, nothing heard)."""
+        self.batch.reset(self.row)
 
     def update(
         self,
         out: AgentOutput,
-        inbox: Iterable[ConsensusMessage],
+        inbox: Sequence[ConsensusMessage],
         members: frozenset[int],
         committed: bool,
         vehicle_ready: bool = True,
     ) -> bool:
-        """This tick's core output, the inbox it was computed from, the live membership,
-        whether the agent already flies and whether its vehicle can fly (its autopilot dialect's
-        checks: drone_agent/process/dialects.py); whether the swarm is ready to leave the ground. An
-        agent whose vehicle is not ready does not agree, so nobody leaves without it."""
-        self.settling.update(out, members)
-        agrees = (self.settling.agrees and vehicle_ready) or committed
-        swarm = self.swarm.update(out.message.round, agrees, inbox, members)
-        self.ready = swarm and (out.ready_to_fly or committed)
-        return self.ready
+        """:meth:`BatchReadiness.update` of this row: its tick's core output, the inbox it was
+        computed from, its membership view, whether it already flies and whether its vehicle can
+        fly; whether the swarm is ready to leave the ground."""
+        ready = self.batch.update(
+            (self.row,),
+            out.message.round,
+            (out.disagreement,),
+            (out.ready_to_fly,),
+            Arrivals.of_inboxes((self.row,), (inbox,)),
+            members,
+            (committed,),
+            (vehicle_ready,),
+        )
+        return bool(ready[0])
 
 
 #: Round of an empty slot of :class:`BatchReadiness`'s table (no message is this old).
@@ -232,12 +158,43 @@ _NO_ROUND = -(2**62)
 
 
 class BatchReadiness:
-    """:class:`Readiness` of K agents at once (rows ``0..k-1``), as array operations: the same
-    rule and the same results, row by row, as K :class:`Readiness` objects given the same
-    inputs (tests/test_flight_phase.py compares them over random traffic, losses, delays,
-    membership changes and commitments). ``swarm simulate`` uses it for all its agents in one
-    call per tick instead of one :meth:`Readiness.update` each (a hundred agents hear about
-    2500 messages a tick: a Python loop over them cost ~0.8 ms a tick)."""
+    """The one rule for leaving the ground, of K agents at once (rows ``0..k-1``): ``swarm
+    simulate``'s agents in one call a tick, a ``swarm agent`` process's agents in one call per
+    pass (drone_agent/process/host.py); :class:`Readiness` is one row of it. A row is ready when
+    its warm-up is over, its own estimate has settled and so has every agent's.
+
+    **Its own estimate settled** (the condition to arm, with the plan's FLY): the estimator
+    agreeing with its neighbours (disagreement below ``settle_tolerance``) for ``settle_ticks``
+    ticks in a row while its membership view stayed the same (a drone joining or leaving restarts
+    the count), its vehicle ready to fly (its autopilot dialect's checks:
+    drone_agent/process/dialects.py; an agent whose vehicle is not ready does not agree, so
+    nobody leaves without it) and the warm-up over (``AgentOutput.ready_to_fly``). The agreement
+    counts during the warm-up too, so that word of a settled swarm crosses it before the warm-up
+    ends: measured on a 10 x 10 grid whose plan starts climbing at the end of its 5 s warm-up,
+    waiting for the warm-up first kept it on the ground for 33 s, because the climbing reference
+    then kept the estimates from agreeing to 2 % until the drop-outs of the scenario were over.
+
+    **Every agent settled** (climb together), known to each agent from its radio neighbours alone:
+    a flood of settled levels over the consensus messages. Each tick an agent advertises a level
+    on its consensus message (``ready_hops``)::
+
+        level_i = 0                                   if i does not agree
+                = min(cap, 1 + min_j level_j)         otherwise (j: neighbours heard recently)
+
+    with ``cap`` the number of live members in its view. ``level_i >= h`` means every agent within
+    ``h - 1`` hops of i had settled within the last ``h`` ticks; since no radio graph of ``cap``
+    drones has a diameter of ``cap`` hops or more, ``level_i == cap`` means the whole (connected)
+    swarm has settled. Once the last agent settles, every level rises by one per tick, so all
+    agents reach the cap within the graph's diameter in ticks of each other (a 10 x 10 grid at
+    range 6 m: 6 ticks, 0.12 s) and ``cap`` ticks after that last agent (2 s at N = 100, 50 Hz):
+    the swarm leaves the ground together instead of drone by drone as each settles (measured
+    before this rule on a sparse 5-drone line: the centre armed at 3.0 s, the ends at 6.2 s). Per
+    sender the newest (round, level) heard is kept (the first copy of its highest round); a
+    sender not heard for the heard timeout, or out of the view, is forgotten.
+
+    An agent that already flies (``committed``) counts as settled, so a late joiner waits only for
+    itself and is not held on the ground by a formation manoeuvring above it. An agent with no
+    neighbour (alone, or cut off) reaches the cap on its own settling."""
 
     def __init__(self, k: int, config: AgentConfig) -> None:
         self.k = k
@@ -259,6 +216,14 @@ class BatchReadiness:
         self._level = np.hstack([self._level, np.zeros((self.k, pad), np.int64)])
         self._m += pad
 
+    def _member_masks(self, views: list[frozenset[int]]) -> npt.NDArray[np.bool_]:
+        """The membership views as masks (len(views), M), one per distinct view (most rows share
+        one view object, tick after tick)."""
+        masks = np.empty((len(views), self._m), dtype=bool)
+        for p, view in enumerate(views):
+            masks[p] = self._member_mask(view)
+        return masks
+
     def _member_mask(self, members: frozenset[int]) -> npt.NDArray[np.bool_]:
         view, mask = self._mask
         if view is not members or mask.shape[0] != self._m:
@@ -267,6 +232,19 @@ class BatchReadiness:
             self._mask = (members, mask)
         return mask
 
+    def agrees(self, row: int) -> bool:
+        """Row ``row``'s estimate agrees with its neighbours' (``settle_ticks`` calm ticks)."""
+        return bool(self.calm_ticks[row] >= self.ticks)
+
+    def reset(self, row: int) -> None:
+        """Row ``row`` starts again (a new life of its agent): no calm tick, nothing heard."""
+        self.calm_ticks[row] = 0
+        self._members[row] = None
+        self.level[row] = 0
+        self.ready[row] = False
+        self._round[row] = _NO_ROUND
+        self._level[row] = 0
+
     def update(
         self,
         rows: Sequence[int],
@@ -274,42 +252,53 @@ class BatchReadiness:
         disagreement: Sequence[float] | npt.NDArray[np.float64],
         ready_to_fly: Sequence[bool] | npt.NDArray[np.bool_],
         arrivals: Arrivals,
-        members: frozenset[int],
+        members: frozenset[int] | Sequence[frozenset[int]],
         committed: Sequence[bool],
+        vehicle_ready: Sequence[bool] | None = None,
     ) -> npt.NDArray[np.bool_]:
-        """:meth:`Readiness.update` of rows ``rows`` (distinct) at round ``round_`` (their
-        outputs' message round), with their outputs' ``disagreement`` and ``ready_to_fly``, the
-        messages that arrived (``arrivals``, in each row's inbox order; those to other rows are
-        ignored), one membership view for all and whether each already flies; whether each is
-        ready (also :attr:`ready`, and the new levels :attr:`level`, by row)."""
+        """Rows ``rows`` (distinct) at round ``round_`` (their outputs' message round), with
+        their outputs' ``disagreement`` and ``ready_to_fly``, the messages that arrived
+        (``arrivals``, in each row's inbox order; those to other rows are ignored), the
+        membership view (one for all rows, or one per row), whether each already flies and
+        whether each one's vehicle can fly (None: all can); whether each is ready (also
+        :attr:`ready`, and the new levels :attr:`level`, by row)."""
         rows_arr = np.asarray(rows, dtype=np.intp)
-        # Settling: calm ticks in a row with the same membership
+        n_rows = rows_arr.shape[0]
+        views = [members] * n_rows if isinstance(members, frozenset) else list(members)
+        # own settling: calm ticks in a row with the same membership view
         last = self._members
         same = np.fromiter(
-            ((m is members or m == members) for m in (last[r] for r in rows_arr.tolist())),
+            (
+                (m is v or m == v)
+                for m, v in zip((last[r] for r in rows_arr.tolist()), views, strict=True)
+            ),
             dtype=bool,
-            count=rows_arr.shape[0],
+            count=n_rows,
         )
-        for r in rows_arr.tolist():
-            last[r] = members
+        for r, v in zip(rows_arr.tolist(), views, strict=True):
+            last[r] = v
         calm = (np.asarray(disagreement, dtype=float) < self.tolerance) & same
         calm_ticks = np.where(calm, self.calm_ticks[rows_arr] + 1, 0)
         self.calm_ticks[rows_arr] = calm_ticks
         fly = np.asarray(ready_to_fly, dtype=bool)
         flying = np.asarray(committed, dtype=bool)
-        agrees = (calm_ticks >= self.ticks) | flying
-        # SwarmSettled: the newest (round, level) per sender, the first copy of its highest round
+        agrees = calm_ticks >= self.ticks
+        if vehicle_ready is not None:
+            agrees &= np.asarray(vehicle_ready, dtype=bool)
+        agrees |= flying
+        # the swarm settled: the newest (round, level) per sender, the first copy of its highest
+        # round
         receiver, sender = arrivals.receiver, arrivals.sender
         if sender.shape[0]:
             top = max(int(sender.max()), int(receiver.max()))
             if top >= self._m:
                 self._grow(top + 1)
-        if rows_arr.shape[0] and int(rows_arr.max()) >= self._m:
+        if n_rows and int(rows_arr.max()) >= self._m:
             self._grow(int(rows_arr.max()) + 1)
         updating = np.zeros(self.k, dtype=bool)
         updating[rows_arr] = True
-        cap = max(len(members), 1)
-        level = np.empty(rows_arr.shape[0], dtype=np.int64)
+        caps = np.fromiter((max(len(v), 1) for v in views), dtype=np.int64, count=n_rows)
+        level = np.empty(n_rows, dtype=np.int64)
         _settled_levels(
             rows_arr,
             updating,
@@ -320,13 +309,13 @@ class BatchReadiness:
             self._round,
             self._level,
             int(round_) - 1 - self.timeout,
-            self._member_mask(members),
+            self._member_masks(views),
             np.ascontiguousarray(agrees, dtype=np.bool_),
-            cap,
+            caps,
             level,
         )
         self.level[rows_arr] = level
-        ready = (level >= cap) & (fly | flying)
+        ready = (level >= caps) & (fly | flying)
         self.ready[rows_arr] = ready
         return ready
 
@@ -344,6 +333,17 @@ class Arrivals:
     level: npt.NDArray[np.int64]
     takeoff: npt.NDArray[np.int64] | None = None
 
+    @staticmethod
+    def of_inboxes(rows: Sequence[int], inboxes: Sequence[Sequence[ConsensusMessage]]) -> Arrivals:
+        """The arrivals of the inboxes of rows ``rows`` (one inbox each, in order)."""
+        messages = [m for inbox in inboxes for m in inbox]
+        n = len(messages)
+        receiver = np.repeat(np.asarray(rows, dtype=np.intp), [len(b) for b in inboxes])
+        sender = np.fromiter((m.sender for m in messages), dtype=np.intp, count=n)
+        rounds = np.fromiter((m.round for m in messages), dtype=np.int64, count=n)
+        levels = np.fromiter((m.ready_hops for m in messages), dtype=np.int64, count=n)
+        return Arrivals(receiver, sender, rounds, levels)
+
 
 class TakeoffClock:
     """The round the swarm left the ground, agreed by its agents: the clock the plan is flown
@@ -353,7 +353,7 @@ class TakeoffClock:
     An agent that flies (``committed``) advertises a take-off round on its consensus messages
     (``takeoff_round``): the round it decided to fly, lowered to the least one its neighbours
     advertise. Agents that leave together decide at the same round (the settled-level flood,
-    :class:`SwarmSettled`, brings every agent to the cap at the same round when no message is
+    :class:`BatchReadiness`, brings every agent to the cap at the same round when no message is
     lost); where losses split them by a few ticks, the least round floods through the flying
     swarm within its diameter in ticks, while the plan's climb is still at rest. An agent that
     does not fly (on the ground, or climbing back to rejoin) flies the plan on the least round
@@ -559,13 +559,14 @@ def _settled_levels(  # type: ignore[no-untyped-def]
     oldest,
     member,
     agrees,
-    cap,
+    caps,
     out,
 ):
-    """:meth:`BatchReadiness.update`'s SwarmSettled part: the arrivals filed in delivery order
-    (per (row, sender) the first copy of its highest round, newer than the one held), senders
-    not heard since round ``oldest`` or not members dropped, and each row's level: 0 unless it
-    agrees, else ``min(cap, 1 + the lowest level held)`` (``cap`` with none)."""
+    """:meth:`BatchReadiness.update`'s flood: the arrivals filed in delivery order (per (row,
+    sender) the first copy of its highest round, newer than the one held), senders not heard
+    since round ``oldest`` or not in the row's view (``member`` (P, M)) dropped, and each row's
+    level: 0 unless it agrees, else ``min(cap, 1 + the lowest level held)`` (``cap`` with
+    none; ``caps`` (P,))."""
     for t in range(receiver.shape[0]):
         r, j = receiver[t], sender[t]
         if updating[r] and rounds[t] > round_table[r, j]:
@@ -573,9 +574,10 @@ def _settled_levels(  # type: ignore[no-untyped-def]
             level_table[r, j] = levels[t]
     for p in range(rows.shape[0]):
         r = rows[p]
+        cap = caps[p]
         lowest = cap
         for j in range(round_table.shape[1]):
-            if round_table[r, j] < oldest or not member[j]:
+            if round_table[r, j] < oldest or not member[p, j]:
                 round_table[r, j] = _NO_ROUND
             elif round_table[r, j] != _NO_ROUND:
                 lowest = min(lowest, level_table[r, j])

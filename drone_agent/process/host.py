@@ -8,8 +8,9 @@ rows of one
 :class:`~drone_agent.core.agent_core.BatchAgentCore`: on each pass the agents due at the same tick
 (same tick number and vehicle time: one simulator drives them, so their samples of a tick arrive
 together) run in one batched call, between each agent's own :meth:`HostedAgent.prepare` (messages,
-neighbour wait, plan) and :meth:`HostedAgent.finish` (flight phase and setpoint for every agent
-of the pass first, then their messages). An agent
+neighbour wait, plan) and :meth:`HostedAgent.act` (flight phase and setpoint for every agent
+of the pass first, then their messages: :meth:`HostedAgent.publish`); their readiness to leave
+the ground is updated in one call too. An agent
 joins the swarm (declares its transport and token) once its vehicle has answered, since its
 position names its spatial cell. In lockstep the process's
 :class:`~drone_agent.process.round_gate.RoundBook` publishes, after each pass, the round-done
@@ -36,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drone_agent.core.agent_core import AgentConfig, AgentCore, BatchAgentCore
+from drone_agent.core.flight_phase import Arrivals, BatchReadiness, Readiness
 from drone_agent.process.hosted_agent import DueTick, HostedAgent, RunOptions
 from drone_agent.process.round_gate import RoundBook, RoundGate
 from drone_agent.process.transport import AgentTransport, Position
@@ -133,6 +135,8 @@ class AgentHost:
         self._slots = [_Slot(d, link) for d, link in zip(drones, links, strict=True)]
         self._slot_of = {slot.drone: slot for slot in self._slots}
         self._core = BatchAgentCore(drones, config)
+        #: the agents' readiness to leave the ground, row for row with the core's
+        self._readiness = BatchReadiness(len(self._core.agent_ids), config)
         self._bus = bus
         self._factory = transport_factory
         self._config = config
@@ -331,8 +335,8 @@ class AgentHost:
 
     def _run_cores(self, group: list[tuple[HostedAgent, DueTick]]) -> None:
         """The cores of the agents due at one tick (same tick, same vehicle time), in one
-        batched call; each agent then finishes its own tick: all answer their vehicles, then all
-        publish."""
+        batched call, then their readiness to leave the ground in one more; each agent then
+        finishes its own tick: all answer their vehicles, then all publish."""
         ticks = [t for _, t in group]
         first = ticks[0]
         outs = self._core.tick(
@@ -346,6 +350,19 @@ class AgentHost:
             [t.members for t in ticks],
             [t.climb_to for t in ticks],
             [t.t_s if t.plan_t_s is None else t.plan_t_s for t in ticks],
+        )
+        rows = [t.core.row for t in ticks]
+        self._readiness.update(
+            rows,
+            outs[0].message.round,
+            [out.disagreement for out in outs],
+            [out.ready_to_fly for out in outs],
+            Arrivals.of_inboxes(rows, [t.inbox for t in ticks]),
+            [t.members for t in ticks],
+            [agent.phase.committed for agent, _ in group],
+            # a vehicle its dialect does not call ready (EKF, GPS, pre-arm, parameters) keeps
+            # its agent from agreeing: the swarm waits for it
+            [agent.link.dialect.ready for agent, _ in group],
         )
         for (agent, tick), out in zip(group, outs, strict=True):
             agent.act(tick, out)  # every vehicle answered first (HostedAgent.act)
@@ -387,7 +404,9 @@ class AgentHost:
         if self._rounds is not None:
             gate = RoundGate(slot.drone, self._roster, self._rounds)
         options, clock = self._options, self._clock
-        return HostedAgent(core, slot.link, transport, self._plan, options, clock, gate)
+        readiness = Readiness(self._config, self._readiness, core.row)
+        readiness.reset()  # a new life
+        return HostedAgent(core, slot.link, transport, self._plan, options, clock, gate, readiness)
 
     def close(self) -> None:
         """Leave the swarm with every agent and close the vehicle links."""

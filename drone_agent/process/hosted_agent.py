@@ -2,8 +2,8 @@
 
 Each control tick (named by the vehicle's ``time_boot_ms``, protocols/mavlink/conventions.py) the
 agent gathers the consensus messages that arrived, runs :class:`AgentCore` (:meth:`prepare`, the
-core, :meth:`finish`; a host runs the cores of its agents due at the same tick in one batched
-call), publishes its message,
+core and the readiness to fly, :meth:`act`, :meth:`publish`; a host runs the cores and the
+readiness of its agents due at the same tick in one batched call each), publishes its message,
 lets :class:`~drone_agent.core.flight_phase.FlightPhase` decide what to do with the vehicle (fly the
 formation, land, hold, stay on the ground), and answers the vehicle with that SET_ATTITUDE_TARGET
 echoing the tick (also on the ground, for lockstep). Before a tick it waits for its neighbours'
@@ -108,7 +108,7 @@ class RunOptions:
 
 @dataclass(frozen=True)
 class DueTick:
-    """One agent's due tick, between :meth:`HostedAgent.prepare` and :meth:`HostedAgent.finish`:
+    """One agent's due tick, between :meth:`HostedAgent.prepare` and :meth:`HostedAgent.act`:
     the core inputs (its vehicle's sample, plan, inbox and membership view) and the command."""
 
     core: AgentCore
@@ -130,8 +130,8 @@ class DueTick:
 
 class HostedAgent:
     """Drone ``core.agent_id``'s agent. Feed it vehicle samples; its host calls :meth:`prepare`
-    often, runs the core of a due tick (batched with its other agents due then) and hands the
-    output to :meth:`finish`."""
+    often, runs the core and the readiness of a due tick (batched with its other agents due
+    then) and hands the output to :meth:`act`, then calls :meth:`publish`."""
 
     def __init__(
         self,
@@ -142,7 +142,10 @@ class HostedAgent:
         options: RunOptions,
         wall_clock: Callable[[], float],
         gate: RoundGate | None = None,
+        readiness: Readiness | None = None,
     ) -> None:
+        """``readiness``: its row of its host's readiness (updated by the host for all its
+        agents at once); one of its own if None."""
         if options.lockstep and gate is None:
             raise ValueError("a lockstep agent needs its round gate")
         self.core, self.link, self.transport = core, link, transport
@@ -163,7 +166,7 @@ class HostedAgent:
         self._last_sample_wall = wall_clock()
         self._last_heartbeat = -1e9
         self._last_command = -1e9
-        self.readiness = Readiness(core.config)
+        self.readiness = readiness if readiness is not None else Readiness(core.config)
         self.phase = FlightPhase(core.config.limits)
         self.takeoff = TakeoffClock(core.config.consensus.heard_timeout_ticks)
         self.left = False
@@ -225,8 +228,8 @@ class HostedAgent:
         """Everything before the core: heartbeat, leaving on vehicle loss, collecting messages,
         and whether a tick is due (a newer vehicle sample, and every recent neighbour's message
         of the previous round, or ``neighbour_wait_s`` waited). Returns the core's inputs of the
-        due tick, to be run (alone or batched with other agents due at the same tick) and handed
-        to :meth:`finish`; None if nothing is due, or if the tick was done without the core (no
+        due tick, to be run (batched with the other agents due at the same tick) and handed
+        to :meth:`act`; None if nothing is due, or if the tick was done without the core (no
         plan yet: the agent stays on the ground)."""
         if self.left:
             return None
@@ -336,28 +339,20 @@ class HostedAgent:
             if near and abs(float(sample.velocity_ned_m_s[2])) < CLIMB_SLOW_M_S:
                 self.rejoin = Rejoin.SETTLE  # a member from now: a new incarnation
                 consensus.restart(row)
-                self.readiness = Readiness(self.core.config)
-        elif self.rejoin == Rejoin.SETTLE and self.readiness.settling.agrees:
+                self.readiness.reset()
+        elif self.rejoin == Rejoin.SETTLE and self.readiness.agrees:
             self.rejoin, self._climb_z = Rejoin.NONE, None
         return self._climb_z
 
-    def finish(self, due: DueTick, out: AgentOutput) -> None:
-        """Everything after the core: :meth:`act`, then :meth:`publish`."""
-        self.act(due, out)
-        self.publish(due)
-
     def act(self, due: DueTick, out: AgentOutput) -> None:
-        """The vehicle's side of the tick, after the core: update the readiness to fly
-        (flight_phase.Readiness), decide and send what the vehicle does this tick (the setpoint
-        that answers the tick goes last). A host answers all its agents' vehicles before any
-        publishes (:meth:`publish`): in lockstep the simulator steps once every vehicle has its
-        answer, while the agents' messages are laid out and sent."""
+        """The vehicle's side of the tick, after the core and its readiness to fly (its host
+        updates all its agents' at once: flight_phase.BatchReadiness): decide and send what the
+        vehicle does this tick (the setpoint that answers the tick goes last). A host answers all
+        its agents' vehicles before any publishes (:meth:`publish`): in lockstep the simulator
+        steps once every vehicle has its answer, while the agents' messages are laid out and
+        sent."""
         sample = due.sample
         self.last_output = out
-        # a vehicle its dialect does not call ready (EKF, GPS, pre-arm, parameters) keeps the
-        # agent from agreeing: the swarm waits for it
-        vehicle_ready = self.link.dialect.ready
-        self.readiness.update(out, due.inbox, due.members, self.phase.committed, vehicle_ready)
         assert out.desired is not None  # the core gives the plan's value of the tick
         commanded_altitude = -float(out.desired[CENTRE][2])
         self._carry_out(self._decide(due.command, out.setpoint, commanded_altitude, sample), sample)
