@@ -4,9 +4,9 @@ oracle the compiled rules are checked against (tests/test_physics_kernel.py, tes
 test_mixer.py). The same maths (sitl_sim/physics/dynamics.py's and mixer.py's docs), written as
 array operations over the (13, N) state: a second, independent writing of the rules.
 
-``inner_loop`` runs the numpy attitude controller of sitl_sim/physics/attitude_control.py and
-:func:`mix`; ``step_with_contact`` integrates with RK4 (or semi-implicit Euler) and applies
-ground contact.
+``inner_loop`` is the simulator's inner loop (the numpy attitude controller of
+sitl_sim/physics/attitude_control.py) with :func:`mix`; ``step_with_contact`` integrates with RK4
+(or semi-implicit Euler) and applies ground contact.
 """
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
 from protocols.model.frames import G_M_S2, FloatArray
-from sitl_sim.physics.attitude_control import AttitudeGains, attitude_moments, euler_from_quat_batch
+from protocols.runtime.same_code import same_code
+from sitl_sim.physics import inner_loop as _simulator
 from sitl_sim.physics.dynamics import POS, QUAT, RATES, VEL, wrench_from_rotor_speeds
 from sitl_sim.physics.rules import euler_coeffs as _euler_coeffs
 from sitl_sim.physics.vehicle_params import VehicleParams
@@ -295,47 +295,8 @@ def _yaw_scale(base: FloatArray, yaw: FloatArray, f_min: float, f_max: float) ->
     return np.where(fits, 1.0, np.clip(ratio.min(axis=0), 0.0, 1.0))
 
 
-_DEFAULT_GAINS = AttitudeGains()
-
-
-def inner_loop(
-    state: FloatArray,
-    attitude_des: FloatArray,
-    thrust_normalised: FloatArray,
-    params: VehicleParams,
-    gains: AttitudeGains = _DEFAULT_GAINS,
-    armed: npt.NDArray[np.bool_] | None = None,
-) -> FloatArray:
-    """Rotor speeds (4, N) rad/s tracking an attitude setpoint with a collective thrust.
-
-    Args:
-        state: vehicle states (13, N), layout of ``sitl_sim.physics.dynamics``.
-        attitude_des: either quaternions (4, N) ``(w, x, y, z)`` body -> world, or ZYX Euler
-            angles (3, N) ``(roll, pitch, yaw)`` in radians.
-        thrust_normalised: collective thrust (N,) as a fraction of ``params.max_thrust_n``,
-            clipped to [0, 1].
-        params: vehicle parameters (shared by all N vehicles).
-        gains: attitude PD gains.
-        armed: boolean mask (N,); disarmed vehicles get zero rotor speed. None: all armed.
-
-    Raises:
-        ValueError: if ``attitude_des`` has neither 3 nor 4 rows.
-    """
-    euler_des = _euler_setpoint(np.asarray(attitude_des, dtype=np.float64))
-    moments = attitude_moments(state, euler_des, params, gains)
-    thrust_n = np.clip(np.asarray(thrust_normalised, dtype=np.float64), 0.0, 1.0)
-    thrust_n = thrust_n * params.max_thrust_n
-    rotor_speed = mix(thrust_n, moments, params)
-    if armed is not None:
-        rotor_speed[:, ~np.asarray(armed, dtype=bool)] = 0.0
-    return rotor_speed
-
-
-def _euler_setpoint(attitude_des: FloatArray) -> FloatArray:
-    """ZYX angles (3, N) from a quaternion (4, N) or Euler (3, N) setpoint."""
-    rows = attitude_des.shape[0]
-    if rows == 4:
-        return euler_from_quat_batch(attitude_des)
-    if rows == 3:
-        return attitude_des
-    raise ValueError(f"attitude_des must have 3 (Euler) or 4 (quaternion) rows, got {rows}")
+#: Rotor speeds (4, N) rad/s tracking an attitude setpoint with a collective thrust: the
+#: simulator's own inner loop (sitl_sim/physics/inner_loop.py: setpoint, the numpy attitude
+#: controller, thrust clipping, disarmed vehicles) with this module's :func:`mix` in place of the
+#: compiled mixer.
+inner_loop = same_code(_simulator.inner_loop, mix=mix)

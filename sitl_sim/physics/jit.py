@@ -20,7 +20,7 @@ from sitl_sim.physics.attitude_control import MIN_COS_PITCH
 from sitl_sim.physics.rules import (
     attitude_moments,
     collective_thrust,
-    ground_contact,
+    contact_column,
     mix,
     rk4_into,
     rotor_wrench,
@@ -72,11 +72,8 @@ def advance(
             thrust, t_m, a0, a1, a2 = rotor_wrench(w0, w1, w2, w3, c)
             x0, y0, z0, vz0 = s[0], s[1], s[2], s[5]
             rk4_into(s, t_m, a0, a1, a2, c, k1, k2, k3, k4, xt)
-            on_ground, moving_down, impact = ground_contact(s, x0, y0, z0, vz0, thrust, c)
-            if on_ground:
+            if contact_column(s, x0, y0, z0, vz0, thrust, c, impacts[k], i):
                 touched[k] = True
-                if moving_down:
-                    impacts[k, i] = impact
         new[:, i] = s
         rotor[0, i], rotor[1, i], rotor[2, i], rotor[3, i] = w0, w1, w2, w3
 

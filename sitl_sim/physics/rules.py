@@ -280,6 +280,16 @@ def ground_contact(s, x0, y0, z0, vz0, thrust, c):  # type: ignore[no-untyped-de
 
 # -- the rules over N vehicles (columns of a (13, N) state) --------------------------------------
 @jit
+def contact_column(s, x0, y0, z0, vz0, thrust, c, impacts, i):  # type: ignore[no-untyped-def]
+    """:func:`ground_contact` on vehicle ``i``'s state ``s`` (13,) in place, its touchdown speed
+    into ``impacts[i]`` (left as it is where none); whether it is on the ground."""
+    on_ground, moving_down, impact = ground_contact(s, x0, y0, z0, vz0, thrust, c)
+    if on_ground and moving_down:
+        impacts[i] = impact
+    return on_ground
+
+
+@jit
 def advance_rotors(
     state: FloatArray,
     rotor: FloatArray,
@@ -300,11 +310,8 @@ def advance_rotors(
         )
         x0, y0, z0, vz0 = s[0], s[1], s[2], s[5]
         rk4_into(s, t_m, a0, a1, a2, c, k1, k2, k3, k4, xt)
-        on_ground, moving_down, impact = ground_contact(s, x0, y0, z0, vz0, thrust, c)
-        if on_ground:
+        if contact_column(s, x0, y0, z0, vz0, thrust, c, impacts, i):
             touched = True
-            if moving_down:
-                impacts[i] = impact
         new[:, i] = s
     return touched
 
@@ -319,13 +326,10 @@ def contact_rows(
     touched = False
     for i in range(new.shape[1]):
         s = new[:, i].copy()
-        on_ground, moving_down, impact = ground_contact(
-            s, prev[0, i], prev[1, i], prev[2, i], prev[5, i], thrust_n[i], c
-        )
-        if on_ground:
+        if contact_column(
+            s, prev[0, i], prev[1, i], prev[2, i], prev[5, i], thrust_n[i], c, impacts, i
+        ):
             touched = True
-            if moving_down:
-                impacts[i] = impact
         new[:, i] = s
     return touched
 
