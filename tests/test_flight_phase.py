@@ -353,9 +353,10 @@ def test_batch_readiness_is_readiness_row_by_row() -> None:
 
 
 def test_batch_takeoff_is_takeoff_clock_row_by_row() -> None:
-    """BatchTakeoff (swarm simulate's) advertises and flies on the take-off rounds K
-    TakeoffClock objects do, over random traffic: losses, rows skipped for a tick, agents taking
-    off at different rounds, landing and flying again, silences longer than the timeout."""
+    """BatchTakeoff (swarm simulate's and a host's) advertises and flies on the take-off rounds K
+    one-row TakeoffClock objects do (the rows do not leak into each other), over random traffic:
+    losses, rows skipped for a tick, agents taking off at different rounds, landing and flying
+    again, silences longer than the timeout."""
     from types import SimpleNamespace
 
     from drone_agent.core.flight_phase import Arrivals, BatchTakeoff, TakeoffClock
@@ -376,7 +377,8 @@ def test_batch_takeoff_is_takeoff_clock_row_by_row() -> None:
                 if quiet or i == j or rng.random() < 0.3 or round_ - back not in sent:
                     continue
                 t = sent[round_ - back][j]
-                inboxes[i].append(SimpleNamespace(takeoff_round=t))
+                said = SimpleNamespace(sender=j, round=round_ - back, ready_hops=0, takeoff_round=t)
+                inboxes[i].append(said)
                 receiver.append(i)
                 takeoff.append(-1 if t is None else t)
         committed |= rng.random(k) < 0.02

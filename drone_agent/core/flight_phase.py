@@ -27,7 +27,7 @@ station's crash drill, MAV_CMD_INJECT_FAILURE, or a forced disarm), never an age
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
 
@@ -145,7 +145,7 @@ class Readiness:
             out.message.round,
             (out.disagreement,),
             (out.ready_to_fly,),
-            Arrivals.of_inboxes((self.row,), (inbox,)),
+            Arrivals.of_inboxes((self.row,), (inbox,), with_takeoff=False),
             members,
             (committed,),
             (vehicle_ready,),
@@ -334,21 +334,68 @@ class Arrivals:
     takeoff: npt.NDArray[np.int64] | None = None
 
     @staticmethod
-    def of_inboxes(rows: Sequence[int], inboxes: Sequence[Sequence[ConsensusMessage]]) -> Arrivals:
-        """The arrivals of the inboxes of rows ``rows`` (one inbox each, in order)."""
+    def of_inboxes(
+        rows: Sequence[int],
+        inboxes: Sequence[Sequence[ConsensusMessage]],
+        with_takeoff: bool = True,
+    ) -> Arrivals:
+        """The arrivals of the inboxes of rows ``rows`` (one inbox each, in order); their
+        take-off rounds too unless not ``with_takeoff``."""
         messages = [m for inbox in inboxes for m in inbox]
         n = len(messages)
         receiver = np.repeat(np.asarray(rows, dtype=np.intp), [len(b) for b in inboxes])
         sender = np.fromiter((m.sender for m in messages), dtype=np.intp, count=n)
         rounds = np.fromiter((m.round for m in messages), dtype=np.int64, count=n)
         levels = np.fromiter((m.ready_hops for m in messages), dtype=np.int64, count=n)
-        return Arrivals(receiver, sender, rounds, levels)
+        takeoff = None
+        if with_takeoff:
+            said = (m.takeoff_round for m in messages)
+            takeoff = np.fromiter((_NO_TAKEOFF if t is None else t for t in said), np.int64, n)
+        return Arrivals(receiver, sender, rounds, levels, takeoff)
 
 
 class TakeoffClock:
-    """The round the swarm left the ground, agreed by its agents: the clock the plan is flown
-    on (protocols/model/plan_timing.py). The same rule for ``swarm simulate``
-    (:class:`BatchTakeoff`) and every ``swarm agent``.
+    """One agent's take-off clock: row ``row`` of a :class:`BatchTakeoff` (a batch of its own
+    unless ``batch`` is given), for an agent not ticked with others. The rule is the batch's."""
+
+    def __init__(
+        self, heard_timeout_ticks: int, batch: BatchTakeoff | None = None, row: int = 0
+    ) -> None:
+        self.batch = batch if batch is not None else BatchTakeoff(1, heard_timeout_ticks)
+        self.row = row
+
+    @property
+    def advertised(self) -> int | None:
+        """The round this flying agent advertises (None when it does not fly)."""
+        t = int(self.batch.advertised[self.row])
+        return None if t < 0 else t
+
+    @property
+    def round(self) -> int | None:
+        """The take-off round the plan is flown on: its own while it flies, else the least one
+        heard lately, else None (the swarm has not left the ground)."""
+        return self.batch.rounds((self.row,))[0]
+
+    def reset(self) -> None:
+        """A new life of the agent: no round advertised or heard."""
+        self.batch.reset(self.row)
+
+    def update(self, round_: int, committed: bool, inbox: Sequence[ConsensusMessage]) -> int | None:
+        """This tick's round, whether the agent flies (after this tick's decision) and the
+        messages that arrived; the round to advertise (None: none)."""
+        arrivals = Arrivals.of_inboxes((self.row,), (inbox,))
+        return self.batch.update((self.row,), round_, (committed,), arrivals)[0]
+
+
+#: No take-off round (:class:`BatchTakeoff`'s arrays).
+_NO_TAKEOFF = -1
+
+
+class BatchTakeoff:
+    """The round the swarm left the ground, agreed by K agents at once (rows ``0..k-1``): the
+    clock the plan is flown on (protocols/model/plan_timing.py). ``swarm simulate``'s agents in
+    one call a tick, a ``swarm agent`` process's in one call per pass; :class:`TakeoffClock` is
+    one row of it.
 
     An agent that flies (``committed``) advertises a take-off round on its consensus messages
     (``takeoff_round``): the round it decided to fly, lowered to the least one its neighbours
@@ -360,57 +407,8 @@ class TakeoffClock:
     its neighbours advertise (heard within the heard timeout): a drone re-armed after a rejoin
     joins the swarm's clock, not one of its own. Landed, it forgets its round: the next take-off
     has its own. Call :meth:`update` once per tick after the flight phase decided; put
-    :attr:`advertised` on the tick's consensus message; :attr:`round` is what the next tick's
+    :attr:`advertised` on the tick's consensus message; :meth:`rounds` is what the next tick's
     plan time uses."""
-
-    def __init__(self, heard_timeout_ticks: int) -> None:
-        self.timeout = heard_timeout_ticks
-        #: the round this flying agent advertises (None when it does not fly)
-        self.advertised: int | None = None
-        self._heard: int | None = None
-        self._heard_at = 0
-
-    @property
-    def round(self) -> int | None:
-        """The take-off round the plan is flown on: its own while it flies, else the least one
-        heard lately, else None (the swarm has not left the ground)."""
-        return self.advertised if self.advertised is not None else self._heard
-
-    def update(self, round_: int, committed: bool, inbox: Iterable[ConsensusMessage]) -> int | None:
-        """This tick's round, whether the agent flies (after this tick's decision) and the
-        messages that arrived; the round to advertise (None: none)."""
-        heard = min((t for t in (m.takeoff_round for m in inbox) if t is not None), default=None)
-        self._heard, self._heard_at = _heard_takeoff(
-            self._heard, self._heard_at, heard, round_, self.timeout
-        )
-        if not committed:
-            self.advertised = None
-        else:
-            own = round_ if self.advertised is None else self.advertised
-            self.advertised = own if self._heard is None else min(own, self._heard)
-        return self.advertised
-
-
-def _heard_takeoff(
-    held: int | None, held_at: int, heard: int | None, round_: int, timeout: int
-) -> tuple[int | None, int]:
-    """The take-off round heard (this tick's least, else the one held until ``timeout`` ticks
-    without any) and the round it was last heard."""
-    if heard is not None:
-        return heard, round_
-    if held is not None and round_ - held_at > timeout:
-        return None, held_at
-    return held, held_at
-
-
-#: No take-off round (:class:`BatchTakeoff`'s arrays).
-_NO_TAKEOFF = -1
-
-
-class BatchTakeoff:
-    """:class:`TakeoffClock` of K agents at once (rows ``0..k-1``), as array operations: the
-    same rule and results row by row (tests/test_flight_phase.py compares them), for
-    ``swarm simulate``'s hundred agents in one call a tick."""
 
     def __init__(self, k: int, heard_timeout_ticks: int) -> None:
         self.timeout = heard_timeout_ticks
@@ -418,8 +416,15 @@ class BatchTakeoff:
         self._heard = np.full(k, _NO_TAKEOFF, dtype=np.int64)
         self._heard_at = np.zeros(k, dtype=np.int64)
 
+    def reset(self, row: int) -> None:
+        """Row ``row`` starts again (a new life of its agent): no round advertised or heard."""
+        self.advertised[row] = _NO_TAKEOFF
+        self._heard[row] = _NO_TAKEOFF
+        self._heard_at[row] = 0
+
     def rounds(self, rows: Sequence[int]) -> list[int | None]:
-        """:attr:`TakeoffClock.round` of each row of ``rows``."""
+        """The take-off round each row of ``rows`` flies the plan on: its own while it flies,
+        else the least one heard lately, else None (the swarm has not left the ground)."""
         r = np.asarray(rows, dtype=np.intp)
         out = np.where(self.advertised[r] >= 0, self.advertised[r], self._heard[r])
         return [None if t < 0 else t for t in out.tolist()]
@@ -431,8 +436,11 @@ class BatchTakeoff:
         committed: Sequence[bool],
         arrivals: Arrivals,
     ) -> list[int | None]:
-        """:meth:`TakeoffClock.update` of rows ``rows`` (distinct), from the messages that
-        arrived (those to other rows are ignored); the rounds each advertises."""
+        """Rows ``rows`` (distinct) at round ``round_``, whether each flies (after this tick's
+        decision) and the messages that arrived (those to other rows are ignored); the rounds
+        each advertises (None: none). A flying row advertises the round it decided to fly,
+        lowered to the least one heard; a row that does not fly advertises none and flies the
+        plan on the least one heard within the heard timeout."""
         r = np.asarray(rows, dtype=np.intp)
         k = self.advertised.shape[0]
         least = np.full(k, np.iinfo(np.int64).max, dtype=np.int64)

@@ -37,7 +37,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from drone_agent.core.agent_core import AgentConfig, AgentCore, BatchAgentCore
-from drone_agent.core.flight_phase import Arrivals, BatchReadiness, Readiness
+from drone_agent.core.flight_phase import (
+    Arrivals,
+    BatchReadiness,
+    BatchTakeoff,
+    Readiness,
+    TakeoffClock,
+)
 from drone_agent.process.hosted_agent import DueTick, HostedAgent, RunOptions
 from drone_agent.process.round_gate import RoundBook, RoundGate
 from drone_agent.process.transport import AgentTransport, Position
@@ -137,6 +143,10 @@ class AgentHost:
         self._core = BatchAgentCore(drones, config)
         #: the agents' readiness to leave the ground, row for row with the core's
         self._readiness = BatchReadiness(len(self._core.agent_ids), config)
+        #: and their take-off clocks
+        self._takeoff = BatchTakeoff(
+            len(self._core.agent_ids), config.consensus.heard_timeout_ticks
+        )
         self._bus = bus
         self._factory = transport_factory
         self._config = config
@@ -336,7 +346,8 @@ class AgentHost:
     def _run_cores(self, group: list[tuple[HostedAgent, DueTick]]) -> None:
         """The cores of the agents due at one tick (same tick, same vehicle time), in one
         batched call, then their readiness to leave the ground in one more; each agent then
-        finishes its own tick: all answer their vehicles, then all publish."""
+        finishes its own tick: all answer their vehicles, their take-off clocks are updated in
+        one call, then all publish."""
         ticks = [t for _, t in group]
         first = ticks[0]
         outs = self._core.tick(
@@ -352,12 +363,13 @@ class AgentHost:
             [t.t_s if t.plan_t_s is None else t.plan_t_s for t in ticks],
         )
         rows = [t.core.row for t in ticks]
+        arrivals = Arrivals.of_inboxes(rows, [t.inbox for t in ticks])
         self._readiness.update(
             rows,
             outs[0].message.round,
             [out.disagreement for out in outs],
             [out.ready_to_fly for out in outs],
-            Arrivals.of_inboxes(rows, [t.inbox for t in ticks]),
+            arrivals,
             [t.members for t in ticks],
             [agent.phase.committed for agent, _ in group],
             # a vehicle its dialect does not call ready (EKF, GPS, pre-arm, parameters) keeps
@@ -366,6 +378,10 @@ class AgentHost:
         )
         for (agent, tick), out in zip(group, outs, strict=True):
             agent.act(tick, out)  # every vehicle answered first (HostedAgent.act)
+        # the swarm's take-off round, agreed with the neighbours, after this tick's decisions
+        self._takeoff.update(
+            rows, first.tick, [agent.phase.committed for agent, _ in group], arrivals
+        )
         for agent, tick in group:
             agent.publish(tick)
 
@@ -405,8 +421,12 @@ class AgentHost:
             gate = RoundGate(slot.drone, self._roster, self._rounds)
         options, clock = self._options, self._clock
         readiness = Readiness(self._config, self._readiness, core.row)
+        takeoff = TakeoffClock(self._config.consensus.heard_timeout_ticks, self._takeoff, core.row)
         readiness.reset()  # a new life
-        return HostedAgent(core, slot.link, transport, self._plan, options, clock, gate, readiness)
+        takeoff.reset()
+        return HostedAgent(
+            core, slot.link, transport, self._plan, options, clock, gate, readiness, takeoff
+        )
 
     def close(self) -> None:
         """Leave the swarm with every agent and close the vehicle links."""

@@ -143,9 +143,10 @@ class HostedAgent:
         wall_clock: Callable[[], float],
         gate: RoundGate | None = None,
         readiness: Readiness | None = None,
+        takeoff: TakeoffClock | None = None,
     ) -> None:
-        """``readiness``: its row of its host's readiness (updated by the host for all its
-        agents at once); one of its own if None."""
+        """``readiness`` and ``takeoff``: its rows of its host's readiness and take-off clocks
+        (updated by the host for all its agents at once); its own if None."""
         if options.lockstep and gate is None:
             raise ValueError("a lockstep agent needs its round gate")
         self.core, self.link, self.transport = core, link, transport
@@ -168,7 +169,8 @@ class HostedAgent:
         self._last_command = -1e9
         self.readiness = readiness if readiness is not None else Readiness(core.config)
         self.phase = FlightPhase(core.config.limits)
-        self.takeoff = TakeoffClock(core.config.consensus.heard_timeout_ticks)
+        timeout = core.config.consensus.heard_timeout_ticks
+        self.takeoff = takeoff if takeoff is not None else TakeoffClock(timeout)
         self.left = False
         self.leave_reason = ""
         self.rejoin = Rejoin.NONE
@@ -356,8 +358,6 @@ class HostedAgent:
         assert out.desired is not None  # the core gives the plan's value of the tick
         commanded_altitude = -float(out.desired[CENTRE][2])
         self._carry_out(self._decide(due.command, out.setpoint, commanded_altitude, sample), sample)
-        # the swarm's take-off round, agreed with the neighbours (flight_phase.TakeoffClock)
-        self.takeoff.update(due.tick, self.phase.committed, due.inbox)
 
     def publish(self, due: DueTick) -> None:
         """The swarm's side of the tick, after :meth:`act`: the consensus message with this
