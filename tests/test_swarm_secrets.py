@@ -3,10 +3,11 @@ control, and what an operator sees when something is refused.
 
 Against a real router (``swarm router --secrets``) on loopback: a client without credentials, a
 certificate of another CA, a wrong password and an expired certificate cannot connect (the last
-says it expired); an agent's credential cannot send ``land``, publish a plan or put a fault (the
-sessions that would receive them never do, even when the CLI's own check is bypassed); a
-password presented with another role's certificate gets no right at all; the operator's can.
-A secured ``swarm up`` flies, and ``swarm status`` says the network is secured.
+says it expired), nor can another swarm's operator write into this one; an agent's credential cannot
+send ``land``, publish a plan or put a fault (the sessions that would receive them never do, even
+when the CLI's own check is bypassed); a password presented with another role's certificate gets no
+right at all; the operator's can. A secured ``swarm up`` flies, and ``swarm status`` says the
+network is secured.
 """
 
 from __future__ import annotations
@@ -302,6 +303,44 @@ def test_the_router_refuses_faults_and_borrowed_passwords(
         time.sleep(0.5)
     assert faults == [b"drill"]  # the operator's only
     assert commands == []  # the impostor's command never reached the ground station
+
+
+def test_swarm_a_cannot_write_into_swarm_b(secrets: Path, router: str, tmp_path: Path) -> None:
+    """Swarm A's operator (``swarm keys init`` of its own: its CA, its swarm id) against swarm
+    B's router: the router refuses its session at TLS, so its drill and its ``land`` reach
+    nobody of swarm B (B's agent subscribed to the fault key and B's ground station serving
+    commands hear nothing, while B's own operator still gets through), and the user reads one
+    line naming the refused credential, or the swarm it belongs to."""
+    import zenoh
+
+    swarm_a = tmp_path / "swarm-a"
+    init_secrets(swarm_a, "swarm-a")
+    faults: list[bytes] = []
+    commands: list[bytes] = []
+    with (
+        _session(secrets, "gcs", router) as gcs,
+        _session(secrets, "agent", router) as listener,
+        _session(secrets, "operator", router) as operator,
+    ):
+        _serve_commands(gcs, commands)
+        listener.subscribe_callback(f"swarm/{SWARM_ID}/fault", lambda _k, p: faults.append(p))
+        time.sleep(1.0)
+        with pytest.raises(zenoh.ZError):  # at the router: no session for A's certificate
+            _session(swarm_a, "operator", router).close()
+        land = _swarm("land", "--swarm-id", "swarm-a", "--zenoh-connect", router,
+                      "--secrets", str(swarm_a))  # fmt: skip
+        _one_line_error(land, "refused the 'operator' credential", "certificate")
+        drill = _swarm("drill", "link-cut", "0", "1", "--swarm-id", SWARM_ID,
+                       "--zenoh-connect", router, "--secrets", str(swarm_a))  # fmt: skip
+        _one_line_error(drill, "belong to swarm 'swarm-a'", f"not '{SWARM_ID}'")
+        # B's operator, on the same router meanwhile: its drill arrives
+        operator.publisher(f"swarm/{SWARM_ID}/fault", Congestion.BLOCK).put(b"b drill")
+        deadline = time.monotonic() + 5.0
+        while not faults and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)
+    assert faults == [b"b drill"]
+    assert commands == []
 
 
 def test_an_expired_certificate_is_refused_in_one_line(

@@ -71,7 +71,7 @@ def role_secrets(folder: object, role: str, swarm_id: str | None = None) -> Role
         raise ValueError(str(exc)) from None
     if swarm_id is not None and secrets.swarm_id != swarm_id:
         raise ValueError(
-            f"the secrets in {folder} are swarm {secrets.swarm_id!r}'s, not {swarm_id!r}: give "
+            f"the secrets in {folder} belong to swarm {secrets.swarm_id!r}, not {swarm_id!r}: give "
             f"--swarm-id {secrets.swarm_id} (or make secrets with swarm keys init --swarm-id)"
         )
     return secrets
