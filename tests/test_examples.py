@@ -1,6 +1,6 @@
-"""The examples in examples/ run as a user runs them: the gain sweep writes its plot after ten
-lockstep flights (two gains, five seeds) with the numbers it printed, and the pytest example
-passes under the installed plugin."""
+"""The examples in examples/ run as a user runs them: the gain sweep writes its plot after its
+lockstep flights (two gains; two of its five default seeds, the flights being alike) with the
+numbers it printed, and the pytest example passes under the installed plugin."""
 
 from __future__ import annotations
 
@@ -19,13 +19,14 @@ EXAMPLES = ROOT / "examples"
 
 def test_the_gain_sweep_flies_every_seed_and_plots(tmp_path: Path) -> None:
     out = subprocess.run(
-        [sys.executable, str(EXAMPLES / "gain_sweep.py"), "--out", str(tmp_path / "sweep")],
+        [sys.executable, str(EXAMPLES / "gain_sweep.py"), "--out", str(tmp_path / "sweep"),
+         "--seeds", "0", "3"],
         capture_output=True, text=True, env=ENV, cwd=tmp_path, timeout=900,
     )  # fmt: skip
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
     runs = re.findall(r"rho (\S+) seed (\d): shape estimate error (\S+) m² RMS", out.stdout)
     assert sorted((rho, int(seed)) for rho, seed, _ in runs) == sorted(
-        (rho, seed) for rho in ("1", "4") for seed in range(5)
+        (rho, seed) for rho in ("1", "4") for seed in (0, 3)
     )
     assert all(0 <= float(rms) < 1.0 for _, _, rms in runs)
     # each figure is the one metrics.json holds for its flight
