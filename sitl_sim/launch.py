@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -29,6 +29,7 @@ from sitl_sim.mavlink_edge.streams import (
 )
 from sitl_sim.physics.attitude_control import AttitudeGains
 from sitl_sim.physics.vehicle_params import VehicleParams
+from sitl_sim.physics.wind import Air
 from sitl_sim.server import Status
 from sitl_sim.shard import DroneRange, parse_drones
 from sitl_sim.sim_config import (
@@ -67,6 +68,7 @@ class _Vehicles:
     seed: int
     crashes: tuple[tuple[float, int], ...]
     home: GeoPoint
+    air: Air = field(default_factory=Air)
 
 
 def build_config(args: argparse.Namespace) -> SimConfig:
@@ -89,6 +91,7 @@ def build_config(args: argparse.Namespace) -> SimConfig:
     autopilot = AutopilotConfig(failsafe=FailsafeConfig(offboard_timeout_s=args.offboard_timeout))
     dialect, ekf_ready_s = _dialect(args)
     agent_rates, gcs_rates = stream_rates(dialect, args.agent_rate_hz, args.gcs_rate_hz)
+    seed = v.seed if args.seed is None else args.seed
     return SimConfig(
         sysids=parse_sysids(args.sysids, n) if shard is None else _shard_sysids(args, shard),
         params=v.params,
@@ -104,6 +107,8 @@ def build_config(args: argparse.Namespace) -> SimConfig:
             v.home if args.home is None else parse_home(args.home),
             dialect=dialect,
             ekf_ready_s=ekf_ready_s,
+            air=v.air,
+            air_seed=seed,
         ),
         net=NetConfig(
             bind_host=args.bind,
@@ -123,7 +128,7 @@ def build_config(args: argparse.Namespace) -> SimConfig:
             duration_s=args.duration_s,
             start_at_unix_s=_start_at(args),
         ),
-        seed=v.seed if args.seed is None else args.seed,
+        seed=seed,
     )
 
 
@@ -142,12 +147,11 @@ def _vehicles(args: argparse.Namespace) -> tuple[_Vehicles, DroneRange | None]:
             VehicleParams(), AttitudeGains(), grid, np.zeros(n), 500, 50, 0, (), GeoPoint()
         )
         return (v, None) if shard is None else (_slice(v, shard), shard)
-    params, gains, positions, yaw, physics_hz, control_hz, seed, faults, home = (
+    params, gains, positions, yaw, physics_hz, control_hz, seed, faults, home, air = (
         vehicles_from_scenario(args.scenario)
     )
-    v = _Vehicles(
-        params, gains, positions, yaw, physics_hz, control_hz, seed, crash_timeline(faults), home
-    )
+    crashes = crash_timeline(faults)
+    v = _Vehicles(params, gains, positions, yaw, physics_hz, control_hz, seed, crashes, home, air)
     if shard is None:
         return v, None
     if shard.last >= len(positions):

@@ -32,7 +32,8 @@ from protocols.scenario.schema import check_number
 from sitl_sim.mavlink_edge.streams import AGENT_RATES_HZ, GCS_RATES_HZ
 from sitl_sim.physics.attitude_control import AttitudeGains
 from sitl_sim.physics.vehicle_params import VehicleParams
-from sitl_sim.vehicle.config import attitude_gains, vehicle_params
+from sitl_sim.physics.wind import Air
+from sitl_sim.vehicle.config import air, attitude_gains, vehicle_params
 from sitl_sim.vehicle.world import WorldConfig
 
 Address = tuple[str, int]
@@ -119,10 +120,10 @@ def grid_positions(n: int, spacing_m: float = GRID_SPACING_M) -> FloatArray:
 def vehicles_from_scenario(
     path: str | Path,
 ) -> tuple[
-    VehicleParams, AttitudeGains, FloatArray, FloatArray, int, int, int, list[Crash], GeoPoint
+    VehicleParams, AttitudeGains, FloatArray, FloatArray, int, int, int, list[Crash], GeoPoint, Air
 ]:
     """(params, gains, positions (N, 3), yaw (N,) rad, physics Hz, control Hz, seed, crashes,
-    home)."""
+    home, air)."""
     try:
         scenario = load_scenario(path)
     except ScenarioError as exc:
@@ -139,6 +140,7 @@ def vehicles_from_scenario(
         scenario.seed,
         crashes,
         scenario.home,
+        air(scenario),
     )
 
 

@@ -1,5 +1,6 @@
-"""The distributed lockstep flight is the in-process one (issue 10): a 3 x 3 grid as a newcomer
-generates it (2.5 m apart, radio range 6 m, take-off, 20 % loss, an agent drop-out), flown by
+"""The distributed lockstep flight is the in-process one: a 3 x 3 grid as a newcomer generates it
+(2.5 m apart, radio range 6 m, take-off, 20 % loss, an agent drop-out), in a breeze with gusts
+(wind, turbulence and the vehicles' drag: the air is one field for both runners), flown by
 ``swarm up --clock lockstep`` and by ``swarm simulate``, logs the same LOCAL_POSITION_NED and
 ATTITUDE for every vehicle whose agent flies, field by field at every ``time_boot_ms``.
 
@@ -33,6 +34,17 @@ from protocols.scenario.scenario_file import load_scenario
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 DURATION_S = 20.0  # take-off at 3.5 s, 20 % loss from 9.5 s, the drop-out at 11.5 s
+#: a light breeze with gusts, and the drag that lets the vehicles feel it
+WINDY = """
+[vehicle]
+drag_xy_per_s = 0.4
+drag_z_per_s = 0.15
+
+[environment]
+wind_ned_m_s = [1.5, 1.0, 0.0]
+turbulence_m_s = 0.5
+turbulence_scale_m = 15.0
+"""
 
 
 def _run(*args: str, cwd: Path) -> None:
@@ -57,6 +69,8 @@ def test_lockstep_flight_is_the_in_process_flight(tmp_path: Path, rendezvous: st
         *("-o", str(scenario)),
         cwd=tmp_path,
     )
+    with scenario.open("a") as f:
+        f.write(WINDY)
     (dropout,) = [f.drone for f in load_scenario(scenario).faults if isinstance(f, Dropout)]
     _run(
         *swarm_command("simulate", str(scenario), "--report", "sim", "--no-plots"),

@@ -103,6 +103,19 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="[safety] min_separation_m: every formation of the plan must keep the drones this "
         "far apart (default 1)",
     )
+    new.add_argument(
+        "--wind",
+        metavar="SPEED@FROM",
+        help="a steady wind: speed m/s and the compass direction it blows from, deg (e.g. "
+        "3@270: 3 m/s from the west); adds the vehicles' drag (default: still air)",
+    )
+    new.add_argument(
+        "--turbulence",
+        type=float,
+        default=0.0,
+        metavar="M_S",
+        help="gusts' intensity, m/s (each component's standard deviation; e.g. 0.5)",
+    )
     new.add_argument("--seed", type=int, default=0, help="random seed: random layout, fault "
                      "drones, and the run's own draws (default 0)")  # fmt: skip
     new.add_argument("--name", help="the scenario's name (default TEMPLATE-LAYOUTN)")
@@ -159,6 +172,8 @@ def _new(args: argparse.Namespace) -> int:
             altitude_m=args.altitude_m,
             min_separation_m=args.min_separation_m,
             name=args.name,
+            **_wind(args.wind),
+            turbulence_m_s=args.turbulence,
         )
         generated = generate(options, None if out is None else str(out))
     except GeneratorError as exc:
@@ -211,3 +226,19 @@ def _check(path: Path) -> int:
     for line in takeoff_lines(scenario, ready_time_s(scenario), READY_LIMIT_S):
         print(line)
     return 0
+
+
+def _wind(text: str | None) -> dict[str, float]:
+    """``--wind SPEED@FROM`` as the generator's options (speed m/s, from deg)."""
+    from protocols.scenario.generator import GeneratorError
+
+    if text is None:
+        return {}
+    speed, _, frm = text.partition("@")
+    try:
+        wind_m_s, wind_from_deg = float(speed), float(frm or 270.0)
+    except ValueError:
+        raise GeneratorError(
+            f"--wind {text!r}: expected SPEED@FROM, m/s and degrees (e.g. 3@270)"
+        ) from None
+    return {"wind_m_s": wind_m_s, "wind_from_deg": wind_from_deg}

@@ -123,6 +123,22 @@ class GeneratorOptions:
     altitude_m: float | None = None
     min_separation_m: float = 1.0
     name: str | None = None
+    #: a steady wind: its speed (m/s) and the compass direction it blows from (deg)
+    wind_m_s: float = 0.0
+    wind_from_deg: float = 270.0
+    #: the gusts' intensity (m/s, each component's standard deviation)
+    turbulence_m_s: float = 0.0
+
+    @property
+    def windy(self) -> bool:
+        """Whether the scenario has wind or gusts (and then the vehicles' drag)."""
+        return self.wind_m_s > 0.0 or self.turbulence_m_s > 0.0
+
+    def wind_ned_m_s(self) -> tuple[float, float, float]:
+        """The wind's velocity NED (m/s): it blows towards ``wind_from_deg + 180``."""
+        to = math.radians(self.wind_from_deg + 180.0)
+        n, e = self.wind_m_s * math.cos(to), self.wind_m_s * math.sin(to)
+        return round(n, 6) + 0.0, round(e, 6) + 0.0, 0.0
 
     def command_line(self, out: str | None = None) -> str:
         """The ``swarm scenario new`` command that makes this scenario again (every option)."""
@@ -141,6 +157,10 @@ class GeneratorOptions:
             args.append(f"--altitude-m {self.altitude_m:g}")
         if self.min_separation_m != 1.0:
             args.append(f"--min-separation-m {self.min_separation_m:g}")
+        if self.wind_m_s > 0.0:
+            args.append(f"--wind {self.wind_m_s:g}@{self.wind_from_deg:g}")
+        if self.turbulence_m_s > 0.0:
+            args.append(f"--turbulence {self.turbulence_m_s:g}")
         if self.name is not None:
             args.append(f"--name {self.name}")
         args.append(f"--seed {self.seed}")
@@ -214,6 +234,14 @@ def _check_options(o: GeneratorOptions) -> None:
         raise GeneratorError(f"duration_s: must be a positive number, got {o.duration_s:g}")
     if o.seed < 0:
         raise GeneratorError(f"seed: must be >= 0, got {o.seed}")
+    if not (math.isfinite(o.wind_m_s) and 0.0 <= o.wind_m_s <= 30.0):
+        raise GeneratorError(f"wind: the speed must be in 0..30 m/s, got {o.wind_m_s:g}")
+    if not math.isfinite(o.wind_from_deg):
+        raise GeneratorError(
+            f"wind: the direction must be a number of degrees, got {o.wind_from_deg:g}"
+        )
+    if not (math.isfinite(o.turbulence_m_s) and 0.0 <= o.turbulence_m_s <= 10.0):
+        raise GeneratorError(f"turbulence: must be in 0..10 m/s, got {o.turbulence_m_s:g}")
     lost = o.faults.dropouts + o.faults.crashes
     if lost > o.drones - 2:
         raise GeneratorError(
@@ -322,6 +350,7 @@ def render(
         f"min_separation_m = {fmt(o.min_separation_m)}",
         "",
         *_consensus_lines(consensus),
+        *_air_lines(o),
         f"# Drones on the ground (NED m), {o.layout} layout, at least "
         f"{fmt(min_spacing(positions))} m apart (spacing {fmt(o.spacing_m)} m).",
         "# Drone i (0-based, file order) is MAVLink system id i + 1.",
@@ -350,6 +379,27 @@ def render(
     for t, kind, fields in faults:
         lines += ["[[faults]]", f"t_s = {fmt(t)}", f'kind = "{kind}"', fields, ""]
     return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def _air_lines(o: GeneratorOptions) -> list[str]:
+    """[vehicle] drag and [environment] of a windy scenario (nothing in still air)."""
+    if not o.windy:
+        return []
+    return [
+        "# The vehicles' drag (m/s^2 per m/s of airspeed, a small quadcopter's rotor drag): the",
+        "# air moves them through it.",
+        "[vehicle]",
+        "drag_xy_per_s = 0.4",
+        "drag_z_per_s = 0.15",
+        "",
+        f"# The air: {fmt(o.wind_m_s)} m/s from {fmt(o.wind_from_deg)} deg, gusts of "
+        f"{fmt(o.turbulence_m_s)} m/s (von Karman, carried by the wind).",
+        "[environment]",
+        f"wind_ned_m_s = {vec(o.wind_ned_m_s())}",
+        f"turbulence_m_s = {fmt(o.turbulence_m_s)}",
+        "turbulence_scale_m = 20.0",
+        "",
+    ]
 
 
 def _consensus_lines(consensus: dict[str, float]) -> list[str]:

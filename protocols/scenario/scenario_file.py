@@ -64,7 +64,9 @@ Vec3 = tuple[float, float, float]
 @dataclass(frozen=True)
 class VehicleConfig:
     """[vehicle]: mass (kg), principal inertia (kg m²), arm (m), thrust-to-weight, top rotor speed
-    (rad/s), reaction yaw moment per newton of thrust (m). Defaults: paper Table II."""
+    (rad/s), reaction yaw moment per newton of thrust (m); body drag per mass along the body's
+    x and y axes and along z (1/s: m/s² of deceleration per m/s of airspeed; a small
+    quadcopter's rotor drag is ~0.4 in xy, ~0.15 in z). Defaults: paper Table II, no drag."""
 
     mass_kg: float = 0.34
     ixx: float = 3.22e-4
@@ -74,6 +76,26 @@ class VehicleConfig:
     thrust_to_weight: float = 2.0
     rotor_speed_max_rad_s: float = 1000.0
     yaw_moment_per_thrust_m: float = 0.016
+    drag_xy_per_s: float = 0.0
+    drag_z_per_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class EnvironmentConfig:
+    """[environment]: the air the swarm flies in. ``wind_ned_m_s``: the mean wind (m/s, NED: the
+    velocity the air moves with; a wind from the west is ``[0, w, 0]``); ``turbulence_m_s``: the
+    gusts' intensity (each component's standard deviation, m/s; von Kármán turbulence carried by
+    the wind, sitl_sim/physics/wind.py); ``turbulence_scale_m``: their length scale (m). Default:
+    still air."""
+
+    wind_ned_m_s: Vec3 = (0.0, 0.0, 0.0)
+    turbulence_m_s: float = 0.0
+    turbulence_scale_m: float = 20.0
+
+    @property
+    def calm(self) -> bool:
+        """No wind and no turbulence."""
+        return not any(self.wind_ned_m_s) and self.turbulence_m_s == 0.0
 
 
 @dataclass(frozen=True)
@@ -252,6 +274,8 @@ class Scenario:
     version: int = 1
     #: [agent]: the formation controller (None: the paper's)
     agent: AgentSection = field(default_factory=AgentSection)
+    #: [environment]: wind and turbulence (default: still air)
+    environment: EnvironmentConfig = field(default_factory=EnvironmentConfig)
 
     @property
     def n_drones(self) -> int:
@@ -300,7 +324,8 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         raise top.error(f"{version} is not supported (supported: {_supported()})", "version")
     top.allow(
         ("version", "name", "duration_s", "seed", "settle_s", "vehicle", "rates", "gains",
-         "consensus", "comms", "safety", "drones", "trajectory", "faults", "home", "agent")
+         "consensus", "comms", "safety", "drones", "trajectory", "faults", "home", "agent",
+         "environment")
     )  # fmt: skip
     drones = _drones(top)
     waypoints = _waypoints(top.table("trajectory", ("waypoints",)))
@@ -315,6 +340,8 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         {"min_separation_m": {"ge": 0}, "geofence_m": {"gt": 0}, "ceiling_m": {"gt": 0}},
     )
     _check_formations(top, drones, waypoints, safety)
+    vehicle = _vehicle(top.table("vehicle"))
+    environment = _environment(top.table("environment"), vehicle)
     return Scenario(
         source=source,
         name=top.string("name", Path(source).stem),
@@ -323,7 +350,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         waypoints=waypoints,
         seed=top.integer("seed", 0, ge=0),
         settle_s=top.number("settle_s", 20.0, ge=0),
-        vehicle=_vehicle(top.table("vehicle")),
+        vehicle=vehicle,
         rates=_rates(top.table("rates")),
         gains=_gains(top.table("gains")),
         consensus=top.table("consensus").section(ConsensusConfig, _CONSENSUS_BOUNDS),
@@ -333,6 +360,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         home=top.table("home").section(GeoPoint, HOME_BOUNDS),
         version=version,
         agent=_agent(top.table("agent", ("controller", "path", "options"))),
+        environment=environment,
     )
 
 
@@ -385,7 +413,15 @@ HOME_BOUNDS = {
     "lon_deg": {"ge": -180.0, "le": 180.0},
     "alt_m": {"ge": -500.0, "le": 9000.0},
 }
-_VEHICLE_BOUNDS = {name: {"gt": 0.0} for name in VehicleConfig.__dataclass_fields__}
+_VEHICLE_BOUNDS: dict[str, dict[str, float]] = {
+    **{name: {"gt": 0.0} for name in VehicleConfig.__dataclass_fields__},
+    "drag_xy_per_s": {"ge": 0.0, "le": 10.0},
+    "drag_z_per_s": {"ge": 0.0, "le": 10.0},
+}
+_ENVIRONMENT_BOUNDS: dict[str, dict[str, float]] = {
+    "turbulence_m_s": {"ge": 0.0, "le": 10.0},
+    "turbulence_scale_m": {"ge": 0.5, "le": 1e4},
+}
 _GAINS_BOUNDS: dict[str, dict[str, float]] = {
     "attitude_kp": {"gt": 0},
     "max_tilt_deg": {"gt": 0, "lt": 90},
@@ -413,6 +449,19 @@ def _vehicle(t: Table) -> VehicleConfig:
     if vehicle.thrust_to_weight <= 1.0:
         raise t.error("must be > 1 (the vehicle must lift itself)", "thrust_to_weight")
     return vehicle
+
+
+def _environment(t: Table, vehicle: VehicleConfig) -> EnvironmentConfig:
+    env: EnvironmentConfig = t.section(EnvironmentConfig, _ENVIRONMENT_BOUNDS)
+    if math.hypot(*env.wind_ned_m_s) > 30.0:
+        raise t.error("above 30 m/s no small quadcopter flies", "wind_ned_m_s")
+    if not env.calm and vehicle.drag_xy_per_s == 0.0 and vehicle.drag_z_per_s == 0.0:
+        raise t.error(
+            "the air moves a vehicle only through its drag, and [vehicle] has none: give "
+            "[vehicle] drag_xy_per_s and drag_z_per_s (a small quadcopter: 0.4 and 0.15)",
+            "wind_ned_m_s" if any(env.wind_ned_m_s) else "turbulence_m_s",
+        )
+    return env
 
 
 def _rates(t: Table) -> RatesConfig:

@@ -86,17 +86,29 @@ def wrench_from_rotor_speeds(
 
 
 def derivative(
-    state: FloatArray, thrust_n: FloatArray, moments_nm: FloatArray, params: VehicleParams
+    state: FloatArray,
+    thrust_n: FloatArray,
+    moments_nm: FloatArray,
+    params: VehicleParams,
+    air_ned_m_s: FloatArray | None = None,
 ) -> FloatArray:
-    """Time derivative (13, N) of ``state`` (13, N) under thrust (N,) N and moments (3, N) N m."""
+    """Time derivative (13, N) of ``state`` (13, N) under thrust (N,) N and moments (3, N) N m,
+    in air moving at ``air_ned_m_s`` (3, N) m/s NED (None: still air; read only with body
+    drag)."""
     s = np.ascontiguousarray(state, dtype=np.float64)
     t_m = np.asarray(thrust_n, dtype=np.float64).reshape(-1) * (1.0 / params.mass_kg)
     alpha = np.asarray(moments_nm, dtype=np.float64).reshape(3, -1) / params.inertia[:, None]
     out = np.empty_like(s)
     compiled(physics_rules.derivative_rows)(
-        s, t_m, np.ascontiguousarray(alpha), constants(params, 0.0), out
+        s, t_m, np.ascontiguousarray(alpha), constants(params, 0.0), out, _air(air_ned_m_s, s)
     )
     return out
+
+
+def _air(air_ned_m_s: FloatArray | None, state: FloatArray) -> FloatArray:
+    if air_ned_m_s is None:
+        return np.zeros((3, state.shape[1]))
+    return np.ascontiguousarray(air_ned_m_s, dtype=np.float64).reshape(3, -1)
 
 
 def step(
@@ -105,13 +117,15 @@ def step(
     params: VehicleParams,
     dt_s: float,
     method: str = "rk4",
+    air_ned_m_s: FloatArray | None = None,
 ) -> FloatArray:
-    """Advance ``state`` (13, N) by ``dt_s`` seconds under rotor speeds (4, N) rad/s.
+    """Advance ``state`` (13, N) by ``dt_s`` seconds under rotor speeds (4, N) rad/s, in air
+    moving at ``air_ned_m_s`` (3, N) m/s NED (None: still air).
 
     ``method`` is ``"rk4"`` (classic Runge-Kutta, the only one). The quaternion is re-normalised,
     then ground contact is applied. Returns a new (13, N) array.
     """
-    return step_with_contact(state, rotor_speed_rad_s, params, dt_s, method).state
+    return step_with_contact(state, rotor_speed_rad_s, params, dt_s, method, air_ned_m_s).state
 
 
 def step_with_contact(
@@ -120,6 +134,7 @@ def step_with_contact(
     params: VehicleParams,
     dt_s: float,
     method: str = "rk4",
+    air_ned_m_s: FloatArray | None = None,
 ) -> StepResult:
     """As :func:`step`, also reporting each vehicle's touchdown speed (N,) m/s for this step."""
     if method not in _METHODS:
@@ -127,7 +142,8 @@ def step_with_contact(
     s = np.ascontiguousarray(state, dtype=np.float64)
     new, impact = np.empty_like(s), np.zeros(s.shape[1])
     rotor = np.ascontiguousarray(rotor_speed_rad_s, dtype=np.float64).reshape(4, -1)
-    compiled(physics_rules.advance_rotors)(s, rotor, constants(params, dt_s), new, impact)
+    air = _air(air_ned_m_s, s)
+    compiled(physics_rules.advance_rotors)(s, rotor, constants(params, dt_s), new, impact, air)
     return StepResult(state=new, impact_speed_m_s=impact)
 
 

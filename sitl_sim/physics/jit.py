@@ -50,9 +50,11 @@ def advance(
     rotor: FloatArray,
     impacts: FloatArray,
     touched: npt.NDArray[np.bool_],
+    air: FloatArray,
 ) -> None:  # pragma: no cover - compiled (its Python body runs with NUMBA_DISABLE_JIT=1)
     """``count`` sub-steps of every vehicle under the attitude setpoint ``euler_des`` (3, N)
-    and normalised thrust (N,), rotor speeds times ``enable`` (4, N): ``new`` (13, N) the last
+    and normalised thrust (N,), rotor speeds times ``enable`` (4, N), in air moving at ``air``
+    (3, N) m/s NED (read only with body drag): ``new`` (13, N) the last
     state, ``rotor`` (4, N) the last rotor speeds, ``impacts[k]`` (N,) the touchdown speeds of
     sub-step ``k`` and ``touched[k]`` whether any vehicle was on the ground after it."""
     s, xt = np.empty(13), np.empty(13)
@@ -64,6 +66,7 @@ def advance(
         kd0, kd1, kd2 = kd[0, i], kd[1, i], kd[2, i]
         t_dem = collective_thrust(thrust_normalised[i], c)
         en0, en1, en2, en3 = enable[0, i], enable[1, i], enable[2, i], enable[3, i]
+        air_i = air[:, i]
         w0 = w1 = w2 = w3 = 0.0
         for k in range(count):
             m_l, m_m, m_n = attitude_moments(s, ry, py_, yy, kp0, kp1, kp2, kd0, kd1, kd2, c)
@@ -71,7 +74,7 @@ def advance(
             w0, w1, w2, w3 = w0 * en0, w1 * en1, w2 * en2, w3 * en3
             thrust, t_m, a0, a1, a2 = rotor_wrench(w0, w1, w2, w3, c)
             x0, y0, z0, vz0 = s[0], s[1], s[2], s[5]
-            rk4_into(s, t_m, a0, a1, a2, c, k1, k2, k3, k4, xt)
+            rk4_into(s, t_m, a0, a1, a2, c, k1, k2, k3, k4, xt, air_i)
             if contact_column(s, x0, y0, z0, vz0, thrust, c, impacts[k], i):
                 touched[k] = True
         new[:, i] = s
@@ -88,5 +91,5 @@ def ready() -> None:
     advance(
         state, np.zeros((3, 1)), np.zeros(1), np.ones((4, 1)), gains, gains,
         constants(VehicleParams(), 0.002), 1, np.empty((13, 1)), np.empty((4, 1)),
-        np.zeros((1, 1)), np.zeros(1, dtype=np.bool_),
+        np.zeros((1, 1)), np.zeros(1, dtype=np.bool_), np.zeros((3, 1)),
     )  # fmt: skip

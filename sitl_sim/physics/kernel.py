@@ -59,6 +59,8 @@ class PhysicsKernel:
         self._gains: list[FloatArray] = [self._kp, self._kd]
         self._all_on = np.ones((4, n))
         self._enable = np.empty((4, n))
+        #: the air's velocity (3, N) m/s NED the next sub-steps fly in (:meth:`use_air`)
+        self.air = np.zeros((3, n))
         g = gains if gains is not None else AttitudeGains()
         self.use_gains(g.kp_col(), g.kd_col())
 
@@ -73,6 +75,14 @@ class PhysicsKernel:
                 own = self._kp if slot == 0 else self._kd
                 own[...] = arr.reshape(3, -1)
                 self._gains[slot] = own
+
+    def use_air(self, air_ned_m_s: FloatArray | None) -> None:
+        """The air's velocity (3, N) m/s NED for the next sub-steps, held over them (None:
+        still air). Felt through the vehicles' body drag only."""
+        if air_ned_m_s is None:
+            self.air[...] = 0.0
+        else:
+            self.air[...] = np.asarray(air_ned_m_s, dtype=np.float64).reshape(3, self.n)
 
     def substep(
         self,
@@ -145,5 +155,6 @@ class PhysicsKernel:
             rotor,
             impacts,
             touched,
+            self.air,
         )
         return new, rotor, impacts, touched

@@ -30,7 +30,7 @@ from sitl_sim.physics.vehicle_params import VehicleParams
 # The constants of one fleet, packed for the compiled loops (indices into ``constants()``).
 (H, F_MIN, F_MAX, TOL, MAX_THRUST, HALF_ARM_INV, YAW_SHARE, INV_C, C, ARM, YAW_K,
  INV_MASS, WEIGHT, IXX, IYY, IZZ, ARM_LIMIT, YAW_LIMIT, E0, E1, E2, G,
- MIN_COS, N_CONSTANTS) = range(24)  # fmt: skip
+ MIN_COS, AIR, DRAG_XY, DRAG_Z, N_CONSTANTS) = range(27)  # fmt: skip
 
 
 def euler_coeffs(params: VehicleParams) -> tuple[float, float, float]:
@@ -59,6 +59,10 @@ def constants(params: VehicleParams, dt_s: float, min_cos_pitch: float = math.na
     c[ARM_LIMIT], c[YAW_LIMIT] = span * params.arm_m, 2.0 * span * params.yaw_moment_per_thrust_m
     c[E0], c[E1], c[E2] = euler_coeffs(params)
     c[G], c[MIN_COS] = G_M_S2, min_cos_pitch
+    # the body's drag per mass (1/s); AIR says whether there is any (else the air is not read)
+    c[DRAG_XY] = params.body_drag_xy_n_s_m / params.mass_kg
+    c[DRAG_Z] = params.body_drag_z_n_s_m / params.mass_kg
+    c[AIR] = 1.0 if c[DRAG_XY] > 0.0 or c[DRAG_Z] > 0.0 else 0.0
     return c
 
 
@@ -200,10 +204,12 @@ def rotor_wrench(w0, w1, w2, w3, c):  # type: ignore[no-untyped-def]
 
 
 @jit(inline="always")
-def derivative_into(out, st, t_m, a0, a1, a2, c):  # type: ignore[no-untyped-def]
+def derivative_into(out, st, t_m, a0, a1, a2, c, air):  # type: ignore[no-untyped-def]
     """The derivative (13,) of the state ``st`` (13,) into ``out`` under thrust per mass ``t_m``
     m/s^2 and moments per inertia ``(a0, a1, a2)`` rad/s^2: ``a = g e3 - (T/m) R_b e3``,
-    ``q' = 0.5 q (0, p, q, r)`` and Euler's equations (eq. 6 corrected)."""
+    ``q' = 0.5 q (0, p, q, r)`` and Euler's equations (eq. 6 corrected); with body drag
+    (``c[AIR]``), ``- R_b diag(d_xy, d_xy, d_z) R_b^T (v - air) / m`` more, ``air`` (3,) the
+    air's velocity NED (m/s) held over the step."""
     w, x, y, z, p, q, r = st[6], st[7], st[8], st[9], st[10], st[11], st[12]
     two_t_m = t_m + t_m
     hp, hq, hr = 0.5 * p, 0.5 * q, 0.5 * r
@@ -212,6 +218,8 @@ def derivative_into(out, st, t_m, a0, a1, a2, c):  # type: ignore[no-untyped-def
     out[3] = -two_t_m * (x * z + w * y)
     out[4] = -two_t_m * (y * z - w * x)
     out[5] = c[G] - t_m + two_t_m * (x * x + y * y)
+    if c[AIR] != 0.0:
+        drag_into(out, st, c, air)
     out[6] = -(x * hp + y * hq + z * hr)
     out[7] = w * hp + y * hr - z * hq
     out[8] = w * hq + z * hp - x * hr
@@ -222,21 +230,41 @@ def derivative_into(out, st, t_m, a0, a1, a2, c):  # type: ignore[no-untyped-def
 
 
 @jit(inline="always")
-def rk4_into(s, t_m, a0, a1, a2, c, k1, k2, k3, k4, xt):  # type: ignore[no-untyped-def]
+def drag_into(out, st, c, air):  # type: ignore[no-untyped-def]
+    """Add the body's drag per mass to the acceleration ``out[3:6]``: the airspeed ``v - air``
+    into the body frame, each axis's drag (``c[DRAG_XY]``, ``c[DRAG_XY]``, ``c[DRAG_Z]``, 1/s),
+    back to NED."""
+    w, x, y, z = st[6], st[7], st[8], st[9]
+    ux, uy, uz = st[3] - air[0], st[4] - air[1], st[5] - air[2]
+    # R_b (body -> NED) of the unit quaternion (w, x, y, z)
+    r00, r01, r02 = 1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)
+    r10, r11, r12 = 2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)
+    r20, r21, r22 = 2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)
+    bx = (r00 * ux + r10 * uy + r20 * uz) * c[DRAG_XY]
+    by = (r01 * ux + r11 * uy + r21 * uz) * c[DRAG_XY]
+    bz = (r02 * ux + r12 * uy + r22 * uz) * c[DRAG_Z]
+    out[3] -= r00 * bx + r01 * by + r02 * bz
+    out[4] -= r10 * bx + r11 * by + r12 * bz
+    out[5] -= r20 * bx + r21 * by + r22 * bz
+
+
+@jit(inline="always")
+def rk4_into(s, t_m, a0, a1, a2, c, k1, k2, k3, k4, xt, air):  # type: ignore[no-untyped-def]
     """One classic Runge-Kutta step of ``c[H]`` s of the state ``s`` (13,) in place (inputs held
-    over the step), the quaternion re-normalised; ``k1``..``k4``, ``xt`` (13,) are scratch."""
+    over the step, and the air's velocity ``air`` (3,) NED), the quaternion re-normalised;
+    ``k1``..``k4``, ``xt`` (13,) are scratch."""
     h = c[H]
     half_h, sixth_h = 0.5 * h, h / 6.0
-    derivative_into(k1, s, t_m, a0, a1, a2, c)
+    derivative_into(k1, s, t_m, a0, a1, a2, c, air)
     for j in range(13):
         xt[j] = k1[j] * half_h + s[j]
-    derivative_into(k2, xt, t_m, a0, a1, a2, c)
+    derivative_into(k2, xt, t_m, a0, a1, a2, c, air)
     for j in range(13):
         xt[j] = k2[j] * half_h + s[j]
-    derivative_into(k3, xt, t_m, a0, a1, a2, c)
+    derivative_into(k3, xt, t_m, a0, a1, a2, c, air)
     for j in range(13):
         xt[j] = k3[j] * h + s[j]
-    derivative_into(k4, xt, t_m, a0, a1, a2, c)
+    derivative_into(k4, xt, t_m, a0, a1, a2, c, air)
     for j in range(13):
         acc = k2[j] + k3[j]
         acc = acc + acc
@@ -296,10 +324,11 @@ def advance_rotors(
     c: FloatArray,
     new: FloatArray,
     impacts: FloatArray,
+    air: FloatArray,
 ) -> bool:  # pragma: no cover - compiled
-    """One sub-step of every vehicle under rotor speeds ``rotor`` (4, N) rad/s held over it:
-    ``new`` (13, N) the state, ``impacts`` (N,) the touchdown speeds (0 where none). Returns
-    whether any vehicle was on the ground after it."""
+    """One sub-step of every vehicle under rotor speeds ``rotor`` (4, N) rad/s held over it, in
+    air moving at ``air`` (3, N) m/s NED: ``new`` (13, N) the state, ``impacts`` (N,) the
+    touchdown speeds (0 where none). Returns whether any vehicle was on the ground after it."""
     s, xt = np.empty(13), np.empty(13)
     k1, k2, k3, k4 = np.empty(13), np.empty(13), np.empty(13), np.empty(13)
     touched = False
@@ -309,7 +338,7 @@ def advance_rotors(
             rotor[0, i], rotor[1, i], rotor[2, i], rotor[3, i], c
         )
         x0, y0, z0, vz0 = s[0], s[1], s[2], s[5]
-        rk4_into(s, t_m, a0, a1, a2, c, k1, k2, k3, k4, xt)
+        rk4_into(s, t_m, a0, a1, a2, c, k1, k2, k3, k4, xt, air[:, i])
         if contact_column(s, x0, y0, z0, vz0, thrust, c, impacts, i):
             touched = True
         new[:, i] = s
@@ -336,14 +365,19 @@ def contact_rows(
 
 @jit
 def derivative_rows(
-    state: FloatArray, t_m: FloatArray, alpha: FloatArray, c: FloatArray, out: FloatArray
+    state: FloatArray,
+    t_m: FloatArray,
+    alpha: FloatArray,
+    c: FloatArray,
+    out: FloatArray,
+    air: FloatArray,
 ) -> None:  # pragma: no cover - compiled
     """The derivative (13, N) of every vehicle's state (13, N) into ``out`` under thrust per
-    mass (N,) m/s^2 and moments per inertia (3, N) rad/s^2."""
+    mass (N,) m/s^2 and moments per inertia (3, N) rad/s^2, in air moving at ``air`` (3, N)."""
     s, d = np.empty(13), np.empty(13)
     for i in range(state.shape[1]):
         s[:] = state[:, i]
-        derivative_into(d, s, t_m[i], alpha[0, i], alpha[1, i], alpha[2, i], c)
+        derivative_into(d, s, t_m[i], alpha[0, i], alpha[1, i], alpha[2, i], c, air[:, i])
         out[:, i] = d
 
 

@@ -43,6 +43,10 @@ class VehicleParams:
         drag_coeff: ``a`` in ``M = a D omega^2`` (N s^2 / rad^2).
         rotor_speed_min_rad_s: lowest rotor speed the motors hold (rad/s), may be 0.
         rotor_speed_max_rad_s: highest rotor speed (rad/s).
+        body_drag_xy_n_s_m, body_drag_z_n_s_m: linear drag of the airframe and rotors against
+            the air, along the body's x and y axes and along its z axis (N per m/s of airspeed;
+            rotor drag of a small quadcopter is mostly in its xy plane). 0: no drag (the paper's
+            vehicle).
     """
 
     mass_kg: float = _MASS_KG
@@ -54,6 +58,8 @@ class VehicleParams:
     drag_coeff: float = DEFAULT_DRAG_COEFF
     rotor_speed_min_rad_s: float = 0.0
     rotor_speed_max_rad_s: float = _ROTOR_SPEED_MAX_RAD_S
+    body_drag_xy_n_s_m: float = 0.0
+    body_drag_z_n_s_m: float = 0.0
 
     @property
     def weight_n(self) -> float:
@@ -95,14 +101,15 @@ class VehicleParams:
 
         Raises:
             ValueError: naming the first field that is not finite, or not positive (the minimum
-                rotor speed may be zero), or a maximum rotor speed not above the minimum.
+                rotor speed and the drags may be zero), or a maximum rotor speed not above the
+                minimum.
         """
         for f in fields(self):
             value = getattr(self, f.name)
             is_number = isinstance(value, int | float) and not isinstance(value, bool)
             if not is_number or not math.isfinite(value):
                 raise ValueError(f"VehicleParams.{f.name} must be a finite number, got {value!r}")
-            if f.name == "rotor_speed_min_rad_s":
+            if f.name in ("rotor_speed_min_rad_s", "body_drag_xy_n_s_m", "body_drag_z_n_s_m"):
                 if value < 0.0:
                     raise ValueError(f"VehicleParams.{f.name} must be >= 0, got {value!r}")
             elif value <= 0.0:

@@ -1,4 +1,5 @@
-"""Vehicle parameters and inner-loop gains from a scenario's [vehicle] and [gains] sections."""
+"""Vehicle parameters, inner-loop gains and the air from a scenario's [vehicle], [gains] and
+[environment] sections."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ from protocols.model.frames import G_M_S2
 from protocols.scenario.scenario_file import Scenario
 from sitl_sim.physics.attitude_control import AttitudeGains
 from sitl_sim.physics.vehicle_params import VehicleParams
+from sitl_sim.physics.wind import Air
 
 
 def vehicle_params(scenario: Scenario) -> VehicleParams:
@@ -22,6 +24,8 @@ def vehicle_params(scenario: Scenario) -> VehicleParams:
         thrust_coeff=c,
         drag_coeff=v.yaw_moment_per_thrust_m * c / v.arm_m,
         rotor_speed_max_rad_s=v.rotor_speed_max_rad_s,
+        body_drag_xy_n_s_m=v.drag_xy_per_s * v.mass_kg,
+        body_drag_z_n_s_m=v.drag_z_per_s * v.mass_kg,
     ).validate()
 
 
@@ -29,3 +33,9 @@ def attitude_gains(scenario: Scenario) -> AttitudeGains:
     """The attitude PD of the vehicles' inner loop."""
     g = scenario.gains
     return AttitudeGains(kp=g.attitude_kp, kd=g.attitude_kd).validate()
+
+
+def air(scenario: Scenario) -> Air:
+    """The wind and turbulence the vehicles fly in."""
+    e = scenario.environment
+    return Air(e.wind_ned_m_s, e.turbulence_m_s, e.turbulence_scale_m).validate()

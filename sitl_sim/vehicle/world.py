@@ -20,9 +20,13 @@ simulator's own :class:`~sitl_sim.vehicle.autopilot.Autopilot` and
 :class:`~sitl_sim.vehicle.guidance.Guidance`) or ArduCopter (:mod:`sitl_sim.vehicle.copter`, whose
 EKF is ready ``config.ekf_ready_s`` after start).
 
+``config.air`` is the wind and turbulence (:mod:`sitl_sim.physics.wind`): each period every
+vehicle samples the air's velocity where it is, and its body drag (``VehicleParams``) pulls it
+towards that velocity over the period's physics steps. Still air (the default) is not sampled.
+
 Time is the control tick ``k``: ``t_s = k / control_hz``. The only randomness is the optional
 position noise of the telemetry, drawn from the injected generator every tick for all vehicles,
-so a seed fixes a run.
+and the turbulence, drawn once from ``config.air_seed``, so a seed fixes a run.
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ from sitl_sim.physics.attitude_control import euler_from_quat_batch
 from sitl_sim.physics.dynamics import POS, QUAT, RATES, VEL, initial_state
 from sitl_sim.physics.kernel import PhysicsKernel
 from sitl_sim.physics.vehicle_params import VehicleParams
+from sitl_sim.physics.wind import Air, WindField
 from sitl_sim.vehicle.autopilot import Autopilot, AutopilotConfig, VehicleEvent
 from sitl_sim.vehicle.battery import Battery, BatteryConfig
 from sitl_sim.vehicle.copter import CopterAutopilot, CopterGuidance
@@ -53,8 +58,10 @@ DEFAULT_EKF_READY_S = 2.0
 class WorldConfig:
     """Rates (Hz; physics a multiple of control), autopilot defaults, telemetry position noise
     (standard deviation, m), scheduled crashes ``(t_s, vehicle index)``, where the NED origin is
-    on the map, the batteries, the autopilot firmware emulated (``dialect``) and, for
-    ArduCopter, the simulated seconds after start before its EKF and GPS are ready."""
+    on the map, the batteries, the autopilot firmware emulated (``dialect``), for ArduCopter
+    the simulated seconds after start before its EKF and GPS are ready, and the air the
+    vehicles fly in (``air``; its turbulence drawn from ``air_seed``, the same in every shard
+    and runner of a flight)."""
 
     physics_hz: int = 500
     control_hz: int = 50
@@ -65,6 +72,8 @@ class WorldConfig:
     battery: BatteryConfig = field(default_factory=BatteryConfig)
     dialect: Dialect = Dialect.PX4
     ekf_ready_s: float = DEFAULT_EKF_READY_S
+    air: Air = field(default_factory=Air)
+    air_seed: int = 0
 
     def validate(self) -> WorldConfig:
         """Raise ValueError naming the field unless the rates and noise are usable."""
@@ -80,6 +89,7 @@ class WorldConfig:
             raise ValueError(f"dialect must be one of {[d.value for d in Dialect]}")
         if not (math.isfinite(self.ekf_ready_s) and self.ekf_ready_s >= 0.0):
             raise ValueError("ekf_ready_s must be finite and >= 0")
+        self.air.validate()
         return self
 
 
@@ -131,6 +141,8 @@ class World:
         self.rotor_speed_rad_s = np.zeros((4, self.n))
         #: the physics sub-step (inner loop + RK4 + contact), fused
         self.kernel = PhysicsKernel(params, self.n, self.dt_physics_s, gains)
+        #: the air the vehicles fly in (None: still air), sampled where each one is every period
+        self.wind = None if config.air.calm else WindField(config.air, config.air_seed)
         self.battery = Battery(self.n, config.battery)
         self._crashes = sorted(config.crashes)
         self.pending_events: list[VehicleEvent] = self.autopilot.update(
@@ -156,6 +168,8 @@ class World:
         ap, kernel = self.autopilot, self.kernel
         self.guidance.prepare(self.state)
         kernel.use_gains(self.gains.kp_col(), self.gains.kd_col())
+        if self.wind is not None:  # the air where each vehicle is, held over the period
+            kernel.use_air(self.wind.at(self.state[POS], self.t_s))
         enable = ap.armed & ap.motor_ok  # (4, N): disarmed vehicles and dead motors stopped
         impact = np.zeros(self.n)
         state, rotor = self.state, self.rotor_speed_rad_s
