@@ -188,6 +188,15 @@ def test_the_scenario_says_what_air_and_drag_the_vehicles_have(tmp_path: Path) -
     assert params.body_drag_xy_n_s_m == pytest.approx(0.4 * scenario.vehicle.mass_kg)
     still = load_scenario(_scenario(tmp_path, ""))
     assert still.environment.calm and vehicle_params(still).body_drag_xy_n_s_m == 0.0
+    # swarm scenario check says so: where the wind comes from, and the tilt it takes to hold
+    from gcs.report.scenario_summary import summary_lines
+
+    (windy_line,) = [line for line in summary_lines(scenario) if line.startswith("air ")]
+    tilt = math.degrees(math.atan2(0.4 * math.hypot(3.0, 1.0), 9.81))
+    assert "wind 3.2 m/s from 162 deg" in windy_line and f"{tilt:.1f} deg of tilt" in windy_line
+    assert [line for line in summary_lines(still) if line.startswith("air ")] == [
+        "air        still"
+    ]
 
 
 @pytest.mark.parametrize(

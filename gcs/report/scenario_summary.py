@@ -15,6 +15,7 @@ import numpy as np
 from gcs.station.planner import Envelope, PlanRefused, check_target, envelope_of
 from protocols.faults import Crash, Delay, Dropout, Fault, LinkCut, Loss, Partition
 from protocols.model.formation_fit import closest_pair, formation_positions
+from protocols.model.frames import G_M_S2
 from protocols.model.plan_timing import departure_s
 from protocols.scenario.layout import radio_graph
 from protocols.scenario.scenario_file import Scenario, WaypointConfig
@@ -90,6 +91,24 @@ def _envelope_line(scenario: Scenario) -> str:
     )
 
 
+def _air_line(sc: Scenario) -> str:
+    """Still air, or the wind (speed, where from, NED), the gusts, the drag and the tilt a vehicle
+    needs to hold its place against the wind (drag times wind speed, against gravity)."""
+    env, v = sc.environment, sc.vehicle
+    if env.calm:
+        drag = "" if v.drag_xy_per_s == 0 else f"; drag {v.drag_xy_per_s:g} / {v.drag_z_per_s:g} /s"
+        return "still" + drag
+    n, e, d = env.wind_ned_m_s
+    speed = math.hypot(n, e, d)
+    origin = (math.degrees(math.atan2(-e, -n)) + 360.0) % 360.0
+    tilt = math.degrees(math.atan2(v.drag_xy_per_s * math.hypot(n, e), G_M_S2))
+    return (
+        f"wind {speed:.1f} m/s from {origin:.0f} deg (NED {n:g}, {e:g}, {d:g}), gusts "
+        f"{env.turbulence_m_s:g} m/s over {env.turbulence_scale_m:g} m; drag "
+        f"{v.drag_xy_per_s:g} / {v.drag_z_per_s:g} /s: holding station takes {tilt:.1f} deg of tilt"
+    )
+
+
 def summary_lines(scenario: Scenario) -> list[str]:
     """The human-readable summary ``swarm scenario check`` prints."""
     sc = scenario
@@ -111,6 +130,7 @@ def summary_lines(scenario: Scenario) -> list[str]:
         f"safety     min separation {sc.safety.min_separation_m:g} m; the plan's formations "
         f"keep the drones at least {tightest:.2f} m apart (at t = {when:g} s)",
         f"envelope   {_envelope_line(sc)}",
+        f"air        {_air_line(sc)}",
         f"faults     {len(sc.faults) or 'none'}",
         *(f"  {describe_fault(f)}" for f in sorted(sc.faults, key=lambda f: f.t_s)),
         f"waypoints  {len(sc.waypoints)}, t = {sc.waypoints[0].t_s:g}..{sc.waypoints[-1].t_s:g} s",
