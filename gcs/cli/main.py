@@ -21,6 +21,7 @@ from gcs.cli.operator import OPERATOR_COMMANDS
 from gcs.cli.operator import add_parsers as add_operator_parsers
 from gcs.cli.router import add_parser as add_router_parser
 from gcs.cli.scenario import add_parser as add_scenario_parser
+from gcs.cli.sweep import add_parser as add_sweep_parser
 from gcs.cli.up import add_parsers as add_up_parsers
 from gcs.cli.view import VIEW_COMMANDS
 from gcs.cli.view import add_parsers as add_view_parsers
@@ -92,6 +93,7 @@ def _parser() -> argparse.ArgumentParser:
     add_view_parsers(sub)
     add_router_parser(sub)
     add_keys_parser(sub)
+    add_sweep_parser(sub)
     return parser
 
 
@@ -127,6 +129,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _router(args)
         if args.command == "keys":
             return _keys(args)
+        if args.command == "sweep":
+            return _sweep(args, argv)
     except CliError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -290,6 +294,15 @@ def _keys(args: argparse.Namespace) -> int:
     try:
         return run(args)
     except KeysError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _sweep(args: argparse.Namespace, argv: Sequence[str] | None) -> int:
+    from gcs.cli.sweep import SweepCliError, run
+
+    try:
+        return run(args, argv)
+    except SweepCliError as exc:
         raise CliError(str(exc)) from None
 
 
