@@ -69,6 +69,8 @@ class _Vehicles:
     crashes: tuple[tuple[float, int], ...]
     home: GeoPoint
     air: Air = field(default_factory=Air)
+    #: each vehicle's (mass, thrust) factors, the whole fleet's (empty: all alike)
+    scales: tuple[tuple[float, float], ...] = ()
 
 
 def build_config(args: argparse.Namespace) -> SimConfig:
@@ -109,6 +111,7 @@ def build_config(args: argparse.Namespace) -> SimConfig:
             ekf_ready_s=ekf_ready_s,
             air=v.air,
             air_seed=seed,
+            vehicle_scales=v.scales,
         ),
         net=NetConfig(
             bind_host=args.bind,
@@ -147,11 +150,13 @@ def _vehicles(args: argparse.Namespace) -> tuple[_Vehicles, DroneRange | None]:
             VehicleParams(), AttitudeGains(), grid, np.zeros(n), 500, 50, 0, (), GeoPoint()
         )
         return (v, None) if shard is None else (_slice(v, shard), shard)
-    params, gains, positions, yaw, physics_hz, control_hz, seed, faults, home, air = (
-        vehicles_from_scenario(args.scenario)
+    params, gains, positions, yaw, physics_hz, control_hz, seed, faults, home, air, scales = (
+        vehicles_from_scenario(args.scenario, args.seed)
     )
     crashes = crash_timeline(faults)
-    v = _Vehicles(params, gains, positions, yaw, physics_hz, control_hz, seed, crashes, home, air)
+    v = _Vehicles(
+        params, gains, positions, yaw, physics_hz, control_hz, seed, crashes, home, air, scales
+    )
     if shard is None:
         return v, None
     if shard.last >= len(positions):
@@ -173,7 +178,11 @@ def _slice(v: _Vehicles, shard: DroneRange) -> _Vehicles:
     rows = slice(shard.first, shard.last + 1)
     crashes = tuple((t, d - shard.first) for t, d in v.crashes if d in shard)
     return dataclasses.replace(
-        v, positions_ned_m=v.positions_ned_m[rows], yaw_rad=v.yaw_rad[rows], crashes=crashes
+        v,
+        positions_ned_m=v.positions_ned_m[rows],
+        yaw_rad=v.yaw_rad[rows],
+        crashes=crashes,
+        scales=v.scales[rows],
     )
 
 

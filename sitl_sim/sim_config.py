@@ -7,6 +7,7 @@ or from a scenario file (initial positions and yaw, [vehicle], [gains], [rates],
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import socket
 from collections.abc import Mapping, Sequence
@@ -33,7 +34,7 @@ from sitl_sim.mavlink_edge.streams import AGENT_RATES_HZ, GCS_RATES_HZ
 from sitl_sim.physics.attitude_control import AttitudeGains
 from sitl_sim.physics.vehicle_params import VehicleParams
 from sitl_sim.physics.wind import Air
-from sitl_sim.vehicle.config import air, attitude_gains, vehicle_params
+from sitl_sim.vehicle.config import air, attitude_gains, vehicle_params, vehicle_scales
 from sitl_sim.vehicle.world import WorldConfig
 
 Address = tuple[str, int]
@@ -119,15 +120,29 @@ def grid_positions(n: int, spacing_m: float = GRID_SPACING_M) -> FloatArray:
 
 def vehicles_from_scenario(
     path: str | Path,
+    seed: int | None = None,
 ) -> tuple[
-    VehicleParams, AttitudeGains, FloatArray, FloatArray, int, int, int, list[Crash], GeoPoint, Air
+    VehicleParams,
+    AttitudeGains,
+    FloatArray,
+    FloatArray,
+    int,
+    int,
+    int,
+    list[Crash],
+    GeoPoint,
+    Air,
+    tuple[tuple[float, float], ...],
 ]:
     """(params, gains, positions (N, 3), yaw (N,) rad, physics Hz, control Hz, seed, crashes,
-    home, air)."""
+    home, air, each vehicle's (mass, thrust) factors); ``seed`` in place of the scenario's
+    (``--seed``), for every draw."""
     try:
         scenario = load_scenario(path)
     except ScenarioError as exc:
         raise SimConfigError(str(exc)) from None
+    if seed is not None:
+        scenario = dataclasses.replace(scenario, seed=seed)
     yaw = np.radians([d.yaw_deg for d in scenario.drones])
     crashes = [f for f in scenario.faults if isinstance(f, Crash)]
     return (
@@ -141,6 +156,7 @@ def vehicles_from_scenario(
         crashes,
         scenario.home,
         air(scenario),
+        vehicle_scales(scenario),
     )
 
 

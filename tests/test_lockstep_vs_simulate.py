@@ -1,6 +1,7 @@
 """The distributed lockstep flight is the in-process one: a 3 x 3 grid as a newcomer generates it
 (2.5 m apart, radio range 6 m, take-off, 20 % loss, an agent drop-out), in a breeze with gusts
-(wind, turbulence and the vehicles' drag: the air is one field for both runners), flown by
+(wind, turbulence and the vehicles' drag: the air is one field for both runners) with vehicles
+that differ (mass and thrust spread, drawn from the seed in both), flown by
 ``swarm up --clock lockstep`` and by ``swarm simulate``, logs the same LOCAL_POSITION_NED and
 ATTITUDE for every vehicle whose agent flies, field by field at every ``time_boot_ms``.
 
@@ -34,11 +35,15 @@ from protocols.scenario.scenario_file import load_scenario
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 DURATION_S = 20.0  # take-off at 3.5 s, 20 % loss from 9.5 s, the drop-out at 11.5 s
-#: a light breeze with gusts, and the drag that lets the vehicles feel it
+#: a light breeze with gusts, the drag that lets the vehicles feel it, and vehicles that differ
 WINDY = """
 [vehicle]
 drag_xy_per_s = 0.4
 drag_z_per_s = 0.15
+
+[vehicles]
+mass_spread = 0.02
+thrust_spread = 0.01
 
 [environment]
 wind_ned_m_s = [1.5, 1.0, 0.0]

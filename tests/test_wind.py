@@ -220,10 +220,12 @@ def test_a_wrong_environment_is_one_line_naming_it(tmp_path: Path, extra: str, w
 
 def test_the_paper_swarm_holds_together_downwind_in_a_breeze(tmp_path: Path) -> None:
     """``swarm simulate`` of the 9-drone tilt scenario in a 3 m/s wind from the west with 0.8 m/s
-    gusts (docs/scenarios.md quotes this flight): the vehicles are pushed downwind (their mean
+    gusts, its vehicles 2 % apart in mass and 1 % in thrust (docs/scenarios.md quotes this
+    flight): the vehicles are pushed downwind (their mean
     east position behind the plan's by more than half a metre once airborne, from flight.tlog),
     the controller has no integral action so the centre tracks ~2 m behind, and still the swarm
-    holds together: no collision, at least 1.5 m apart, the consensus estimate within 5 cm."""
+    holds together: no collision, the drones at least the scenario's 1 m apart, the consensus
+    estimate within 5 cm."""
     import json
     import subprocess
 
@@ -236,6 +238,7 @@ def test_the_paper_swarm_holds_together_downwind_in_a_breeze(tmp_path: Path) -> 
         (ROOT / "scenarios" / "tilt9.toml").read_text()
         + "\n[vehicle]\ndrag_xy_per_s = 0.4\ndrag_z_per_s = 0.15\n"
         + "\n[environment]\nwind_ned_m_s = [0.0, 3.0, 0.0]\nturbulence_m_s = 0.8\n"
+        + "\n[vehicles]\nmass_spread = 0.02\nthrust_spread = 0.01\n"
     )
     done = subprocess.run(
         [*swarm_command("simulate", str(scenario), "--report", "r", "--no-plots")],
@@ -244,7 +247,7 @@ def test_the_paper_swarm_holds_together_downwind_in_a_breeze(tmp_path: Path) -> 
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
     assert metrics["collisions"]["count"] == 0
-    assert metrics["separation"]["min_m"] > 1.5
+    assert metrics["separation"]["min_m"] > 1.0
     assert metrics["consensus_steady"]["centroid_m"]["rms"] < 0.05
     centre_rms = metrics["tracking_steady"]["centroid_m"]["rms"]
     assert 0.5 < centre_rms < 3.0

@@ -22,6 +22,8 @@ factors (--vary NAME=V1,V2,...):
   turbulence_m_s       the gusts' intensity, m/s
   turbulence_scale_m   the gusts' length scale, m
   drag_xy_per_s        the vehicles' drag in their x-y plane, 1/s
+  mass_spread          how the vehicles' masses differ (relative, 1 sigma; 0.05: 5 %)
+  thrust_spread        how the vehicles' rotor thrust differs (relative, 1 sigma)
   loss                 packet loss on every link, from the start (0..0.99)
 
 Each flight is `swarm simulate`'s, into OUT/<factors>_seed=<k>/ (no plots); OUT gets sweep.json

@@ -45,7 +45,7 @@ from sitl_sim.physics.attitude_control import euler_from_quat_batch, yaw_from_qu
 from sitl_sim.physics.dynamics import POS, QUAT, RATES, VEL, wrench_from_rotor_speeds
 from sitl_sim.sim_config import crash_timeline
 from sitl_sim.vehicle.autopilot import VehicleEvent
-from sitl_sim.vehicle.config import air, attitude_gains, vehicle_params
+from sitl_sim.vehicle.config import air, attitude_gains, vehicle_params, vehicle_scales
 from sitl_sim.vehicle.tunables import FleetAttitudeGains
 from sitl_sim.vehicle.world import World, WorldConfig
 
@@ -54,7 +54,8 @@ AIRBORNE_ALTITUDE_M = 0.1
 
 def world_of(scenario: Scenario) -> World:
     """The vehicles of ``scenario`` as ``swarm sim --scenario`` builds them for ``swarm up``
-    (sitl_sim/launch.py: its rates, vehicle, gains, start, crashes, home and air; PX4's
+    (sitl_sim/launch.py: its rates, vehicle, gains, start, crashes, home, air and the
+    vehicles' spread; PX4's
     autopilot with its default tunables; no telemetry noise)."""
     crashes = [f for f in scenario.faults if isinstance(f, Crash)]
     config = WorldConfig(
@@ -64,6 +65,7 @@ def world_of(scenario: Scenario) -> World:
         home=scenario.home,
         air=air(scenario),
         air_seed=scenario.seed,
+        vehicle_scales=vehicle_scales(scenario),
     )
     yaw = np.radians([d.yaw_deg for d in scenario.drones])
     gains = FleetAttitudeGains(attitude_gains(scenario), scenario.n_drones)

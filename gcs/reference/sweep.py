@@ -3,10 +3,10 @@ simulate``'s) of one scenario, each with other values of a few factors and seeds
 figures per flight.
 
 A factor is a named change of the scenario (:data:`FACTORS`): the wind's speed and direction, the
-gusts, the vehicles' drag, packet loss on every link from the start. Each flight's row holds the
-factors' values under their names, its seed and its figures (:func:`row_of`), among them
-``centroid_rms_m``. :data:`BARS` are the figures a swarm must meet to hold (the centre tracked
-within half a metre, the estimates agreeing within ten centimetres, the drones apart, nobody
+gusts, the vehicles' drag, how the vehicles differ, packet loss on every link from the start. Each
+flight's row holds the factors' values under their names, its seed and its figures (:func:`row_of`),
+among them ``centroid_rms_m``. :data:`BARS` are the figures a swarm must meet to hold (the centre
+tracked within half a metre, the estimates agreeing within ten centimetres, the drones apart, nobody
 lost); :func:`breaks` says, per factor, the first value at which a bar breaks.
 
 Pure but for the flights themselves (each one :func:`gcs.reference.simulate.simulate` into its
@@ -58,6 +58,10 @@ def _vehicle(scenario: Scenario, **changes: Any) -> Scenario:
     return dataclasses.replace(scenario, vehicle=vehicle)
 
 
+def _fleet(scenario: Scenario, **changes: Any) -> Scenario:
+    return dataclasses.replace(scenario, vehicles=dataclasses.replace(scenario.vehicles, **changes))
+
+
 def _loss(scenario: Scenario, probability: float) -> Scenario:
     if probability == 0.0:
         return scenario
@@ -93,6 +97,10 @@ FACTORS: dict[str, Factor] = {
                lambda s, v: _environment(s, turbulence_scale_m=v), (0.5, 1e4)),
         Factor("drag_xy_per_s", "1/s", "the vehicles' drag in their x-y plane",
                lambda s, v: _vehicle(s, drag_xy_per_s=v), (0.0, 10.0)),
+        Factor("mass_spread", "", "how the vehicles' masses differ (relative, 1 sigma)",
+               lambda s, v: _fleet(s, mass_spread=v), (0.0, 0.3)),
+        Factor("thrust_spread", "", "how the vehicles' rotor thrust differs (relative)",
+               lambda s, v: _fleet(s, thrust_spread=v), (0.0, 0.3)),
         Factor("loss", "", "packet loss on every link, from the start",
                _loss, (0.0, 0.99)),
     )

@@ -91,6 +91,17 @@ def _envelope_line(scenario: Scenario) -> str:
     )
 
 
+def _fleet_line(sc: Scenario) -> str:
+    """All alike, or how the vehicles' mass and thrust spread (1 sigma)."""
+    f = sc.vehicles
+    if f.mass_spread == 0.0 and f.thrust_spread == 0.0:
+        return f"all alike ({sc.vehicle.mass_kg:g} kg)"
+    return (
+        f"{sc.vehicle.mass_kg:g} kg, each one's mass within {100 * f.mass_spread:g} % and thrust "
+        f"within {100 * f.thrust_spread:g} % (1 sigma, drawn from the seed)"
+    )
+
+
 def _air_line(sc: Scenario) -> str:
     """Still air, or the wind (speed, where from, NED), the gusts, the drag and the tilt a vehicle
     needs to hold its place against the wind (drag times wind speed, against gravity)."""
@@ -131,6 +142,7 @@ def summary_lines(scenario: Scenario) -> list[str]:
         f"keep the drones at least {tightest:.2f} m apart (at t = {when:g} s)",
         f"envelope   {_envelope_line(sc)}",
         f"air        {_air_line(sc)}",
+        f"vehicles   {_fleet_line(sc)}",
         f"faults     {len(sc.faults) or 'none'}",
         *(f"  {describe_fault(f)}" for f in sorted(sc.faults, key=lambda f: f.t_s)),
         f"waypoints  {len(sc.waypoints)}, t = {sc.waypoints[0].t_s:g}..{sc.waypoints[-1].t_s:g} s",

@@ -81,6 +81,17 @@ class VehicleConfig:
 
 
 @dataclass(frozen=True)
+class FleetConfig:
+    """[vehicles]: how the vehicles differ from [vehicle], each drawn once from the scenario's
+    seed: ``mass_spread`` and ``thrust_spread`` are the relative standard deviations of each
+    vehicle's mass and rotor thrust coefficient (0.05: 5 %). Default: all alike. The autopilots
+    know only [vehicle]'s values, as real ones know only their configuration."""
+
+    mass_spread: float = 0.0
+    thrust_spread: float = 0.0
+
+
+@dataclass(frozen=True)
 class EnvironmentConfig:
     """[environment]: the air the swarm flies in. ``wind_ned_m_s``: the mean wind (m/s, NED: the
     velocity the air moves with; a wind from the west is ``[0, w, 0]``); ``turbulence_m_s``: the
@@ -276,6 +287,8 @@ class Scenario:
     agent: AgentSection = field(default_factory=AgentSection)
     #: [environment]: wind and turbulence (default: still air)
     environment: EnvironmentConfig = field(default_factory=EnvironmentConfig)
+    #: [vehicles]: how the vehicles differ (default: all alike)
+    vehicles: FleetConfig = field(default_factory=FleetConfig)
 
     @property
     def n_drones(self) -> int:
@@ -325,7 +338,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
     top.allow(
         ("version", "name", "duration_s", "seed", "settle_s", "vehicle", "rates", "gains",
          "consensus", "comms", "safety", "drones", "trajectory", "faults", "home", "agent",
-         "environment")
+         "environment", "vehicles")
     )  # fmt: skip
     drones = _drones(top)
     waypoints = _waypoints(top.table("trajectory", ("waypoints",)))
@@ -361,6 +374,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         version=version,
         agent=_agent(top.table("agent", ("controller", "path", "options"))),
         environment=environment,
+        vehicles=top.table("vehicles").section(FleetConfig, _FLEET_BOUNDS),
     )
 
 
@@ -417,6 +431,10 @@ _VEHICLE_BOUNDS: dict[str, dict[str, float]] = {
     **{name: {"gt": 0.0} for name in VehicleConfig.__dataclass_fields__},
     "drag_xy_per_s": {"ge": 0.0, "le": 10.0},
     "drag_z_per_s": {"ge": 0.0, "le": 10.0},
+}
+_FLEET_BOUNDS: dict[str, dict[str, float]] = {
+    "mass_spread": {"ge": 0.0, "le": 0.3},
+    "thrust_spread": {"ge": 0.0, "le": 0.3},
 }
 _ENVIRONMENT_BOUNDS: dict[str, dict[str, float]] = {
     "turbulence_m_s": {"ge": 0.0, "le": 10.0},

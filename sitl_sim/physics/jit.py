@@ -10,6 +10,8 @@ numba's import) instead of compiling it (~3 s).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import numpy.typing as npt
 
@@ -27,13 +29,19 @@ from sitl_sim.physics.rules import (
 )
 from sitl_sim.physics.vehicle_params import VehicleParams
 
-__all__ = ["advance", "constants", "ready"]
+__all__ = ["advance", "constants", "fleet_constants", "ready"]
 
 
 def constants(params: VehicleParams, dt_s: float) -> FloatArray:
-    """The fleet's constants for :func:`advance` (:func:`sitl_sim.physics.rules.constants` with
-    the attitude controller's smallest cos(pitch))."""
+    """One vehicle's constants (:func:`sitl_sim.physics.rules.constants` with the attitude
+    controller's smallest cos(pitch))."""
     return physics_rules.constants(params, dt_s, MIN_COS_PITCH)
+
+
+def fleet_constants(fleet: Sequence[VehicleParams], dt_s: float) -> FloatArray:
+    """Every vehicle's constants (N, N_CONSTANTS) for :func:`advance`."""
+    rows = {id(v): constants(v, dt_s) for v in fleet}  # (a nominal fleet: one row, copied)
+    return np.ascontiguousarray([rows[id(v)] for v in fleet])
 
 
 @jit
@@ -44,7 +52,7 @@ def advance(
     enable: FloatArray,
     kp: FloatArray,
     kd: FloatArray,
-    c: FloatArray,
+    cs: FloatArray,
     count: int,
     new: FloatArray,
     rotor: FloatArray,
@@ -54,12 +62,14 @@ def advance(
 ) -> None:  # pragma: no cover - compiled (its Python body runs with NUMBA_DISABLE_JIT=1)
     """``count`` sub-steps of every vehicle under the attitude setpoint ``euler_des`` (3, N)
     and normalised thrust (N,), rotor speeds times ``enable`` (4, N), in air moving at ``air``
-    (3, N) m/s NED (read only with body drag): ``new`` (13, N) the last
+    (3, N) m/s NED (read only with body drag), each vehicle with its own constants ``cs[i]``
+    (N, N_CONSTANTS; :func:`fleet_constants`): ``new`` (13, N) the last
     state, ``rotor`` (4, N) the last rotor speeds, ``impacts[k]`` (N,) the touchdown speeds of
     sub-step ``k`` and ``touched[k]`` whether any vehicle was on the ground after it."""
     s, xt = np.empty(13), np.empty(13)
     k1, k2, k3, k4 = np.empty(13), np.empty(13), np.empty(13), np.empty(13)
     for i in range(state.shape[1]):
+        c = cs[i]
         s[:] = state[:, i]
         ry, py_, yy = euler_des[0, i], euler_des[1, i], euler_des[2, i]
         kp0, kp1, kp2 = kp[0, i], kp[1, i], kp[2, i]
@@ -90,6 +100,6 @@ def ready() -> None:
     gains = np.ones((3, 1))
     advance(
         state, np.zeros((3, 1)), np.zeros(1), np.ones((4, 1)), gains, gains,
-        constants(VehicleParams(), 0.002), 1, np.empty((13, 1)), np.empty((4, 1)),
+        fleet_constants([VehicleParams()], 0.002), 1, np.empty((13, 1)), np.empty((4, 1)),
         np.zeros((1, 1)), np.zeros(1, dtype=np.bool_), np.zeros((3, 1)),
     )  # fmt: skip

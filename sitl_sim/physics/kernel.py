@@ -23,6 +23,8 @@ takes the state and returns new arrays.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import numpy.typing as npt
 
@@ -35,16 +37,26 @@ Enable = FloatArray | npt.NDArray[np.bool_] | None
 
 
 class PhysicsKernel:
-    """Sub-steps of N vehicles sharing ``params``, each ``dt_s`` seconds (RK4).
+    """Sub-steps of N vehicles, each ``dt_s`` seconds (RK4): all of them ``params``, or each its
+    own (``fleet``, N of them: vehicles that differ).
 
     ``gains`` are the attitude PD gains: an :class:`AttitudeGains` (one set for every vehicle) or
     a fleet whose ``kp_col()``/``kd_col()`` are (3, N); :meth:`use_gains` changes them.
     """
 
     def __init__(
-        self, params: VehicleParams, n: int, dt_s: float, gains: AttitudeGains | None = None
+        self,
+        params: VehicleParams,
+        n: int,
+        dt_s: float,
+        gains: AttitudeGains | None = None,
+        fleet: Sequence[VehicleParams] | None = None,
     ) -> None:
+        if fleet is not None and len(fleet) != n:
+            raise ValueError(f"fleet: {len(fleet)} vehicles' parameters for {n} vehicles")
         self.params = params
+        #: each vehicle's parameters
+        self.fleet = list(fleet) if fleet is not None else [params] * n
         self.n = n
         self.dt_s = dt_s
         # numba is imported here, not with this module: processes that import the simulator's
@@ -53,7 +65,7 @@ class PhysicsKernel:
 
         physics_jit.ready()
         self._advance = compiled(physics_jit.advance)
-        self._constants = physics_jit.constants(params, dt_s)
+        self._constants = physics_jit.fleet_constants(self.fleet, dt_s)
         self._kp = np.empty((3, n))
         self._kd = np.empty((3, n))
         self._gains: list[FloatArray] = [self._kp, self._kd]

@@ -12,6 +12,7 @@ act instantly, which keeps the vehicle state at 13 rows (see ``sitl_sim.physics.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, fields
 
@@ -96,6 +97,19 @@ class VehicleParams:
         """Principal moments of inertia ``(Ixx, Iyy, Izz)`` as a (3,) array (kg m^2)."""
         return np.array([self.ixx, self.iyy, self.izz])
 
+    def scaled(self, mass: float = 1.0, thrust: float = 1.0) -> VehicleParams:
+        """This vehicle with its mass times ``mass`` and its rotors' thrust (and reaction torque)
+        coefficients times ``thrust``: one vehicle of a fleet that differs
+        (:func:`vehicle_scales`)."""
+        if mass == 1.0 and thrust == 1.0:
+            return self
+        return dataclasses.replace(
+            self,
+            mass_kg=self.mass_kg * mass,
+            thrust_coeff=self.thrust_coeff * thrust,
+            drag_coeff=self.drag_coeff * thrust,
+        ).validate()
+
     def validate(self) -> VehicleParams:
         """Check every field; return ``self`` so it can be chained.
 
@@ -120,3 +134,23 @@ class VehicleParams:
                 f"{self.rotor_speed_max_rad_s!r} <= {self.rotor_speed_min_rad_s!r}"
             )
         return self
+
+
+#: Salt of the draws of a fleet's spread, apart from the scenario's other random draws.
+_SPREAD_SALT = 0x53505244  # "SPRD"
+
+
+def vehicle_scales(
+    n: int, mass_spread: float, thrust_spread: float, seed: int
+) -> tuple[tuple[float, float], ...]:
+    """Each of ``n`` vehicles' (mass, thrust) factors: normal about 1 with relative standard
+    deviations ``mass_spread`` and ``thrust_spread``, cut at three of them, drawn for the whole
+    fleet from ``seed`` (vehicle i's factors do not depend on which simulator shard flies it).
+    Empty when neither spreads: every vehicle is the nominal one."""
+    if mass_spread == 0.0 and thrust_spread == 0.0:
+        return ()
+    rng = np.random.default_rng([seed & 0xFFFF_FFFF, _SPREAD_SALT])
+    z = np.clip(rng.standard_normal((n, 2)), -3.0, 3.0)
+    mass = 1.0 + mass_spread * z[:, 0]
+    thrust = 1.0 + thrust_spread * z[:, 1]
+    return tuple((float(m), float(t)) for m, t in zip(mass, thrust, strict=True))

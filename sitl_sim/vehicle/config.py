@@ -1,5 +1,5 @@
-"""Vehicle parameters, inner-loop gains and the air from a scenario's [vehicle], [gains] and
-[environment] sections."""
+"""Vehicle parameters, inner-loop gains, the air and how the vehicles differ, from a scenario's
+[vehicle], [gains], [environment] and [vehicles] sections."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ from protocols.model.frames import G_M_S2
 from protocols.scenario.scenario_file import Scenario
 from sitl_sim.physics.attitude_control import AttitudeGains
 from sitl_sim.physics.vehicle_params import VehicleParams
+from sitl_sim.physics.vehicle_params import vehicle_scales as draw_scales
 from sitl_sim.physics.wind import Air
 
 
@@ -39,3 +40,9 @@ def air(scenario: Scenario) -> Air:
     """The wind and turbulence the vehicles fly in."""
     e = scenario.environment
     return Air(e.wind_ned_m_s, e.turbulence_m_s, e.turbulence_scale_m).validate()
+
+
+def vehicle_scales(scenario: Scenario) -> tuple[tuple[float, float], ...]:
+    """Each of the scenario's vehicles' (mass, thrust) factors (empty: all alike)."""
+    f = scenario.vehicles
+    return draw_scales(scenario.n_drones, f.mass_spread, f.thrust_spread, scenario.seed)

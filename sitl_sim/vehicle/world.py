@@ -61,7 +61,8 @@ class WorldConfig:
     on the map, the batteries, the autopilot firmware emulated (``dialect``), for ArduCopter
     the simulated seconds after start before its EKF and GPS are ready, and the air the
     vehicles fly in (``air``; its turbulence drawn from ``air_seed``, the same in every shard
-    and runner of a flight)."""
+    and runner of a flight) and how each vehicle differs from the nominal one
+    (``vehicle_scales``: its mass and thrust factors)."""
 
     physics_hz: int = 500
     control_hz: int = 50
@@ -74,6 +75,9 @@ class WorldConfig:
     ekf_ready_s: float = DEFAULT_EKF_READY_S
     air: Air = field(default_factory=Air)
     air_seed: int = 0
+    #: each vehicle's (mass, thrust) factors (sitl_sim/physics/vehicle_params.py,
+    #: ``vehicle_scales``); empty: every vehicle is the nominal one
+    vehicle_scales: tuple[tuple[float, float], ...] = ()
 
     def validate(self) -> WorldConfig:
         """Raise ValueError naming the field unless the rates and noise are usable."""
@@ -140,7 +144,15 @@ class World:
         #: rotor speeds (4, N) rad/s applied in the last physics step (0 before the first)
         self.rotor_speed_rad_s = np.zeros((4, self.n))
         #: the physics sub-step (inner loop + RK4 + contact), fused
-        self.kernel = PhysicsKernel(params, self.n, self.dt_physics_s, gains)
+        scales = config.vehicle_scales
+        if scales and len(scales) != self.n:
+            raise ValueError(f"vehicle_scales: {len(scales)} vehicles' factors for {self.n}")
+        #: each vehicle's true parameters (its autopilot knows only the nominal ``params``)
+        self.fleet = [params.scaled(m, t) for m, t in scales] if scales else [params] * self.n
+        self.kernel = PhysicsKernel(
+            params, self.n, self.dt_physics_s, gains, self.fleet if scales else None
+        )
+        self._thrust_coeff = np.array([v.thrust_coeff for v in self.fleet])
         #: the air the vehicles fly in (None: still air), sampled where each one is every period
         self.wind = None if config.air.calm else WindField(config.air, config.air_seed)
         self.battery = Battery(self.n, config.battery)
@@ -186,7 +198,7 @@ class World:
                     np.maximum(impact, touched, out=impact)
         self.rotor_speed_rad_s = rotor
         self.state = state
-        thrust_n = self.params.thrust_coeff * np.einsum("rn,rn->n", rotor, rotor)
+        thrust_n = self._thrust_coeff * np.einsum("rn,rn->n", rotor, rotor)
         self.battery.drain(ap.armed, thrust_n, 1.0 / self.config.control_hz)
         self.tick += 1
         events, self.pending_events = self.pending_events, []
