@@ -75,7 +75,8 @@ def test_the_grid_and_what_each_factor_changes() -> None:
 
 def test_a_bar_breaks_at_the_first_value_that_misses_it_alone() -> None:
     vary = {"wind_m_s": [0.0, 2.0, 4.0], "loss": [0.0, 0.5]}
-    good = {"centroid_rms_m": 0.1, "consensus_rms_m": 0.01, "collisions": 0, "drones_lost": 0,
+    good = {"centroid_rms_m": 0.1, "consensus_rms_m": 0.01, "collisions": 0,
+            "drones_lost_unplanned": 0,
             "min_separation_m": 2.0}  # fmt: skip
     rows = [
         {"wind_m_s": w, "loss": p, "seed": 0, **good,

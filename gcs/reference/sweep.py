@@ -7,7 +7,8 @@ gusts, the vehicles' drag, how the vehicles differ, packet loss on every link fr
 flight's row holds the factors' values under their names, its seed and its figures (:func:`row_of`),
 among them ``centroid_rms_m``. :data:`BARS` are the figures a swarm must meet to hold (the centre
 tracked within half a metre, the estimates agreeing within ten centimetres, the drones apart, nobody
-lost); :func:`breaks` says, per factor, the first value at which a bar breaks.
+lost but those the scenario drops or crashes on purpose); :func:`breaks` says, per factor, the first
+value at which a bar breaks.
 
 Pure but for the flights themselves (each one :func:`gcs.reference.simulate.simulate` into its
 own folder); the runs are independent and seeded, so they run in parallel, in any order, with the
@@ -24,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from protocols.faults import Loss
+from protocols.faults import Crash, Dropout, Loss
 
 if TYPE_CHECKING:  # (the `swarm` parser lists the factors: no scenario machinery imported)
     from protocols.scenario.scenario_file import Scenario, VehicleConfig
@@ -130,7 +131,7 @@ BARS = (
     Bar("centroid_rms_m", 0.5),
     Bar("consensus_rms_m", 0.1),
     Bar("collisions", 0),
-    Bar("drones_lost", 0),
+    Bar("drones_lost_unplanned", 0),
     Bar("min_separation_m", 0.5, at_most=False),
 )
 
@@ -200,8 +201,10 @@ def grid(vary: dict[str, list[float]], seeds: int, first_seed: int) -> list[Run]
     ]
 
 
-def row_of(run: Run, metrics: dict[str, Any]) -> dict[str, Any]:
-    """The run's factors and seed, and its figures from its ``metrics.json``."""
+def row_of(run: Run, metrics: dict[str, Any], planned_losses: int = 0) -> dict[str, Any]:
+    """The run's factors and seed, and its figures from its ``metrics.json``;
+    ``planned_losses``: the drones its scenario drops or crashes on purpose (not counted in
+    ``drones_lost_unplanned``)."""
     steady, consensus = metrics["tracking_steady"], metrics["consensus_steady"]
     return {
         **dict(run.values),
@@ -213,6 +216,7 @@ def row_of(run: Run, metrics: dict[str, Any]) -> dict[str, Any]:
         "min_separation_m": metrics["separation"]["min_m"],
         "collisions": metrics["collisions"]["count"],
         "drones_lost": len(metrics["drones_lost"]),
+        "drones_lost_unplanned": max(0, len(metrics["drones_lost"]) - planned_losses),
         "max_tilt_deg": metrics["max_tilt_deg"]["value"],
         "messages_lost": metrics["messages"]["lost"],
     }
@@ -222,8 +226,10 @@ def fly(run: Run, base: Scenario, duration_s: float | None, out: Path) -> dict[s
     """Fly one run into ``out / run.name``; its row."""
     from gcs.reference.simulate import simulate
 
-    result = simulate(run.scenario(base, duration_s), out / run.name, plots=False, recording=False)
-    return row_of(run, result.metrics)
+    scenario = run.scenario(base, duration_s)
+    planned = {f.drone for f in scenario.faults if isinstance(f, Dropout | Crash)}
+    result = simulate(scenario, out / run.name, plots=False, recording=False)
+    return row_of(run, result.metrics, len(planned))
 
 
 def alone(

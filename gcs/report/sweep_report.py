@@ -19,6 +19,7 @@ FIGURES = (
     ("min_separation_m", "min separation (m)"),
     ("collisions", "collisions"),
     ("drones_lost", "drones lost"),
+    ("drones_lost_unplanned", "lost, unplanned"),
     ("max_tilt_deg", "max tilt (deg)"),
 )
 
