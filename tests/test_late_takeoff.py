@@ -14,6 +14,7 @@ below the plan.
 from __future__ import annotations
 
 import subprocess
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -104,13 +105,37 @@ def test_scenario_check_measures_the_ready_time_and_warns(tmp_path: Path) -> Non
     assert "flown about 3.00 s late" in out, out
 
 
-@pytest.mark.parametrize("side", [5, 10])
-def test_simulate_waits_for_the_swarm_and_does_not_overshoot(tmp_path: Path, side: int) -> None:
-    n = side * side
-    path = climb_scenario(tmp_path / f"climb{n}.toml", side)
-    out = _run("simulate", str(path), cwd=tmp_path)
-    assert "plan re-timed by" in out, out
-    t0, error, overshoot = judge_takeoff(tmp_path / "report", n)
+@dataclass(frozen=True)
+class Simulated:
+    """The climb of ``side`` x ``side`` drones flown once by ``swarm simulate``, shared by the
+    module's tests of that size: its scenario file, working folder and what it printed."""
+
+    side: int
+    scenario: Path
+    folder: Path
+    out: str
+
+    @property
+    def n(self) -> int:
+        return self.side * self.side
+
+
+@pytest.fixture(scope="module", params=[5, 10], ids=lambda side: f"{side}")
+def simulated(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Simulated:
+    side: int = request.param
+    folder = tmp_path_factory.mktemp(f"climb{side * side}")
+    path = climb_scenario(folder / f"climb{side * side}.toml", side)
+    sim = folder / "sim"
+    sim.mkdir()
+    return Simulated(side, path, sim, _run("simulate", str(path), cwd=sim))
+
+
+def test_simulate_waits_for_the_swarm_and_does_not_overshoot(simulated: Simulated) -> None:
+    n = simulated.n
+    assert "plan re-timed by" in simulated.out, simulated.out
+    t0, error, overshoot = judge_takeoff(simulated.folder / "report", n)
     # measured: N = 25 take-off 3.00 s, 0.8 mm, no overshoot; N = 100 3.20 s, 1.1 mm, 0.2 mm
     print(f"N = {n}: take-off {t0:.2f} s, centre error {error * 1000:.1f} mm, "
           f"overshoot {overshoot * 1000:.1f} mm")  # fmt: skip
@@ -118,18 +143,16 @@ def test_simulate_waits_for_the_swarm_and_does_not_overshoot(tmp_path: Path, sid
     assert error < CENTRE_BAR_M and overshoot < OVERSHOOT_BAR_M, (error, overshoot)
 
 
-@pytest.mark.parametrize("side", [5, 10])
-def test_swarm_up_lockstep_flies_the_same_retimed_plan(tmp_path: Path, side: int) -> None:
+def test_swarm_up_lockstep_flies_the_same_retimed_plan(
+    tmp_path: Path, simulated: Simulated
+) -> None:
     """``swarm up SCENARIO`` with its defaults (lockstep, default ports): the same take-off and
     bars, and the very flight of ``swarm simulate`` (bit for bit)."""
-    n = side * side
-    path = climb_scenario(tmp_path / f"climb{n}.toml", side)
-    up, sim = tmp_path / "up", tmp_path / "sim"
+    n, path, sim = simulated.n, simulated.scenario, simulated.folder
+    up = tmp_path / "up"
     up.mkdir()
-    sim.mkdir()
     with _default_ports_lock():
         _run("up", str(path), cwd=up, timeout=900.0)
-    _run("simulate", str(path), cwd=sim)
     t0, error, overshoot = judge_takeoff(up / "report", n)
     assert t0 < 5.0 and error < CENTRE_BAR_M and overshoot < OVERSHOOT_BAR_M, (t0, error)
     # the large-swarm bars (tests/large_swarm.py) on the hold at 5 m: every drone airborne at the

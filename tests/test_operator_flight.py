@@ -126,6 +126,12 @@ def _armed_at(track: VehicleTrack, t_s: float) -> bool:
     return bool(track.armed[k])
 
 
+def _armed_since(track: VehicleTrack, t_s: float) -> float | None:
+    """When the vehicle armed at or after ``t_s`` (its first armed heartbeat), None if never."""
+    k = np.flatnonzero((track.heartbeat_t_s >= t_s) & track.armed)
+    return float(track.heartbeat_t_s[k[0]]) if k.size else None
+
+
 def _positions(track: TlogTrack, drones: int, t_s: float) -> np.ndarray:
     return np.array([track.vehicles[i + 1].position_ned_m[_sample(track.vehicles[i + 1], t_s)]
                      for i in range(drones)])  # fmt: skip
@@ -194,14 +200,22 @@ def test_land_then_take_off_the_flying_paper_swarm(tmp_path: Path, clock: str) -
     assert_landed_safely(track, 9, _command_time(events, "land"), landed_at)
     hard = [t for t in track.statustexts if "Hard landing" in t.text or "Crashed" in t.text]
     assert hard == []
+    # the plan is flown from when the swarm left the ground again: the reply's arrival, moved by
+    # as much as the take-off waited for every agent to be ready (the "takeoff" event)
+    takeoff = [e for e in events if e["kind"] == "takeoff" and e["plan_seq"] == 2]
+    assert len(takeoff) == 1, takeoff
+    arrives += float(takeoff[0]["retimed_by_s"])  # type: ignore[arg-type]
+    t_command = _command_time(events, "takeoff")
+    armed = {s: _armed_since(track.vehicles[s], t_command) for s in range(1, 10)}
+    why = f"take-off {takeoff[0]}, armed at {armed}, arrives at {arrives:.2f} s"
     # flying again at the end (29 s): armed, climbing to 3 m or there
     for sysid in range(1, 10):
         v = track.vehicles[sysid]
-        assert _armed_at(v, v.t_s[-1]), sysid
+        assert _armed_at(v, v.t_s[-1]), (sysid, why)
         altitude = -v.position_ned_m[-1, 2]
-        assert altitude > 1.5, (sysid, altitude)
+        assert altitude > 1.5, (sysid, altitude, why)
         if arrives < v.t_s[-1] - 1.0:
-            assert altitude == pytest.approx(3.0, abs=0.3), (sysid, altitude, arrives)
+            assert altitude == pytest.approx(3.0, abs=0.3), (sysid, altitude, why)
 
 
 # -- every plan command on a 3 x 3 swarm ------------------------------------------------------
