@@ -27,9 +27,10 @@ def simulated_paper_report(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def demo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
-    """``swarm demo`` (what ``make demo`` runs: the paper's 200 s flight, lockstep, one agent
-    process per drone; about 3 minutes), run once: its report folder and printed output. Read by
-    tests/test_demo_paper.py and, for its first 20 s, by tests/test_lockstep_repeats.py."""
+    """``swarm demo`` (what ``make demo`` runs: the paper's 200 s flight, lockstep, the nine
+    agents hosted in one process; under a minute), run once: its report folder and printed
+    output. Read by tests/test_demo_paper.py and by tests/test_lockstep_repeats.py (against
+    ``swarm simulate``'s flight)."""
     return run_demo(tmp_path_factory.mktemp("demo"))
 
 

@@ -20,7 +20,8 @@ fixed slot: the formation is defined by its descriptors, so while a drone is awa
 spread to keep the variances and the returning drone is taken in where the formation has room
 (measured 0.7-1.3 m from the place it left after a landed gap, 0.17 m after a 1.3 s one in the
 air; printed). The report's metrics list both returns;
-no two drones came closer than 0.5 m.
+no two drones came closer than 0.5 m. Until the first drill the flight is ``swarm simulate``'s
+flight of the scenario bit for bit (lockstep repeats with one agent process per drone).
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ from sitl_client import ENV, ROOT, free_port_block, free_udp_port, sim_process, 
 
 from gcs.report.events import read_events
 from gcs.report.log_record import absences
-from gcs.report.tlog import TlogTrack, read_tlog
+from gcs.report.tlog import TlogTrack, read_tlog, vehicle_samples
 from protocols.model.descriptors import descriptors
 from protocols.wire.status import AgentMode
 
@@ -177,6 +178,7 @@ def test_agents_killed_in_flight_come_back_into_the_formation(tmp_path: Path) ->
     track = read_tlog(report / "flight.tlog")
     for drone, landed in ((RESTARTED, True), (RETYPED, False)):  # 3: landed or not
         _judge(drone, landed, events, track, tmp_path)
+    _assert_simulate_flies_it_until_the_first_drill(scenario, report, events, tmp_path)
     # the restart drill let go of the killed agent's port: the lockstep barrier stopped waiting
     # for it at once, not after its 2 s silence timeout
     texts = [m.text for m in track.statustexts if m.sysid == RESTARTED + 1 and "barrier" in m.text]
@@ -187,6 +189,33 @@ def test_agents_killed_in_flight_come_back_into_the_formation(tmp_path: Path) ->
     ]
     assert metrics["drones_lost"] == []
     assert metrics["separation"]["min_m"] > 0.5, metrics["separation"]
+
+
+def _assert_simulate_flies_it_until_the_first_drill(
+    scenario: Path, report: Path, events: list[dict[str, Any]], tmp_path: Path
+) -> None:
+    """Lockstep repeats with one agent process per drone: until the first drill (typed at a
+    wall time, so at no scenario time ``swarm simulate`` could know), the take-off and the hover
+    are ``swarm simulate``'s flight of the scenario, every vehicle's LOCAL_POSITION_NED and
+    ATTITUDE field by field at each time_boot_ms (tests/test_lockstep_repeats.py: the hosted
+    layout, over the paper's whole flight)."""
+    sim = tmp_path / "simulated"
+    done = subprocess.run(
+        swarm_command("simulate", str(scenario), "--report", str(sim), "--no-plots"),
+        capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    first_drill_ms = 1000.0 * min(float(e["t_s"]) for e in events if e["kind"] == "drill")
+    assert first_drill_ms > 14e3, first_drill_ms  # after the take-off: it flew steady first
+    flown, theirs = (
+        {k: v for k, v in vehicle_samples(path).items() if k[2] < first_drill_ms - 100}
+        for path in (report / "flight.tlog", sim / "flight.tlog")
+    )
+    both = flown.keys() & theirs.keys()
+    assert len(both) >= 0.95 * 2 * 5 * 25 * first_drill_ms / 1000, len(both)  # 25 Hz logs
+    assert all(t < 2000 for _, _, t in flown.keys() ^ theirs.keys())
+    differ = sorted(k for k in both if flown[k] != theirs[k])
+    assert not differ, (len(differ), differ[:3], [(flown[k], theirs[k]) for k in differ[:1]])
 
 
 def _judge(
