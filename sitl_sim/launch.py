@@ -24,8 +24,10 @@ from sitl_sim.mavlink_edge.streams import (
     COPTER_AGENT_STATE_STREAMS,
     COPTER_GCS_RATES_HZ,
     COPTER_GCS_STATE_STREAMS,
+    EXTENDED_SYS_STATE,
     GCS_RATES_HZ,
     GCS_STATE_STREAMS,
+    ODOMETRY,
 )
 from sitl_sim.physics.attitude_control import AttitudeGains
 from sitl_sim.physics.vehicle_params import VehicleParams
@@ -50,6 +52,7 @@ from sitl_sim.sim_config import (
     vehicles_from_scenario,
 )
 from sitl_sim.vehicle.autopilot import AutopilotConfig
+from sitl_sim.vehicle.estimate import Sensors
 from sitl_sim.vehicle.failsafe import FailsafeConfig
 from sitl_sim.vehicle.tunables import FleetAttitudeGains, Tunables
 from sitl_sim.vehicle.world import DEFAULT_EKF_READY_S, World, WorldConfig
@@ -71,6 +74,7 @@ class _Vehicles:
     air: Air = field(default_factory=Air)
     #: each vehicle's (mass, thrust) factors, the whole fleet's (empty: all alike)
     scales: tuple[tuple[float, float], ...] = ()
+    sensors: Sensors = field(default_factory=Sensors)
 
 
 def build_config(args: argparse.Namespace) -> SimConfig:
@@ -93,6 +97,11 @@ def build_config(args: argparse.Namespace) -> SimConfig:
     autopilot = AutopilotConfig(failsafe=FailsafeConfig(offboard_timeout_s=args.offboard_timeout))
     dialect, ekf_ready_s = _dialect(args)
     agent_rates, gcs_rates = stream_rates(dialect, args.agent_rate_hz, args.gcs_rate_hz)
+    if not v.sensors.ideal:
+        # the report's truth beside what the vehicles believe, and each tick the land detector's
+        # word to the agents before the tick's state (their estimated altitude wanders)
+        gcs_rates[ODOMETRY] = args.gcs_rate_hz
+        agent_rates = {EXTENDED_SYS_STATE: args.agent_rate_hz, **agent_rates}
     seed = v.seed if args.seed is None else args.seed
     return SimConfig(
         sysids=parse_sysids(args.sysids, n) if shard is None else _shard_sysids(args, shard),
@@ -112,6 +121,9 @@ def build_config(args: argparse.Namespace) -> SimConfig:
             air=v.air,
             air_seed=seed,
             vehicle_scales=v.scales,
+            sensors=v.sensors,
+            sensors_seed=seed,
+            first_vehicle=first,
         ),
         net=NetConfig(
             bind_host=args.bind,
@@ -150,13 +162,13 @@ def _vehicles(args: argparse.Namespace) -> tuple[_Vehicles, DroneRange | None]:
             VehicleParams(), AttitudeGains(), grid, np.zeros(n), 500, 50, 0, (), GeoPoint()
         )
         return (v, None) if shard is None else (_slice(v, shard), shard)
-    params, gains, positions, yaw, physics_hz, control_hz, seed, faults, home, air, scales = (
-        vehicles_from_scenario(args.scenario, args.seed)
-    )
+    (params, gains, positions, yaw, physics_hz, control_hz, seed, faults, home, air, scales,
+     sensors) = vehicles_from_scenario(args.scenario, args.seed)  # fmt: skip
     crashes = crash_timeline(faults)
     v = _Vehicles(
-        params, gains, positions, yaw, physics_hz, control_hz, seed, crashes, home, air, scales
-    )
+        params, gains, positions, yaw, physics_hz, control_hz, seed, crashes, home, air, scales,
+        sensors,
+    )  # fmt: skip
     if shard is None:
         return v, None
     if shard.last >= len(positions):

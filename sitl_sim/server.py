@@ -48,6 +48,7 @@ from sitl_sim.mavlink_edge.streams import (
     HEARTBEAT,
     HOME_POSITION,
     LOCAL_POSITION_NED,
+    ODOMETRY,
     SYS_STATUS,
     StreamTable,
 )
@@ -138,6 +139,7 @@ class SimServer:
             ATTITUDE: lambda i: messages.attitude(self._snapshot, i),
             LOCAL_POSITION_NED: lambda i: messages.local_position_ned(self._snapshot, i),
             ATTITUDE_TARGET: lambda i: messages.attitude_target(world, i),
+            ODOMETRY: lambda i: messages.truth_odometry(world, i),
             ACTUATOR_OUTPUT_STATUS: lambda i: messages.actuator_output_status(
                 messages.time_usec(world), self._rotor_forces()[:, i]
             ),
@@ -156,6 +158,8 @@ class SimServer:
         #: the dialect's message that keys the barrier, and the tick's state re-sent
         self._tick_message = dialect.tick_message
         self._tick_state = dialect.tick_state
+        if world.estimator is not None:  # the land detector's word first (sitl_sim/launch.py)
+            self._tick_state = (EXTENDED_SYS_STATE, *self._tick_state)
         self._forces_tick = -1
         self._forces = np.zeros((4, n))
         self._snapshot: Snapshot = world.snapshot()

@@ -34,7 +34,8 @@ from sitl_sim.mavlink_edge.streams import AGENT_RATES_HZ, GCS_RATES_HZ
 from sitl_sim.physics.attitude_control import AttitudeGains
 from sitl_sim.physics.vehicle_params import VehicleParams
 from sitl_sim.physics.wind import Air
-from sitl_sim.vehicle.config import air, attitude_gains, vehicle_params, vehicle_scales
+from sitl_sim.vehicle.config import air, attitude_gains, sensors, vehicle_params, vehicle_scales
+from sitl_sim.vehicle.estimate import Sensors
 from sitl_sim.vehicle.world import WorldConfig
 
 Address = tuple[str, int]
@@ -133,10 +134,11 @@ def vehicles_from_scenario(
     GeoPoint,
     Air,
     tuple[tuple[float, float], ...],
+    Sensors,
 ]:
     """(params, gains, positions (N, 3), yaw (N,) rad, physics Hz, control Hz, seed, crashes,
-    home, air, each vehicle's (mass, thrust) factors); ``seed`` in place of the scenario's
-    (``--seed``), for every draw."""
+    home, air, each vehicle's (mass, thrust) factors, the sensors); ``seed`` in place of the
+    scenario's (``--seed``), for every draw."""
     try:
         scenario = load_scenario(path)
     except ScenarioError as exc:
@@ -157,6 +159,7 @@ def vehicles_from_scenario(
         scenario.home,
         air(scenario),
         vehicle_scales(scenario),
+        sensors(scenario),
     )
 
 

@@ -1,9 +1,11 @@
 """The distributed lockstep flight is the in-process one: a 3 x 3 grid as a newcomer generates it
 (2.5 m apart, radio range 6 m, take-off, 20 % loss, an agent drop-out), in a breeze with gusts
 (wind, turbulence and the vehicles' drag: the air is one field for both runners) with vehicles
-that differ (mass and thrust spread, drawn from the seed in both), flown by
-``swarm up --clock lockstep`` and by ``swarm simulate``, logs the same LOCAL_POSITION_NED and
-ATTITUDE for every vehicle whose agent flies, field by field at every ``time_boot_ms``.
+that differ (mass and thrust spread, drawn from the seed in both) and sensors that lie (a
+wandering GNSS bias, attitude noise, a 25 Hz estimate 40 ms late: each vehicle's own errors, drawn
+from the seed in both), flown by ``swarm up --clock lockstep`` and by ``swarm simulate``, logs
+the same LOCAL_POSITION_NED and ATTITUDE (what the vehicles believed) and ODOMETRY (their true
+state) for every vehicle whose agent flies, field by field at every ``time_boot_ms``.
 
 A square grid's estimated heading is ill-conditioned (its spreads are equal: any axes will do),
 so the last bit of any input shows: both runners must give the agents the same inputs, and
@@ -25,6 +27,7 @@ import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 from sitl_client import ENV, free_port_block, free_udp_port, swarm_command
 
@@ -49,6 +52,13 @@ thrust_spread = 0.01
 wind_ned_m_s = [1.5, 1.0, 0.0]
 turbulence_m_s = 0.5
 turbulence_scale_m = 15.0
+
+[sensors]
+gnss_bias_m = 0.1
+gnss_bias_tau_s = 300.0
+attitude_noise_rad = 0.002
+rate_hz = 25.0
+latency_s = 0.04
 """
 
 
@@ -100,9 +110,10 @@ def test_lockstep_flight_is_the_in_process_flight(tmp_path: Path, rendezvous: st
     assert not differ, (len(differ), differ[:3], [(sim[k], up[k]) for _, k in differ[:1]])
     # the dropped drone's vehicle landed on its failsafe within the flight, and that landing was
     # compared: down from the plan's 3 m to the ground, disarmed there
+    # (the vehicles' true state, ODOMETRY: their LOCAL_POSITION_NED is what their sensors say)
     dropped = sorted(
         (t, -v[2]) for (msg, sysid, t), v in sim.items()
-        if msg == "LOCAL_POSITION_NED" and sysid == dropout + 1 and (msg, sysid, t) in up
+        if msg == "ODOMETRY" and sysid == dropout + 1 and (msg, sysid, t) in up
     )  # fmt: skip
     assert max(up_m for _, up_m in dropped) > 2.5 and dropped[-1][1] < 0.01, dropped[-1]
     events = [json.loads(line) for line in (tmp_path / "sim" / "events.jsonl").open()]
@@ -112,6 +123,14 @@ def test_lockstep_flight_is_the_in_process_flight(tmp_path: Path, rendezvous: st
     heights = [
         -v[2]
         for (msg, sysid, t), v in sim.items()
-        if msg == "LOCAL_POSITION_NED" and t > 9.5e3 and sysid != dropout + 1
+        if msg == "ODOMETRY" and t > 9.5e3 and sysid != dropout + 1
     ]
     assert min(heights) > 1.0
+    # the agents flew on their vehicles' estimates, not the truth: every vehicle's reported
+    # position is off its true one (the GNSS bias, 0.1 m standard deviation a component)
+    off = [
+        max(abs(a - b) for a, b in zip(v[:3], sim[("ODOMETRY", sysid, t)][:3], strict=True))
+        for (msg, sysid, t), v in sim.items()
+        if msg == "LOCAL_POSITION_NED" and ("ODOMETRY", sysid, t) in sim
+    ]
+    assert len(off) >= 9 * 25 * (DURATION_S - 1.0) and np.median(off) > 0.02, np.median(off)

@@ -61,18 +61,27 @@ class Request(Enum):
 @dataclass(frozen=True)
 class VehicleView:
     """What the vehicle last reported: armed, whether it flies offboard setpoints or its own
-    LAND or HOLD mode, and its altitude (m, up)."""
+    LAND or HOLD mode, its altitude (m, up, as its state estimate has it) and whether its land
+    detector says it is on the ground (EXTENDED_SYS_STATE's landed state; None: it says
+    nothing, and the altitude decides)."""
 
     armed: bool
     in_offboard: bool
     in_land: bool
     in_hold: bool
     altitude_m: float
+    on_ground: bool | None = None
 
     @property
     def airborne(self) -> bool:
-        """Armed, or off the ground: its motors must not be cut by a setpoint."""
-        return self.armed or self.altitude_m > AIRBORNE_ALTITUDE_M
+        """Armed, or off the ground: its motors must not be cut by a setpoint. Off the ground:
+        as its land detector says where it says, else above :data:`AIRBORNE_ALTITUDE_M` (a
+        vehicle whose estimate wanders by more than that reports its landed state)."""
+        if self.armed:
+            return True
+        if self.on_ground is not None:
+            return not self.on_ground
+        return self.altitude_m > AIRBORNE_ALTITUDE_M
 
 
 @dataclass(frozen=True)

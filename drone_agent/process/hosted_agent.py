@@ -413,6 +413,7 @@ class HostedAgent:
             in_land=modes.in_land,
             in_hold=modes.in_hold,
             altitude_m=-float(sample.position_ned_m[2]),
+            on_ground=self.link.status.on_ground,
         )
         return self.phase.decide(
             command,

@@ -84,6 +84,15 @@ class VehicleStatus:
     emergency: bool = False
     #: the HEARTBEAT's ``autopilot`` field (MAV_AUTOPILOT), None before the first
     autopilot: int | None = None
+    #: EXTENDED_SYS_STATE's MAV_LANDED_STATE, None while the vehicle sent none
+    landed_state: int | None = None
+
+    @property
+    def on_ground(self) -> bool | None:
+        """What the vehicle's land detector says (None: it said nothing)."""
+        if self.landed_state is None:
+            return None
+        return self.landed_state == common.MAV_LANDED_STATE_ON_GROUND
 
 
 @dataclass
@@ -282,6 +291,8 @@ class VehicleLink:
                 self._learn_dialect(int(msg.autopilot))
         elif kind == "COMMAND_ACK":
             self.status.last_ack[int(msg.command)] = int(msg.result)
+        elif kind == "EXTENDED_SYS_STATE":
+            self.status.landed_state = int(msg.landed_state)
         elif kind == "STATUSTEXT":
             self.status.texts.append(str(msg.text))
             del self.status.texts[:-50]

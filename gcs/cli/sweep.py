@@ -25,6 +25,10 @@ factors (--vary NAME=V1,V2,...):
   mass_spread          how the vehicles' masses differ (relative, 1 sigma; 0.05: 5 %)
   thrust_spread        how the vehicles' rotor thrust differs (relative, 1 sigma)
   loss                 packet loss on every link, from the start (0..0.99)
+  gnss_bias_m          the vehicles' wandering GNSS position bias, m (1 sigma)
+  position_noise_m     white noise on the vehicles' position estimates, m
+  estimate_latency_s   how late the vehicles' state estimates are, s
+  estimate_rate_hz     how often the state estimates are refreshed, Hz (0: every tick)
 
 Each flight is `swarm simulate`'s, into OUT/<factors>_seed=<k>/ (no plots); OUT gets sweep.json
 (a row per flight: its factors, seed and figures), sweep.md (a table per factor) and a plot per

@@ -83,9 +83,12 @@ class AutopilotLink:
         the last HEARTBEAT said (the autopilot now), ``altitude_m`` (m, up) as reported."""
         ap = self.world.autopilot
         armed, mode = ap.armed.tolist(), ap.mode.tolist()
-        view = _new_vehicle_view  # (armed, in_offboard, in_land, in_hold, altitude_m)
+        # the land detector's word, as the simulator sends it each tick where the state estimates
+        # are not the truth (EXTENDED_SYS_STATE), else none: the altitude decides
+        landed = ap.landed.tolist() if self.world.estimator is not None else [None] * len(armed)
+        view = _new_vehicle_view  # (armed, in_offboard, in_land, in_hold, altitude_m, on_ground)
         return [
-            view(armed[i], mode[i] == _OFFBOARD, mode[i] == _LAND, mode[i] == _HOLD, up)
+            view(armed[i], mode[i] == _OFFBOARD, mode[i] == _LAND, mode[i] == _HOLD, up, landed[i])
             for i, up in zip(drones, altitude_m, strict=True)
         ]
 

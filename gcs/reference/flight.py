@@ -45,7 +45,7 @@ from sitl_sim.physics.attitude_control import euler_from_quat_batch, yaw_from_qu
 from sitl_sim.physics.dynamics import POS, QUAT, RATES, VEL, wrench_from_rotor_speeds
 from sitl_sim.sim_config import crash_timeline
 from sitl_sim.vehicle.autopilot import VehicleEvent
-from sitl_sim.vehicle.config import air, attitude_gains, vehicle_params, vehicle_scales
+from sitl_sim.vehicle.config import air, attitude_gains, sensors, vehicle_params, vehicle_scales
 from sitl_sim.vehicle.tunables import FleetAttitudeGains
 from sitl_sim.vehicle.world import World, WorldConfig
 
@@ -54,8 +54,8 @@ AIRBORNE_ALTITUDE_M = 0.1
 
 def world_of(scenario: Scenario) -> World:
     """The vehicles of ``scenario`` as ``swarm sim --scenario`` builds them for ``swarm up``
-    (sitl_sim/launch.py: its rates, vehicle, gains, start, crashes, home, air and the
-    vehicles' spread; PX4's
+    (sitl_sim/launch.py: its rates, vehicle, gains, start, crashes, home, air, the
+    vehicles' spread and their sensors; PX4's
     autopilot with its default tunables; no telemetry noise)."""
     crashes = [f for f in scenario.faults if isinstance(f, Crash)]
     config = WorldConfig(
@@ -66,6 +66,8 @@ def world_of(scenario: Scenario) -> World:
         air=air(scenario),
         air_seed=scenario.seed,
         vehicle_scales=vehicle_scales(scenario),
+        sensors=sensors(scenario),
+        sensors_seed=scenario.seed,
     )
     yaw = np.radians([d.yaw_deg for d in scenario.drones])
     gains = FleetAttitudeGains(attitude_gains(scenario), scenario.n_drones)
@@ -98,6 +100,9 @@ class _Recorder:
         self.airborne = np.zeros((n_ticks, n), dtype=bool)
         self.armed = np.zeros((n_ticks, n), dtype=bool)
         self.neighbours = np.zeros((n_ticks, n), dtype=int)
+        #: where the state estimates are not the truth: what each vehicle reported (position,
+        #: velocity, (roll, pitch, yaw)), (n_ticks, n, 3) each
+        self.reported: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         #: every ``links_every`` ticks (0: never), the neighbours each live agent integrated
         self.links_every = links_every
         self.neighbour_ids: dict[int, dict[int, tuple[int, ...]]] = {}
@@ -214,6 +219,8 @@ class ReferenceFlight:
             armed=rec.armed,
             body_rates_rad_s=rec.rates,
             neighbour_ids=rec.neighbour_ids,
+            reported=rec.reported,
+            quat_wxyz=None if rec.reported is None else rec.quat.transpose(0, 2, 1).copy(),
         )
 
     def run_until_takeoff(self, limit_s: float) -> float | None:
@@ -277,8 +284,13 @@ class ReferenceFlight:
 
     def _control_tick(self, k: int, rec: _Recorder) -> None:
         state = self.world.state
-        # what each agent reads of its vehicle, as a swarm agent reads it (the telemetry's float32)
-        pos, vel = reported(state[POS].T), reported(state[VEL].T)
+        # what each agent reads of its vehicle, as a swarm agent reads it (the telemetry's float32):
+        # its autopilot's state estimate (the true state with ideal sensors)
+        estimate = self.world.estimate()
+        if estimate is None:
+            pos, vel = reported(state[POS].T), reported(state[VEL].T)
+        else:
+            pos, vel = reported(estimate[0].T), reported(estimate[1].T)
         live, rows, now_live = self._live()
         # the membership view of tick k: the agents that finished round k - 1, as the lockstep
         # round gate of every swarm agent has it (drone_agent/process/round_gate.py: an agent that
@@ -341,7 +353,9 @@ class ReferenceFlight:
         phases, separating, modes = self.phases, self.separating, self.agent_modes
         committed = [phases[i].committed for i in live]
         ready_all = self._ready(live, cols, members, committed)
-        yaw = reported(yaw_from_quat_batch(state[QUAT])).tolist()
+        estimate = self.world.estimate()
+        true_yaw = yaw_from_quat_batch(state[QUAT]) if estimate is None else estimate[2][2]
+        yaw = reported(true_yaw).tolist()
         altitude = (-pos[live, 2]).tolist()
         views = self.link.views(live, altitude)
         request = self.link.request
@@ -404,6 +418,16 @@ class ReferenceFlight:
         rec.quat[k] = state[QUAT]
         rec.rates[k] = state[RATES].T
         rec.rotor_speed[k] = self.world.rotor_speed_rad_s
+        estimate = self.world.estimate()
+        if estimate is not None:  # what the vehicles' telemetry said, beside the truth
+            if rec.reported is None:
+                rec.reported = (
+                    np.zeros_like(rec.pos),
+                    np.zeros_like(rec.vel),
+                    np.zeros_like(rec.pos),
+                )
+            for out, values in zip(rec.reported, estimate, strict=True):
+                out[k] = values.T
         rec.member[k] = self.member
         rec.airborne[k] = -state[POS][2] > AIRBORNE_ALTITUDE_M
         rec.armed[k] = self.world.autopilot.armed

@@ -131,6 +131,7 @@ def _write_tlog(
     hb_stride = max(1, round(1.0 / (t[1] - t[0]))) if t.size > 1 else 1
     rates = record.body_rates_rad_s
     armed = record.armed
+    reported, quat = record.reported, record.quat_wxyz
     pending = sorted(events, key=lambda e: e.t_s)
     with TlogWriter(path) as log:
         for k in range(0, t.size):
@@ -157,14 +158,22 @@ def _write_tlog(
                     log.write_heartbeat(float(t[k]), i + 1, is_armed, state)
                 if k % stride == 0:
                     body = rates[k, i] if rates is not None else np.zeros(3)
+                    if reported is None:
+                        pos, vel, euler = (
+                            record.position_ned_m,
+                            record.velocity_ned_m_s,
+                            record.euler_rad,
+                        )
+                    else:  # what the vehicle reported, then its true state (as the simulator sends)
+                        pos, vel, euler = reported
                     log.write_vehicle_sample(
-                        float(t[k]),
-                        i + 1,
-                        record.position_ned_m[k, i],
-                        record.velocity_ned_m_s[k, i],
-                        record.euler_rad[k, i],
-                        body,
+                        float(t[k]), i + 1, pos[k, i], vel[k, i], euler[k, i], body
                     )
+                    if reported is not None and quat is not None:
+                        log.write_truth(
+                            float(t[k]), i + 1, record.position_ned_m[k, i],
+                            record.velocity_ned_m_s[k, i], quat[k, i], body,
+                        )  # fmt: skip
                 if k % status_every == 0 and np.all(np.isfinite(record.estimate[k, i])):
                     on = float(armed[k, i]) if armed is not None else 1.0
                     values = [*record.estimate[k, i], record.neighbours[k, i], np.nan, on]

@@ -63,6 +63,10 @@ def _fleet(scenario: Scenario, **changes: Any) -> Scenario:
     return dataclasses.replace(scenario, vehicles=dataclasses.replace(scenario.vehicles, **changes))
 
 
+def _sensors(scenario: Scenario, **changes: Any) -> Scenario:
+    return dataclasses.replace(scenario, sensors=dataclasses.replace(scenario.sensors, **changes))
+
+
 def _loss(scenario: Scenario, probability: float) -> Scenario:
     if probability == 0.0:
         return scenario
@@ -104,6 +108,14 @@ FACTORS: dict[str, Factor] = {
                lambda s, v: _fleet(s, thrust_spread=v), (0.0, 0.3)),
         Factor("loss", "", "packet loss on every link, from the start",
                _loss, (0.0, 0.99)),
+        Factor("gnss_bias_m", "m", "the vehicles' wandering GNSS position bias (1 sigma)",
+               lambda s, v: _sensors(s, gnss_bias_m=v), (0.0, 20.0)),
+        Factor("position_noise_m", "m", "white noise on the vehicles' position estimates",
+               lambda s, v: _sensors(s, position_noise_m=v), (0.0, 10.0)),
+        Factor("estimate_latency_s", "s", "how late the vehicles' state estimates are",
+               lambda s, v: _sensors(s, latency_s=v), (0.0, 1.0)),
+        Factor("estimate_rate_hz", "Hz", "how often the state estimates are refreshed "
+               "(0: every control tick)", lambda s, v: _sensors(s, rate_hz=v), (0.0, 1000.0)),
     )
 }  # fmt: skip
 

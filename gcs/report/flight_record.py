@@ -48,6 +48,9 @@ class FlightRecord:
     - ``neighbour_ids``: sample index k -> {drone: the neighbours whose messages its agent
       integrated at k}, only at the samples where they were kept (``swarm simulate``: those of
       its status stride; empty when not kept), for live agents.
+    - ``reported``: where the vehicles' state estimates are not the truth (a scenario's
+      [sensors]), what their telemetry reported: position, velocity and (roll, pitch, yaw),
+      (T, N, 3) each (None: the truth above); ``quat_wxyz`` (T, N, 4) then the true attitude.
     """
 
     t_s: FloatArray
@@ -67,6 +70,8 @@ class FlightRecord:
     body_rates_rad_s: FloatArray | None = None
     returns: list[tuple[int, float, float]] = field(default_factory=list)
     neighbour_ids: dict[int, dict[int, tuple[int, ...]]] = field(default_factory=dict)
+    reported: tuple[FloatArray, FloatArray, FloatArray] | None = None
+    quat_wxyz: FloatArray | None = None
 
     @property
     def n_drones(self) -> int:

@@ -172,10 +172,17 @@ def takeoff_lines(scenario: Scenario, ready_s: float | None, limit_s: float) -> 
     plan = scenario.trajectory()
     hold = departure_s(plan, plan.start_s)
     if ready_s is None:
+        s = scenario.sensors
+        noisy = s.position_noise_m > 0.0 or s.velocity_noise_m_s > 0.0 or s.gnss_bias_m > 0.0
+        why = (
+            "[sensors] error, radio graph, consensus gains: the agents leave together once "
+            "their estimates agree to 2 %, which noise on the vehicles' positions keeps them from"
+            if noisy
+            else "radio graph, consensus gains"
+        )
         return [
             f"take-off   WARNING: the swarm was not ready to leave the ground within "
-            f"{limit_s:g} s (measured in process): its estimates do not settle (radio graph, "
-            "consensus gains)"
+            f"{limit_s:g} s (measured in process): its estimates do not settle ({why})"
         ]
     lines = [
         f"take-off   the swarm is ready to leave the ground at t = {ready_s:.2f} s (measured "

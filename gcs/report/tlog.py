@@ -24,6 +24,12 @@ their position from GLOBAL_POSITION_INT about the swarm frame's origin (the GPS_
 ground station, system 255, wrote at the start; the default home without one), and the time of
 their positions and attitudes from the record timestamps (the swarm's clock, on which the ground
 station stamped them: gcs/station/telemetry.py).
+
+Where the vehicles' state estimates are not the truth (a scenario's [sensors]), their
+LOCAL_POSITION_NED and ATTITUDE carry what each believes, and the simulator also sends its true
+state as ODOMETRY (estimator type MOCAP; ``time_usec``): the reader then gives the truth as the
+track (``position_ned_m``, ``euler_rad``...) and what the vehicle reported beside it
+(``reported_t_s``, ``reported_position_ned_m``).
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ import os
 
 os.environ["MAVLINK20"] = "1"  # before any pymavlink import (DEPENDENCIES.md)
 
+import dataclasses
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -54,7 +61,7 @@ from protocols.mavlink.conventions import (
     MAV_AUTOPILOT_ARDUPILOTMEGA,
 )
 from protocols.mavlink.fast import pack, parse
-from protocols.model.frames import FloatArray
+from protocols.model.frames import FloatArray, zyx_from_quat_batch
 from protocols.model.geodesy import GeoPoint, ned_of_global_int
 
 _TS = struct.Struct(">Q")
@@ -148,6 +155,30 @@ class TlogWriter:
         self.write_packet(t_s, pack(mav.local_position_ned_encode(ms, x, y, z, vx, vy, vz), mav))
         self.write_packet(t_s, pack(mav.attitude_encode(ms, roll, pitch, yaw, p, q, r), mav))
 
+    def write_truth(
+        self,
+        t_s: float,
+        sysid: int,
+        position_ned_m: FloatArray,
+        velocity_ned_m_s: FloatArray,
+        quat_wxyz: FloatArray,
+        body_rates_rad_s: FloatArray,
+    ) -> None:
+        """The vehicle's true state at simulated ``t_s`` as the simulator sends it where the
+        state estimates are not the truth: ODOMETRY in the world NED frame, estimator type MOCAP
+        (sitl_sim/mavlink_edge/messages.py ``truth_odometry``)."""
+        x, y, z = (float(v) for v in position_ned_m)
+        vx, vy, vz = (float(v) for v in velocity_ned_m_s)
+        p, q, r = (float(v) for v in body_rates_rad_s)
+        mav = self.codec(sysid)
+        nan = [float("nan")] * 21
+        msg = mav.odometry_encode(
+            round(t_s * 1e6), common.MAV_FRAME_LOCAL_NED, common.MAV_FRAME_LOCAL_NED,
+            x, y, z, [float(v) for v in quat_wxyz], vx, vy, vz, p, q, r, nan, nan,
+            0, common.MAV_ESTIMATOR_TYPE_MOCAP,
+        )  # fmt: skip
+        self.write_packet(t_s, pack(msg, mav))
+
     def write_agent_status(
         self,
         t_s: float,
@@ -233,6 +264,9 @@ class VehicleTrack:
       armed flag; ``custom_mode`` (H,) its PX4 custom mode (protocols/mavlink/conventions.py).
     - ``named`` : NAMED_VALUE_FLOAT name -> (K, 2) rows of (time_boot_ms / 1000 s, value), e.g.
       the simulator's ``agt_intime`` and ``agt_lag_ms`` (sitl_sim/mavlink_edge/messages.py).
+    - Where the log holds the vehicle's true state (ODOMETRY, module doc), the position,
+      velocity, attitude and body rates above are the truth, and ``reported_t_s`` (R,),
+      ``reported_position_ned_m`` (R, 3) what the vehicle reported (its state estimate).
     Samples are sorted by time.
     """
 
@@ -256,6 +290,10 @@ class VehicleTrack:
     armed: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
     custom_mode: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     named: dict[str, FloatArray] = field(default_factory=dict)
+    #: where the log holds the true state (ODOMETRY): the positions the vehicle reported
+    #: (LOCAL_POSITION_NED, its state estimate) at their times; empty otherwise
+    reported_t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
+    reported_position_ned_m: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
 
     def neighbour_ids(self, k: int) -> tuple[int, ...] | None:
         """The neighbours status ``k`` says its agent integrated; None where the layout carries
@@ -320,14 +358,17 @@ def read_tlog(path: str | Path, epoch_offset_s: float = 0.0) -> TlogTrack:
 
 
 def vehicle_samples(path: str | Path) -> dict[tuple[str, int, int], tuple[float, ...]]:
-    """Every vehicle's LOCAL_POSITION_NED and ATTITUDE samples of a tlog, field by field:
-    ``(message type, system id, time_boot_ms)`` -> the message's other fields, as logged (the
-    first sample of a key if it was logged twice). Two lockstep runs of one scenario and seed
-    give equal dictionaries (the records' wall stamps are left out)."""
+    """Every vehicle's LOCAL_POSITION_NED and ATTITUDE samples of a tlog, and its true state
+    (ODOMETRY, where the log has it: module doc), field by field: ``(message type, system id,
+    time ms)`` -> the message's other fields, as logged (the first sample of a key if it was
+    logged twice). Two lockstep runs of one scenario and seed give equal dictionaries (the
+    records' wall stamps are left out)."""
     reader = TlogReader()
     reader.feed(Path(path).read_bytes())
     out: dict[tuple[str, int, int], tuple[float, ...]] = {}
-    for name, table in (("LOCAL_POSITION_NED", reader._pos), ("ATTITUDE", reader._att)):
+    tables = (("LOCAL_POSITION_NED", reader._pos), ("ATTITUDE", reader._att),
+              ("ODOMETRY", reader._truth))  # fmt: skip
+    for name, table in tables:
         for sysid, rows in table.items():
             for row in rows:
                 out.setdefault((name, sysid, int(row[0])), tuple(row[1:]))
@@ -349,6 +390,8 @@ class TlogReader:
         self._ardupilot: set[int] = set()
         self.origin: GeoPoint | None = None
         self._att: dict[int, list[tuple[float, ...]]] = {}
+        #: the true state (ODOMETRY): (ms, x, y, z, vx, vy, vz, w, qx, qy, qz, p, q, r)
+        self._truth: dict[int, list[tuple[float, ...]]] = {}
         self._act: dict[int, list[tuple[float, ...]]] = {}
         self._agent: dict[int, list[tuple[float, ...]]] = {}
         self._beats: dict[int, list[tuple[float, ...]]] = {}
@@ -395,6 +438,10 @@ class TlogReader:
                 (msg.time_boot_ms, msg.roll, msg.pitch, msg.yaw, *rates)
             )
             self._att_rec.setdefault(sysid, []).append(t_rec * 1000.0)
+        elif mtype == "ODOMETRY" and msg.estimator_type == common.MAV_ESTIMATOR_TYPE_MOCAP:
+            row = (msg.time_usec / 1000.0, msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz, *msg.q,
+                   msg.rollspeed, msg.pitchspeed, msg.yawspeed)  # fmt: skip
+            self._truth.setdefault(sysid, []).append(row)
         elif mtype == "GLOBAL_POSITION_INT":
             row = (t_rec * 1000.0, msg.lat, msg.lon, msg.alt,
                    msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)  # fmt: skip
@@ -440,6 +487,9 @@ class TlogReader:
             )
             for s in sorted(set(pos) | set(att) | set(act) | set(agent))
         }
+        for s, rows in self._truth.items():
+            if s in vehicles:
+                vehicles[s] = _with_truth(vehicles[s], _by_time(rows, 14))
         for s, values in self._named.items():
             if s in vehicles:
                 vehicles[s].named = {
@@ -524,6 +574,24 @@ def _track(
         heartbeat_t_s=hb[:, 0] / 1000.0,
         armed=hb[:, 1] > 0.5,
         custom_mode=hb[:, 2].astype(np.int64),
+    )
+
+
+def _with_truth(track: VehicleTrack, truth: FloatArray) -> VehicleTrack:
+    """``track`` with its position, velocity and attitude taken from the true-state rows
+    ``truth`` (ms, x, y, z, vx, vy, vz, w, qx, qy, qz, p, q, r), what it reported kept beside."""
+    yaw, pitch, roll = zyx_from_quat_batch(np.ascontiguousarray(truth[:, 7:11].T))
+    t = truth[:, 0] / 1000.0
+    return dataclasses.replace(
+        track,
+        t_s=t,
+        position_ned_m=truth[:, 1:4],
+        velocity_ned_m_s=truth[:, 4:7],
+        attitude_t_s=t,
+        euler_rad=np.column_stack([roll, pitch, yaw]),
+        body_rates_rad_s=truth[:, 11:14],
+        reported_t_s=track.t_s,
+        reported_position_ned_m=track.position_ned_m,
     )
 
 

@@ -92,6 +92,25 @@ class FleetConfig:
 
 
 @dataclass(frozen=True)
+class SensorsConfig:
+    """[sensors]: what each vehicle's autopilot believes about itself, as a GNSS + EKF reports it
+    (sitl_sim/vehicle/estimate.py): ``gnss_bias_m`` the standard deviation (m) of a position bias
+    that wanders with correlation time ``gnss_bias_tau_s`` (s); white noise on position (m),
+    velocity (m/s) and attitude (rad); the estimate's output rate ``rate_hz`` (0: every control
+    tick) and its latency ``latency_s``. Drawn from the scenario's seed, each vehicle its own.
+    The agents see only the estimate (the vehicles' telemetry); the report is of the truth.
+    Default: ideal sensors, the estimate is the truth."""
+
+    gnss_bias_m: float = 0.0
+    gnss_bias_tau_s: float = 300.0
+    position_noise_m: float = 0.0
+    velocity_noise_m_s: float = 0.0
+    attitude_noise_rad: float = 0.0
+    rate_hz: float = 0.0
+    latency_s: float = 0.0
+
+
+@dataclass(frozen=True)
 class EnvironmentConfig:
     """[environment]: the air the swarm flies in. ``wind_ned_m_s``: the mean wind (m/s, NED: the
     velocity the air moves with; a wind from the west is ``[0, w, 0]``); ``turbulence_m_s``: the
@@ -289,6 +308,8 @@ class Scenario:
     environment: EnvironmentConfig = field(default_factory=EnvironmentConfig)
     #: [vehicles]: how the vehicles differ (default: all alike)
     vehicles: FleetConfig = field(default_factory=FleetConfig)
+    #: [sensors]: the vehicles' state estimates (default: the truth)
+    sensors: SensorsConfig = field(default_factory=SensorsConfig)
 
     @property
     def n_drones(self) -> int:
@@ -338,7 +359,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
     top.allow(
         ("version", "name", "duration_s", "seed", "settle_s", "vehicle", "rates", "gains",
          "consensus", "comms", "safety", "drones", "trajectory", "faults", "home", "agent",
-         "environment", "vehicles")
+         "environment", "vehicles", "sensors")
     )  # fmt: skip
     drones = _drones(top)
     waypoints = _waypoints(top.table("trajectory", ("waypoints",)))
@@ -375,6 +396,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         agent=_agent(top.table("agent", ("controller", "path", "options"))),
         environment=environment,
         vehicles=top.table("vehicles").section(FleetConfig, _FLEET_BOUNDS),
+        sensors=top.table("sensors").section(SensorsConfig, _SENSORS_BOUNDS),
     )
 
 
@@ -435,6 +457,17 @@ _VEHICLE_BOUNDS: dict[str, dict[str, float]] = {
 _FLEET_BOUNDS: dict[str, dict[str, float]] = {
     "mass_spread": {"ge": 0.0, "le": 0.3},
     "thrust_spread": {"ge": 0.0, "le": 0.3},
+}
+#: [sensors]: up to what a poor GNSS gives (tens of metres of bias are no formation's), a rate of
+#: at least 1 Hz when given, at most a second of latency
+_SENSORS_BOUNDS: dict[str, dict[str, float]] = {
+    "gnss_bias_m": {"ge": 0.0, "le": 20.0},
+    "gnss_bias_tau_s": {"gt": 0.0, "le": 1e5},
+    "position_noise_m": {"ge": 0.0, "le": 10.0},
+    "velocity_noise_m_s": {"ge": 0.0, "le": 5.0},
+    "attitude_noise_rad": {"ge": 0.0, "le": 0.5},
+    "rate_hz": {"ge": 0.0, "le": 1000.0},
+    "latency_s": {"ge": 0.0, "le": 1.0},
 }
 _ENVIRONMENT_BOUNDS: dict[str, dict[str, float]] = {
     "turbulence_m_s": {"ge": 0.0, "le": 10.0},

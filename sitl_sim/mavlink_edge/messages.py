@@ -47,6 +47,7 @@ from protocols.mavlink.conventions import (
     SYS_STATUS_PREARM_CHECK,
 )
 from protocols.model.frames import FloatArray, wxyz_from_zyx
+from sitl_sim.physics.dynamics import POS, QUAT, RATES, VEL
 from sitl_sim.vehicle.autopilot import Autopilot, Mode
 from sitl_sim.vehicle.battery import Battery
 from sitl_sim.vehicle.world import Snapshot, World
@@ -186,6 +187,24 @@ def local_position_ned(snap: Snapshot, i: int) -> Any:
     x, y, z = snap.position_ned_m[i]
     vx, vy, vz = snap.velocity_ned_m_s[i]
     return mavlink.MAVLink_local_position_ned_message(snap.time_boot_ms, x, y, z, vx, vy, vz)
+
+
+_NO_COVARIANCE = [float("nan")] * 21
+
+
+def truth_odometry(world: World, i: int) -> Any:
+    """ODOMETRY with vehicle ``i``'s true state (the simulator's, not its autopilot's estimate):
+    position and velocity in the world NED frame, attitude quaternion (w, x, y, z), body rates;
+    estimator type MOCAP (what a motion-capture system, a lab's ground truth, would measure)."""
+    s = world.state
+    x, y, z = s[POS, i].tolist()
+    vx, vy, vz = s[VEL, i].tolist()
+    p, q, r = s[RATES, i].tolist()
+    return mavlink.MAVLink_odometry_message(
+        time_usec(world), mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_NED,
+        x, y, z, s[QUAT, i].tolist(), vx, vy, vz, p, q, r, _NO_COVARIANCE, _NO_COVARIANCE,
+        0, mavlink.MAV_ESTIMATOR_TYPE_MOCAP,
+    )  # fmt: skip
 
 
 def attitude_target(world: World, i: int) -> Any:

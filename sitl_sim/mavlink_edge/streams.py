@@ -40,6 +40,9 @@ EKF_STATUS_REPORT = 193
 HOME_POSITION = 242
 EXTENDED_SYS_STATE = 245
 ACTUATOR_OUTPUT_STATUS = 375
+#: the vehicle's true state (ODOMETRY, estimator type MOCAP: what a motion-capture system would
+#: measure), to the GCS only and only when the state estimates are not the truth ([sensors])
+ODOMETRY = 331
 
 #: Default rates (Hz) on an agent link (onboard computer) and to the ground station.
 AGENT_RATES_HZ: Mapping[int, float] = {
@@ -53,6 +56,7 @@ AGENT_RATES_HZ: Mapping[int, float] = {
     GPS_RAW_INT: 0.0,
     HOME_POSITION: 0.0,
     EXTENDED_SYS_STATE: 0.0,
+    ODOMETRY: 0.0,
 }
 GCS_RATES_HZ: Mapping[int, float] = {
     HEARTBEAT: 1.0,
@@ -65,6 +69,7 @@ GCS_RATES_HZ: Mapping[int, float] = {
     GPS_RAW_INT: 1.0,
     HOME_POSITION: 1.0,
     EXTENDED_SYS_STATE: 1.0,
+    ODOMETRY: 0.0,
 }
 #: Where in its interval (a fraction) a message is first due; the others start at tick 0.
 PHASE: Mapping[int, float] = {

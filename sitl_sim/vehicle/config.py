@@ -1,7 +1,10 @@
-"""Vehicle parameters, inner-loop gains, the air and how the vehicles differ, from a scenario's
-[vehicle], [gains], [environment] and [vehicles] sections."""
+"""Vehicle parameters, inner-loop gains, the air, how the vehicles differ and what their state
+estimates get wrong, from a scenario's [vehicle], [gains], [environment], [vehicles] and [sensors]
+sections."""
 
 from __future__ import annotations
+
+import dataclasses
 
 from protocols.model.frames import G_M_S2
 from protocols.scenario.scenario_file import Scenario
@@ -9,6 +12,7 @@ from sitl_sim.physics.attitude_control import AttitudeGains
 from sitl_sim.physics.vehicle_params import VehicleParams
 from sitl_sim.physics.vehicle_params import vehicle_scales as draw_scales
 from sitl_sim.physics.wind import Air
+from sitl_sim.vehicle.estimate import Sensors
 
 
 def vehicle_params(scenario: Scenario) -> VehicleParams:
@@ -40,6 +44,11 @@ def air(scenario: Scenario) -> Air:
     """The wind and turbulence the vehicles fly in."""
     e = scenario.environment
     return Air(e.wind_ned_m_s, e.turbulence_m_s, e.turbulence_scale_m).validate()
+
+
+def sensors(scenario: Scenario) -> Sensors:
+    """What the vehicles' state estimates get wrong (the default: nothing)."""
+    return Sensors(**dataclasses.asdict(scenario.sensors)).validate()  # the section's fields
 
 
 def vehicle_scales(scenario: Scenario) -> tuple[tuple[float, float], ...]:

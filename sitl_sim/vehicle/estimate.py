@@ -38,17 +38,19 @@ At tick ``k`` (order of operations) the truth goes into the buffer, the truth of
 otherwise it stays the last one. The default :class:`Sensors` is the ideal sensor: the estimate
 is the truth itself and nothing is drawn.
 
-Every draw comes from one generator seeded by ``(seed, _SALT)`` (the salt keeps it apart from the
-scenario's other random draws), in a fixed order — at each tick the bias's draw then the three
-noises', refresh tick or not, whichever terms are zero — so the draws depend only on the seed, the
-number of vehicles and the tick sequence, never on the state: one seed flies the same errors bit
-for bit, and turning one error term on or off leaves the others' draws as they were. No clock, no
-I/O: the caller gives the tick and the truth.
+Each vehicle's draws come from a generator of its own, seeded by ``(seed, _SALT, its index in the
+swarm)`` (the salt keeps them apart from the scenario's other random draws; the index makes a
+simulator shard's vehicle err as in the whole swarm's world), in a fixed order — at each tick the
+bias's draw then the three noises', refresh tick or not, whichever terms are zero — so the draws
+depend only on the seed, the vehicle and the tick sequence, never on the state: one seed flies
+the same errors bit for bit, and turning one error term on or off leaves the others' draws as
+they were. No clock, no I/O: the caller gives the tick and the truth.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -110,9 +112,19 @@ class Sensors:
 
 class StateEstimate:
     """The state estimate of ``n`` vehicles with the errors of ``config``, updated once a tick of
-    a ``control_hz`` control loop, its errors drawn from ``seed``."""
+    a ``control_hz`` control loop, its errors drawn from ``seed``. Each vehicle draws from a
+    stream of its own, named by its index in the swarm (``ids``; default ``0..n-1``), so that a
+    simulator shard flying some of the vehicles gives each the errors the whole swarm's world
+    gives it."""
 
-    def __init__(self, config: Sensors, n: int, control_hz: int, seed: int) -> None:
+    def __init__(
+        self,
+        config: Sensors,
+        n: int,
+        control_hz: int,
+        seed: int,
+        ids: Sequence[int] | None = None,
+    ) -> None:
         self.config = config.validate()
         if n < 1:
             raise ValueError(f"n must be >= 1 vehicle, not {n}")
@@ -129,7 +141,11 @@ class StateEstimate:
         )
         #: the estimate describes the truth of this many ticks ago
         self.latency_ticks = round(config.latency_s * control_hz)
-        self._rng = np.random.default_rng(np.random.SeedSequence([seed & _SEED_MASK, _SALT]))
+        ids = list(range(n)) if ids is None else [int(i) for i in ids]
+        if len(ids) != n or any(i < 0 for i in ids):
+            raise ValueError(f"ids must be {n} vehicle indices >= 0, not {ids!r}")
+        key = seed & _SEED_MASK
+        self._rngs = [np.random.default_rng(np.random.SeedSequence([key, _SALT, i])) for i in ids]
         self._next_tick = 0
         self._bias: FloatArray = np.zeros((3, n))
         # the last L + 1 truths, (position, velocity, attitude) stacked: (L + 1, 9, N)
@@ -183,7 +199,7 @@ class StateEstimate:
         self._history[tick % slots] = truth
         delayed = self._history[max(tick - self.latency_ticks, 0) % slots]
         # the draws of the tick, always all of them in this order: bias, then the noises
-        w = self._rng.standard_normal((4, 3, n))
+        w = np.stack([rng.standard_normal((4, 3)) for rng in self._rngs], axis=-1)
         if tick == 0:  # the stationary distribution N(0, sigma^2)
             self._bias = self.config.gnss_bias_m * w[0]
         else:

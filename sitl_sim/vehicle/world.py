@@ -24,9 +24,15 @@ EKF is ready ``config.ekf_ready_s`` after start).
 vehicle samples the air's velocity where it is, and its body drag (``VehicleParams``) pulls it
 towards that velocity over the period's physics steps. Still air (the default) is not sampled.
 
+``config.sensors`` is what each vehicle's autopilot believes about itself
+(:mod:`sitl_sim.vehicle.estimate`: a GNSS + EKF's wandering bias, noise, output rate and latency):
+:meth:`World.estimate` is what its telemetry reports and its agent sees, the state stays the truth
+(the physics, the autopilot's own touchdown and failsafe logic, the report).
+
 Time is the control tick ``k``: ``t_s = k / control_hz``. The only randomness is the optional
 position noise of the telemetry, drawn from the injected generator every tick for all vehicles,
-and the turbulence, drawn once from ``config.air_seed``, so a seed fixes a run.
+the turbulence, drawn once from ``config.air_seed``, and the state estimates' errors, drawn from
+``config.sensors_seed``, so a seed fixes a run.
 """
 
 from __future__ import annotations
@@ -47,6 +53,7 @@ from sitl_sim.physics.wind import Air, WindField
 from sitl_sim.vehicle.autopilot import Autopilot, AutopilotConfig, VehicleEvent
 from sitl_sim.vehicle.battery import Battery, BatteryConfig
 from sitl_sim.vehicle.copter import CopterAutopilot, CopterGuidance
+from sitl_sim.vehicle.estimate import Sensors, StateEstimate
 from sitl_sim.vehicle.guidance import Guidance
 from sitl_sim.vehicle.tunables import FleetAttitudeGains
 
@@ -78,6 +85,12 @@ class WorldConfig:
     #: each vehicle's (mass, thrust) factors (sitl_sim/physics/vehicle_params.py,
     #: ``vehicle_scales``); empty: every vehicle is the nominal one
     vehicle_scales: tuple[tuple[float, float], ...] = ()
+    #: what the vehicles' state estimates get wrong (sitl_sim/vehicle/estimate.py; the default:
+    #: nothing), drawn from ``sensors_seed``, each vehicle from its own stream named by its index
+    #: in the swarm: ``first_vehicle`` is this world's vehicle 0's (a simulator shard's first)
+    sensors: Sensors = field(default_factory=Sensors)
+    sensors_seed: int = 0
+    first_vehicle: int = 0
 
     def validate(self) -> WorldConfig:
         """Raise ValueError naming the field unless the rates and noise are usable."""
@@ -94,6 +107,9 @@ class WorldConfig:
         if not (math.isfinite(self.ekf_ready_s) and self.ekf_ready_s >= 0.0):
             raise ValueError("ekf_ready_s must be finite and >= 0")
         self.air.validate()
+        self.sensors.validate()
+        if self.first_vehicle < 0:
+            raise ValueError("first_vehicle must be >= 0")
         return self
 
 
@@ -156,6 +172,20 @@ class World:
         #: the air the vehicles fly in (None: still air), sampled where each one is every period
         self.wind = None if config.air.calm else WindField(config.air, config.air_seed)
         self.battery = Battery(self.n, config.battery)
+        #: what each vehicle's autopilot believes about itself (None: the truth, ideal sensors)
+        self.estimator = (
+            None
+            if config.sensors.ideal
+            else StateEstimate(
+                config.sensors,
+                self.n,
+                config.control_hz,
+                config.sensors_seed,
+                range(config.first_vehicle, config.first_vehicle + self.n),
+            )
+        )
+        self._estimate: tuple[FloatArray, FloatArray, FloatArray] | None = None
+        self._estimate_now()
         self._crashes = sorted(config.crashes)
         self.pending_events: list[VehicleEvent] = self.autopilot.update(
             0.0, self.state[2], np.zeros(self.n)
@@ -206,19 +236,40 @@ class World:
         while self._crashes and self._crashes[0][0] <= self.t_s + 1e-9:
             _, vehicle = self._crashes.pop(0)
             events += ap.motor_failure(vehicle, None, off=True)
+        self._estimate_now()
         return events
 
+    def _estimate_now(self) -> None:
+        """The vehicles' state estimate of the current tick (once a tick, in tick order)."""
+        if self.estimator is not None:
+            state = self.state
+            self._estimate = self.estimator.update(
+                self.tick, state[POS], state[VEL], euler_from_quat_batch(state[QUAT])
+            )
+
+    def estimate(self) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+        """What the vehicles' autopilots believe at the current tick: position (3, N) NED m,
+        velocity (3, N) NED m/s and (roll, pitch, yaw) (3, N) rad, as their telemetry reports it;
+        None when their sensors are ideal (the estimate is the true state)."""
+        return self._estimate
+
     def snapshot(self) -> Snapshot:
-        """Telemetry of the current tick (draws the position noise, if any)."""
-        pos = self.state[POS]
+        """Telemetry of the current tick: the vehicles' state estimates (their true state with
+        ideal sensors), plus the position noise of ``config.position_noise_m`` (drawn here)."""
+        estimate = self._estimate
+        if estimate is None:
+            pos, vel = self.state[POS], self.state[VEL]
+            euler = euler_from_quat_batch(self.state[QUAT])
+        else:
+            pos, vel, euler = estimate
         if self.config.position_noise_m > 0.0:
             pos = pos + self.rng.normal(0.0, self.config.position_noise_m, pos.shape)
         return Snapshot(
             tick=self.tick,
             time_boot_ms=self.time_boot_ms(),
             position_ned_m=pos.T.tolist(),
-            velocity_ned_m_s=self.state[VEL].T.tolist(),
-            euler_rad=euler_from_quat_batch(self.state[QUAT]).T.tolist(),
+            velocity_ned_m_s=vel.T.tolist(),
+            euler_rad=euler.T.tolist(),
             rates_rad_s=self.state[RATES].T.tolist(),
         )
 
