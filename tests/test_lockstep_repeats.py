@@ -10,10 +10,11 @@ round and draw from per-link seeded generators, and an agent's commands go befor
 echo.
 
 Other layouts repeat it too, each against ``swarm simulate``'s flight of its scenario: one agent
-process per drone (tests/test_rejoin_flight.py, until its first drill), five and four agents a
-process on two companion hosts with and without TLS and signing (tests/test_multihost.py), and a
-breezy 3 x 3 grid with a drop-out (tests/test_lockstep_vs_simulate.py). No flight of its own:
-both flights are the session's."""
+process per drone (tests/test_rejoin_flight.py, until its first drill) and a breezy 3 x 3 grid
+with a drop-out and lying sensors (tests/test_lockstep_vs_simulate.py). Across hosts
+(tests/test_multihost.py) the flight is held within 2 mm of it, not bit for bit: on a loaded
+machine it once parted just after the paper's link cuts. No flight of its own: both flights are
+the session's."""
 
 from __future__ import annotations
 

@@ -42,7 +42,7 @@ def test_frozen_factory_makes_the_dataclass_instance() -> None:
     assert made == msg and vars(made) == vars(msg)
     with pytest.raises(dataclasses.FrozenInstanceError):
         made.round = 5  # type: ignore[misc]
-    assert frozen_factory(VehicleView)(True, True, False, False, 2.0) == VehicleView(
+    assert frozen_factory(VehicleView)(True, True, False, False, 2.0, None) == VehicleView(
         True, True, False, False, 2.0
     )
     setpoint = frozen_factory(Setpoint)(0.1, -0.2, 0.3, 0.5, False)
