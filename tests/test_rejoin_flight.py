@@ -200,12 +200,14 @@ def _assert_simulate_flies_it_until_the_first_drill(
     ATTITUDE field by field at each time_boot_ms (tests/test_lockstep_repeats.py: the hosted
     layout, over the paper's whole flight)."""
     sim = tmp_path / "simulated"
+    first_drill_s = min(float(e["t_s"]) for e in events if e["kind"] == "drill")
     done = subprocess.run(
-        swarm_command("simulate", str(scenario), "--report", str(sim), "--no-plots"),
+        swarm_command("simulate", str(scenario), "--report", str(sim), "--no-plots",
+                      "--duration-s", f"{first_drill_s + 1.0:.2f}"),
         capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=300,
     )  # fmt: skip
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-    first_drill_ms = 1000.0 * min(float(e["t_s"]) for e in events if e["kind"] == "drill")
+    first_drill_ms = 1000.0 * first_drill_s
     assert first_drill_ms > 14e3, first_drill_ms  # after the take-off: it flew steady first
     flown, theirs = (
         {k: v for k, v in vehicle_samples(path).items() if k[2] < first_drill_ms - 100}
