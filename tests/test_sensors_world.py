@@ -151,3 +151,14 @@ def test_scenario_check_says_when_the_sensors_keep_the_swarm_on_the_ground(tmp_p
     assert "not ready to leave the ground within 60 s" in line and "[sensors]" in line
     (line,) = takeoff_lines(load_scenario(ROOT / "scenarios" / "tilt9.toml"), None, 60.0)
     assert "[sensors]" not in line
+
+
+def test_an_undefined_landed_state_says_nothing() -> None:
+    from pymavlink.dialects.v20 import common
+
+    from drone_agent.process.vehicle_link import VehicleStatus
+
+    assert VehicleStatus().on_ground is None
+    assert VehicleStatus(landed_state=common.MAV_LANDED_STATE_UNDEFINED).on_ground is None
+    assert VehicleStatus(landed_state=common.MAV_LANDED_STATE_ON_GROUND).on_ground is True
+    assert VehicleStatus(landed_state=common.MAV_LANDED_STATE_IN_AIR).on_ground is False

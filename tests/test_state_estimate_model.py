@@ -56,17 +56,18 @@ def test_the_ideal_sensor_returns_the_truth_itself() -> None:
     assert not model.bias_m.any()
 
 
-@pytest.mark.parametrize(
-    "field",
-    [
-        "gnss_bias_m",
-        "position_noise_m",
-        "velocity_noise_m_s",
-        "attitude_noise_rad",
-        "rate_hz",
-        "latency_s",
-    ],
-)
+#: every field of Sensors but the bias's correlation time: an error term, each >= 0
+ERROR_TERMS = [
+    "gnss_bias_m",
+    "position_noise_m",
+    "velocity_noise_m_s",
+    "attitude_noise_rad",
+    "rate_hz",
+    "latency_s",
+]
+
+
+@pytest.mark.parametrize("field", ERROR_TERMS)
 def test_any_error_term_makes_the_sensor_not_ideal(field: str) -> None:
     assert not replace(Sensors(), **{field: 0.1}).ideal
 
@@ -290,14 +291,7 @@ def test_a_negative_seed_is_usable() -> None:
 
 # --- validation ------------------------------------------------------------------------------
 
-NON_NEGATIVE = [
-    "gnss_bias_m",
-    "position_noise_m",
-    "velocity_noise_m_s",
-    "attitude_noise_rad",
-    "rate_hz",
-    "latency_s",
-]
+NON_NEGATIVE = ERROR_TERMS
 
 
 @pytest.mark.parametrize("field", [*NON_NEGATIVE, "gnss_bias_tau_s"])

@@ -89,8 +89,8 @@ class VehicleStatus:
 
     @property
     def on_ground(self) -> bool | None:
-        """What the vehicle's land detector says (None: it said nothing)."""
-        if self.landed_state is None:
+        """What the vehicle's land detector says (None: it said nothing, or UNDEFINED)."""
+        if self.landed_state in (None, common.MAV_LANDED_STATE_UNDEFINED):
             return None
         return self.landed_state == common.MAV_LANDED_STATE_ON_GROUND
 
