@@ -145,9 +145,15 @@ def test_a_dead_simulator_ends_the_run_and_everything_is_stopped(tmp_path: Path)
     reason; no process of the run is left and its ports are free."""
     proc, report, base, gcs_port = _up(tmp_path, duration_s=600.0)
     assert _wait(lambda: _run_started(report), 120.0), "the run never started"
-    sims = [p for p in _processes_mentioning(str(tmp_path)) if _cmdline(p).find(" sim ") > 0]
-    assert len(sims) == 1, [_cmdline(p) for p in _processes_mentioning(str(tmp_path))]
-    os.kill(sims[0], signal.SIGKILL)
+
+    def sims() -> list[int]:
+        return [p for p in _processes_mentioning(str(tmp_path)) if _cmdline(p).find(" sim ") > 0]
+
+    # the ground station may log the start before the simulator's process shows (a loaded machine)
+    assert _wait(lambda: len(sims()) == 1, 60.0), [
+        _cmdline(p) for p in _processes_mentioning(str(tmp_path))
+    ]
+    os.kill(sims()[0], signal.SIGKILL)
     out, _ = proc.communicate(timeout=90)
     text = out.decode(errors="replace")
     assert proc.returncode == 1, text
