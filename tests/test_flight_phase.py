@@ -187,6 +187,73 @@ def test_settling_needs_calm_ticks_with_a_steady_membership() -> None:
     assert not readiness.agrees and readiness.level == 0 and not readiness.ready
 
 
+def _first_calm(config: AgentConfig, trace: np.ndarray, view_changes_at: int = -1) -> int | None:
+    """The first tick at which an agent alone, fed ``trace`` as its disagreement, agrees."""
+    readiness = Readiness(config)
+    members, fewer = frozenset({0, 1, 2}), frozenset({0, 1})
+    for t, d in enumerate(trace.tolist()):
+        readiness.update(_output(d), [], fewer if t >= view_changes_at >= 0 else members, False)
+        if readiness.agrees:
+            return t
+    return None
+
+
+def test_the_plateau_rule_waits_for_the_disagreement_to_stop_falling_not_for_2_percent() -> None:
+    """Sensors that lie keep the disagreement at a floor above 2 % (white noise around 0.15): the
+    2 % rule never passes; the plateau rule passes once the start-up transient (falling by more
+    than the 0.7 ratio a window) has gone and both windows sit on the floor, then settle_ticks
+    calm ticks later. A rise (the first messages, a growing disagreement) does not count, nor a
+    floor reached before a membership change: the windows start again. (A slow drift within the
+    ratio counts: the floor grows and shrinks with the swarm's spread and speed.)"""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(3)
+    window, n = 50, 600
+    floor = 0.15 * (1.0 + 0.3 * rng.standard_normal(n)).clip(0.2)
+    t = np.arange(n)
+    # the estimator's start-up: rises as the first messages arrive, falls, gone by ~ t = 200
+    transient = 2.0 * (1.0 - np.exp(-t / 5.0)) * np.exp(-t / 40.0)
+    trace = floor + transient
+    agree = replace(_config(settle_ticks=25), settle_window_ticks=window)
+    plateau = replace(agree, settle_plateau=True)
+    assert _first_calm(agree, trace) is None
+    first = _first_calm(plateau, trace)
+    assert first is not None
+    # a window's fall below 0.7 ends ~ 40 ln(...) ticks in; two whole windows then 25 calm ticks
+    assert 2 * window + 25 <= first <= 400, first
+    assert transient[first - 25] < 0.5 * 0.15  # the transient was small against the floor
+    growing = 0.15 * np.exp(t / 60.0)  # rising by more than 1 / 0.7 a window: never calm
+    assert _first_calm(plateau, growing) is None
+    # the view changes at 200, just before it would agree: its windows start again there
+    assert first > 200
+    later = _first_calm(plateau, trace, view_changes_at=200)
+    assert later is not None and later >= 200 + 2 * window - 1 + 24, later
+    # ideal sensors: below 2 % passes at once, with or without the plateau rule (same tick)
+    calm = np.full(100, 0.001)
+    assert _first_calm(agree, calm) == _first_calm(plateau, calm) == 25  # 1st sets members
+
+
+def test_the_plateau_rule_is_on_where_the_sensors_lie_unless_the_scenario_says() -> None:
+    from dataclasses import replace
+
+    from sitl_client import ROOT
+
+    from drone_agent.core.config import agent_config
+    from protocols.scenario.scenario_file import ConsensusConfig, SensorsConfig, load_scenario
+
+    paper = load_scenario(ROOT / "scenarios" / "paper.toml")
+    lying = replace(paper, sensors=SensorsConfig(gnss_bias_m=0.5))
+    late = replace(paper, sensors=SensorsConfig(rate_hz=10.0, latency_s=0.1))
+    assert not agent_config(paper).settle_plateau and not agent_config(late).settle_plateau
+    assert agent_config(lying).settle_plateau
+    for settle, ideal, lie in (("agree", False, False), ("plateau", True, True)):
+        c = replace(paper.consensus, settle=settle)
+        assert agent_config(replace(paper, consensus=c)).settle_plateau is ideal
+        assert agent_config(replace(lying, consensus=c)).settle_plateau is lie
+    assert agent_config(paper).settle_window_ticks == 50  # one second at 50 Hz
+    assert ConsensusConfig().settle == "auto"
+
+
 def _level_message(sender: int, round_: int, level: int) -> ConsensusMessage:
     return ConsensusMessage(sender, round_, np.zeros(18), {}, frozenset(), 0, ready_hops=level)
 

@@ -218,14 +218,19 @@ def test_a_wrong_environment_is_one_line_naming_it(tmp_path: Path, extra: str, w
     assert "\n" not in message and words in message, message
 
 
-def test_the_paper_swarm_holds_together_downwind_in_a_breeze(tmp_path: Path) -> None:
+def test_the_paper_swarm_holds_together_downwind_in_a_breeze_on_sensors_that_lie(
+    tmp_path: Path,
+) -> None:
     """``swarm simulate`` of the 9-drone tilt scenario in a 3 m/s wind from the west with 0.8 m/s
-    gusts, its vehicles 2 % apart in mass and 1 % in thrust (docs/scenarios.md quotes this
-    flight): the vehicles are pushed downwind (their mean
-    east position behind the plan's by more than half a metre once airborne, from flight.tlog),
-    the controller has no integral action so the centre tracks ~2 m behind, and still the swarm
-    holds together: no collision, the drones at least the scenario's 1 m apart, the consensus
-    estimate within 5 cm."""
+    gusts, its vehicles 2 % apart in mass and 1 % in thrust, each flying on a GNSS + EKF's
+    estimate (0.1 m of wandering bias, 5 cm and 5 cm/s of noise, 5 mrad of attitude noise, 10 Hz,
+    50 ms late; docs/scenarios.md quotes this flight): the swarm leaves the ground at the end of
+    its warm-up (the plateau rule: the noise keeps its estimates from agreeing to 2 %); the
+    vehicles are pushed downwind (their true mean east position, ODOMETRY in flight.tlog, behind
+    the plan's by more than half a metre once airborne); the controller has no integral action so
+    the centre tracks ~2 m behind; and still the swarm holds together: no collision, the drones
+    at least the scenario's 1 m apart, the consensus estimate within 20 cm of the true
+    descriptors."""
     import json
     import subprocess
 
@@ -239,6 +244,8 @@ def test_the_paper_swarm_holds_together_downwind_in_a_breeze(tmp_path: Path) -> 
         + "\n[vehicle]\ndrag_xy_per_s = 0.4\ndrag_z_per_s = 0.15\n"
         + "\n[environment]\nwind_ned_m_s = [0.0, 3.0, 0.0]\nturbulence_m_s = 0.8\n"
         + "\n[vehicles]\nmass_spread = 0.02\nthrust_spread = 0.01\n"
+        + "\n[sensors]\ngnss_bias_m = 0.1\nposition_noise_m = 0.05\nvelocity_noise_m_s = 0.05\n"
+        + "attitude_noise_rad = 0.005\nrate_hz = 10\nlatency_s = 0.05\n"
     )
     done = subprocess.run(
         [*swarm_command("simulate", str(scenario), "--report", "r", "--no-plots")],
@@ -248,18 +255,28 @@ def test_the_paper_swarm_holds_together_downwind_in_a_breeze(tmp_path: Path) -> 
     metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
     assert metrics["collisions"]["count"] == 0
     assert metrics["separation"]["min_m"] > 1.0
-    assert metrics["consensus_steady"]["centroid_m"]["rms"] < 0.05
+    assert metrics["consensus_steady"]["centroid_m"]["rms"] < 0.2
     centre_rms = metrics["tracking_steady"]["centroid_m"]["rms"]
     assert 0.5 < centre_rms < 3.0
-    # downwind, from the vehicles' own telemetry: east positions after the climb (t > 15 s)
+    (takeoff,) = [
+        json.loads(line)
+        for line in (tmp_path / "r" / "events.jsonl").read_text().splitlines()
+        if '"takeoff"' in line
+    ]
+    assert takeoff["t_s"] <= 4.0, takeoff  # the 3 s warm-up, then the plateau rule
+    # downwind, from the vehicles' true state (ODOMETRY) after the climb (t > 15 s)
     plan = load_scenario(scenario).trajectory()
     samples = vehicle_samples(tmp_path / "r" / "flight.tlog")
-    east = {}
-    for (msg, _sysid, t_ms), v in samples.items():
-        if msg == "LOCAL_POSITION_NED" and t_ms > 15_000:
+    east, off = {}, []
+    for (msg, sysid, t_ms), v in samples.items():
+        if msg == "ODOMETRY" and t_ms > 15_000:
             east.setdefault(t_ms, []).append(v[1])
+            reported = samples.get(("LOCAL_POSITION_NED", sysid, t_ms))
+            if reported is not None:
+                off.append(np.hypot(reported[0] - v[0], reported[1] - v[1]))
     behind = [np.mean(e) - plan.evaluate(t / 1000.0)[0][1] for t, e in east.items() if len(e) == 9]
     assert len(behind) > 100 and np.mean(behind) > 0.5, np.mean(behind)
+    assert len(off) > 100 and np.median(off) > 0.03  # the agents flew on what they were told
 
 
 def test_scenario_new_writes_the_wind_and_the_drag(tmp_path: Path) -> None:

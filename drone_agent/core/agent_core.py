@@ -64,7 +64,9 @@ from protocols.wire.consensus_message import ConsensusMessage
 class AgentConfig:
     """What one agent needs to know: gains, limits, the warm-up before it may arm, and when its
     estimate counts as settled: disagreement with its neighbours (ConsensusOutput) below
-    ``settle_tolerance`` for ``settle_ticks`` ticks in a row with the same membership; the
+    ``settle_tolerance`` (or, with ``settle_plateau``, no longer falling over two windows of
+    ``settle_window_ticks``: drone_agent/core/flight_phase.py) for ``settle_ticks`` ticks in a
+    row with the same membership; the
     separation layer (drone_agent/core/separation/layer.py; None: off); the formation controller
     (``controller``, built with a :class:`~drone_agent.core.controller.ControllerSetup` carrying
     ``controller_options``; drone_agent/core/controller.py)."""
@@ -75,6 +77,8 @@ class AgentConfig:
     warmup_s: float = 3.0
     settle_ticks: int = 25
     settle_tolerance: float = 0.02
+    settle_plateau: bool = False
+    settle_window_ticks: int = 50
     separation: SeparationConfig | None = None
     controller: Callable[[ControllerSetup], FormationController] = CooperativeController
     controller_options: tuple[tuple[str, Any], ...] = ()

@@ -1,5 +1,5 @@
-"""An agent's configuration from a scenario's [gains], [consensus], [rates], [safety] and
-[agent] sections."""
+"""An agent's configuration from a scenario's [gains], [consensus], [rates], [safety], [sensors]
+and [agent] sections."""
 
 from __future__ import annotations
 
@@ -71,6 +71,8 @@ def agent_config(scenario: Scenario) -> AgentConfig:
         gains=gains,
         limits=limits,
         warmup_s=c.warmup_s,
+        settle_plateau=c.settle == "plateau" or (c.settle == "auto" and scenario.sensors.lie),
+        settle_window_ticks=max(1, round(1.0 / scenario.rates.dt_control_s)),  # 1 s
         separation=separation,
         controller=cls,
         controller_options=options,

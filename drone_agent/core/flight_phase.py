@@ -165,6 +165,10 @@ class Readiness:
 #: Round of an empty slot of :class:`BatchReadiness`'s table (no message is this old).
 _NO_ROUND = -(2**62)
 
+#: The plateau rule (:class:`BatchReadiness`): the disagreement has stopped falling when its mean
+#: over the last window is at least this fraction of the window before's (and at most its inverse)
+PLATEAU_RATIO = 0.7
+
 
 class BatchReadiness:
     """The one rule for leaving the ground, of K agents at once (rows ``0..k-1``): ``swarm
@@ -203,12 +207,30 @@ class BatchReadiness:
 
     An agent that already flies (``committed``) counts as settled, so a late joiner waits only for
     itself and is not held on the ground by a formation manoeuvring above it. An agent with no
-    neighbour (alone, or cut off) reaches the cap on its own settling."""
+    neighbour (alone, or cut off) reaches the cap on its own settling.
+
+    **Sensors that lie** (``settle_plateau``: [consensus] settle, on by default where [sensors]
+    add an error): each agent's input to the estimator carries its own sensors' noise every tick,
+    so the disagreement never falls below a floor set by that noise (5 cm of position noise: 10 to
+    25 %, against the 2 % of ideal sensors; 1 cm already keeps it above 2 %) and the swarm would
+    stay on the ground for ever. A tick is then calm also when the disagreement has stopped
+    falling: its mean over the last ``settle_window_ticks`` is within a factor
+    :data:`PLATEAU_RATIO` of its mean over the window before (both windows since the membership
+    view last changed). The estimator's start-up transient falls faster than that (by more than
+    half a second on the paper's swarm) and a rise (first messages, a neighbour's jump) is faster
+    too, so neither counts; noise around its floor does. Ideal sensors keep the 2 % rule alone."""
 
     def __init__(self, k: int, config: AgentConfig) -> None:
         self.k = k
         self.ticks = config.settle_ticks
         self.tolerance = config.settle_tolerance
+        self.plateau = config.settle_plateau
+        self.window = config.settle_window_ticks
+        #: the plateau rule's disagreement history, a ring of two windows per row, its samples
+        #: written and those since the membership view last changed
+        self._history = np.zeros((k, 2 * self.window if self.plateau else 0))
+        self._written = np.zeros(k, dtype=np.int64)
+        self._since = np.zeros(k, dtype=np.int64)
         self.timeout = config.consensus.heard_timeout_ticks
         self.calm_ticks = np.zeros(k, dtype=np.int64)
         self._members: list[frozenset[int] | None] = [None] * k
@@ -248,6 +270,7 @@ class BatchReadiness:
     def reset(self, row: int) -> None:
         """Row ``row`` starts again (a new life of its agent): no calm tick, nothing heard."""
         self.calm_ticks[row] = 0
+        self._since[row] = 0
         self._members[row] = None
         self.level[row] = 0
         self.ready[row] = False
@@ -286,7 +309,11 @@ class BatchReadiness:
         )
         for r, v in zip(rows_arr.tolist(), views, strict=True):
             last[r] = v
-        calm = (np.asarray(disagreement, dtype=float) < self.tolerance) & same
+        values = np.asarray(disagreement, dtype=float)
+        below = values < self.tolerance
+        if self.plateau:
+            below |= self._stopped_falling(rows_arr, values, same)
+        calm = below & same
         calm_ticks = np.where(calm, self.calm_ticks[rows_arr] + 1, 0)
         self.calm_ticks[rows_arr] = calm_ticks
         fly = np.asarray(ready_to_fly, dtype=bool)
@@ -327,6 +354,28 @@ class BatchReadiness:
         ready = (level >= caps) & (fly | flying)
         self.ready[rows_arr] = ready
         return ready
+
+    def _stopped_falling(
+        self,
+        rows: npt.NDArray[np.intp],
+        values: npt.NDArray[np.float64],
+        same: npt.NDArray[np.bool_],
+    ) -> npt.NDArray[np.bool_]:
+        """The plateau rule: each row's disagreement written to its history; whether its mean
+        over the last window is within :data:`PLATEAU_RATIO` of the window before's (two whole
+        windows since the membership view changed)."""
+        span = 2 * self.window
+        written = self._written[rows]
+        self._history[rows, written % span] = values
+        written += 1
+        self._written[rows] = written
+        since = np.where(same, self._since[rows] + 1, 1)
+        self._since[rows] = since
+        back = (written[:, None] - 1 - np.arange(span)[None, :]) % span
+        recent_prev = self._history[rows[:, None], back].reshape(-1, 2, self.window).sum(axis=2)
+        recent, prev = recent_prev[:, 0], recent_prev[:, 1]
+        flat = (recent >= PLATEAU_RATIO * prev) & (PLATEAU_RATIO * recent <= prev)
+        return flat & (since >= span)
 
 
 @dataclass(frozen=True)

@@ -172,12 +172,13 @@ def takeoff_lines(scenario: Scenario, ready_s: float | None, limit_s: float) -> 
     plan = scenario.trajectory()
     hold = departure_s(plan, plan.start_s)
     if ready_s is None:
-        s = scenario.sensors
-        noisy = s.position_noise_m > 0.0 or s.velocity_noise_m_s > 0.0 or s.gnss_bias_m > 0.0
+        agree_only = scenario.consensus.settle == "agree"
         why = (
-            "[sensors] error, radio graph, consensus gains: the agents leave together once "
-            "their estimates agree to 2 %, which noise on the vehicles' positions keeps them from"
-            if noisy
+            '[sensors] error, radio graph, consensus gains: with [consensus] settle = "agree" '
+            "the agents leave together once their estimates agree to 2 %, which noise on the "
+            'vehicles\' positions keeps them from; settle = "auto" lets them leave once the '
+            "disagreement has stopped falling"
+            if scenario.sensors.lie and agree_only
             else "radio graph, consensus gains"
         )
         return [

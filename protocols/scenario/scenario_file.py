@@ -109,6 +109,18 @@ class SensorsConfig:
     rate_hz: float = 0.0
     latency_s: float = 0.0
 
+    @property
+    def lie(self) -> bool:
+        """An error term is on: a GNSS bias or noise on position, velocity or attitude."""
+        return any(
+            (
+                self.gnss_bias_m,
+                self.position_noise_m,
+                self.velocity_noise_m_s,
+                self.attitude_noise_rad,
+            )
+        )
+
 
 @dataclass(frozen=True)
 class EnvironmentConfig:
@@ -179,7 +191,11 @@ class ConsensusConfig:
     heard-set timeout (control ticks); partner-dead timeout (s); ground warm-up before arming (s);
     message delay (control ticks); the step cap that keeps large, dense radio graphs stable
     (``max_step_gain``, drone_agent/core/consensus/scalar.py; 0 turns it off); the channel scale (m)
-    below which the estimator's ``tanh`` stays linear (``channel_scale_m``, the same module)."""
+    below which the estimator's ``tanh`` stays linear (``channel_scale_m``, the same module); when
+    an agent's estimate counts as settled before take-off (``settle``, :data:`SETTLE_RULES`):
+    ``"agree"`` its disagreement with its neighbours is below 2 %, ``"plateau"`` it is below 2 % or
+    has stopped falling (sensors that lie keep it above 2 % for ever), ``"auto"`` (the default)
+    plateau where [sensors] add an error (bias or noise), agree otherwise."""
 
     rho: float = 2.0
     c: float = 1.0
@@ -191,6 +207,11 @@ class ConsensusConfig:
     delay_ticks: int = 1
     max_step_gain: float = 1.4
     channel_scale_m: float = 10.0
+    settle: str = "auto"
+
+
+#: [consensus] settle: the take-off readiness rules (drone_agent/core/flight_phase.py)
+SETTLE_RULES = ("auto", "agree", "plateau")
 
 
 @dataclass(frozen=True)
@@ -387,7 +408,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         vehicle=vehicle,
         rates=_rates(top.table("rates")),
         gains=_gains(top.table("gains")),
-        consensus=top.table("consensus").section(ConsensusConfig, _CONSENSUS_BOUNDS),
+        consensus=_consensus(top.table("consensus")),
         comms=top.table("comms").section(CommsConfig, {"range_m": {"gt": 0}}),
         safety=safety,
         faults=tuple(_fault(t, len(drones), duration_s) for t in top.tables("faults")),
@@ -493,6 +514,14 @@ _CONSENSUS_BOUNDS = {
     "max_step_gain": {"ge": 0, "lt": 2},
     "channel_scale_m": {"gt": 0},
 }
+
+
+def _consensus(t: Table) -> ConsensusConfig:
+    settle = t.string("settle", "auto")
+    if settle not in SETTLE_RULES:
+        raise t.error(f"must be one of {', '.join(SETTLE_RULES)}, got {settle!r}", "settle")
+    config: ConsensusConfig = t.section(ConsensusConfig, _CONSENSUS_BOUNDS, settle=settle)
+    return config
 
 
 def _vehicle(t: Table) -> VehicleConfig:
