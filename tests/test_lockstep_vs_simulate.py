@@ -3,7 +3,9 @@
 (wind, turbulence and the vehicles' drag: the air is one field for both runners) with vehicles
 that differ (mass and thrust spread, drawn from the seed in both) and sensors that lie (a
 wandering GNSS bias, attitude noise, a 25 Hz estimate 40 ms late: each vehicle's own errors, drawn
-from the seed in both), flown by ``swarm up --clock lockstep`` and by ``swarm simulate``, logs
+from the seed in both) over a radio with limits (a bandwidth cap and its queue, loss with distance
+and in bursts, latency and jitter: each link's own draws, in ``swarm simulate``'s radio and in each
+agent's link layer), flown by ``swarm up --clock lockstep`` and by ``swarm simulate``, logs
 the same LOCAL_POSITION_NED and ATTITUDE (what the vehicles believed) and ODOMETRY (their true
 state) for every vehicle whose agent flies, field by field at every ``time_boot_ms``.
 
@@ -59,6 +61,15 @@ gnss_bias_tau_s = 300.0
 attitude_noise_rad = 0.002
 rate_hz = 25.0
 latency_s = 0.04
+
+[radio]
+bandwidth_bytes_s = 45000.0
+queue_messages = 3
+loss_half_m = 9.0
+burst_fraction = 0.05
+burst_length = 4.0
+latency_s = 0.02
+jitter_s = 0.02
 """
 
 

@@ -291,6 +291,7 @@ def run(args: argparse.Namespace) -> int:
     from drone_agent.process.host import AgentHost, DroneIdError, parse_drone_ids
     from drone_agent.process.hosted_agent import RunOptions
     from drone_agent.process.link_faults import FaultyTransport, LinkFaults, PairRandom
+    from drone_agent.process.radio import RadioLinks
     from drone_agent.process.round_gate import RoundBook
     from drone_agent.process.transport_link import AgentLink, ConsensusHub, LinkSettings
     from drone_agent.process.vehicle_link import VehicleLink
@@ -388,10 +389,18 @@ def run(args: argparse.Namespace) -> int:
     news = None if rounds is None else (lambda: rounds.version)
     hub = ConsensusHub(bus, settings, batch=len(drones) > 1, news=news, sole=True)
 
+    # the radio's limits (the scenario's [radio]; one state per agent: the links into it)
+    radio_config = None if scenario is None or scenario.radio.ideal else scenario.radio
+
     def transport(bus_: Bus, drone: int, position: Position) -> AgentTransport:
         # called once the host runs; ``host`` is bound by then
         inner = AgentLink(bus_, drone, position, settings, hub)
-        return FaultyTransport(inner, faults, pair_random, lambda: host.round_of(drone))
+        radio = (
+            None
+            if radio_config is None or scenario is None
+            else RadioLinks(radio_config, scenario.rates.dt_control_s, seed)
+        )
+        return FaultyTransport(inner, faults, pair_random, lambda: host.round_of(drone), radio)
 
     options = RunOptions(
         control_period_ms=period_ms,

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from drone_agent.process.radio import LOST, RadioLinks, distance_m, message_bytes
 from drone_agent.process.transport import (
     BY_SENDER_ROUND,
     AgentTransport,
@@ -187,11 +188,13 @@ class LinkFaults:
 
 class PairRandom:
     """One generator per directed link (sender, receiver), seeded by ``(seed, sender,
-    receiver)``: a link's draws do not depend on any other link's traffic, nor on which drones
-    share a process."""
+    receiver)`` (``(seed, sender, receiver, stream)`` for a tagged ``stream``: another user's
+    draws, drone_agent/process/radio.py): a link's draws do not depend on any other link's
+    traffic, nor on which drones share a process."""
 
-    def __init__(self, seed: int) -> None:
+    def __init__(self, seed: int, stream: int | None = None) -> None:
         self.seed = seed
+        self.stream = stream
         self._streams: dict[Pair, np.random.Generator] = {}
         self._ahead: dict[Pair, list[float]] = {}
 
@@ -199,8 +202,9 @@ class PairRandom:
         """The generator of the link sender -> receiver."""
         rng = self._streams.get((sender, receiver))
         if rng is None:
+            key = (self.seed, sender, receiver)
             rng = self._streams[(sender, receiver)] = np.random.default_rng(
-                (self.seed, sender, receiver)
+                key if self.stream is None else (*key, self.stream)
             )
         return rng
 
@@ -220,6 +224,9 @@ class PairRandom:
 #: loss draws a link of :meth:`PairRandom.draw` makes ahead at a time
 DRAW_BLOCK = 64
 
+#: rounds of its own positions a :class:`FaultyTransport` with a radio keeps
+_OWN_ROUNDS = 256
+
 
 class FaultyTransport(ClosesOnExit):
     """``inner`` as seen through ``faults``: on :meth:`receive`, messages on blocked links are
@@ -227,7 +234,11 @@ class FaultyTransport(ClosesOnExit):
     ``rng`` when it is a :class:`PairRandom`, else from the one generator ``rng`` in (sender,
     round) order) and held back until round ``r`` plus their link's delay (``r`` the
     message's round), in rounds of ``round_clock()`` (the newest round whose messages are
-    due). Everything else is passed through. Drops are counted in ``counters().faults``."""
+    due). With ``radio`` (drone_agent/process/radio.py: the radio's limits, the same rule as
+    ``swarm simulate``'s radio), each message that no cut or partition stops first meets the
+    radio, measured from the sender's position to this agent's of the message's round (as
+    published), which may drop it or delay it further. Everything else is passed through. Drops
+    are counted in ``counters().faults`` (link faults) and ``counters().radio`` (the radio)."""
 
     def __init__(
         self,
@@ -235,8 +246,12 @@ class FaultyTransport(ClosesOnExit):
         faults: LinkFaults,
         rng: np.random.Generator | PairRandom,
         round_clock: Callable[[], int],
+        radio: RadioLinks | None = None,
     ) -> None:
         self._inner, self.faults, self._clock = inner, faults, round_clock
+        self._radio = radio
+        #: this agent's positions as published, by round (the radio's distances)
+        self._own: dict[int, tuple[float, float, float]] = {}
         self._draw: Callable[[int, int], float] = (
             rng.draw if isinstance(rng, PairRandom) else (lambda _i, _j: float(rng.random()))
         )
@@ -245,6 +260,7 @@ class FaultyTransport(ClosesOnExit):
         self._withheld: dict[int, int] = {}
         self._arrivals = 0
         self._dropped = 0
+        self._radio_dropped = 0
         self._delivered = 0
 
     @property
@@ -256,7 +272,13 @@ class FaultyTransport(ClosesOnExit):
         """What the faulty radio delivers now, sorted by (sender, round)."""
         now, me, faults = self._clock(), self._inner.drone, self.faults
         packets = self._inner.receive()
-        if not self._held and faults.idle() and (not packets or max(map(_ROUND, packets)) <= now):
+        radio = self._radio
+        if (
+            radio is None
+            and not self._held
+            and faults.idle()
+            and (not packets or max(map(_ROUND, packets)) <= now)
+        ):
             self._delivered += len(packets)  # no fault, nothing held: as the loop below would
             return packets
         withheld, out, held = self._withheld, [], self._held
@@ -264,14 +286,28 @@ class FaultyTransport(ClosesOnExit):
         for packet in packets:
             message = packet.message
             sender, round_ = message.sender, message.round
+            blocked = faults.blocks(sender, me)
+            radio_ticks = 0
+            if radio is not None and not blocked:
+                p = packet.position_ned_m
+                origin = (float(p[0]), float(p[1]), float(p[2]))
+                own = self._own.get(round_) or origin  # (ours of a round not sent: no distance)
+                radio_ticks = radio.admit(
+                    sender, me, round_, message_bytes(message), distance_m(origin, own)
+                )
+                if radio_ticks == LOST:
+                    self._radio_dropped += 1
+                    if round_ > withheld.get(sender, -1):
+                        withheld[sender] = round_
+                    continue
             loss = faults.loss_for(sender, me)
-            if faults.blocks(sender, me) or (loss > 0.0 and draw(sender, me) < loss):
+            if blocked or (loss > 0.0 and draw(sender, me) < loss):
                 self._dropped += 1
                 if round_ > withheld.get(sender, -1):
                     withheld[sender] = round_
                 continue
             self._arrivals += 1
-            release = round_ + faults.delay_for(sender, me)
+            release = round_ + faults.delay_for(sender, me) + radio_ticks
             if release > now:
                 if round_ > withheld.get(sender, -1):
                     withheld[sender] = round_
@@ -293,10 +329,20 @@ class FaultyTransport(ClosesOnExit):
     def counters(self) -> SwarmMessageCounters:
         """The inner counters, with this wrapper's drops and deliveries."""
         inner = self._inner.counters()
-        return replace(inner, faults=inner.faults + self._dropped, delivered=self._delivered)
+        return replace(
+            inner,
+            faults=inner.faults + self._dropped,
+            radio=inner.radio + self._radio_dropped,
+            delivered=self._delivered,
+        )
 
     def publish_consensus(self, message: ConsensusMessage, position_ned_m: Position) -> None:
-        """Passed through."""
+        """Passed through (with the radio: the position kept for the round's distances)."""
+        if self._radio is not None:
+            p = position_ned_m
+            self._own[message.round] = (float(p[0]), float(p[1]), float(p[2]))
+            if len(self._own) > _OWN_ROUNDS:
+                del self._own[min(self._own)]
         self._inner.publish_consensus(message, position_ned_m)
 
     def members(self) -> frozenset[int]:

@@ -40,7 +40,9 @@ class SwarmMessageCounters:
     ``rx``: consensus payloads received from other drones (before any check). Dropped:
     ``malformed`` (any WireError but the two below, or a key/sender mismatch), ``wrong_swarm``,
     ``wrong_version``, ``out_of_range`` (sender farther than the communication range), ``faults``
-    (cut, loss or partition of a link-fault wrapper). ``delivered`` were returned by ``receive``.
+    (cut, loss or partition of a link-fault wrapper), ``radio`` (the radio's limits: a full
+    queue, a burst, distance; drone_agent/process/radio.py). ``delivered`` were returned by
+    ``receive``.
     ``tx``: consensus messages published. ``plans_rejected``: plan payloads that did not decode.
     """
 
@@ -50,17 +52,18 @@ class SwarmMessageCounters:
     wrong_version: int = 0
     out_of_range: int = 0
     faults: int = 0
+    radio: int = 0
     delivered: int = 0
     tx: int = 0
     plans_rejected: int = 0
 
     def status(self, rejected_setpoints: int = 0) -> StatusCounters:
         """The counters an agent reports in its status. Its ``rx`` counts what the radio
-        delivered: messages from beyond the communication range or dropped by a link fault (cut,
-        loss, partition) never reached the drone, so the ground station's link quality (received
-        over expected) shows them."""
+        delivered: messages from beyond the communication range, dropped by a link fault (cut,
+        loss, partition) or by the radio's limits never reached the drone, so the ground
+        station's link quality (received over expected) shows them."""
         return StatusCounters(
-            rx=self.rx - self.out_of_range - self.faults,
+            rx=self.rx - self.out_of_range - self.faults - self.radio,
             rx_dropped_malformed=self.malformed,
             rx_dropped_wrong_swarm=self.wrong_swarm,
             rx_dropped_wrong_version=self.wrong_version,

@@ -31,6 +31,7 @@ from drone_agent.core.config import agent_config
 from drone_agent.core.flight_phase import BatchReadiness, BatchTakeoff, FlightPhase
 from drone_agent.process.fault_timeline import TimedAction, timeline
 from drone_agent.process.link_faults import LinkFaults, PairRandom
+from drone_agent.process.radio import RadioLinks
 from gcs.reference.autopilot_link import AutopilotLink, reported
 from gcs.reference.network import InProcessNetwork
 from gcs.report.flight_record import FlightRecord, scenario_link_cuts
@@ -141,7 +142,8 @@ class ReferenceFlight:
         # the radio's losses per directed link, seeded by the scenario, as the agents of swarm up
         # draw them: the in-process and distributed flights lose the same messages
         radio_rng = PairRandom(scenario.seed) if rng is None else self.rng
-        self.network = InProcessNetwork(self.n, scenario.comms.range_m, radio_rng, delay)
+        radio = None if scenario.radio.ideal else RadioLinks(scenario.radio, self.dt, scenario.seed)
+        self.network = InProcessNetwork(self.n, scenario.comms.range_m, radio_rng, delay, radio)
         self.member = np.ones(self.n, dtype=bool)
         self.lost_at: dict[int, float] = {}
         #: vehicle -> the time of the last tick it sent telemetry (a wreck on the ground is silent)
@@ -333,7 +335,7 @@ class ReferenceFlight:
             self._took_off(min(said))
         messages = cols.outgoing.messages(self.readiness.level[live].tolist(), takeoffs)
         self.link.hand_setpoints(live, commands)
-        self.network.send(k, messages, self.network.in_range(pos))
+        self.network.send(k, messages, self.network.in_range(pos), pos)
         rec.desired[k] = cols.desired[0]
         self._record_vehicles(k, rec)
 

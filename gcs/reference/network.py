@@ -1,5 +1,6 @@
-"""An in-memory radio between the agents of one process: range, one-tick delay, link cuts (also
-one-way), packet loss and extra delay, as the consensus estimator would meet them on a real network.
+"""An in-memory radio between the agents of one process: range, one-tick delay, the radio's limits
+(bandwidth, distance, bursts, latency: drone_agent/process/radio.py), link cuts (also one-way),
+packet loss and extra delay, as the consensus estimator would meet them on a real network.
 
 Pure apart from the injected random generator: no sockets, no clock; time is the round number.
 """
@@ -16,6 +17,7 @@ from drone_agent.core.flight_phase import Arrivals
 from drone_agent.core.inboxes import Inboxes
 from drone_agent.core.jit_math import jit
 from drone_agent.process.link_faults import LinkFaults, PairRandom
+from drone_agent.process.radio import LOST, RadioLinks, distance_m, message_bytes
 from protocols.model.frames import FloatArray
 from protocols.wire.consensus_message import ConsensusMessage
 
@@ -32,6 +34,7 @@ class InProcessNetwork:
         range_m: float,
         rng: np.random.Generator | PairRandom,
         base_delay_ticks: int = 1,
+        radio: RadioLinks | None = None,
     ) -> None:
         if base_delay_ticks < 1:
             raise ValueError("a message can arrive at the earliest one tick after it was sent")
@@ -40,6 +43,8 @@ class InProcessNetwork:
         self.rng = rng
         self.base_delay_ticks = base_delay_ticks
         self.conditions = LinkFaults()
+        #: the radio's limits beyond its range (None: range only), drone_agent/process/radio.py
+        self.radio = radio
         # arrival round -> batches of (receivers, index into messages, messages, the messages'
         # (4, len) senders, rounds, levels and take-off rounds (-1: none)), in send order
         self._in_flight: dict[int, list[_Batch]] = defaultdict(list)
@@ -62,11 +67,19 @@ class InProcessNetwork:
         _within(p, float(self.range_m), ok)
         return ok
 
-    def send(self, round_: int, messages: Sequence[ConsensusMessage], in_range: FloatArray) -> None:
+    def send(
+        self,
+        round_: int,
+        messages: Sequence[ConsensusMessage],
+        in_range: FloatArray,
+        positions_ned_m: FloatArray | None = None,
+    ) -> None:
         """Put this round's messages on the air; they reach receivers in range after the delay.
 
         Per (message, receiver in range) in message order, receivers ascending: a cut or the
-        partition stops it; else it is lost with its link's probability (one draw per link with a
+        partition stops it; else the radio's limits (:attr:`radio`, with the drones'
+        ``positions_ned_m`` of this round) may drop or delay it; else it is lost with its
+        link's probability (one draw per link with a
         loss: from that link's own generator when ``rng`` is a :class:`PairRandom` — as every
         agent of ``swarm up`` draws them (drone_agent.process.link_faults), so both runners lose the
         same messages —, else from ``rng`` in that order); else it arrives after the base plus its
@@ -97,6 +110,11 @@ class InProcessNetwork:
         keep = np.ones(receivers.shape[0], dtype=bool)
         if blocked is not None:
             keep &= ~blocked[i, receivers]
+        radio_ticks = None
+        if self.radio is not None:
+            if positions_ned_m is None:
+                raise ValueError("a radio with limits needs the drones' positions")
+            radio_ticks = self._radio(round_, messages, which, i, receivers, keep, positions_ned_m)
         if loss is not None:
             p = loss[i, receivers]
             draw = keep & (p > 0.0)
@@ -110,6 +128,8 @@ class InProcessNetwork:
         ticks = np.full(receivers.shape[0], self.base_delay_ticks, dtype=np.int64)
         if delay is not None:
             ticks += delay[i, receivers]
+        if radio_ticks is not None:
+            ticks += radio_ticks[keep]
         if receivers.shape[0] == 0:
             return
         msgs = list(messages)
@@ -119,6 +139,31 @@ class InProcessNetwork:
         for d in np.unique(ticks).tolist():
             on = ticks == d
             self._in_flight[round_ + d].append((receivers[on], which[on], msgs, meta))
+
+    def _radio(
+        self,
+        round_: int,
+        messages: Sequence[ConsensusMessage],
+        which: npt.NDArray[np.intp],
+        senders: npt.NDArray[np.intp],
+        receivers: npt.NDArray[np.intp],
+        keep: npt.NDArray[np.bool_],
+        positions_ned_m: FloatArray,
+    ) -> npt.NDArray[np.int64]:
+        """The radio's fate of each (message, receiver) still kept, in order: those it drops
+        taken out of ``keep``; the ticks it delays the others by."""
+        assert self.radio is not None
+        admit, ticks = self.radio.admit, np.zeros(receivers.shape[0], dtype=np.int64)
+        p = np.asarray(positions_ned_m, dtype=np.float64).reshape(-1, 3).tolist()
+        size = [message_bytes(m) for m in messages]
+        for t in np.flatnonzero(keep).tolist():
+            a, b, m = int(senders[t]), int(receivers[t]), int(which[t])
+            fate = admit(a, b, round_, size[m], distance_m(p[a], p[b]))
+            if fate == LOST:
+                keep[t] = False
+            else:
+                ticks[t] = fate
+        return ticks
 
     def _link_draws(
         self,

@@ -123,6 +123,44 @@ class SensorsConfig:
 
 
 @dataclass(frozen=True)
+class RadioConfig:
+    """[radio]: what the radio between the drones does besides its range (the one model of
+    drone_agent/process/radio.py, in ``swarm simulate``'s radio and in the agents' link layer of
+    ``swarm up`` alike; each directed link draws from its own stream of the scenario's seed).
+    ``bandwidth_bytes_s``: each link's capacity (0: unlimited); a message takes its bytes over
+    it, waiting behind the ones before, and the link holds at most ``queue_messages`` waiting
+    (more are dropped). ``loss_half_m``: the distance at which half the messages are lost
+    (0: none lost to distance), loss rising with distance as log-distance path loss with exponent
+    ``path_loss_exponent`` and a fading term of ``fading_db`` (dB, 1 sigma) drawn per message.
+    Bursts (Gilbert–Elliott): a link spends ``burst_fraction`` of its messages in a bad state whose
+    spells last ``burst_length`` messages on average, losing each with ``burst_loss``.
+    ``latency_s``: added one-way latency; ``jitter_s``: the mean of a random (exponential) extra
+    delay per message. Default: the ideal radio (range only)."""
+
+    bandwidth_bytes_s: float = 0.0
+    queue_messages: int = 8
+    loss_half_m: float = 0.0
+    path_loss_exponent: float = 3.0
+    fading_db: float = 6.0
+    burst_fraction: float = 0.0
+    burst_length: float = 5.0
+    burst_loss: float = 1.0
+    latency_s: float = 0.0
+    jitter_s: float = 0.0
+
+    @property
+    def ideal(self) -> bool:
+        """No bandwidth cap, no loss to distance or bursts, no latency: range only."""
+        return (
+            self.bandwidth_bytes_s == 0.0
+            and self.loss_half_m == 0.0
+            and (self.burst_fraction == 0.0 or self.burst_loss == 0.0)
+            and self.latency_s == 0.0
+            and self.jitter_s == 0.0
+        )
+
+
+@dataclass(frozen=True)
 class EnvironmentConfig:
     """[environment]: the air the swarm flies in. ``wind_ned_m_s``: the mean wind (m/s, NED: the
     velocity the air moves with; a wind from the west is ``[0, w, 0]``); ``turbulence_m_s``: the
@@ -331,6 +369,8 @@ class Scenario:
     vehicles: FleetConfig = field(default_factory=FleetConfig)
     #: [sensors]: the vehicles' state estimates (default: the truth)
     sensors: SensorsConfig = field(default_factory=SensorsConfig)
+    #: [radio]: the radio's limits besides its range (default: none)
+    radio: RadioConfig = field(default_factory=RadioConfig)
 
     @property
     def n_drones(self) -> int:
@@ -380,7 +420,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
     top.allow(
         ("version", "name", "duration_s", "seed", "settle_s", "vehicle", "rates", "gains",
          "consensus", "comms", "safety", "drones", "trajectory", "faults", "home", "agent",
-         "environment", "vehicles", "sensors")
+         "environment", "vehicles", "sensors", "radio")
     )  # fmt: skip
     drones = _drones(top)
     waypoints = _waypoints(top.table("trajectory", ("waypoints",)))
@@ -418,6 +458,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
         environment=environment,
         vehicles=top.table("vehicles").section(FleetConfig, _FLEET_BOUNDS),
         sensors=top.table("sensors").section(SensorsConfig, _SENSORS_BOUNDS),
+        radio=top.table("radio").section(RadioConfig, _RADIO_BOUNDS),
     )
 
 
@@ -489,6 +530,18 @@ _SENSORS_BOUNDS: dict[str, dict[str, float]] = {
     "attitude_noise_rad": {"ge": 0.0, "le": 0.5},
     "rate_hz": {"ge": 0.0, "le": 1000.0},
     "latency_s": {"ge": 0.0, "le": 1.0},
+}
+_RADIO_BOUNDS: dict[str, dict[str, float]] = {
+    "bandwidth_bytes_s": {"ge": 0.0},
+    "queue_messages": {"ge": 0, "le": 10_000},
+    "loss_half_m": {"ge": 0.0, "le": 1e5},
+    "path_loss_exponent": {"ge": 1.0, "le": 6.0},
+    "fading_db": {"gt": 0.0, "le": 30.0},
+    "burst_fraction": {"ge": 0.0, "lt": 1.0},
+    "burst_length": {"ge": 1.0, "le": 1e6},
+    "burst_loss": {"ge": 0.0, "le": 1.0},
+    "latency_s": {"ge": 0.0, "le": 5.0},
+    "jitter_s": {"ge": 0.0, "le": 5.0},
 }
 _ENVIRONMENT_BOUNDS: dict[str, dict[str, float]] = {
     "turbulence_m_s": {"ge": 0.0, "le": 10.0},

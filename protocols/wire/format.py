@@ -365,7 +365,13 @@ def consensus_parts(
 def _consensus_size(swarm_id: str, n_heard: int, n_edges: int) -> int:
     """The bytes of a single consensus payload with these counts, header included."""
     head = len(encode_header(Kind.CONSENSUS, swarm_id, CONSENSUS_VERSION))
-    return head + _FIXED_V4.size + 2 * (n_heard + n_edges) + 4 * n_edges + _FLOATS * (1 + n_edges)
+    return head + consensus_body_bytes(n_heard, n_edges)
+
+
+def consensus_body_bytes(n_heard: int, n_edges: int) -> int:
+    """The bytes of a consensus payload's fields (all but the common header) with ``n_heard``
+    heard ids and ``n_edges`` edge sums."""
+    return _FIXED_V4.size + 2 * (n_heard + n_edges) + 4 * n_edges + _FLOATS * (1 + n_edges)
 
 
 class MessageColumns(NamedTuple):
