@@ -132,10 +132,13 @@ def _check_white(err: np.ndarray, sigma: float) -> None:
 
 
 def test_the_bias_is_stationary_at_its_spread() -> None:
-    """Across many vehicles the bias's std is ``gnss_bias_m`` at the first tick (drawn from the
-    stationary distribution) and still after many correlation times."""
+    """Across many vehicles the bias's std is ``gnss_bias_m`` north and east and
+    ``altitude_bias_m`` down at the first tick (drawn from the stationary distribution) and
+    still after many correlation times."""
     sigma, n = 2.0, 3000
-    model = StateEstimate(Sensors(gnss_bias_m=sigma, gnss_bias_tau_s=0.2), n, HZ, 5)
+    model = StateEstimate(
+        Sensors(gnss_bias_m=sigma, altitude_bias_m=0.5, gnss_bias_tau_s=0.2), n, HZ, 5
+    )
     zero = np.zeros((3, n))
     for k in range(100):  # 2 s: ten correlation times
         pos, vel, euler = model.update(k, zero, zero, zero)
@@ -143,7 +146,7 @@ def test_the_bias_is_stationary_at_its_spread() -> None:
         assert not vel.any() and not euler.any()  # the bias is the position's only
         if k in (0, 99):
             b = model.bias_m
-            assert np.allclose(b.std(axis=1), sigma, rtol=0.05), (k, b.std(axis=1))
+            assert np.allclose(b.std(axis=1), [sigma, sigma, 0.5], rtol=0.05), (k, b.std(axis=1))
             assert (np.abs(b.mean(axis=1)) < 4.0 * sigma / math.sqrt(n)).all()
 
 
@@ -151,7 +154,8 @@ def test_the_bias_wanders_like_a_random_walk_over_short_lags() -> None:
     """For lags ``m dt << tau`` the variance of the bias's increments is ``2 sigma^2 m dt /
     tau`` (and exactly ``2 sigma^2 (1 - a^m)``)."""
     sigma, tau = 3.0, 300.0
-    _, est, _ = _fly(Sensors(gnss_bias_m=sigma, gnss_bias_tau_s=tau), N, TICKS, 11, truth=False)
+    both = Sensors(gnss_bias_m=sigma, altitude_bias_m=sigma, gnss_bias_tau_s=tau)
+    _, est, _ = _fly(both, N, TICKS, 11, truth=False)
     b = est[:, 0:3]  # (ticks, 3, N)
     a = math.exp(-DT / tau)
     for m in (1, 10, 50):  # 0.02 s to 1 s, against a 300 s correlation time
@@ -163,7 +167,8 @@ def test_the_bias_wanders_like_a_random_walk_over_short_lags() -> None:
 
 def test_the_bias_lag_one_autocorrelation_is_the_decay() -> None:
     sigma, tau = 1.0, 0.5  # a = exp(-0.04) = 0.96
-    model, est, _ = _fly(Sensors(gnss_bias_m=sigma, gnss_bias_tau_s=tau), N, TICKS, 13, False)
+    both = Sensors(gnss_bias_m=sigma, altitude_bias_m=sigma, gnss_bias_tau_s=tau)
+    model, est, _ = _fly(both, N, TICKS, 13, False)
     b = est[:, 0:3]
     a = math.exp(-DT / tau)
     assert model.decay == pytest.approx(a)

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from protocols.scenario.layout_names import LAYOUTS
+from protocols.scenario.outdoor import BREEZE_M_S, GUSTS_M_S, OUTDOOR_SENSORS
 
 TEMPLATE_HELP = (
     "hover: take off and hold; "
@@ -116,6 +117,15 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         metavar="M_S",
         help="gusts' intensity, m/s (each component's standard deviation; e.g. 0.5)",
     )
+    new.add_argument(
+        "--outdoor",
+        choices=OUTDOOR_SENSORS,
+        help="a small quadcopter outdoors (docs/scenarios.md cites the values): vehicles 2 %% "
+        "apart in mass, a 1 Mbit/s class radio with loss, bursts and jitter, each vehicle on its "
+        "EKF's estimate with an RTK GNSS (rtk: 2 cm) or a consumer one (gnss: 2 m that wanders); "
+        "and, without --wind, a light breeze (3 m/s from the west, 0.5 m/s gusts). Default: "
+        "ideal vehicles, sensors and radio",
+    )
     new.add_argument("--seed", type=int, default=0, help="random seed: random layout, fault "
                      "drones, and the run's own draws (default 0)")  # fmt: skip
     new.add_argument("--name", help="the scenario's name (default TEMPLATE-LAYOUTN)")
@@ -172,8 +182,8 @@ def _new(args: argparse.Namespace) -> int:
             altitude_m=args.altitude_m,
             min_separation_m=args.min_separation_m,
             name=args.name,
-            **_wind(args.wind),
-            turbulence_m_s=args.turbulence,
+            **_air(args.wind, args.turbulence, args.outdoor),
+            outdoor=args.outdoor,
         )
         generated = generate(options, None if out is None else str(out))
     except GeneratorError as exc:
@@ -226,6 +236,15 @@ def _check(path: Path) -> int:
     for line in takeoff_lines(scenario, ready_time_s(scenario), READY_LIMIT_S):
         print(line)
     return 0
+
+
+def _air(wind: str | None, turbulence: float, outdoor: str | None) -> dict[str, float]:
+    """The generator's wind and gusts: ``--wind`` and ``--turbulence``; outdoors without a
+    ``--wind``, a light breeze and its gusts (protocols/scenario/outdoor.py)."""
+    if outdoor is not None and wind is None:
+        gusts = turbulence if turbulence > 0.0 else GUSTS_M_S
+        return {"wind_m_s": BREEZE_M_S, "wind_from_deg": 270.0, "turbulence_m_s": gusts}
+    return {**_wind(wind), "turbulence_m_s": turbulence}
 
 
 def _wind(text: str | None) -> dict[str, float]:

@@ -29,6 +29,13 @@ factors (--vary NAME=V1,V2,...):
   position_noise_m     white noise on the vehicles' position estimates, m
   estimate_latency_s   how late the vehicles' state estimates are, s
   estimate_rate_hz     how often the state estimates are refreshed, Hz (0: every tick)
+  altitude_bias_m      the vehicles' wandering height bias, m (1 sigma)
+  velocity_noise_m_s   white noise on the vehicles' velocity estimates, m/s
+  bandwidth_bytes_s    each radio link's capacity, bytes/s (0: unlimited)
+  loss_half_m          the distance at which the radio loses half the messages, m
+  burst_fraction       the share of messages in the radio's loss bursts (0..0.99)
+  radio_latency_s      the radio's added latency, s
+  jitter_s             the radio's mean random extra delay, s
 
 Each flight is `swarm simulate`'s, into OUT/<factors>_seed=<k>/ (no plots); OUT gets sweep.json
 (a row per flight: its factors, seed and figures), sweep.md (a table per factor) and a plot per

@@ -8,6 +8,7 @@ gcs/view/recording.py).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from collections.abc import Callable
@@ -95,6 +96,12 @@ def simulate(
                 "sent": flight.network.sent,
                 "delivered": flight.network.delivered,
                 "lost": flight.network.lost,
+                # of which the radio's limits dropped (drone_agent/process/radio.py), by why
+                **(
+                    {}
+                    if flight.network.radio is None
+                    else {"radio_lost": dataclasses.asdict(flight.network.radio.counts)}
+                ),
             },
             "rejected_setpoints": sum(a.rejected_setpoints for a in flight.agents.values()),
         },

@@ -3,12 +3,12 @@ simulate``'s) of one scenario, each with other values of a few factors and seeds
 figures per flight.
 
 A factor is a named change of the scenario (:data:`FACTORS`): the wind's speed and direction, the
-gusts, the vehicles' drag, how the vehicles differ, packet loss on every link from the start. Each
-flight's row holds the factors' values under their names, its seed and its figures (:func:`row_of`),
-among them ``centroid_rms_m``. :data:`BARS` are the figures a swarm must meet to hold (the centre
-tracked within half a metre, the estimates agreeing within ten centimetres, the drones apart, nobody
-lost but those the scenario drops or crashes on purpose); :func:`breaks` says, per factor, the first
-value at which a bar breaks.
+gusts, the vehicles' drag, how the vehicles differ, their sensors' errors, the radio's limits,
+packet loss on every link from the start. Each flight's row holds the factors' values under their
+names, its seed and its figures (:func:`row_of`), among them ``centroid_rms_m``. :data:`BARS` are
+the figures a swarm must meet to hold (the centre tracked within half a metre, the estimates
+agreeing within ten centimetres, the drones apart, nobody lost but those the scenario drops or
+crashes on purpose); :func:`breaks` says, per factor, the first value at which a bar breaks.
 
 Pure but for the flights themselves (each one :func:`gcs.reference.simulate.simulate` into its
 own folder); the runs are independent and seeded, so they run in parallel, in any order, with the
@@ -67,6 +67,10 @@ def _sensors(scenario: Scenario, **changes: Any) -> Scenario:
     return dataclasses.replace(scenario, sensors=dataclasses.replace(scenario.sensors, **changes))
 
 
+def _radio(scenario: Scenario, **changes: Any) -> Scenario:
+    return dataclasses.replace(scenario, radio=dataclasses.replace(scenario.radio, **changes))
+
+
 def _loss(scenario: Scenario, probability: float) -> Scenario:
     if probability == 0.0:
         return scenario
@@ -116,6 +120,20 @@ FACTORS: dict[str, Factor] = {
                lambda s, v: _sensors(s, latency_s=v), (0.0, 1.0)),
         Factor("estimate_rate_hz", "Hz", "how often the state estimates are refreshed "
                "(0: every control tick)", lambda s, v: _sensors(s, rate_hz=v), (0.0, 1000.0)),
+        Factor("altitude_bias_m", "m", "the vehicles' wandering height bias (1 sigma)",
+               lambda s, v: _sensors(s, altitude_bias_m=v), (0.0, 20.0)),
+        Factor("velocity_noise_m_s", "m/s", "white noise on the vehicles' velocity estimates",
+               lambda s, v: _sensors(s, velocity_noise_m_s=v), (0.0, 5.0)),
+        Factor("bandwidth_bytes_s", "B/s", "each radio link's capacity (0: unlimited)",
+               lambda s, v: _radio(s, bandwidth_bytes_s=v), (0.0, 1e9)),
+        Factor("loss_half_m", "m", "the distance at which the radio loses half the messages "
+               "(0: none lost to distance)", lambda s, v: _radio(s, loss_half_m=v), (0.0, 1e5)),
+        Factor("burst_fraction", "", "the share of messages in the radio's loss bursts",
+               lambda s, v: _radio(s, burst_fraction=v), (0.0, 0.99)),
+        Factor("radio_latency_s", "s", "the radio's added latency",
+               lambda s, v: _radio(s, latency_s=v), (0.0, 5.0)),
+        Factor("jitter_s", "s", "the radio's mean random extra delay",
+               lambda s, v: _radio(s, jitter_s=v), (0.0, 5.0)),
     )
 }  # fmt: skip
 

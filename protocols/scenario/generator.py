@@ -35,6 +35,7 @@ from protocols.scenario.layout import (
     min_spacing,
     radio_graph,
 )
+from protocols.scenario.outdoor import OUTDOOR_SENSORS, outdoor_lines
 from protocols.scenario.scenario_file import Scenario, parse_scenario
 from protocols.scenario.templates import (
     SESSION_TEMPLATE,
@@ -128,6 +129,9 @@ class GeneratorOptions:
     wind_from_deg: float = 270.0
     #: the gusts' intensity (m/s, each component's standard deviation)
     turbulence_m_s: float = 0.0
+    #: a small quadcopter outdoors (protocols/scenario/outdoor.py): its GNSS ("rtk" or "gnss"),
+    #: or None: the ideal vehicles, sensors and radio
+    outdoor: str | None = None
 
     @property
     def windy(self) -> bool:
@@ -161,6 +165,8 @@ class GeneratorOptions:
             args.append(f"--wind {self.wind_m_s:g}@{self.wind_from_deg:g}")
         if self.turbulence_m_s > 0.0:
             args.append(f"--turbulence {self.turbulence_m_s:g}")
+        if self.outdoor is not None:
+            args.append(f"--outdoor {self.outdoor}")
         if self.name is not None:
             args.append(f"--name {self.name}")
         args.append(f"--seed {self.seed}")
@@ -242,6 +248,8 @@ def _check_options(o: GeneratorOptions) -> None:
         )
     if not (math.isfinite(o.turbulence_m_s) and 0.0 <= o.turbulence_m_s <= 10.0):
         raise GeneratorError(f"turbulence: must be in 0..10 m/s, got {o.turbulence_m_s:g}")
+    if o.outdoor is not None and o.outdoor not in OUTDOOR_SENSORS:
+        raise GeneratorError(f"outdoor: one of {', '.join(OUTDOOR_SENSORS)}, got {o.outdoor!r}")
     lost = o.faults.dropouts + o.faults.crashes
     if lost > o.drones - 2:
         raise GeneratorError(
@@ -351,6 +359,7 @@ def render(
         "",
         *_consensus_lines(consensus),
         *_air_lines(o),
+        *([] if o.outdoor is None else outdoor_lines(o.outdoor)),
         f"# Drones on the ground (NED m), {o.layout} layout, at least "
         f"{fmt(min_spacing(positions))} m apart (spacing {fmt(o.spacing_m)} m).",
         "# Drone i (0-based, file order) is MAVLink system id i + 1.",

@@ -94,8 +94,9 @@ class FleetConfig:
 @dataclass(frozen=True)
 class SensorsConfig:
     """[sensors]: what each vehicle's autopilot believes about itself, as a GNSS + EKF reports it
-    (sitl_sim/vehicle/estimate.py): ``gnss_bias_m`` the standard deviation (m) of a position bias
-    that wanders with correlation time ``gnss_bias_tau_s`` (s); white noise on position (m),
+    (sitl_sim/vehicle/estimate.py): ``gnss_bias_m`` the standard deviation (m) of a horizontal
+    position bias and ``altitude_bias_m`` of a height bias (a barometer-fused height's drift), both
+    wandering with correlation time ``gnss_bias_tau_s`` (s); white noise on position (m),
     velocity (m/s) and attitude (rad); the estimate's output rate ``rate_hz`` (0: every control
     tick) and its latency ``latency_s``. Drawn from the scenario's seed, each vehicle its own.
     The agents see only the estimate (the vehicles' telemetry); the report is of the truth.
@@ -108,13 +109,16 @@ class SensorsConfig:
     attitude_noise_rad: float = 0.0
     rate_hz: float = 0.0
     latency_s: float = 0.0
+    altitude_bias_m: float = 0.0
 
     @property
     def lie(self) -> bool:
-        """An error term is on: a GNSS bias or noise on position, velocity or attitude."""
+        """An error term is on: a GNSS or height bias or noise on position, velocity or
+        attitude."""
         return any(
             (
                 self.gnss_bias_m,
+                self.altitude_bias_m,
                 self.position_noise_m,
                 self.velocity_noise_m_s,
                 self.attitude_noise_rad,
@@ -524,6 +528,7 @@ _FLEET_BOUNDS: dict[str, dict[str, float]] = {
 #: at least 1 Hz when given, at most a second of latency
 _SENSORS_BOUNDS: dict[str, dict[str, float]] = {
     "gnss_bias_m": {"ge": 0.0, "le": 20.0},
+    "altitude_bias_m": {"ge": 0.0, "le": 20.0},
     "gnss_bias_tau_s": {"gt": 0.0, "le": 1e5},
     "position_noise_m": {"ge": 0.0, "le": 10.0},
     "velocity_noise_m_s": {"ge": 0.0, "le": 5.0},

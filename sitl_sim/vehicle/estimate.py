@@ -9,7 +9,9 @@ effects, each vehicle and each axis independently, for N vehicles at once, updat
 tick ``k`` of period ``dt = 1 / control_hz``:
 
 * **GNSS bias** (position only): a first-order Gauss–Markov process per axis, stationary standard
-  deviation ``sigma = gnss_bias_m``, correlation time ``tau = gnss_bias_tau_s``::
+  deviation ``sigma = gnss_bias_m`` north and east and ``altitude_bias_m`` down (an EKF that
+  takes its height from the barometer, PX4's and ArduPilot's default, drifts in height far less
+  than its GNSS does), correlation time ``tau = gnss_bias_tau_s``::
 
       b[0]   = sigma * w[0]
       b[k+1] = a * b[k] + sigma * sqrt(1 - a^2) * w[k+1],    a = exp(-dt / tau),  w ~ N(0, 1)
@@ -69,7 +71,8 @@ _FLOOR_EPS = 1e-9
 @dataclass(frozen=True)
 class Sensors:
     """The errors of a vehicle's state estimate: a GNSS position bias (stationary standard
-    deviation ``gnss_bias_m``, m, wandering with correlation time ``gnss_bias_tau_s``, s), white
+    deviation ``gnss_bias_m``, m, north and east and ``altitude_bias_m``, m, down, wandering with
+    correlation time ``gnss_bias_tau_s``, s), white
     noise on each position (m), velocity (m/s) and attitude (rad) component (standard deviations),
     the estimate's output rate ``rate_hz`` (Hz; 0: every control tick) and its latency
     ``latency_s`` (s). The defaults are the ideal sensor: no error at all."""
@@ -81,12 +84,14 @@ class Sensors:
     attitude_noise_rad: float = 0.0
     rate_hz: float = 0.0
     latency_s: float = 0.0
+    altitude_bias_m: float = 0.0
 
     @property
     def ideal(self) -> bool:
         """No error term, no output rate and no latency: the estimate is the truth."""
         return (
             self.gnss_bias_m == 0.0
+            and self.altitude_bias_m == 0.0
             and self.position_noise_m == 0.0
             and self.velocity_noise_m_s == 0.0
             and self.attitude_noise_rad == 0.0
@@ -136,9 +141,11 @@ class StateEstimate:
         #: the bias's per-tick decay ``a = exp(-dt / tau)`` and innovation scale
         #: ``sigma * sqrt(1 - a^2)`` (expm1: exact also for tau >> dt)
         self.decay = math.exp(-dt / config.gnss_bias_tau_s)
-        self._innovation = config.gnss_bias_m * math.sqrt(
-            -math.expm1(-2.0 * dt / config.gnss_bias_tau_s)
+        #: the bias's stationary standard deviation per axis (3, 1): north, east, down
+        self._sigma = np.array(
+            [[config.gnss_bias_m], [config.gnss_bias_m], [config.altitude_bias_m]]
         )
+        self._innovation = self._sigma * math.sqrt(-math.expm1(-2.0 * dt / config.gnss_bias_tau_s))
         #: the estimate describes the truth of this many ticks ago
         self.latency_ticks = round(config.latency_s * control_hz)
         ids = list(range(n)) if ids is None else [int(i) for i in ids]
@@ -201,7 +208,7 @@ class StateEstimate:
         # the draws of the tick, always all of them in this order: bias, then the noises
         w = np.stack([rng.standard_normal((4, 3)) for rng in self._rngs], axis=-1)
         if tick == 0:  # the stationary distribution N(0, sigma^2)
-            self._bias = self.config.gnss_bias_m * w[0]
+            self._bias = self._sigma * w[0]
         else:
             self._bias = self.decay * self._bias + self._innovation * w[0]
         if self.refreshes(tick):
