@@ -306,6 +306,14 @@ def test_outdoors_writes_the_documented_air_vehicles_sensors_and_radio(receiver:
     assert {k: radio[k] for k in outdoor.RADIO} == outdoor.RADIO
     assert s.environment.wind_ned_m_s == (0.0, 3.0, 0.0) and s.vehicle.drag_xy_per_s > 0
     assert s.sensors.lie and not s.radio.ideal
+    # scenario check sums them up, and warns where the GNSS bias is large against the spacing
+    from gcs.report.scenario_summary import summary_lines
+
+    lines = "\n".join(summary_lines(s))
+    assert "sensors    GNSS bias" in lines and "radio link 100 kB/s a link" in lines
+    assert ("WARNING: a GNSS bias of 2 m" in lines) is (receiver == "gnss"), lines
+    wide = generate(dataclasses.replace(options, spacing_m=9.0, range_m=20.0), None).scenario
+    assert "WARNING: a GNSS bias" not in "\n".join(summary_lines(wide))
     with pytest.raises(GeneratorError, match=r"^outdoor: "):
         generate(dataclasses.replace(options, outdoor="mocap"), None)
 
