@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drone_agent.process.link_faults import FaultyTransport, LinkFaults, PairRandom
-from drone_agent.process.radio import LOST, RadioLinks, loss_at, message_bytes
+from drone_agent.process.link_faults import FaultyTransport, LinkFaults, PairRandom, radio_links
+from drone_agent.process.radio import LOST, loss_at, message_bytes
 from drone_agent.process.transport import SwarmMessageCounters
 from gcs.reference.network import InProcessNetwork
 from protocols.scenario.scenario_file import RadioConfig, ScenarioError, load_scenario
@@ -34,7 +34,7 @@ DT = 0.02
 def _fates(
     config: RadioConfig, n: int, d_m: float = 1.0, size: int = 100, link=(0, 1)
 ) -> list[int]:
-    radio = RadioLinks(config, DT, seed=7)
+    radio = radio_links(config, DT, seed=7)
     return [radio.admit(link[0], link[1], r, size, d_m) for r in range(n)]
 
 
@@ -99,14 +99,14 @@ def test_latency_and_jitter_delay_by_whole_ticks_with_an_exponential_tail() -> N
 def test_each_link_draws_its_own_and_a_seed_repeats() -> None:
     config = RadioConfig(burst_fraction=0.3, loss_half_m=5.0, jitter_s=0.05)
     alone = _fates(config, 300, d_m=4.0, link=(2, 5))
-    radio = RadioLinks(config, DT, seed=7)
+    radio = radio_links(config, DT, seed=7)
     mixed = []
     for r in range(300):  # another link's traffic in between changes nothing on (2, 5)
         radio.admit(3, 5, r, 100, 4.0)
         mixed.append(radio.admit(2, 5, r, 100, 4.0))
     assert mixed == alone
     assert _fates(config, 300, d_m=4.0, link=(5, 2)) != alone  # the other direction: its own
-    other_seed = RadioLinks(config, DT, seed=8)
+    other_seed = radio_links(config, DT, seed=8)
     assert [other_seed.admit(2, 5, r, 100, 4.0) for r in range(300)] != alone
 
 
@@ -157,13 +157,13 @@ def test_simulate_radio_and_the_agents_link_layer_give_the_same_fates() -> None:
     )  # fmt: skip
     positions = np.array([[0.0, 0.0, -2.0], [4.0, 0.0, -2.0], [8.0, 0.0, -2.0]])
     n, rounds = 3, 400
-    net = InProcessNetwork(n, 100.0, PairRandom(0), 1, RadioLinks(config, DT, seed=3))
+    net = InProcessNetwork(n, 100.0, PairRandom(0), 1, radio_links(config, DT, seed=3))
     sim: set[tuple[int, int, int, int]] = set()  # (arrival, receiver, sender, round)
     clock = {"now": -1}
     inners = [_Inner(i) for i in range(n)]
     links = [
         FaultyTransport(inners[i], LinkFaults(), PairRandom(0), lambda: clock["now"],
-                        RadioLinks(config, DT, seed=3))
+                        radio_links(config, DT, seed=3))
         for i in range(n)
     ]  # fmt: skip
     up: set[tuple[int, int, int, int]] = set()

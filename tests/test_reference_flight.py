@@ -116,11 +116,11 @@ def test_loss_drops_its_share_and_leaves_no_lasting_error() -> None:
     sent_before: list[int] = []
     send = flight.network.send
 
-    def counting_send(round_: int, messages: Any, in_range: Any) -> None:
+    def counting_send(round_: int, messages: Any, in_range: Any, positions: Any = None) -> None:
         if round_ == FAULT_ROUND:  # faults apply before the tick: nothing lost until now
             sent_before.append(flight.network.sent)
             assert flight.network.lost == 0
-        send(round_, messages, in_range)
+        send(round_, messages, in_range, positions)
 
     flight.network.send = counting_send  # type: ignore[method-assign]
     rec = flight.run()

@@ -290,8 +290,12 @@ def run(args: argparse.Namespace) -> int:
     from drone_agent.process.fault_drills import FaultDrills
     from drone_agent.process.host import AgentHost, DroneIdError, parse_drone_ids
     from drone_agent.process.hosted_agent import RunOptions
-    from drone_agent.process.link_faults import FaultyTransport, LinkFaults, PairRandom
-    from drone_agent.process.radio import RadioLinks
+    from drone_agent.process.link_faults import (
+        FaultyTransport,
+        LinkFaults,
+        PairRandom,
+        radio_links,
+    )
     from drone_agent.process.round_gate import RoundBook
     from drone_agent.process.transport_link import AgentLink, ConsensusHub, LinkSettings
     from drone_agent.process.vehicle_link import VehicleLink
@@ -398,7 +402,7 @@ def run(args: argparse.Namespace) -> int:
         radio = (
             None
             if radio_config is None or scenario is None
-            else RadioLinks(radio_config, scenario.rates.dt_control_s, seed)
+            else radio_links(radio_config, scenario.rates.dt_control_s, seed)
         )
         return FaultyTransport(inner, faults, pair_random, lambda: host.round_of(drone), radio)
 

@@ -31,7 +31,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from drone_agent.process.radio import LOST, RadioLinks, distance_m, message_bytes
+from drone_agent.process.radio import (
+    LOST,
+    RADIO_STREAM,
+    RadioLinks,
+    distance_m,
+    message_bytes,
+)
 from drone_agent.process.transport import (
     BY_SENDER_ROUND,
     AgentTransport,
@@ -40,6 +46,7 @@ from drone_agent.process.transport import (
 )
 from protocols.bus.interface import ClosesOnExit
 from protocols.faults import Clear, Delay, LinkCut, LinkFault, LinkRestore, Loss, Partition
+from protocols.scenario.scenario_file import RadioConfig
 from protocols.wire.consensus_message import ConsensusMessage
 from protocols.wire.format import ConsensusPacket
 from protocols.wire.plan import PlanMessage
@@ -223,6 +230,13 @@ class PairRandom:
 
 #: loss draws a link of :meth:`PairRandom.draw` makes ahead at a time
 DRAW_BLOCK = 64
+
+
+def radio_links(config: RadioConfig, dt_s: float, seed: int) -> RadioLinks:
+    """The radio's limits (drone_agent/process/radio.py) of a run seeded ``seed``: each link
+    draws from its own stream, tagged :data:`~drone_agent.process.radio.RADIO_STREAM`."""
+    return RadioLinks(config, dt_s, PairRandom(seed, stream=RADIO_STREAM).draw)
+
 
 #: rounds of its own positions a :class:`FaultyTransport` with a radio keeps
 _OWN_ROUNDS = 256

@@ -31,7 +31,7 @@ whichever stages are on (so a link's draws depend only on its own messages, in r
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from protocols.scenario.scenario_file import RadioConfig
@@ -42,8 +42,8 @@ from protocols.wire.format import consensus_body_bytes
 #: burst, the fading, the jitter.
 DRAWS = 4
 
-#: The stream tag of the radio's draws in :class:`PairRandom` (the link faults' losses draw from
-#: the untagged streams: the two never share a draw).
+#: The stream tag of the radio's draws in link_faults' ``PairRandom`` (the link faults' losses
+#: draw from the untagged streams: the two never share a draw).
 RADIO_STREAM = 1
 
 #: What :meth:`RadioLinks.admit` returns for a lost message.
@@ -88,16 +88,14 @@ class RadioCounts:
 
 class RadioLinks:
     """The state of directed links (their queues and burst chains) and the one rule of the module
-    doc. ``rng``'s streams tagged :data:`RADIO_STREAM`, one per link, are its alone."""
+    doc. ``draw(sender, receiver)``: the link's next uniform draw, from a stream that is the
+    radio's alone (drone_agent/process/link_faults.py ``radio_links`` gives it the link's
+    :data:`RADIO_STREAM` of the scenario's seed)."""
 
-    def __init__(self, config: RadioConfig, dt_s: float, seed: int) -> None:
-        # (link_faults applies this module's rule: imported here, not at the top, to break the
-        # cycle)
-        from drone_agent.process.link_faults import PairRandom
-
+    def __init__(self, config: RadioConfig, dt_s: float, draw: Callable[[int, int], float]) -> None:
         self.config = config
         self.dt_s = dt_s
-        self.rng = PairRandom(seed, stream=RADIO_STREAM)
+        self.draw = draw
         self.counts = RadioCounts()
         c = config
         self._queue = c.bandwidth_bytes_s > 0.0
@@ -110,7 +108,7 @@ class RadioLinks:
     def admit(self, sender: int, receiver: int, round_: int, size_bytes: int, d_m: float) -> int:
         """The message's fate on its link: :data:`LOST`, or the control ticks it is delayed by
         beyond the radio's one (queue, latency and jitter)."""
-        c, link, draw = self.config, (sender, receiver), self.rng.draw
+        c, link, draw = self.config, (sender, receiver), self.draw
         u_chain, u_burst, u_fade, u_jitter = (draw(sender, receiver) for _ in range(DRAWS))
         ticks = 0
         if self._queue:

@@ -30,8 +30,7 @@ from drone_agent.core.agent_core import AgentCore, BatchAgentCore, BatchOutputs
 from drone_agent.core.config import agent_config
 from drone_agent.core.flight_phase import BatchReadiness, BatchTakeoff, FlightPhase
 from drone_agent.process.fault_timeline import TimedAction, timeline
-from drone_agent.process.link_faults import LinkFaults, PairRandom
-from drone_agent.process.radio import RadioLinks
+from drone_agent.process.link_faults import LinkFaults, PairRandom, radio_links
 from gcs.reference.autopilot_link import AutopilotLink, reported
 from gcs.reference.network import InProcessNetwork
 from gcs.report.flight_record import FlightRecord, scenario_link_cuts
@@ -142,7 +141,9 @@ class ReferenceFlight:
         # the radio's losses per directed link, seeded by the scenario, as the agents of swarm up
         # draw them: the in-process and distributed flights lose the same messages
         radio_rng = PairRandom(scenario.seed) if rng is None else self.rng
-        radio = None if scenario.radio.ideal else RadioLinks(scenario.radio, self.dt, scenario.seed)
+        radio = (
+            None if scenario.radio.ideal else radio_links(scenario.radio, self.dt, scenario.seed)
+        )
         self.network = InProcessNetwork(self.n, scenario.comms.range_m, radio_rng, delay, radio)
         self.member = np.ones(self.n, dtype=bool)
         self.lost_at: dict[int, float] = {}
