@@ -72,8 +72,8 @@ class _Vehicles:
     crashes: tuple[tuple[float, int], ...]
     home: GeoPoint
     air: Air = field(default_factory=Air)
-    #: each vehicle's (mass, thrust) factors, the whole fleet's (empty: all alike)
-    scales: tuple[tuple[float, float], ...] = ()
+    #: each vehicle's (mass, thrust[, motor lag]) factors, the whole fleet's (empty: all alike)
+    scales: tuple[tuple[float, ...], ...] = ()
     sensors: Sensors = field(default_factory=Sensors)
 
 

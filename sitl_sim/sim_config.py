@@ -133,12 +133,12 @@ def vehicles_from_scenario(
     list[Crash],
     GeoPoint,
     Air,
-    tuple[tuple[float, float], ...],
+    tuple[tuple[float, ...], ...],
     Sensors,
 ]:
     """(params, gains, positions (N, 3), yaw (N,) rad, physics Hz, control Hz, seed, crashes,
-    home, air, each vehicle's (mass, thrust) factors, the sensors); ``seed`` in place of the
-    scenario's (``--seed``), for every draw."""
+    home, air, each vehicle's (mass, thrust[, motor lag]) factors, the sensors); ``seed`` in place
+    of the scenario's (``--seed``), for every draw."""
     try:
         scenario = load_scenario(path)
     except ScenarioError as exc:

@@ -6,7 +6,9 @@ array operations over the (13, N) state: a second, independent writing of the ru
 
 ``inner_loop`` is the simulator's inner loop (the numpy attitude controller of
 sitl_sim/physics/attitude_control.py) with :func:`mix`; ``step_with_contact`` integrates with RK4
-(or semi-implicit Euler) and applies ground contact.
+(or semi-implicit Euler) and applies ground contact; ``step_with_lag`` does it with motors that lag
+(each rotor's speed a first-order lag of its command, exact over the step; RK4's stages take the
+rotors' wrench at their times).
 """
 
 from __future__ import annotations
@@ -78,6 +80,46 @@ def step_with_contact(
     if impact is None:
         impact = np.zeros(state.shape[1])
     return StepResult(state=new, impact_speed_m_s=impact)
+
+
+def lagged_rotor_speeds(
+    rotor_rad_s: FloatArray, command_rad_s: FloatArray, motor_tau_s: float, t_s: float
+) -> FloatArray:
+    """Rotor speeds (4, N) rad/s ``t_s`` after ``rotor_rad_s`` (4, N) under the command (4, N)
+    held, ``d w / dt = (w_cmd - w) / tau``: ``w_cmd + (w - w_cmd) exp(-t / tau)``."""
+    decay = np.exp(-t_s / motor_tau_s)
+    return command_rad_s + (rotor_rad_s - command_rad_s) * decay
+
+
+def step_with_lag(
+    state: FloatArray,
+    rotor_rad_s: FloatArray,
+    command_rad_s: FloatArray,
+    params: VehicleParams,
+    dt_s: float,
+) -> tuple[StepResult, FloatArray]:
+    """One RK4 step with contact of ``state`` (13, N) whose rotors at ``rotor_rad_s`` (4, N)
+    follow ``command_rad_s`` (4, N) with ``params.motor_tau_s`` > 0; the stages take the wrench
+    of the rotors' speeds at their times (start, middle, end). Returns the step's result (the
+    contact judged on the thrust at the end) and the rotor speeds (4, N) at the end."""
+    stages = [
+        lagged_rotor_speeds(rotor_rad_s, command_rad_s, params.motor_tau_s, t)
+        for t in (0.0, 0.5 * dt_s, dt_s)
+    ]
+    wrenches = [wrench_from_rotor_speeds(w, params) for w in stages]
+    inputs = [_specific_inputs(thrust, moments, params) for thrust, moments in wrenches]
+    coeffs = _euler_coeffs(params)
+    k = [np.empty_like(state) for _ in range(4)]
+    _derivative_into(k[0], state, *inputs[0], coeffs)
+    _derivative_into(k[1], state + 0.5 * dt_s * k[0], *inputs[1], coeffs)
+    _derivative_into(k[2], state + 0.5 * dt_s * k[1], *inputs[1], coeffs)
+    _derivative_into(k[3], state + dt_s * k[2], *inputs[2], coeffs)
+    new = state + (dt_s / 6.0) * (k[0] + 2.0 * (k[1] + k[2]) + k[3])
+    new[QUAT] /= np.sqrt(np.einsum("ij,ij->j", new[QUAT], new[QUAT]))
+    impact = _ground_contact_inplace(new, state, wrenches[2][0], params.weight_n)
+    if impact is None:
+        impact = np.zeros(state.shape[1])
+    return StepResult(state=new, impact_speed_m_s=impact), stages[2]
 
 
 def ground_contact(

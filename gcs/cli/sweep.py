@@ -24,6 +24,7 @@ factors (--vary NAME=V1,V2,...):
   drag_xy_per_s        the vehicles' drag in their x-y plane, 1/s
   mass_spread          how the vehicles' masses differ (relative, 1 sigma; 0.05: 5 %)
   thrust_spread        how the vehicles' rotor thrust differs (relative, 1 sigma)
+  motor_tau_s          the motors' time constant (rotor speed lag), s (0: none)
   loss                 packet loss on every link, from the start (0..0.99)
   gnss_bias_m          the vehicles' wandering GNSS position bias, m (1 sigma)
   position_noise_m     white noise on the vehicles' position estimates, m

@@ -110,6 +110,8 @@ FACTORS: dict[str, Factor] = {
                lambda s, v: _fleet(s, mass_spread=v), (0.0, 0.3)),
         Factor("thrust_spread", "", "how the vehicles' rotor thrust differs (relative)",
                lambda s, v: _fleet(s, thrust_spread=v), (0.0, 0.3)),
+        Factor("motor_tau_s", "s", "the motors' time constant (rotor speed lag; 0: none)",
+               lambda s, v: _vehicle(s, motor_tau_s=v), (0.0, 0.5)),
         Factor("loss", "", "packet loss on every link, from the start",
                _loss, (0.0, 0.99)),
         Factor("gnss_bias_m", "m", "the vehicles' wandering GNSS position bias (1 sigma)",

@@ -92,13 +92,17 @@ def _envelope_line(scenario: Scenario) -> str:
 
 
 def _fleet_line(sc: Scenario) -> str:
-    """All alike, or how the vehicles' mass and thrust spread (1 sigma)."""
-    f = sc.vehicles
-    if f.mass_spread == 0.0 and f.thrust_spread == 0.0:
-        return f"all alike ({sc.vehicle.mass_kg:g} kg)"
+    """All alike, or how the vehicles' mass and thrust spread (1 sigma); their motors' time
+    constant and its spread where the motors lag."""
+    f, tau_s = sc.vehicles, sc.vehicle.motor_tau_s
+    motors = f", motors' time constant {1000 * tau_s:g} ms" if tau_s > 0.0 else ""
+    tau_spread = f.motor_tau_spread if tau_s > 0.0 else 0.0
+    if f.mass_spread == 0.0 and f.thrust_spread == 0.0 and tau_spread == 0.0:
+        return f"all alike ({sc.vehicle.mass_kg:g} kg{motors})"
+    within = f" within {100 * tau_spread:g} %" if tau_spread > 0.0 else ""
     return (
         f"{sc.vehicle.mass_kg:g} kg, each one's mass within {100 * f.mass_spread:g} % and thrust "
-        f"within {100 * f.thrust_spread:g} % (1 sigma, drawn from the seed)"
+        f"within {100 * f.thrust_spread:g} %{motors}{within} (1 sigma, drawn from the seed)"
     )
 
 

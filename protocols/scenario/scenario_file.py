@@ -66,7 +66,9 @@ class VehicleConfig:
     """[vehicle]: mass (kg), principal inertia (kg m²), arm (m), thrust-to-weight, top rotor speed
     (rad/s), reaction yaw moment per newton of thrust (m); body drag per mass along the body's
     x and y axes and along z (1/s: m/s² of deceleration per m/s of airspeed; a small
-    quadcopter's rotor drag is ~0.4 in xy, ~0.15 in z). Defaults: paper Table II, no drag."""
+    quadcopter's rotor drag is ~0.4 in xy, ~0.15 in z); the motors' time constant (s: each
+    rotor's speed follows its command as a first-order lag; 0: at once). Defaults: paper Table II,
+    no drag, no motor lag."""
 
     mass_kg: float = 0.34
     ixx: float = 3.22e-4
@@ -78,17 +80,20 @@ class VehicleConfig:
     yaw_moment_per_thrust_m: float = 0.016
     drag_xy_per_s: float = 0.0
     drag_z_per_s: float = 0.0
+    motor_tau_s: float = 0.0
 
 
 @dataclass(frozen=True)
 class FleetConfig:
     """[vehicles]: how the vehicles differ from [vehicle], each drawn once from the scenario's
     seed: ``mass_spread`` and ``thrust_spread`` are the relative standard deviations of each
-    vehicle's mass and rotor thrust coefficient (0.05: 5 %). Default: all alike. The autopilots
-    know only [vehicle]'s values, as real ones know only their configuration."""
+    vehicle's mass and rotor thrust coefficient (0.05: 5 %), ``motor_tau_spread`` of its motors'
+    time constant (where [vehicle] gives one). Default: all alike. The autopilots know only
+    [vehicle]'s values, as real ones know only their configuration."""
 
     mass_spread: float = 0.0
     thrust_spread: float = 0.0
+    motor_tau_spread: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -519,10 +524,12 @@ _VEHICLE_BOUNDS: dict[str, dict[str, float]] = {
     **{name: {"gt": 0.0} for name in VehicleConfig.__dataclass_fields__},
     "drag_xy_per_s": {"ge": 0.0, "le": 10.0},
     "drag_z_per_s": {"ge": 0.0, "le": 10.0},
+    "motor_tau_s": {"ge": 0.0, "le": 0.5},
 }
 _FLEET_BOUNDS: dict[str, dict[str, float]] = {
     "mass_spread": {"ge": 0.0, "le": 0.3},
     "thrust_spread": {"ge": 0.0, "le": 0.3},
+    "motor_tau_spread": {"ge": 0.0, "le": 0.3},
 }
 #: [sensors]: up to what a poor GNSS gives (tens of metres of bias are no formation's), a rate of
 #: at least 1 Hz when given, at most a second of latency

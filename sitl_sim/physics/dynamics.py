@@ -15,7 +15,8 @@ Translation: ``a = g e3 - (T/m) R_b e3``. Rotation (Euler's equations, corrected
 ``p' = qr(Iyy-Izz)/Ixx + l/Ixx``, ``q' = pr(Izz-Ixx)/Iyy + m/Iyy``,
 ``r' = pq(Ixx-Iyy)/Izz + n/Izz``.
 Rotor speeds are held constant over a step (zero-order hold); classic RK4, the quaternion
-re-normalised after it.
+re-normalised after it. (Motors that lag, ``VehicleParams.motor_tau_s``, are the simulator's
+kernel's: sitl_sim/physics/kernel.py; here the rotor speeds given are those of the step.)
 
 Ground contact (after each step): a vehicle at or below the ground moving down is put on the
 ground with zero velocity and body rates (inelastic, with friction); while its thrust is below

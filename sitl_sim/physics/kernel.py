@@ -17,8 +17,14 @@ sub-steps for every vehicle in plain floating point: each vehicle's state stays 
 through its sub-steps, and vehicles never mix (each vehicle's mixer, contact and integration are
 its own).
 
+Motors that lag (``VehicleParams.motor_tau_s`` > 0): each rotor's speed follows the mixer's
+command as a first-order lag, exactly over each sub-step (the command is held), and the rigid
+body's RK4 takes the rotors' wrench at each of its stage times. The rotor speeds are then state:
+a call takes them (``rotor_rad_s``) and returns them. A vehicle whose motors do not lag runs the
+arithmetic it ran before the lag existed, whatever the others do.
+
 Pure: no I/O, no clock. The kernel keeps scratch buffers between calls but no state: every call
-takes the state and returns new arrays.
+takes the state (and the rotor speeds) and returns new arrays.
 """
 
 from __future__ import annotations
@@ -71,6 +77,7 @@ class PhysicsKernel:
         self._gains: list[FloatArray] = [self._kp, self._kd]
         self._all_on = np.ones((4, n))
         self._enable = np.empty((4, n))
+        self._rotors_at_rest = np.zeros((4, n))
         #: the air's velocity (3, N) m/s NED the next sub-steps fly in (:meth:`use_air`)
         self.air = np.zeros((3, n))
         g = gains if gains is not None else AttitudeGains()
@@ -102,6 +109,7 @@ class PhysicsKernel:
         euler_des: FloatArray,
         thrust_normalised: FloatArray,
         enable: Enable = None,
+        rotor_rad_s: FloatArray | None = None,
     ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
         """Advance ``state`` (13, N) by one sub-step under an attitude setpoint.
 
@@ -111,14 +119,18 @@ class PhysicsKernel:
             thrust_normalised: collective thrust (N,) as a fraction of the maximum.
             enable: rotor speeds are multiplied by it: (N,) (armed) or (4, N) (armed and motor
                 working) booleans or 0/1 floats; None: all rotors run.
+            rotor_rad_s: the rotors' speeds (4, N) rad/s at the start, read for the vehicles
+                whose motors lag (the last call's rotor speeds); None: at rest.
 
         Returns:
-            The new state (13, N) (a new array), the rotor speeds (4, N) rad/s applied (a new
-            array: those of :func:`sitl_sim.physics.inner_loop.inner_loop`, with disabled rotors at
-            0), and each vehicle's touchdown speed (N,) m/s, or None if no vehicle touched the
-            ground.
+            The new state (13, N) (a new array), the rotor speeds (4, N) rad/s (a new array:
+            those of :func:`sitl_sim.physics.inner_loop.inner_loop`, with disabled rotors at
+            0; where the motors lag, the rotors' speeds at the end, which follow them), and each
+            vehicle's touchdown speed (N,) m/s, or None if no vehicle touched the ground.
         """
-        new, rotor, impacts, touched = self._run(state, euler_des, thrust_normalised, enable, 1)
+        new, rotor, impacts, touched = self._run(
+            state, euler_des, thrust_normalised, enable, 1, rotor_rad_s
+        )
         return new, rotor, impacts[0] if touched[0] else None
 
     def substeps(
@@ -128,14 +140,17 @@ class PhysicsKernel:
         thrust_normalised: FloatArray,
         enable: Enable,
         count: int,
+        rotor_rad_s: FloatArray | None = None,
     ) -> tuple[FloatArray, FloatArray, list[FloatArray]]:
         """``count`` (>= 1) sub-steps under the same setpoint and ``enable``: the same numbers
-        as ``count`` calls of :meth:`substep`, in one call. Returns the last state and rotor
-        speeds, and the touchdown speeds (N,) of each sub-step in which a vehicle touched the
-        ground, in order."""
+        as ``count`` calls of :meth:`substep` (each given the last one's rotor speeds), in one
+        call. Returns the last state and rotor speeds, and the touchdown speeds (N,) of each
+        sub-step in which a vehicle touched the ground, in order."""
         if count < 1:
             raise ValueError(f"count must be at least 1, got {count}")
-        new, rotor, impacts, touched = self._run(state, euler_des, thrust_normalised, enable, count)
+        new, rotor, impacts, touched = self._run(
+            state, euler_des, thrust_normalised, enable, count, rotor_rad_s
+        )
         return new, rotor, [impacts[k] for k in np.flatnonzero(touched)]
 
     def _run(
@@ -145,6 +160,7 @@ class PhysicsKernel:
         thrust_normalised: FloatArray,
         enable: Enable,
         count: int,
+        rotor_rad_s: FloatArray | None,
     ) -> tuple[FloatArray, FloatArray, FloatArray, npt.NDArray[np.bool_]]:
         n = self.n
         if enable is None:
@@ -154,8 +170,14 @@ class PhysicsKernel:
             on[...] = enable
         new, rotor = np.empty((13, n)), np.empty((4, n))
         impacts, touched = np.zeros((count, n)), np.zeros(count, dtype=np.bool_)
+        rotor_now = (
+            self._rotors_at_rest
+            if rotor_rad_s is None
+            else np.ascontiguousarray(rotor_rad_s, dtype=np.float64).reshape(4, n)
+        )
         self._advance(
             np.ascontiguousarray(state, dtype=np.float64),
+            rotor_now,
             np.ascontiguousarray(euler_des, dtype=np.float64),
             np.ascontiguousarray(thrust_normalised, dtype=np.float64).reshape(n),
             on,

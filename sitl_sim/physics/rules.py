@@ -1,5 +1,6 @@
 """The per-vehicle rules of the simulated quadcopter, written once: attitude controller, mixer,
-rotor wrench, rigid-body derivative, RK4 and ground contact, on one vehicle's plain floats.
+rotor wrench, motor lag, rigid-body derivative, RK4 and ground contact, on one vehicle's plain
+floats.
 
 Each rule is plain Python over floats and a (13,) state row (the layout of
 :mod:`sitl_sim.physics.dynamics`), compiled by numba as it is
@@ -9,9 +10,10 @@ vehicles (:class:`sitl_sim.physics.kernel.PhysicsKernel`, through
 :func:`sitl_sim.physics.mixer.mix` all run this code; the loops of the last two (the rigid body
 alone, the mixer alone, over N vehicles) end this module. The maths is that of the modules' docs:
 attitude_control (eq. 20, 36-39 as corrected), mixer (eq. 3 inverted, with its saturation), dynamics
-(eq. 3-6, RK4 with the quaternion re-normalised, then ground contact). No ``fastmath``: IEEE
-arithmetic term by term as written; ``math``'s functions are the C library's. The numpy versions
-these replaced are the tests' oracle (tests/physics_oracle.py).
+(eq. 3-6, RK4 with the quaternion re-normalised, then ground contact), the motors' lag
+(sitl_sim/physics/vehicle_params.py; exact over a step, :func:`rk4_lagged_into`). No
+``fastmath``: IEEE arithmetic term by term as written; ``math``'s functions are the C library's.
+The numpy versions these replaced are the tests' oracle (tests/physics_oracle.py).
 
 A fleet's parameters reach the rules as one float array (:func:`constants`, indexed by the names
 below): numba then compiles one loop for every fleet.
@@ -30,7 +32,7 @@ from sitl_sim.physics.vehicle_params import VehicleParams
 # The constants of one fleet, packed for the compiled loops (indices into ``constants()``).
 (H, F_MIN, F_MAX, TOL, MAX_THRUST, HALF_ARM_INV, YAW_SHARE, INV_C, C, ARM, YAW_K,
  INV_MASS, WEIGHT, IXX, IYY, IZZ, ARM_LIMIT, YAW_LIMIT, E0, E1, E2, G,
- MIN_COS, AIR, DRAG_XY, DRAG_Z, N_CONSTANTS) = range(27)  # fmt: skip
+ MIN_COS, AIR, DRAG_XY, DRAG_Z, LAG, DECAY_MID, DECAY_END, N_CONSTANTS) = range(30)  # fmt: skip
 
 
 def euler_coeffs(params: VehicleParams) -> tuple[float, float, float]:
@@ -63,6 +65,12 @@ def constants(params: VehicleParams, dt_s: float, min_cos_pitch: float = math.na
     c[DRAG_XY] = params.body_drag_xy_n_s_m / params.mass_kg
     c[DRAG_Z] = params.body_drag_z_n_s_m / params.mass_kg
     c[AIR] = 1.0 if c[DRAG_XY] > 0.0 or c[DRAG_Z] > 0.0 else 0.0
+    # the motors' lag: LAG says whether there is any (else the rotors follow their commands at
+    # once), DECAY_* how much of a rotor's speed error is left after half a sub-step and after one
+    tau = params.motor_tau_s
+    c[LAG] = 1.0 if tau > 0.0 else 0.0
+    c[DECAY_MID] = math.exp(-0.5 * dt_s / tau) if tau > 0.0 else 0.0
+    c[DECAY_END] = math.exp(-dt_s / tau) if tau > 0.0 else 0.0
     return c
 
 
@@ -253,18 +261,26 @@ def rk4_into(s, t_m, a0, a1, a2, c, k1, k2, k3, k4, xt, air):  # type: ignore[no
     """One classic Runge-Kutta step of ``c[H]`` s of the state ``s`` (13,) in place (inputs held
     over the step, and the air's velocity ``air`` (3,) NED), the quaternion re-normalised;
     ``k1``..``k4``, ``xt`` (13,) are scratch."""
+    held = (t_m, a0, a1, a2)
+    rk4_inputs_into(s, held, held, held, c, k1, k2, k3, k4, xt, air)
+
+
+@jit(inline="always")
+def rk4_inputs_into(s, u0, u_mid, u1, c, k1, k2, k3, k4, xt, air):  # type: ignore[no-untyped-def]
+    """:func:`rk4_into` with inputs that change over the step: ``u0``, ``u_mid`` and ``u1`` are
+    the inputs ``(t_m, a0, a1, a2)`` at its start, middle and end (RK4's stage times)."""
     h = c[H]
     half_h, sixth_h = 0.5 * h, h / 6.0
-    derivative_into(k1, s, t_m, a0, a1, a2, c, air)
+    derivative_into(k1, s, u0[0], u0[1], u0[2], u0[3], c, air)
     for j in range(13):
         xt[j] = k1[j] * half_h + s[j]
-    derivative_into(k2, xt, t_m, a0, a1, a2, c, air)
+    derivative_into(k2, xt, u_mid[0], u_mid[1], u_mid[2], u_mid[3], c, air)
     for j in range(13):
         xt[j] = k2[j] * half_h + s[j]
-    derivative_into(k3, xt, t_m, a0, a1, a2, c, air)
+    derivative_into(k3, xt, u_mid[0], u_mid[1], u_mid[2], u_mid[3], c, air)
     for j in range(13):
         xt[j] = k3[j] * h + s[j]
-    derivative_into(k4, xt, t_m, a0, a1, a2, c, air)
+    derivative_into(k4, xt, u1[0], u1[1], u1[2], u1[3], c, air)
     for j in range(13):
         acc = k2[j] + k3[j]
         acc = acc + acc
@@ -273,6 +289,40 @@ def rk4_into(s, t_m, a0, a1, a2, c, k1, k2, k3, k4, xt, air):  # type: ignore[no
         s[j] = acc * sixth_h + s[j]
     norm = math.sqrt(s[6] * s[6] + s[7] * s[7] + s[8] * s[8] + s[9] * s[9])
     s[6], s[7], s[8], s[9] = s[6] / norm, s[7] / norm, s[8] / norm, s[9] / norm
+
+
+# -- the motors' lag (sitl_sim/physics/vehicle_params.py's doc)
+# ------------------------------------------
+@jit(inline="always")
+def lagged(w, cmd, decay):  # type: ignore[no-untyped-def]
+    """A rotor's speed (rad/s) at ``w`` that follows ``cmd`` as a first-order lag, once the
+    error has decayed to ``decay`` of itself (``exp(-t / tau)`` after ``t`` s): exact, as the
+    command is held."""
+    return cmd + (w - cmd) * decay
+
+
+@jit(inline="always")
+def rk4_lagged_into(  # type: ignore[no-untyped-def]
+    s, w0, w1, w2, w3, u0, u1, u2, u3, c, k1, k2, k3, k4, xt, air
+):
+    """One RK4 step (:func:`rk4_inputs_into`) of the state ``s`` (13,) in place, its rotors at
+    ``(w0..w3)`` rad/s following the commands ``(u0..u3)`` rad/s held over the step with the
+    motors' lag (``c[DECAY_MID]``, ``c[DECAY_END]``): the rotor speeds are exact at each stage
+    time (the lag does not depend on the body's state), their wrench is the stage's input.
+    Returns the thrust (N) and the rotor speeds at the step's end."""
+    dm, de = c[DECAY_MID], c[DECAY_END]
+    m0, m1 = lagged(w0, u0, dm), lagged(w1, u1, dm)
+    m2, m3 = lagged(w2, u2, dm), lagged(w3, u3, dm)
+    e0, e1 = lagged(w0, u0, de), lagged(w1, u1, de)
+    e2, e3 = lagged(w2, u2, de), lagged(w3, u3, de)
+    _, tm0, a00, a01, a02 = rotor_wrench(w0, w1, w2, w3, c)
+    _, tmm, am0, am1, am2 = rotor_wrench(m0, m1, m2, m3, c)
+    thrust, tm1, a10, a11, a12 = rotor_wrench(e0, e1, e2, e3, c)
+    rk4_inputs_into(
+        s, (tm0, a00, a01, a02), (tmm, am0, am1, am2), (tm1, a10, a11, a12), c,
+        k1, k2, k3, k4, xt, air,
+    )  # fmt: skip
+    return thrust, e0, e1, e2, e3
 
 
 @jit(inline="always", calls={"yaw_from_wxyz": _yaw_of})

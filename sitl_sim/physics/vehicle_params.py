@@ -6,8 +6,11 @@ body ``-z`` and a reaction yaw moment ``M_i = a * D * omega_i**2`` (N m), where 
 thrust-to-weight ratio of 2 at ``rotor_speed_max_rad_s = 1000`` and a yaw-moment-to-thrust ratio
 ``a * D / c = 0.016 m``.
 
-A first-order motor lag is deliberately not modelled: the rotor speeds commanded by the inner loop
-act instantly, which keeps the vehicle state at 13 rows (see ``sitl_sim.physics.dynamics``).
+Motor lag (``motor_tau_s``): each rotor's speed follows its command as a first-order lag,
+``d omega / dt = (omega_cmd - omega) / tau`` (RotorPy's and PX4's Gazebo motor models), so its
+thrust ``c omega^2`` lags too. ``tau = 0`` (the default, the paper's vehicle): the commanded speeds
+act instantly. The rotor speeds are then state beside the (13, N) rigid body (the simulator's
+world keeps them: ``sitl_sim.physics.kernel``).
 """
 
 from __future__ import annotations
@@ -48,6 +51,8 @@ class VehicleParams:
             the air, along the body's x and y axes and along its z axis (N per m/s of airspeed;
             rotor drag of a small quadcopter is mostly in its xy plane). 0: no drag (the paper's
             vehicle).
+        motor_tau_s: the motors' time constant (s): each rotor's speed follows its command as a
+            first-order lag. 0: instantly (the paper's vehicle).
     """
 
     mass_kg: float = _MASS_KG
@@ -61,6 +66,7 @@ class VehicleParams:
     rotor_speed_max_rad_s: float = _ROTOR_SPEED_MAX_RAD_S
     body_drag_xy_n_s_m: float = 0.0
     body_drag_z_n_s_m: float = 0.0
+    motor_tau_s: float = 0.0
 
     @property
     def weight_n(self) -> float:
@@ -97,17 +103,20 @@ class VehicleParams:
         """Principal moments of inertia ``(Ixx, Iyy, Izz)`` as a (3,) array (kg m^2)."""
         return np.array([self.ixx, self.iyy, self.izz])
 
-    def scaled(self, mass: float = 1.0, thrust: float = 1.0) -> VehicleParams:
-        """This vehicle with its mass times ``mass`` and its rotors' thrust (and reaction torque)
-        coefficients times ``thrust``: one vehicle of a fleet that differs
-        (:func:`vehicle_scales`)."""
-        if mass == 1.0 and thrust == 1.0:
+    def scaled(
+        self, mass: float = 1.0, thrust: float = 1.0, motor_tau: float = 1.0
+    ) -> VehicleParams:
+        """This vehicle with its mass times ``mass``, its rotors' thrust (and reaction torque)
+        coefficients times ``thrust`` and its motors' time constant times ``motor_tau``: one
+        vehicle of a fleet that differs (:func:`vehicle_scales`)."""
+        if mass == 1.0 and thrust == 1.0 and motor_tau == 1.0:
             return self
         return dataclasses.replace(
             self,
             mass_kg=self.mass_kg * mass,
             thrust_coeff=self.thrust_coeff * thrust,
             drag_coeff=self.drag_coeff * thrust,
+            motor_tau_s=self.motor_tau_s * motor_tau,
         ).validate()
 
     def validate(self) -> VehicleParams:
@@ -123,7 +132,7 @@ class VehicleParams:
             is_number = isinstance(value, int | float) and not isinstance(value, bool)
             if not is_number or not math.isfinite(value):
                 raise ValueError(f"VehicleParams.{f.name} must be a finite number, got {value!r}")
-            if f.name in ("rotor_speed_min_rad_s", "body_drag_xy_n_s_m", "body_drag_z_n_s_m"):
+            if f.name in _MAY_BE_ZERO:
                 if value < 0.0:
                     raise ValueError(f"VehicleParams.{f.name} must be >= 0, got {value!r}")
             elif value <= 0.0:
@@ -136,21 +145,33 @@ class VehicleParams:
         return self
 
 
-#: Salt of the draws of a fleet's spread, apart from the scenario's other random draws.
+#: The fields that may be 0 (the others must be positive).
+_MAY_BE_ZERO = ("rotor_speed_min_rad_s", "body_drag_xy_n_s_m", "body_drag_z_n_s_m", "motor_tau_s")
+
+#: Salts of the draws of a fleet's spread, apart from the scenario's other random draws: the
+#: masses and thrusts, and the motors' time constants (their own stream, so that a fleet's masses
+#: and thrusts are the same with or without it).
 _SPREAD_SALT = 0x53505244  # "SPRD"
+_MOTOR_SALT = 0x4D544155  # "MTAU"
 
 
 def vehicle_scales(
-    n: int, mass_spread: float, thrust_spread: float, seed: int
-) -> tuple[tuple[float, float], ...]:
-    """Each of ``n`` vehicles' (mass, thrust) factors: normal about 1 with relative standard
-    deviations ``mass_spread`` and ``thrust_spread``, cut at three of them, drawn for the whole
-    fleet from ``seed`` (vehicle i's factors do not depend on which simulator shard flies it).
-    Empty when neither spreads: every vehicle is the nominal one."""
-    if mass_spread == 0.0 and thrust_spread == 0.0:
+    n: int, mass_spread: float, thrust_spread: float, seed: int, motor_tau_spread: float = 0.0
+) -> tuple[tuple[float, ...], ...]:
+    """Each of ``n`` vehicles' (mass, thrust) factors, and its motors' time constant factor
+    third when ``motor_tau_spread`` is not 0: normal about 1 with relative standard deviations
+    ``mass_spread``, ``thrust_spread`` and ``motor_tau_spread``, cut at three of them, drawn for
+    the whole fleet from ``seed`` (vehicle i's factors do not depend on which simulator shard
+    flies it). Empty when none spreads: every vehicle is the nominal one."""
+    if mass_spread == 0.0 and thrust_spread == 0.0 and motor_tau_spread == 0.0:
         return ()
     rng = np.random.default_rng([seed & 0xFFFF_FFFF, _SPREAD_SALT])
     z = np.clip(rng.standard_normal((n, 2)), -3.0, 3.0)
     mass = 1.0 + mass_spread * z[:, 0]
     thrust = 1.0 + thrust_spread * z[:, 1]
-    return tuple((float(m), float(t)) for m, t in zip(mass, thrust, strict=True))
+    pairs = tuple((float(m), float(t)) for m, t in zip(mass, thrust, strict=True))
+    if motor_tau_spread == 0.0:
+        return pairs
+    rng = np.random.default_rng([seed & 0xFFFF_FFFF, _MOTOR_SALT])
+    tau = 1.0 + motor_tau_spread * np.clip(rng.standard_normal(n), -3.0, 3.0)
+    return tuple((*pair, float(t)) for pair, t in zip(pairs, tau, strict=True))

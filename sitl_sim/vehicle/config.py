@@ -31,6 +31,7 @@ def vehicle_params(scenario: Scenario) -> VehicleParams:
         rotor_speed_max_rad_s=v.rotor_speed_max_rad_s,
         body_drag_xy_n_s_m=v.drag_xy_per_s * v.mass_kg,
         body_drag_z_n_s_m=v.drag_z_per_s * v.mass_kg,
+        motor_tau_s=v.motor_tau_s,
     ).validate()
 
 
@@ -51,7 +52,9 @@ def sensors(scenario: Scenario) -> Sensors:
     return Sensors(**dataclasses.asdict(scenario.sensors)).validate()  # the section's fields
 
 
-def vehicle_scales(scenario: Scenario) -> tuple[tuple[float, float], ...]:
-    """Each of the scenario's vehicles' (mass, thrust) factors (empty: all alike)."""
+def vehicle_scales(scenario: Scenario) -> tuple[tuple[float, ...], ...]:
+    """Each of the scenario's vehicles' (mass, thrust) factors, and its motors' time constant
+    factor third where the motors lag and their time constants differ (empty: all alike)."""
     f = scenario.vehicles
-    return draw_scales(scenario.n_drones, f.mass_spread, f.thrust_spread, scenario.seed)
+    tau_spread = f.motor_tau_spread if scenario.vehicle.motor_tau_s > 0.0 else 0.0
+    return draw_scales(scenario.n_drones, f.mass_spread, f.thrust_spread, scenario.seed, tau_spread)

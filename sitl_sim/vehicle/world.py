@@ -11,6 +11,11 @@ arithmetic (and a whole period's steps in one call while no vehicle's command de
 within it). Then the autopilots update (failsafes, touchdowns, crashes) and scheduled crashes (a
 scenario's fault timeline) fire.
 
+Where a vehicle's motors lag (``VehicleParams.motor_tau_s``, each vehicle's own with
+``config.vehicle_scales``' third factor), its rotors' speeds are state the World keeps
+(:attr:`World.rotor_speed_rad_s`), each physics step starting from the last one's: a simulator
+shard's vehicles step as they do in the whole world.
+
 Each control period also drains each vehicle's battery by the current its rotors drew
 (:mod:`sitl_sim.vehicle.battery`, reported in SYS_STATUS). ``config.home`` places the NED origin on
 the map (protocols/model/geodesy.py), for the telemetry only: the world itself is flat.
@@ -69,7 +74,8 @@ class WorldConfig:
     the simulated seconds after start before its EKF and GPS are ready, and the air the
     vehicles fly in (``air``; its turbulence drawn from ``air_seed``, the same in every shard
     and runner of a flight) and how each vehicle differs from the nominal one
-    (``vehicle_scales``: its mass and thrust factors)."""
+    (``vehicle_scales``: its mass and thrust factors, and its motors' time constant factor
+    third where those differ)."""
 
     physics_hz: int = 500
     control_hz: int = 50
@@ -82,9 +88,10 @@ class WorldConfig:
     ekf_ready_s: float = DEFAULT_EKF_READY_S
     air: Air = field(default_factory=Air)
     air_seed: int = 0
-    #: each vehicle's (mass, thrust) factors (sitl_sim/physics/vehicle_params.py,
-    #: ``vehicle_scales``); empty: every vehicle is the nominal one
-    vehicle_scales: tuple[tuple[float, float], ...] = ()
+    #: each vehicle's (mass, thrust[, motor time constant]) factors
+    #: (sitl_sim/physics/vehicle_params.py, ``vehicle_scales``); empty: every vehicle is the
+    #: nominal one
+    vehicle_scales: tuple[tuple[float, ...], ...] = ()
     #: what the vehicles' state estimates get wrong (sitl_sim/vehicle/estimate.py; the default:
     #: nothing), drawn from ``sensors_seed``, each vehicle from its own stream named by its index
     #: in the swarm: ``first_vehicle`` is this world's vehicle 0's (a simulator shard's first)
@@ -157,14 +164,15 @@ class World:
         #: commands depend on the state in more ways: sitl_sim/vehicle/copter.py)
         self._fused = config.dialect == Dialect.PX4
         self.tick = 0
-        #: rotor speeds (4, N) rad/s applied in the last physics step (0 before the first)
+        #: rotor speeds (4, N) rad/s of the last physics step (0 before the first): as commanded,
+        #: or where the motors lag, the speeds they reached (the next step starts from them)
         self.rotor_speed_rad_s = np.zeros((4, self.n))
         #: the physics sub-step (inner loop + RK4 + contact), fused
         scales = config.vehicle_scales
         if scales and len(scales) != self.n:
             raise ValueError(f"vehicle_scales: {len(scales)} vehicles' factors for {self.n}")
         #: each vehicle's true parameters (its autopilot knows only the nominal ``params``)
-        self.fleet = [params.scaled(m, t) for m, t in scales] if scales else [params] * self.n
+        self.fleet = [params.scaled(*f) for f in scales] if scales else [params] * self.n
         self.kernel = PhysicsKernel(
             params, self.n, self.dt_physics_s, gains, self.fleet if scales else None
         )
@@ -217,13 +225,15 @@ class World:
         state, rotor = self.state, self.rotor_speed_rad_s
         if self._fused and self.guidance.steady:  # one command for the period: one kernel call
             euler, thrust = self.guidance.command(state)
-            state, rotor, touchdowns = kernel.substeps(state, euler, thrust, enable, self.substeps)
+            state, rotor, touchdowns = kernel.substeps(
+                state, euler, thrust, enable, self.substeps, rotor
+            )
             for touchdown in touchdowns:
                 np.maximum(impact, touchdown, out=impact)
         else:
             for _ in range(self.substeps):
                 euler, thrust = self.guidance.command(state)
-                state, rotor, touched = kernel.substep(state, euler, thrust, enable)
+                state, rotor, touched = kernel.substep(state, euler, thrust, enable, rotor)
                 if touched is not None:
                     np.maximum(impact, touched, out=impact)
         self.rotor_speed_rad_s = rotor
