@@ -1,7 +1,8 @@
 """The distributed lockstep flight is the in-process one: a 3 x 3 grid as a newcomer generates it
 (2.5 m apart, radio range 6 m, take-off, 20 % loss, an agent drop-out), in a breeze with gusts
 (wind, turbulence and the vehicles' drag: the air is one field for both runners) with vehicles
-that differ (mass and thrust spread, drawn from the seed in both) and sensors that lie (a
+that differ (mass, thrust and motor time constant spread, drawn from the seed in both; motors that
+lag, their rotor speeds state the simulator keeps) and sensors that lie (a
 wandering GNSS bias, attitude noise, a 25 Hz estimate 40 ms late: each vehicle's own errors, drawn
 from the seed in both) over a radio with limits (a bandwidth cap and its queue, loss with distance
 and in bursts, latency and jitter: each link's own draws, in ``swarm simulate``'s radio and in each
@@ -45,10 +46,12 @@ WINDY = """
 [vehicle]
 drag_xy_per_s = 0.4
 drag_z_per_s = 0.15
+motor_tau_s = 0.03
 
 [vehicles]
 mass_spread = 0.02
 thrust_spread = 0.01
+motor_tau_spread = 0.2
 
 [environment]
 wind_ned_m_s = [1.5, 1.0, 0.0]

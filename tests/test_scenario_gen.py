@@ -300,6 +300,7 @@ def test_outdoors_writes_the_documented_air_vehicles_sensors_and_radio(receiver:
     s = generated.scenario
     assert f"--outdoor {receiver}" in generated.text.splitlines()[2]
     assert dataclasses.asdict(s.vehicles) == outdoor.VEHICLES
+    assert s.vehicle.motor_tau_s == outdoor.VEHICLE["motor_tau_s"] > 0
     sensors = dataclasses.asdict(s.sensors)
     assert {k: sensors[k] for k in outdoor.SENSORS[receiver]} == outdoor.SENSORS[receiver]
     radio = dataclasses.asdict(s.radio)

@@ -35,7 +35,7 @@ from protocols.scenario.layout import (
     min_spacing,
     radio_graph,
 )
-from protocols.scenario.outdoor import OUTDOOR_SENSORS, outdoor_lines
+from protocols.scenario.outdoor import OUTDOOR_SENSORS, VEHICLE, outdoor_lines
 from protocols.scenario.scenario_file import Scenario, parse_scenario
 from protocols.scenario.templates import (
     SESSION_TEMPLATE,
@@ -391,16 +391,26 @@ def render(
 
 
 def _air_lines(o: GeneratorOptions) -> list[str]:
-    """[vehicle] drag and [environment] of a windy scenario (nothing in still air)."""
+    """[vehicle] drag (in moving air) and motors (outdoors: protocols/scenario/outdoor.py), and
+    [environment] of a windy scenario (nothing in still air, ideal vehicles)."""
+    vehicle = []
+    if o.windy:
+        vehicle += [
+            "# The vehicles' drag (m/s^2 per m/s of airspeed, a small quadcopter's rotor drag):",
+            "# the air moves them through it.",
+            "drag_xy_per_s = 0.4",
+            "drag_z_per_s = 0.15",
+        ]
+    if o.outdoor is not None:
+        vehicle += [
+            "# Their motors: each rotor's speed follows its command with this time constant (s).",
+            *(f"{k} = {v!r}" for k, v in VEHICLE.items()),
+        ]
+    lines = ["[vehicle]", *vehicle, ""] if vehicle else []
     if not o.windy:
-        return []
+        return lines
     return [
-        "# The vehicles' drag (m/s^2 per m/s of airspeed, a small quadcopter's rotor drag): the",
-        "# air moves them through it.",
-        "[vehicle]",
-        "drag_xy_per_s = 0.4",
-        "drag_z_per_s = 0.15",
-        "",
+        *lines,
         f"# The air: {fmt(o.wind_m_s)} m/s from {fmt(o.wind_from_deg)} deg, gusts of "
         f"{fmt(o.turbulence_m_s)} m/s (von Karman, carried by the wind).",
         "[environment]",

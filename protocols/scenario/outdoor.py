@@ -5,7 +5,8 @@ rtk|gnss`` writes them (protocols/scenario/generator.py); docs/scenarios.md cite
   of the mean wind near the ground, MIL-HDBK-1797's low-altitude model), unless the command
   gives its own wind.
 - Vehicles that differ: 2 % in mass, 1 % in rotor thrust (one battery, payload and propeller
-  batch to the next).
+  batch to the next), motors of 20 ms time constant 10 % apart (PX4's Gazebo Iris: 12.5 ms up,
+  25 ms down).
 - Sensors, as the autopilot's EKF reports them, fusing an IMU with either
   - ``rtk``: an RTK GNSS receiver (u-blox ZED-F9P: 0.01 m + 1 ppm CEP horizontal in RTK, 0.05 m/s
     velocity accuracy): what drone-show fleets fly on; or
@@ -27,7 +28,14 @@ OUTDOOR_SENSORS: Final = ("rtk", "gnss")
 #: a light breeze from the west (m/s) and its gusts (m/s), where the command gives no wind
 BREEZE_M_S, GUSTS_M_S = 3.0, 0.5
 
-VEHICLES: Final[dict[str, float]] = {"mass_spread": 0.02, "thrust_spread": 0.01}
+#: [vehicle]: the motors' time constant (s)
+VEHICLE: Final[dict[str, float]] = {"motor_tau_s": 0.02}
+
+VEHICLES: Final[dict[str, float]] = {
+    "mass_spread": 0.02,
+    "thrust_spread": 0.01,
+    "motor_tau_spread": 0.1,
+}
 
 SENSORS: Final[dict[str, dict[str, float]]] = {
     "rtk": {
