@@ -22,10 +22,10 @@ layer), so their loop is less work than ours: the ratio says what the whole of o
 the bare loop of theirs. A peer is flown by ``--peer-python`` (default: this interpreter) when it
 imports there, and listed as not installed otherwise (``pip install crazyflow``; gym-pybullet-
 drones from its repository). Per run: the whole process's wall time (start-up, imports,
-compilation and the flight) and the flight loop's alone (for crazyflow without its first,
-compiling step, which is reported apart); real-time factors are the simulated seconds over them.
-Writes the JSON with the commit and the machine's load, and its table beside it (the same name,
-``.md``).
+compilation and the flight) and the flight loop's alone (for crazyflow without its first three
+ticks, whose calls compile, reported apart as ``first_step_s``); real-time factors are the
+simulated seconds over them. Writes the JSON with the commit and the machine's load, and its
+table beside it (the same name, ``.md``).
 """
 
 from __future__ import annotations
@@ -62,6 +62,7 @@ PEERS: dict[str, tuple[str, str]] = {
             from crazyflow.sim import Sim
             n = int(sys.argv[1])
             seconds, spacing, alt = (float(a) for a in sys.argv[2:5])
+            WARM = 3
             side = int(np.ceil(np.sqrt(n)))
             grid = np.array([(spacing * (i // side), spacing * (i % side)) for i in range(n)])
             common = dict(n_worlds=1, n_drones=n, control=Control.state, freq=500, device="cpu")
@@ -85,12 +86,14 @@ PEERS: dict[str, tuple[str, str]] = {
                 cmd[0, :, 12] = 1.0  # level, yaw 0
             per = sim.freq // 50
             t0 = time.perf_counter()
-            sim.state_control(cmd)
-            sim.step(per)
+            for _ in range(WARM):  # compiled on the first calls (the second compiles again)
+                sim.state_control(cmd)
+                sim.step(per)
+            np.asarray(sim.data.states.pos)
             first = time.perf_counter() - t0
             ticks = int(round(seconds * 50))
             t0 = time.perf_counter()
-            for _ in range(ticks - 1):
+            for _ in range(ticks - WARM):
                 sim.state_control(cmd)
                 sim.step(per)
             z = np.asarray(sim.data.states.pos)[0, :, 2]  # (waits for the last step)
@@ -175,12 +178,15 @@ def ours(n: int, seconds: float, folder: Path) -> dict[str, Any]:
     }
 
 
-def peer(python: str, name: str, n: int, seconds: float) -> dict[str, Any]:
-    """A peer's run of the same grid: whole process and loop (its script's own timing)."""
+def peer(python: str, name: str, n: int, seconds: float, folder: Path) -> dict[str, Any]:
+    """A peer's run of the same grid: whole process and loop (its script's own timing), in
+    ``folder`` (MuJoCo leaves its log in the working folder)."""
     _, script = PEERS[name]
     argv = [python, "-c", script, str(n), f"{seconds:g}", f"{SPACING_M:g}", f"{ALTITUDE_M:g}"]
     t0 = time.perf_counter()
-    done = subprocess.run([*_one_core(), *argv], capture_output=True, text=True, timeout=3600)
+    done = subprocess.run(
+        [*_one_core(), *argv], capture_output=True, text=True, cwd=folder, timeout=3600
+    )
     whole = time.perf_counter() - t0
     if done.returncode != 0:
         return {"error": done.stderr.strip().splitlines()[-1] if done.stderr.strip() else "failed"}
@@ -200,7 +206,7 @@ def side_by_side(
             runs = {"quadswarm": ours(n, seconds, Path(tmp))}
             for name, there in present.items():
                 if there:
-                    runs[name] = peer(python, name, n, seconds)
+                    runs[name] = peer(python, name, n, seconds, Path(tmp))
             base = runs["quadswarm"]
             for name, run in runs.items():
                 row: dict[str, Any] = {"n": n, "runner": name, **run}
