@@ -147,12 +147,12 @@ class Flight:
             if not parts or not parts[0].isdigit():
                 continue
             # the position takes 3 columns, or 1 ("-") when unknown: count from both ends
-            err, nbrs, link, _fsafe, rx, _tx, _dropped = parts[-7:]
+            err, nbrs, link, _fsafe, rx, _tx, _dropped, _radio = parts[-8:]
             rows[int(parts[0])] = {
                 "alive": parts[1],
                 "mode": parts[2],
                 "armed": parts[3],
-                "z": parts[6] if len(parts) == 14 else "-",
+                "z": parts[6] if len(parts) == 15 else "-",
                 "err": err,
                 "nbrs": nbrs,
                 "link": link,

@@ -188,8 +188,16 @@ def test_simulate_radio_and_the_agents_link_layer_give_the_same_fates() -> None:
     radio_dropped = sum(link.counters().radio for link in links)
     assert 0.1 * 2 * n * rounds < radio_dropped < 0.9 * 2 * n * rounds, radio_dropped
     assert len(up) == 2 * n * rounds - radio_dropped
-    # what drone 0's radio let through is what its status says it received
-    assert links[0].counters().status().rx == sum(1 for e in up if e[1] == 0)
+    # what drone 0's radio let through is what its status says it received, and its status
+    # counts what the radio dropped (on the wire from status version 3; the ground station's
+    # `swarm status` shows it)
+    status = links[0].counters().status()
+    assert status.rx == sum(1 for e in up if e[1] == 0)
+    assert status.rx_lost_radio == links[0].counters().radio > 0
+    from protocols.wire.status import AgentMode, AgentStatus, Health, decode_status, encode_status
+
+    sent = AgentStatus(0, 1, 0.02, AgentMode.FLYING, True, Health.NONE, np.zeros(9), (), status)
+    assert decode_status(encode_status(sent, "demo"), "demo").counters == status
 
 
 def _scenario(tmp_path: Path, section: str) -> Path:

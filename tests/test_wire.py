@@ -130,12 +130,22 @@ STATUS = AgentStatus(
     health=Health.VEHICLE_LINK | Health.ESTIMATE_FINITE | Health.CONVERGED | Health.PLAN,
     estimate=np.array([1, 2, -10, 0, 0, 0.5, 4, 2.25, 1]),
     neighbours=(1, 5),
-    counters=StatusCounters(100, 1, 2, 3, 50, 0),
+    counters=StatusCounters(100, 1, 2, 3, 50, 0, 4),
     plan_seq=7,
     takeoff_round=980,
 )
-#: Status version 2: the round the swarm took off (u32) after the plan's sequence number.
+#: Status version 3: the messages the radio's limits dropped (a 7th u64 counter).
 STATUS_HEX = (
+    "5103020464656d6f0200e8030000000000000000344003010f07000000d4030000000000000000f0"
+    "3f000000000000004000000000000024c000000000000000000000000000000000000000000000e0"
+    "3f00000000000010400000000000000240000000000000f03f640000000000000001000000000000"
+    "00020000000000000003000000000000003200000000000000000000000000000004000000000000"
+    "00020001000500"
+)
+#: the status before the radio's counter (from an older build: it decodes with 0 there)
+STATUS_BEFORE_RADIO = replace(STATUS, counters=StatusCounters(100, 1, 2, 3, 50, 0))
+#: Status version 2: the round the swarm took off (u32) after the plan's sequence number.
+STATUS_V2_HEX = (
     "5102020464656d6f0200e8030000000000000000344003010f07000000d4030000000000000000f0"
     "3f000000000000004000000000000024c000000000000000000000000000000000000000000000e0"
     "3f00000000000010400000000000000240000000000000f03f640000000000000001000000000000"
@@ -323,19 +333,23 @@ def test_consensus_layout_by_hand() -> None:
 
 
 def test_status_golden_bytes() -> None:
-    assert STATUS_VERSION == 2
+    assert STATUS_VERSION == 3
     assert encode_status(STATUS, SID).hex() == STATUS_HEX
     assert decode_status(bytes.fromhex(STATUS_HEX), SID) == STATUS
+    assert decode_status(bytes.fromhex(STATUS_HEX), SID).counters.rx_lost_radio == 4
     # drone, round, t_s, mode FLYING, armed, health, plan_seq, take-off round, estimate,
-    # counters, 2 neighbours
-    fields = (2, 1000, 20.0, 3, 1, 15, 7, 980, *STATUS.estimate, 100, 1, 2, 3, 50, 0, 2)
+    # counters (the radio's last), 2 neighbours
+    fields = (2, 1000, 20.0, 3, 1, 15, 7, 980, *STATUS.estimate, 100, 1, 2, 3, 50, 0, 4, 2)
     by_hand = (
         bytes([0x51, STATUS_VERSION, Kind.STATUS, 4])
         + b"demo"
-        + struct.pack("<HIdBBBII9d6QH", *fields)
+        + struct.pack("<HIdBBBII9d7QH", *fields)
         + struct.pack("<2H", 1, 5)
     )
     assert by_hand.hex() == STATUS_HEX
+    # an agent of an older build (version 2: no radio counter) is read with 0 there
+    older = decode_status(bytes.fromhex(STATUS_V2_HEX), SID)
+    assert older == STATUS_BEFORE_RADIO and older.counters.rx_lost_radio == 0
 
 
 def test_status_takeoff_round_round_trips_and_version_1_decodes_without_one() -> None:
@@ -345,7 +359,8 @@ def test_status_takeoff_round_round_trips_and_version_1_decodes_without_one() ->
         assert decoded == status and decoded.takeoff_round == takeoff
     assert decode_status(encode_status(STATUS, SID), SID) != replace(STATUS, takeoff_round=None)
     older = decode_status(bytes.fromhex(STATUS_V1_HEX), SID)  # an agent of an older build
-    assert older.takeoff_round is None and older == replace(STATUS, takeoff_round=None)
+    assert older.takeoff_round is None
+    assert older == replace(STATUS_BEFORE_RADIO, takeoff_round=None)
     for bad in (-1, 2**32 - 1, 2**32, True):
         with pytest.raises(ValueError, match="takeoff_round"):
             replace(STATUS, takeoff_round=bad)
@@ -430,7 +445,7 @@ def test_consensus_round_trip_is_exact(
     health=st.integers(0, 15).map(Health),
     estimate=st.lists(st.floats(), min_size=9, max_size=9),  # NaN allowed: reported as is
     neighbours=st.frozensets(ids, max_size=30),
-    counters=st.lists(st.integers(0, 2**64 - 1), min_size=6, max_size=6),
+    counters=st.lists(st.integers(0, 2**64 - 1), min_size=7, max_size=7),
     plan_seq=st.none() | st.integers(0, 2**32 - 2),
     takeoff=st.none() | st.integers(0, 2**32 - 2),
 )
@@ -643,13 +658,15 @@ def _status_bytes(
     version: int = STATUS_VERSION,
 ) -> bytes:
     takeoff = (40,) if version >= 2 else ()
-    fixed = struct.pack(f"<HIdBBBI{len(takeoff)}I9d6QH", 2, 9, t_s, mode, armed, health, 7,
-                        *takeoff, *[0.0] * 9, *[0] * 6, 2)  # fmt: skip
+    counters = 7 if version >= 3 else 6
+    fixed = struct.pack(f"<HIdBBBI{len(takeoff)}I9d{counters}QH", 2, 9, t_s, mode, armed, health,
+                        7, *takeoff, *[0.0] * 9, *[0] * counters, 2)  # fmt: skip
     return bytes([0x51, version, Kind.STATUS, 4]) + b"demo" + fixed + struct.pack("<2H", 1, 5)
 
 
-def test_hand_packed_statuses_of_either_version_decode() -> None:
+def test_hand_packed_statuses_of_every_version_decode() -> None:
     assert decode_status(_status_bytes(), SID).takeoff_round == 40
+    assert decode_status(_status_bytes(version=2), SID).takeoff_round == 40
     assert decode_status(_status_bytes(version=1), SID).takeoff_round is None
 
 
@@ -658,7 +675,7 @@ def test_hand_packed_statuses_of_either_version_decode() -> None:
     [
         (_status_bytes(version=1)[:-2], Reason.TRUNCATED),
         (_status_bytes(version=1) + b"\0", Reason.TRAILING),
-        (_status_bytes(version=3), Reason.BAD_VERSION),
+        (_status_bytes(version=4), Reason.BAD_VERSION),
         (_status_bytes(version=0), Reason.BAD_VERSION),
         (_status_bytes()[: 8 + 20], Reason.TRUNCATED),  # cut in its take-off round
         (_status_bytes(mode=99), Reason.BAD_VALUE),
@@ -727,6 +744,7 @@ VALID = [
     bytes.fromhex(CONSENSUS_V1_HEX),
     bytes.fromhex(CONSENSUS_V3_HEX),
     bytes.fromhex(STATUS_V1_HEX),
+    bytes.fromhex(STATUS_V2_HEX),
 ]
 
 

@@ -586,10 +586,10 @@ def _status(drone: int, takeoff_round: int | None = None) -> AgentStatus:
 
 def test_status_batch_golden_bytes_and_round_trip() -> None:
     a, b = encode_status(_status(2), SID), encode_status(_status(6), SID)
-    assert len(a) == len(b) == 159 and STATUS_BATCH_VERSION == 1
+    assert len(a) == len(b) == 167 and STATUS_BATCH_VERSION == 1
     batch = encode_status_batch([(2, a), (6, b)], SID)
-    # magic, status batch schema 1, kind 7, swarm "demo"; 2 statuses of 159 bytes each
-    assert batch.hex() == "5101070464656d6f" + "0200" + "9f000000" * 2 + a.hex() + b.hex()
+    # magic, status batch schema 1, kind 7, swarm "demo"; 2 statuses of 167 bytes each
+    assert batch.hex() == "5101070464656d6f" + "0200" + "a7000000" * 2 + a.hex() + b.hex()
     assert decode_statuses(batch, SID) == [_status(2), _status(6)]
     assert decode_statuses(a, SID) == [_status(2)]  # one status alone: the single schema
 
@@ -602,10 +602,11 @@ def test_status_batch_carries_take_off_rounds_and_statuses_of_either_version() -
     decoded = decode_statuses(batch, SID)
     assert decoded == statuses and [s.takeoff_round for s in decoded] == [1234, None, 0]
     current = encode_status(_status(6, 77), SID)
-    assert current[1] == STATUS_VERSION == 2
-    # the same status at version 1: no u32 take-off round after the plan's sequence number
-    older = bytes([0x51, 1]) + current[2:27] + current[31:]
-    assert len(older) == len(current) - 4
+    assert current[1] == STATUS_VERSION == 3
+    # the same status at version 1: no u32 take-off round after the plan's sequence number, no
+    # 7th counter (the radio's) after the six
+    older = bytes([0x51, 1]) + current[2:27] + current[31:153] + current[161:]
+    assert len(older) == len(current) - 12
     mixed = encode_status_batch([(2, encode_status(_status(2, 5), SID)), (6, older)], SID)
     assert decode_statuses(mixed, SID) == [_status(2, 5), _status(6)]
     assert decode_statuses(older, SID) == [_status(6)]

@@ -69,6 +69,7 @@ class SwarmMessageCounters:
             rx_dropped_wrong_version=self.wrong_version,
             tx=self.tx,
             rejected_setpoints=rejected_setpoints,
+            rx_lost_radio=self.radio,
         )
 
 

@@ -168,7 +168,7 @@ def format_reply(name: str, reply: Reply, elapsed_s: float | None = None) -> lis
         lines.append(
             f"{'drone':>5} {'alive':>5} {'mode':>8} {'armed':>5} {'position NED (m)':>24} "
             f"{'est.err(m)':>10} {'nbrs':>4} {'link':>5} {'fsafe':>5} {'rx':>8} {'tx':>8} "
-            f"{'dropped':>7}"
+            f"{'dropped':>7} {'radio':>7}"
         )
         for r in reply.table:
             pos = r.get("position_ned_m")
@@ -182,7 +182,7 @@ def format_reply(name: str, reply: Reply, elapsed_s: float | None = None) -> lis
                 f"{pos_text:>24} {('-' if err is None else f'{err:.3f}'):>10} "
                 f"{len(r.get('neighbours') or []):>4} {link_text:>5} {r.get('failsafes', 0):>5} "
                 f"{r.get('rx', 0):>8} {r.get('tx', 0):>8} "
-                f"{r.get('rx_dropped', 0):>7}"
+                f"{r.get('rx_dropped', 0):>7} {r.get('rx_lost_radio', 0):>7}"
             )
         for r in reply.table:
             lost = r.get("lost")

@@ -196,6 +196,8 @@ class SwarmWatch:
                         if s
                         else 0
                     ),
+                    # what the radio's limits dropped on the way (not in rx)
+                    "rx_lost_radio": s.counters.rx_lost_radio if s else 0,
                 }
             )
         return rows

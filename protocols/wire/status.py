@@ -1,6 +1,6 @@
 """The agent status message (Kind.STATUS): what each agent tells the ground station.
 
-Status payloads have their own schema version, STATUS_VERSION (2), in the common header. Body
+Status payloads have their own schema version, STATUS_VERSION (3), in the common header. Body
 after the common header (``protocols.wire.format``), little-endian::
 
     u16 drone            drone index
@@ -15,13 +15,15 @@ after the common header (``protocols.wire.format``), little-endian::
                          0xFFFFFFFF: not flying / not said (from version 2)
     9 x f64 estimate     the agent's estimate of the swarm descriptors (m, rad, m^2); may be
                          NaN (a diverged estimate is reported as it is)
-    6 x u64 counters     rx, rx_dropped_malformed, rx_dropped_wrong_swarm,
-                         rx_dropped_wrong_version, tx, rejected_setpoints
+    7 x u64 counters     rx, rx_dropped_malformed, rx_dropped_wrong_swarm,
+                         rx_dropped_wrong_version, tx, rejected_setpoints, rx_lost_radio
+                         (from version 3: the messages the radio's limits dropped,
+                         drone_agent/process/radio.py)
     u16 n_neighbours
     n x u16              the neighbours integrating this round, strictly increasing
 
-Version 1 (still decoded) is the same body without ``takeoff_round``: its status has
-``takeoff_round`` None.
+Versions 1 and 2 (still decoded) are the same body without ``rx_lost_radio`` (0), and version 1
+without ``takeoff_round`` too: its status has ``takeoff_round`` None.
 
 The status batch (Kind.STATUS_BATCH, schema STATUS_BATCH_VERSION; issue 9, batched messaging):
 the statuses one agent process's agents publish in one pass, in one Zenoh sample, on the status
@@ -62,8 +64,8 @@ from protocols.wire.keys import MAX_DRONE_ID
 
 MAX_STATUS_BYTES = 8 * 1024
 #: Schema version of status payloads sent (version 1 still decodes).
-STATUS_VERSION = 2
-STATUS_VERSIONS = (1, 2)
+STATUS_VERSION = 3
+STATUS_VERSIONS = (1, 2, 3)
 #: Schema version of status batches.
 STATUS_BATCH_VERSION = 1
 #: Most statuses in one batch (one process's agents).
@@ -75,8 +77,9 @@ NO_TAKEOFF = MAX_U32
 N_ESTIMATE = 9
 _MAX_U64 = 2**64 - 1
 _FIXED_V1 = struct.Struct("<HIdBBBI9d6QH")
-_FIXED = struct.Struct("<HIdBBBII9d6QH")
-_FIXED_OF = {1: _FIXED_V1, 2: _FIXED}
+_FIXED_V2 = struct.Struct("<HIdBBBII9d6QH")
+_FIXED = struct.Struct("<HIdBBBII9d7QH")
+_FIXED_OF = {1: _FIXED_V1, 2: _FIXED_V2, 3: _FIXED}
 
 
 class AgentMode(IntEnum):
@@ -111,7 +114,9 @@ _HEALTH_MASK = sum(int(f) for f in Health)
 
 @dataclass(frozen=True)
 class StatusCounters:
-    """Cumulative counts since the agent started (messages)."""
+    """Cumulative counts since the agent started (messages). ``rx`` counts what reached the
+    agent; ``rx_lost_radio`` what the radio's limits dropped on the way (a full queue, a burst,
+    distance: drone_agent/process/radio.py), not in ``rx``."""
 
     rx: int = 0
     rx_dropped_malformed: int = 0
@@ -119,6 +124,7 @@ class StatusCounters:
     rx_dropped_wrong_version: int = 0
     tx: int = 0
     rejected_setpoints: int = 0
+    rx_lost_radio: int = 0
 
     def __post_init__(self) -> None:
         for name in self.__dataclass_fields__:  # (not astuple: it deep-copies, at 25 Hz a drone)
@@ -218,7 +224,8 @@ def encode_status(status: AgentStatus, swarm_id: str) -> bytes:
 
 def decode_status(data: bytes, swarm_id: str, *, max_bytes: int = MAX_STATUS_BYTES) -> AgentStatus:
     """Decode a status payload (any of STATUS_VERSIONS) of swarm ``swarm_id``; WireError for
-    anything malformed. A version-1 status has ``takeoff_round`` None."""
+    anything malformed. A version-1 status has ``takeoff_round`` None; a status before version 3
+    ``rx_lost_radio`` 0."""
     off, version = open_versioned(data, Kind.STATUS, swarm_id, max_bytes, STATUS_VERSIONS)
     layout = _FIXED_OF[version]
     if len(data) < off + layout.size:
@@ -227,7 +234,9 @@ def decode_status(data: bytes, swarm_id: str, *, max_bytes: int = MAX_STATUS_BYT
     if version == 1:
         values = (*values[:7], NO_TAKEOFF, *values[7:])
     drone, round_, t_s, mode, armed, health, plan_seq, takeoff = values[:8]
-    estimate, counters, n = values[8:17], values[17:23], values[23]
+    n_counters = 7 if version >= 3 else 6
+    estimate, counters = values[8:17], values[17 : 17 + n_counters]
+    n = values[17 + n_counters]
     off += layout.size
     expect_length(data, off + 2 * n, "status")
     neighbours = struct.unpack_from(f"<{n}H", data, off)
