@@ -18,6 +18,7 @@ os.environ["MAVLINK20"] = "1"  # before any pymavlink import (DEPENDENCIES.md)
 
 import contextlib
 import itertools
+import json
 import math
 import select
 import signal
@@ -100,6 +101,23 @@ def swarm_command(*args: str) -> list[str]:
                 "DEFAULT_PORT_MODULES in tests/conftest.py so that make test runs it alone"
             )
     return [sys.executable, "-m", "gcs.cli", *args]
+
+
+def run_swarm(cwd: Path, *args: str, timeout_s: float = 600.0) -> str:
+    """``swarm ARGS`` in ``cwd``, which must succeed; what it printed."""
+    done = subprocess.run(
+        swarm_command(*args), capture_output=True, text=True, env=ENV, cwd=cwd, timeout=timeout_s
+    )
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    return done.stdout
+
+
+def simulate_metrics(cwd: Path, scenario: Path | str, *flags: str) -> dict[str, Any]:
+    """``swarm simulate SCENARIO --report r --no-plots FLAGS`` in ``cwd``: its metrics.json (the
+    report in ``cwd / "r"``)."""
+    run_swarm(cwd, "simulate", str(scenario), "--report", "r", "--no-plots", *flags)
+    metrics: dict[str, Any] = json.loads((cwd / "r" / "metrics.json").read_text())
+    return metrics
 
 
 def needs_the_machine_alone(args: tuple[str, ...]) -> str | None:

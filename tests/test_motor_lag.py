@@ -7,15 +7,13 @@ statistics, a simulator shard against the whole world, the scenario's checks, an
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 import pytest
-from sitl_client import ENV, ROOT, swarm_command
+from sitl_client import ROOT, simulate_metrics
 
 from gcs.cli.main import _parser
 from gcs.report.scenario_summary import summary_lines
@@ -285,13 +283,7 @@ def test_a_swarm_with_lagging_motors_still_flies(tmp_path: Path) -> None:
     assert "settle_s = 10.0" in text
     scenario = tmp_path / "tilt9_lag.toml"
     scenario.write_text(text + "\n[vehicle]\nmotor_tau_s = 0.03\n")
-    done = subprocess.run(
-        [*swarm_command("simulate", str(scenario), "--report", "r", "--no-plots",
-                        "--duration-s", "20", "--progress", "off")],
-        capture_output=True, text=True, env=ENV, cwd=tmp_path, timeout=600,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-    metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    metrics = simulate_metrics(tmp_path, scenario, "--duration-s", "20", "--progress", "off")
     assert metrics["collisions"]["count"] == 0
     assert metrics["separation"]["min_m"] > 1.0
     centre_rms = metrics["tracking_steady"]["centroid_m"]["rms"]

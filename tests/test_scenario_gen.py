@@ -320,30 +320,20 @@ def test_outdoors_writes_the_documented_air_vehicles_sensors_and_radio(receiver:
 
 
 def test_a_newcomers_outdoor_swarm_flies_on_rtk(tmp_path: Path) -> None:
-    """The plain commands: ``swarm scenario new --drones 9 --outdoor rtk -o outdoor.toml`` then
-    ``swarm simulate outdoor.toml``: the swarm leaves the ground at the end of its warm-up (the
+    """The plain commands: ``swarm scenario new --drones 9 --outdoor rtk -o o.toml`` then
+    ``swarm simulate o.toml``: the swarm leaves the ground at the end of its warm-up (the
     plateau rule: its estimates never agree to 2 %), holds together in the breeze (no
     collision, the drones at least the scenario's 1 m apart in truth, ODOMETRY in flight.tlog),
     the estimates within 10 cm of the true descriptors, while the radio dropped and delayed
     messages (fewer delivered than sent in range)."""
     import json
-    import subprocess
 
-    from sitl_client import ENV, swarm_command
+    from sitl_client import run_swarm, simulate_metrics
 
     from gcs.report.tlog import vehicle_samples
 
-    def run(*args: str) -> str:
-        done = subprocess.run(
-            swarm_command(*args), capture_output=True, text=True, env=ENV, cwd=tmp_path,
-            timeout=600,
-        )  # fmt: skip
-        assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-        return done.stdout
-
-    run("scenario", "new", "--drones", "9", "--outdoor", "rtk", "-o", "outdoor.toml")
-    run("simulate", "outdoor.toml", "--report", "r", "--no-plots")
-    metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    run_swarm(tmp_path, "scenario", "new", "--drones", "9", "--outdoor", "rtk", "-o", "o.toml")
+    metrics = simulate_metrics(tmp_path, "o.toml")
     assert metrics["collisions"]["count"] == 0
     assert metrics["separation"]["min_m"] > 1.0
     assert metrics["consensus_steady"]["centroid_m"]["rms"] < 0.1
@@ -352,7 +342,7 @@ def test_a_newcomers_outdoor_swarm_flies_on_rtk(tmp_path: Path) -> None:
     assert radio["burst"] > 0.005 * messages["sent"] and messages["lost"] >= sum(radio.values())
     events = [json.loads(line) for line in (tmp_path / "r" / "events.jsonl").open()]
     (takeoff,) = [e for e in events if e["kind"] == "takeoff"]
-    warmup_s = load_scenario(tmp_path / "outdoor.toml").consensus.warmup_s
+    warmup_s = load_scenario(tmp_path / "o.toml").consensus.warmup_s
     assert takeoff["t_s"] <= warmup_s + 1.0, takeoff
     heights = {}
     for (msg, sysid, t_ms), v in vehicle_samples(tmp_path / "r" / "flight.tlog").items():

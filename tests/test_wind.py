@@ -232,9 +232,8 @@ def test_the_paper_swarm_holds_together_downwind_in_a_breeze_on_sensors_that_lie
     at least the scenario's 1 m apart, the consensus estimate within 20 cm of the true
     descriptors."""
     import json
-    import subprocess
 
-    from sitl_client import ENV, ROOT, swarm_command
+    from sitl_client import ROOT, simulate_metrics
 
     from gcs.report.tlog import vehicle_samples
 
@@ -247,12 +246,7 @@ def test_the_paper_swarm_holds_together_downwind_in_a_breeze_on_sensors_that_lie
         + "\n[sensors]\ngnss_bias_m = 0.1\nposition_noise_m = 0.05\nvelocity_noise_m_s = 0.05\n"
         + "attitude_noise_rad = 0.005\nrate_hz = 10\nlatency_s = 0.05\n"
     )
-    done = subprocess.run(
-        [*swarm_command("simulate", str(scenario), "--report", "r", "--no-plots")],
-        capture_output=True, text=True, env=ENV, cwd=tmp_path, timeout=600,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-    metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    metrics = simulate_metrics(tmp_path, scenario)
     assert metrics["collisions"]["count"] == 0
     assert metrics["separation"]["min_m"] > 1.0
     assert metrics["consensus_steady"]["centroid_m"]["rms"] < 0.2

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import signal
 import sys
@@ -394,16 +395,16 @@ def run(args: argparse.Namespace) -> int:
     hub = ConsensusHub(bus, settings, batch=len(drones) > 1, news=news, sole=True)
 
     # the radio's limits (the scenario's [radio]; one state per agent: the links into it)
-    radio_config = None if scenario is None or scenario.radio.ideal else scenario.radio
+    radio_of = (
+        None
+        if scenario is None or scenario.radio.ideal
+        else functools.partial(radio_links, scenario.radio, scenario.rates.dt_control_s, seed)
+    )
 
     def transport(bus_: Bus, drone: int, position: Position) -> AgentTransport:
         # called once the host runs; ``host`` is bound by then
         inner = AgentLink(bus_, drone, position, settings, hub)
-        radio = (
-            None
-            if radio_config is None or scenario is None
-            else radio_links(radio_config, scenario.rates.dt_control_s, seed)
-        )
+        radio = None if radio_of is None else radio_of()
         return FaultyTransport(inner, faults, pair_random, lambda: host.round_of(drone), radio)
 
     options = RunOptions(

@@ -65,9 +65,7 @@ def distance_m(a: Sequence[float], b: Sequence[float]) -> float:
 
 def loss_at(config: RadioConfig, d_m: float) -> float:
     """The probability that a message sent ``d_m`` metres is lost to distance (stage 3)."""
-    if config.loss_half_m <= 0.0:
-        return 0.0
-    if d_m <= 0.0:
+    if config.loss_half_m <= 0.0 or d_m <= 0.0:
         return 0.0
     margin_db = 10.0 * config.path_loss_exponent * math.log10(d_m / config.loss_half_m)
     return 0.5 * (1.0 + math.erf(margin_db / config.fading_db / math.sqrt(2.0)))
@@ -80,10 +78,6 @@ class RadioCounts:
     queue: int = 0
     burst: int = 0
     distance: int = 0
-
-    @property
-    def total(self) -> int:
-        return self.queue + self.burst + self.distance
 
 
 class RadioLinks:

@@ -356,9 +356,9 @@ class ReferenceFlight:
         phases, separating, modes = self.phases, self.separating, self.agent_modes
         committed = [phases[i].committed for i in live]
         ready_all = self._ready(live, cols, members, committed)
-        estimate = self.world.estimate()
-        true_yaw = yaw_from_quat_batch(state[QUAT]) if estimate is None else estimate[2][2]
-        yaw = reported(true_yaw).tolist()
+        estimate = self.world.estimate()  # (the believed yaw; the true one with ideal sensors)
+        believed_yaw = yaw_from_quat_batch(state[QUAT]) if estimate is None else estimate[2][2]
+        yaw = reported(believed_yaw).tolist()
         altitude = (-pos[live, 2]).tolist()
         views = self.link.views(live, altitude)
         request = self.link.request

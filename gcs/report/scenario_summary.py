@@ -110,7 +110,7 @@ def _sensors_lines(sc: Scenario, tightest_m: float) -> list[str]:
     """Ideal, or what the vehicles' estimates get wrong; a warning where the GNSS bias is large
     against the plan's closest spacing (each drone flies its own believed place)."""
     s = sc.sensors
-    if not s.lie and s.rate_hz == 0.0 and s.latency_s == 0.0:
+    if s.ideal:
         return ["sensors    ideal: the agents fly on the true state"]
     rate = "every tick" if s.rate_hz == 0.0 else f"{s.rate_hz:g} Hz"
     lines = [

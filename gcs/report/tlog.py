@@ -59,6 +59,8 @@ from protocols.mavlink.conventions import (
     AGENT_STATUS_VALUES,
     GCS_SYSID,
     MAV_AUTOPILOT_ARDUPILOTMEGA,
+    MAV_ESTIMATOR_TYPE_MOCAP,
+    truth_odometry_fields,
 )
 from protocols.mavlink.fast import pack, parse
 from protocols.model.frames import FloatArray, zyx_from_quat_batch
@@ -165,18 +167,14 @@ class TlogWriter:
         body_rates_rad_s: FloatArray,
     ) -> None:
         """The vehicle's true state at simulated ``t_s`` as the simulator sends it where the
-        state estimates are not the truth: ODOMETRY in the world NED frame, estimator type MOCAP
-        (sitl_sim/mavlink_edge/messages.py ``truth_odometry``)."""
-        x, y, z = (float(v) for v in position_ned_m)
-        vx, vy, vz = (float(v) for v in velocity_ned_m_s)
-        p, q, r = (float(v) for v in body_rates_rad_s)
+        state estimates are not the truth (protocols/mavlink/conventions.py
+        ``truth_odometry_fields``)."""
         mav = self.codec(sysid)
-        nan = [float("nan")] * 21
         msg = mav.odometry_encode(
-            round(t_s * 1e6), common.MAV_FRAME_LOCAL_NED, common.MAV_FRAME_LOCAL_NED,
-            x, y, z, [float(v) for v in quat_wxyz], vx, vy, vz, p, q, r, nan, nan,
-            0, common.MAV_ESTIMATOR_TYPE_MOCAP,
-        )  # fmt: skip
+            *truth_odometry_fields(
+                round(t_s * 1e6), position_ned_m, velocity_ned_m_s, quat_wxyz, body_rates_rad_s
+            )
+        )
         self.write_packet(t_s, pack(msg, mav))
 
     def write_agent_status(
@@ -438,7 +436,7 @@ class TlogReader:
                 (msg.time_boot_ms, msg.roll, msg.pitch, msg.yaw, *rates)
             )
             self._att_rec.setdefault(sysid, []).append(t_rec * 1000.0)
-        elif mtype == "ODOMETRY" and msg.estimator_type == common.MAV_ESTIMATOR_TYPE_MOCAP:
+        elif mtype == "ODOMETRY" and msg.estimator_type == MAV_ESTIMATOR_TYPE_MOCAP:
             row = (msg.time_usec / 1000.0, msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz, *msg.q,
                    msg.rollspeed, msg.pitchspeed, msg.yawspeed)  # fmt: skip
             self._truth.setdefault(sysid, []).append(row)

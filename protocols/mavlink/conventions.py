@@ -68,7 +68,9 @@ sitl_sim/server.py):
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from enum import IntEnum, StrEnum
+from typing import Any
 
 GCS_SYSID = 255
 GCS_COMPID = 190
@@ -331,3 +333,32 @@ MSG_LOCAL_POSITION_NED = 32
 MSG_SYS_STATUS = 1
 MSG_GPS_RAW_INT = 24
 MSG_EKF_STATUS_REPORT = 193
+
+#: MAV_FRAME_LOCAL_NED and MAV_ESTIMATOR_TYPE_MOCAP (common.xml): the frame and the estimator
+#: type of the ODOMETRY that carries a vehicle's true state (:func:`truth_odometry_fields`)
+MAV_FRAME_LOCAL_NED = 1
+MAV_ESTIMATOR_TYPE_MOCAP = 6
+_NO_COVARIANCE = (float("nan"),) * 21
+
+
+def truth_odometry_fields(
+    time_usec: int,
+    position_ned_m: Iterable[float],
+    velocity_ned_m_s: Iterable[float],
+    quat_wxyz: Iterable[float],
+    body_rates_rad_s: Iterable[float],
+) -> tuple[Any, ...]:
+    """ODOMETRY's fields, in order, for a vehicle's true state (the simulator's, not its
+    autopilot's estimate), sent where the state estimates are not the truth: position and
+    velocity in the world NED frame, attitude (w, x, y, z), body rates, no covariance, estimator
+    type MOCAP (what a motion-capture system, a lab's ground truth, would measure). The simulator
+    sends it (sitl_sim/mavlink_edge/messages.py), ``swarm simulate``'s tlog writes it and the tlog
+    reader takes ODOMETRY of this estimator type as the truth (gcs/report/tlog.py)."""
+    x, y, z = (float(v) for v in position_ned_m)
+    vx, vy, vz = (float(v) for v in velocity_ned_m_s)
+    p, q, r = (float(v) for v in body_rates_rad_s)
+    return (
+        time_usec, MAV_FRAME_LOCAL_NED, MAV_FRAME_LOCAL_NED, x, y, z,
+        [float(v) for v in quat_wxyz], vx, vy, vz, p, q, r,
+        list(_NO_COVARIANCE), list(_NO_COVARIANCE), 0, MAV_ESTIMATOR_TYPE_MOCAP,
+    )  # fmt: skip

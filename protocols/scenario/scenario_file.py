@@ -130,6 +130,11 @@ class SensorsConfig:
             )
         )
 
+    @property
+    def ideal(self) -> bool:
+        """No error term, no output rate and no latency: the estimate is the truth."""
+        return not self.lie and self.rate_hz == 0.0 and self.latency_s == 0.0
+
 
 @dataclass(frozen=True)
 class RadioConfig:

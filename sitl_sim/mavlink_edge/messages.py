@@ -45,6 +45,7 @@ from protocols.mavlink.conventions import (
     MODE_LAND,
     MODE_OFFBOARD,
     SYS_STATUS_PREARM_CHECK,
+    truth_odometry_fields,
 )
 from protocols.model.frames import FloatArray, wxyz_from_zyx
 from sitl_sim.physics.dynamics import POS, QUAT, RATES, VEL
@@ -189,21 +190,15 @@ def local_position_ned(snap: Snapshot, i: int) -> Any:
     return mavlink.MAVLink_local_position_ned_message(snap.time_boot_ms, x, y, z, vx, vy, vz)
 
 
-_NO_COVARIANCE = [float("nan")] * 21
-
-
 def truth_odometry(world: World, i: int) -> Any:
-    """ODOMETRY with vehicle ``i``'s true state (the simulator's, not its autopilot's estimate):
-    position and velocity in the world NED frame, attitude quaternion (w, x, y, z), body rates;
-    estimator type MOCAP (what a motion-capture system, a lab's ground truth, would measure)."""
+    """ODOMETRY with vehicle ``i``'s true state (protocols/mavlink/conventions.py
+    ``truth_odometry_fields``)."""
     s = world.state
-    x, y, z = s[POS, i].tolist()
-    vx, vy, vz = s[VEL, i].tolist()
-    p, q, r = s[RATES, i].tolist()
     return mavlink.MAVLink_odometry_message(
-        time_usec(world), mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_NED,
-        x, y, z, s[QUAT, i].tolist(), vx, vy, vz, p, q, r, _NO_COVARIANCE, _NO_COVARIANCE,
-        0, mavlink.MAV_ESTIMATOR_TYPE_MOCAP,
+        *truth_odometry_fields(
+            time_usec(world), s[POS, i].tolist(), s[VEL, i].tolist(), s[QUAT, i].tolist(),
+            s[RATES, i].tolist(),
+        )
     )  # fmt: skip
 
 

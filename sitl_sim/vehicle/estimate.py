@@ -58,6 +58,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from protocols.model.frames import FloatArray
+from protocols.scenario.scenario_file import SensorsConfig
 
 #: Salt of the estimate's seed, so that its draws do not share the scenario's other random draws.
 _SALT = 0x4553544D  # "ESTM"
@@ -69,35 +70,14 @@ _FLOOR_EPS = 1e-9
 
 
 @dataclass(frozen=True)
-class Sensors:
-    """The errors of a vehicle's state estimate: a GNSS position bias (stationary standard
-    deviation ``gnss_bias_m``, m, north and east and ``altitude_bias_m``, m, down, wandering with
-    correlation time ``gnss_bias_tau_s``, s), white
+class Sensors(SensorsConfig):
+    """The errors of a vehicle's state estimate: a scenario's ``[sensors]`` (its fields, defaults
+    and predicates: protocols/scenario/scenario_file.py ``SensorsConfig``), checked. A GNSS
+    position bias (stationary standard deviation ``gnss_bias_m``, m, north and east and
+    ``altitude_bias_m``, m, down, wandering with correlation time ``gnss_bias_tau_s``, s), white
     noise on each position (m), velocity (m/s) and attitude (rad) component (standard deviations),
     the estimate's output rate ``rate_hz`` (Hz; 0: every control tick) and its latency
     ``latency_s`` (s). The defaults are the ideal sensor: no error at all."""
-
-    gnss_bias_m: float = 0.0
-    gnss_bias_tau_s: float = 300.0
-    position_noise_m: float = 0.0
-    velocity_noise_m_s: float = 0.0
-    attitude_noise_rad: float = 0.0
-    rate_hz: float = 0.0
-    latency_s: float = 0.0
-    altitude_bias_m: float = 0.0
-
-    @property
-    def ideal(self) -> bool:
-        """No error term, no output rate and no latency: the estimate is the truth."""
-        return (
-            self.gnss_bias_m == 0.0
-            and self.altitude_bias_m == 0.0
-            and self.position_noise_m == 0.0
-            and self.velocity_noise_m_s == 0.0
-            and self.attitude_noise_rad == 0.0
-            and self.rate_hz == 0.0
-            and self.latency_s == 0.0
-        )
 
     def validate(self) -> Sensors:
         """Raise ValueError naming the field unless every value is usable: all finite and
