@@ -9,7 +9,8 @@ same N-drone grid (2.5 m apart) holding its place for the same simulated seconds
 
 - ``quadswarm``: ``swarm simulate`` of ``swarm scenario new --drones N --template hover``
   (take-off, climb to 3 m, hold: the consensus estimator, the cooperative controller, the
-  separation layer, every vehicle's autopilot, the radio in memory and the recording), cut to
+  separation layer, every vehicle's autopilot, the radio in memory and the recording of
+  flight.tlog, events and metrics; no PNG plots, no flight.rrd: the peers write neither), cut to
   the seconds asked;
 - ``crazyflow`` (JAX + MuJoCo, compiled): ``Sim(n_drones=N, control=Control.state)``, the
   drones set on the grid on the ground and each commanded to its place 3 m up, 50 Hz state
@@ -161,7 +162,7 @@ def ours(n: int, seconds: float, folder: Path) -> dict[str, Any]:
     scenario.write_text(generate(options, str(scenario)).text)
     report = folder / f"report{n}"
     argv = [sys.executable, "-m", "gcs.cli", "simulate", str(scenario), "--duration-s",
-            f"{seconds:g}", "--report", str(report), "--no-plots", "--progress", "off"]  # fmt: skip
+            f"{seconds:g}", "--report", str(report), "--no-plots", "--no-recording", "--progress", "off"]  # fmt: skip
     t0 = time.perf_counter()
     done = subprocess.run(
         [*_one_core(), *argv], capture_output=True, text=True, cwd=ROOT, timeout=3600

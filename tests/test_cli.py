@@ -67,6 +67,9 @@ def test_unwritable_report_folder(tmp_path: Path) -> None:
 
 
 def test_short_flight_writes_a_report(tmp_path: Path) -> None:
+    """Without plots and recording: the four logs, no PNG, and no flight.rrd, not even an
+    earlier flight's left in the folder (swarm replay would open it as this one's)."""
+    (tmp_path / "flight.rrd").write_bytes(b"RRF2 an earlier flight")
     proc = _swarm(
         "simulate",
         "scenarios/paper.toml",
@@ -75,12 +78,14 @@ def test_short_flight_writes_a_report(tmp_path: Path) -> None:
         "--duration-s",
         "5",
         "--no-plots",
+        "--no-recording",
         "--progress",
         "off",
     )
     assert proc.returncode == 0, proc.stderr
     for name in ("flight.tlog", "events.jsonl", "metrics.json", "trajectory.json"):
         assert (tmp_path / name).stat().st_size > 0
+    assert not (tmp_path / "flight.rrd").exists() and not list(tmp_path.glob("*.png"))
 
 
 def test_help_explains_units() -> None:
@@ -98,6 +103,21 @@ MACHINERY = (
     "protocols.scenario.generator", "protocols.scenario.layout", "sitl_sim.server",
     "sitl_sim.sim_config", "sitl_sim.vehicle.world",
 )  # fmt: skip
+
+
+def test_a_flight_without_plots_or_recording_loads_neither_library() -> None:
+    """``swarm simulate --no-plots --no-recording`` starts without matplotlib (~0.3 s) and Rerun
+    (~0.6 s with pyarrow and pandas): the in-process runner imports them only to use them."""
+    code = (
+        "import json, sys\n"
+        "import gcs.reference.simulate, gcs.cli.main\n"
+        "print(json.dumps(sorted(m for m in ('matplotlib', 'rerun', 'pandas') if m in sys.modules)))"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=60
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout) == []
 
 
 def test_building_the_parsers_imports_no_machinery() -> None:

@@ -77,6 +77,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     sim.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     sim.add_argument(
+        "--no-recording",
+        action="store_true",
+        help="skip flight.rrd (~1 s for a short flight; swarm replay makes it from the tlog "
+        "when it opens the report)",
+    )
+    sim.add_argument(
         "--progress",
         choices=("auto", "on", "off"),
         default="auto",
@@ -195,7 +201,12 @@ def _simulate(args: argparse.Namespace) -> int:
 
     try:
         result = simulate(
-            scenario, args.report, progress, tlog_hz=args.tlog_hz, plots=not args.no_plots
+            scenario,
+            args.report,
+            progress,
+            tlog_hz=args.tlog_hz,
+            plots=not args.no_plots,
+            recording=not args.no_recording,
         )
     finally:
         if bar is not None:

@@ -22,10 +22,9 @@ from gcs.reference.flight import FlightEvent, ReferenceFlight
 from gcs.report.events import EventLog
 from gcs.report.flight_record import FlightRecord
 from gcs.report.metrics import compute_metrics
-from gcs.report.plots import write_plots
 from gcs.report.tlog import TlogWriter
 from gcs.report.trajectory_file import write_trajectory
-from gcs.view.recording import write_recording
+from gcs.view.recording import RRD, write_recording
 from protocols.model.plan_timing import takeoff_metrics
 from protocols.scenario.scenario_file import Scenario
 
@@ -62,7 +61,8 @@ def simulate(
     recording: bool = True,
 ) -> SimulationResult:
     """Fly ``scenario`` in process and write the report into ``report_dir`` (created); with
-    ``recording``, also ``flight.rrd`` where Rerun is installed (:mod:`gcs.view.recording`)."""
+    ``recording``, also ``flight.rrd`` where Rerun is installed (:mod:`gcs.view.recording`),
+    without it none (an earlier flight's is removed: ``swarm replay`` makes it from the tlog)."""
     report_dir.mkdir(parents=True, exist_ok=True)
     flight = ReferenceFlight(scenario)
     wall0 = time.perf_counter()
@@ -110,8 +110,12 @@ def simulate(
     metrics_path.write_text(json.dumps(metrics, indent=2) + "\n")
     files.append(metrics_path)
     if plots:
+        from gcs.report.plots import write_plots  # matplotlib: ~0.3 s, paid only when plotting
+
         files += write_plots(record, report_dir)
-    if recording and (rrd := write_recording(report_dir, scenario.n_drones)) is not None:
+    if not recording:
+        (report_dir / RRD).unlink(missing_ok=True)  # not an earlier flight's, under this one's name
+    elif (rrd := write_recording(report_dir, scenario.n_drones)) is not None:
         files.append(rrd)
     return SimulationResult(record, flight.events, metrics, files)
 
