@@ -35,6 +35,8 @@ from typing import Any
 
 import numpy as np
 
+from bench.provenance import write_result
+
 ROOT = Path(__file__).resolve().parents[1]
 BATCH_SIZES = (1, 9, 25, 100)
 MATHS_N = 100
@@ -424,7 +426,7 @@ def main(argv: list[str] | None = None) -> int:
         )["profile"]
     else:
         result = agent_batch(args.before, args.repeats, args.quick, after=args.after)
-    args.out.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    write_result(args.out, result, indent=2)
     args.profile_out.write_text(profile_text(result), encoding="utf-8")
     for row in result["rows"]:
         print(row)

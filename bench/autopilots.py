@@ -24,6 +24,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from bench.provenance import write_result
 from gcs.report.holds import window_errors
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,7 +88,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results_autopilots.json")
     args = parser.parse_args(argv)
     result = autopilots(args.ardupilot_bin)
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    write_result(args.out, result, indent=2)
     print(f"wrote {args.out}")
     return 0
 

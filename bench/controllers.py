@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from bench.provenance import write_result
 from bench.runners_gap import ROOT, _swarm, gaps
 from bench.sitl import _free_block
 from protocols.bus.zenoh_bus import ZenohBus, ZenohSettings, free_loopback_endpoint
@@ -129,7 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(line)
     gaps_m = {name: f["runners_max_gap_m"] for name, f in results["flights"].items()}
     print(f"largest gap between the runners' flights (drones not lost), m: {gaps_m}")
-    args.out.write_text(json.dumps(results, indent=1) + "\n", encoding="utf-8")
+    write_result(args.out, results, indent=1)
     return 0
 
 

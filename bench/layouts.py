@@ -21,6 +21,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from bench.provenance import write_result
+
 ROOT = Path(__file__).resolve().parents[1]
 #: (scenario, simulated seconds, agents per process)
 CASES = (
@@ -60,7 +62,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results_layouts.json")
     args = parser.parse_args(argv)
     result = layouts()
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    write_result(args.out, result, indent=2)
     print(f"wrote {args.out}")
     return 0
 

@@ -45,6 +45,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from bench.provenance import write_result
+
 ROOT = Path(__file__).resolve().parents[1]
 OUT_JSON = ROOT / "bench" / "results_messaging_floor.json"
 CONTROL_HZ = 50
@@ -246,7 +248,7 @@ def messaging_floor(rounds: int = 1000) -> dict[str, Any]:
         print(json.dumps(row), file=sys.stderr, flush=True)
         rows.append(row)
     result = {"rounds": rounds, "payload_bytes": PAYLOAD_BYTES, "rows": rows}
-    OUT_JSON.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    write_result(OUT_JSON, result, indent=2)
     return result
 
 

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import statistics
 import time
 import tomllib
@@ -44,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.provenance import write_result
 from protocols.model.frames import FloatArray, wxyz_from_zyx
 from sitl_sim.physics import kernel as physics_kernel
 from sitl_sim.physics.attitude_control import AttitudeGains
@@ -497,7 +497,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for row in result["rows"]:
         print(row)
     print("\n".join(result.get("profile", [])))
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    write_result(args.out, result, indent=2)
     print(f"wrote {args.out}" + ("" if args.no_profile else f" and {args.profile_out}"))
     return 0
 

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.provenance import write_result
 from bench.sitl import _free_block
 from gcs.report.tlog import vehicle_samples
 from protocols.faults import Crash, Dropout
@@ -126,7 +127,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     result = runners_gap(args.scenario.resolve(), args.per_process, args.duration_s, keep)
     brief = {k: v for k, v in result.items() if k != "per_drone"}
     print(json.dumps(brief, indent=1))
-    args.out.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+    write_result(args.out, result, indent=1)
     return 0
 
 

@@ -14,7 +14,6 @@ machine's load).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import statistics
@@ -26,7 +25,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from bench.provenance import commit, load_average
+from bench.provenance import commit, load_average, write_result
 
 ROOT = Path(__file__).resolve().parents[1]
 N_DRONES = 16
@@ -118,7 +117,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args(argv)
     result = session(args.repeats)
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    write_result(args.out, result, indent=2)
     print(f"wrote {args.out}")
     return 0
 

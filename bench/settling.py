@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.provenance import write_result
 from drone_agent.core.consensus.estimator import BatchConsensus
 from drone_agent.core.consensus.scalar import ConsensusParams
 from drone_agent.core.moments import (
@@ -175,7 +176,7 @@ def settling(sizes: tuple[int, ...] = SIZES, ranges: tuple[float, ...] = RANGES)
             print(json.dumps(row), flush=True)
     result = {"command": "python -m bench.settling --out bench/results_settling.json",
               "rows": rows}  # fmt: skip
-    OUT_JSON.write_text(json.dumps(result, indent=1) + "\n")
+    write_result(OUT_JSON, result, indent=1)
     return result
 
 
@@ -205,7 +206,7 @@ def main(argv: list[str] | None = None) -> None:
             print(json.dumps(row), flush=True)
     if args.out is not None:
         command = "python -m bench.settling " + " ".join(argv if argv is not None else sys.argv[1:])
-        args.out.write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
+        write_result(args.out, {"command": command, "rows": rows}, indent=1)
 
 
 if __name__ == "__main__":

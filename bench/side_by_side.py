@@ -43,7 +43,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from bench.provenance import commit, load_average
+from bench.provenance import commit, load_average, write_result
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT_JSON = ROOT / "bench" / "results_side_by_side.json"
@@ -162,7 +162,8 @@ def ours(n: int, seconds: float, folder: Path) -> dict[str, Any]:
     scenario.write_text(generate(options, str(scenario)).text)
     report = folder / f"report{n}"
     argv = [sys.executable, "-m", "gcs.cli", "simulate", str(scenario), "--duration-s",
-            f"{seconds:g}", "--report", str(report), "--no-plots", "--no-recording", "--progress", "off"]  # fmt: skip
+            f"{seconds:g}", "--report", str(report), "--no-plots", "--no-recording",
+            "--progress", "off"]  # fmt: skip
     t0 = time.perf_counter()
     done = subprocess.run(
         [*_one_core(), *argv], capture_output=True, text=True, cwd=ROOT, timeout=3600
@@ -257,7 +258,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",") if s]
     result = side_by_side(sizes, args.seconds, args.peer_python)
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    write_result(args.out, result, indent=2)
     text = table(result)
     args.out.with_suffix(".md").write_text(text)
     print(text)

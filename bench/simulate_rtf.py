@@ -42,6 +42,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from bench.provenance import write_result
+
 ROOT = Path(__file__).resolve().parents[1]
 SIZES = (9, 25, 50, 100, 250)
 OUT_JSON = ROOT / "bench" / "results_simulate_rtf.json"
@@ -157,7 +159,7 @@ def simulate_rtf(
     if profile:
         OUT_PROFILE.write_text(profile_text(), encoding="utf-8")
         result["profile"] = str(OUT_PROFILE.relative_to(ROOT))
-        OUT_JSON.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+        write_result(OUT_JSON, result, indent=2)
     return result
 
 
@@ -190,7 +192,7 @@ def _summary(runs: dict[int, list[dict[str, Any]]], max_s: float | None) -> dict
     }
     _plot(rows, OUT_PNG)
     OUT_TABLE.write_text(table(rows) + "\n", encoding="utf-8")
-    OUT_JSON.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    write_result(OUT_JSON, result, indent=2)
     return result
 
 

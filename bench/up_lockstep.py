@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from bench.end_to_end import scenario_text
+from bench.provenance import write_result
 from bench.sitl import _free_block, _status_lines
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -178,7 +179,7 @@ def up_lockstep(only: list[str] | None = None) -> dict[str, Any]:
         "cpu_count": os.cpu_count(),
         "plot": str(OUT_PNG.relative_to(ROOT)),
     }
-    OUT_JSON.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    write_result(OUT_JSON, result, indent=2)
     plot(rows, OUT_PNG)
     return result
 

@@ -111,7 +111,8 @@ def test_a_flight_without_plots_or_recording_loads_neither_library() -> None:
     code = (
         "import json, sys\n"
         "import gcs.reference.simulate, gcs.cli.main\n"
-        "print(json.dumps(sorted(m for m in ('matplotlib', 'rerun', 'pandas') if m in sys.modules)))"
+        "heavy = ('matplotlib', 'rerun', 'pandas')\n"
+        "print(json.dumps(sorted(m for m in heavy if m in sys.modules)))"
     )
     proc = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=60
