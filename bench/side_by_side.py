@@ -24,7 +24,9 @@ the bare loop of theirs. A peer is flown by ``--peer-python`` (default: this int
 imports there, and listed as not installed otherwise (``pip install crazyflow``; gym-pybullet-
 drones from its repository). Per run: the whole process's wall time (start-up, imports,
 compilation and the flight) and the flight loop's alone (for crazyflow without its first three
-ticks, whose calls compile, reported apart as ``first_step_s``); real-time factors are the
+ticks, whose calls compile, reported apart as ``first_step_s``); for crazyflow also the same
+flight as one compiled scan (``scan_s``: one state command, every step in one call, timed on its
+second call: no orchestrator in its loop, the fastest it flies); real-time factors are the
 simulated seconds over them. Writes the JSON with the commit and the machine's load, and its
 table beside it (the same name, ``.md``).
 """
@@ -51,7 +53,8 @@ SIZES = (9, 25, 100)
 SPACING_M, ALTITUDE_M = 2.5, 3.0
 
 #: each peer: the module it imports as, and the child's script (argv: N, seconds, spacing,
-#: altitude); the script prints one JSON object: loop_s, and first_step_s where it compiles
+#: altitude); the script prints one JSON object: loop_s, and first_step_s where it compiles, and
+#: scan_s where the whole flight can run as one compiled call
 PEERS: dict[str, tuple[str, str]] = {
     "crazyflow": (
         "crazyflow",
@@ -100,6 +103,17 @@ PEERS: dict[str, tuple[str, str]] = {
             z = np.asarray(sim.data.states.pos)[0, :, 2]  # (waits for the last step)
             loop = time.perf_counter() - t0
             out = {"loop_s": loop, "first_step_s": first, "min_altitude_m": float(z.min())}
+            # the same flight as one compiled scan: one command, every step in one call (its
+            # first call compiles; the second, from the ground again, is timed)
+            for timed in (False, True):
+                sim.reset()
+                sim.data = sim.data.replace(states=sim.data.states.replace(pos=pos))
+                sim.state_control(cmd)
+                t0 = time.perf_counter()
+                sim.step(ticks * per)
+                z = np.asarray(sim.data.states.pos)[0, :, 2]
+                if timed:
+                    out["scan_s"] = time.perf_counter() - t0
             print(json.dumps(out))
             """
         ),
@@ -201,6 +215,7 @@ def side_by_side(
 ) -> dict[str, Any]:
     """Every size, ours and each installed peer, one after the other."""
     python = python or sys.executable
+    load = load_average()
     present = {name: installed(python, module) for name, (module, _) in PEERS.items()}
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -221,7 +236,7 @@ def side_by_side(
     return {
         "seconds": seconds,
         "commit": commit(),
-        "load_1_5_15": load_average(),
+        "load_average": load,
         "one_core": bool(_one_core()),
         "peers_installed": present,
         "rows": rows,
@@ -232,19 +247,21 @@ def table(result: dict[str, Any]) -> str:
     """The markdown table of a result."""
     lines = [
         f"`python -m bench.side_by_side` at {result['commit']}, {result['seconds']:g} simulated s, "
-        f"load {result['load_1_5_15']}; peers installed: "
+        f"load {result['load_average']}; peers installed: "
         + ", ".join(f"{k} {'yes' if v else 'no'}" for k, v in result["peers_installed"].items()),
         "",
-        "| N | runner | whole process (s) | loop (s) | loop real-time factor | ours / theirs |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| N | runner | whole process (s) | loop (s) | loop real-time factor | ours / theirs "
+        "| one compiled scan (s) |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in result["rows"]:
         if "loop_s" not in r:
-            lines.append(f"| {r['n']} | {r['runner']} | failed: {r.get('error')} | | | |")
+            lines.append(f"| {r['n']} | {r['runner']} | failed: {r.get('error')} | | | | |")
             continue
         lines.append(
             f"| {r['n']} | {r['runner']} | {r['whole_s']:.2f} | {r['loop_s']:.2f} | "
-            f"{r['rtf_loop']:.1f}x | {r['ours_loop_over_theirs']:.2f} |"
+            f"{r['rtf_loop']:.1f}x | {r['ours_loop_over_theirs']:.2f} | "
+            + (f"{r['scan_s']:.2f} |" if "scan_s" in r else "|")
         )
     return "\n".join(lines) + "\n"
 
