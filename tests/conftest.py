@@ -58,8 +58,10 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 # two pytest-xdist workers at once (lockstep and in-process flights give the same result however
 # loaded the machine is, and unit tests do not care), then the ``serial`` tests one at a time.
 # Serial: flights paced by the wall clock (a second flight beside them on two cores makes them
-# miss ticks: their verdicts depend on the machine's load), and flights on the default ports
-# (14540.., 14550, Zenoh 7447: only one run on the machine can have them).
+# miss ticks: their verdicts depend on the machine's load). Flights on the default ports
+# (14540.., 14550, Zenoh 7447: only one run on the machine can have them) fly in the first part,
+# all in one xdist group, so one after the other on one worker (the other tests take ports the
+# system hands out, above 32767, never these); those of them on the realtime clock are serial.
 #: test modules whose flights run on the realtime clock
 REALTIME_MODULES = frozenset(
     {
@@ -67,6 +69,7 @@ REALTIME_MODULES = frozenset(
         "test_agent_ground",
         "test_agent_vehicle_silence",
         "test_agent_without_scenario",
+        "test_ardupilot_sitl",  # real ArduCopter SITL steps in real time (skipped without it)
         "test_drills",
         "test_gcs_flight",
         "test_host_batching",  # a tick's datagrams 0.4 ms apart against a 2 ms wait
@@ -117,16 +120,30 @@ _SHARED_GROUPS = {
 def pytest_collection_modifyitems(
     config: pytest.Config, items: list[pytest.Item]
 ) -> Iterator[None]:
-    """Mark the serial modules' tests ``serial``; on xdist workers, group the tests by module
-    (a module's fixtures fly once) and the modules that share a session fixture together."""
+    """Mark the realtime modules' tests, and the default-port modules' tests on the realtime
+    clock, ``serial``; on xdist workers, group the tests by module (a module's fixtures fly
+    once), the modules that share a session fixture together, and every default-port module in
+    one group (one flight on the default ports at a time)."""
     worker = hasattr(config, "workerinput")
     for item in items:
         module = item.module.__name__.rsplit(".", 1)[-1] if item.module is not None else ""
-        if module in REALTIME_MODULES or module in DEFAULT_PORT_MODULES:
+        default_ports = module in DEFAULT_PORT_MODULES
+        if module in REALTIME_MODULES or (default_ports and _on_the_realtime_clock(item)):
             item.add_marker(pytest.mark.serial)
         if worker:
-            item.add_marker(pytest.mark.xdist_group(_SHARED_GROUPS.get(module, module)))
+            group = DEFAULT_PORTS_GROUP if default_ports else _SHARED_GROUPS.get(module, module)
+            item.add_marker(pytest.mark.xdist_group(group))
     yield
+
+
+#: the xdist group of every test on the default ports
+DEFAULT_PORTS_GROUP = "default ports"
+
+
+def _on_the_realtime_clock(item: pytest.Item) -> bool:
+    """Whether ``item`` is a case of a ``clock`` parametrisation on the realtime clock."""
+    callspec = getattr(item, "callspec", None)
+    return callspec is not None and callspec.params.get("clock") == "realtime"
 
 
 # -- the suite's times ------------------------------------------------------------------------

@@ -115,7 +115,9 @@ def run_swarm(cwd: Path, *args: str, timeout_s: float = 600.0) -> str:
 def simulate_metrics(cwd: Path, scenario: Path | str, *flags: str) -> dict[str, Any]:
     """``swarm simulate SCENARIO --report r --no-plots FLAGS`` in ``cwd``: its metrics.json (the
     report in ``cwd / "r"``)."""
-    run_swarm(cwd, "simulate", str(scenario), "--report", "r", "--no-plots", *flags)
+    run_swarm(
+        cwd, "simulate", str(scenario), "--report", "r", "--no-plots", "--no-recording", *flags
+    )
     metrics: dict[str, Any] = json.loads((cwd / "r" / "metrics.json").read_text())
     return metrics
 

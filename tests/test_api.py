@@ -257,7 +257,8 @@ def test_a_swarm_simulate_report_reads_back_with_its_losses(tmp_path: Path) -> N
     for words in (
         ("scenario", "new", "--drones", "5", "--template", "hover", "--faults", "dropout,crash",
          "--duration-s", "30", "-o", str(scenario)),
-        ("simulate", str(scenario), "--report", str(tmp_path / "r"), "--no-plots"),
+        ("simulate", str(scenario), "--report", str(tmp_path / "r"), "--no-plots",
+         "--no-recording"),
     ):  # fmt: skip
         done = subprocess.run(swarm_command(*words), capture_output=True, text=True, env=ENV)
         assert done.returncode == 0, done.stdout + done.stderr

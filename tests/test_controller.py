@@ -226,7 +226,7 @@ def test_check_simulate_up_and_agent_say_it_in_one_line(
     path = _scenario(tmp_path, '[agent]\ncontroller = "my_controllers:Missing"\n')
     for argv in (
         ["scenario", "check", str(path)],
-        ["simulate", str(path), "--no-plots", "--report", str(tmp_path / "sim")],
+        ["simulate", str(path), "--no-plots", "--no-recording", "--report", str(tmp_path / "sim")],
         ["up", str(path), "--report", str(tmp_path / "up")],  # before any process starts
         ["agent", "--scenario", str(path), "--drone-id", "0"],
     ):

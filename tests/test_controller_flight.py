@@ -88,7 +88,12 @@ def _run(*args: str, cwd: Path) -> str:
 
 
 def _simulate(tmp_path: Path, scenario: Path, report: str) -> Path:
-    _run(*swarm_command("simulate", str(scenario), "--report", report, "--no-plots"), cwd=tmp_path)
+    _run(
+        *swarm_command(
+            "simulate", str(scenario), "--report", report, "--no-plots", "--no-recording"
+        ),
+        cwd=tmp_path,
+    )
     return tmp_path / report
 
 

@@ -24,7 +24,9 @@ pytestmark = pytest.mark.slow
 def test_large_grid_flies_to_the_bars(tmp_path: Path, name: str) -> None:
     scenario = ROOT / "scenarios" / f"{name}.toml"
     done = subprocess.run(
-        swarm_command("simulate", str(scenario), "--report", "report", "--no-plots"),
+        swarm_command(
+            "simulate", str(scenario), "--report", "report", "--no-plots", "--no-recording"
+        ),
         capture_output=True,
         text=True,
         env=ENV,

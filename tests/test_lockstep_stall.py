@@ -35,7 +35,14 @@ def test_a_frozen_agent_process_slows_lockstep_without_changing_the_flight(
         settle_s=8.0,
     )
     done = subprocess.run(
-        swarm_command("simulate", str(scenario), "--report", str(tmp_path / "sim"), "--no-plots"),
+        swarm_command(
+            "simulate",
+            str(scenario),
+            "--report",
+            str(tmp_path / "sim"),
+            "--no-plots",
+            "--no-recording",
+        ),
         capture_output=True,
         text=True,
         env=ENV,

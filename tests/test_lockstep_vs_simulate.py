@@ -102,7 +102,9 @@ def test_lockstep_flight_is_the_in_process_flight(tmp_path: Path, rendezvous: st
         f.write(WINDY)
     (dropout,) = [f.drone for f in load_scenario(scenario).faults if isinstance(f, Dropout)]
     _run(
-        *swarm_command("simulate", str(scenario), "--report", "sim", "--no-plots"),
+        *swarm_command(
+            "simulate", str(scenario), "--report", "sim", "--no-plots", "--no-recording"
+        ),
         *("--duration-s", str(DURATION_S)),
         cwd=tmp_path,
     )

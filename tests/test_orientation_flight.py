@@ -37,7 +37,9 @@ UP_TURN_S = 29.5
 
 def _simulate(scenario: Path, out: Path) -> str:
     done = subprocess.run(
-        swarm_command("simulate", str(scenario), "--report", str(out), "--no-plots"),
+        swarm_command(
+            "simulate", str(scenario), "--report", str(out), "--no-plots", "--no-recording"
+        ),
         capture_output=True,
         text=True,
         env=ENV,

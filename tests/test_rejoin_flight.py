@@ -203,7 +203,7 @@ def _assert_simulate_flies_it_until_the_first_drill(
     first_drill_s = min(float(e["t_s"]) for e in events if e["kind"] == "drill")
     done = subprocess.run(
         swarm_command("simulate", str(scenario), "--report", str(sim), "--no-plots",
-                      "--duration-s", f"{first_drill_s + 1.0:.2f}"),
+                      "--no-recording", "--duration-s", f"{first_drill_s + 1.0:.2f}"),
         capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=300,
     )  # fmt: skip
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]

@@ -248,7 +248,9 @@ def test_agents_that_ignored_the_link_faults_would_fail_every_judge(tmp_path: Pa
     they ignored the faults) fails each of them, the way the faulted flight passes them."""
     (tmp_path / "perfect-radio.toml").write_text(scenario(link_faults=False))
     sim = subprocess.run(
-        swarm_command("simulate", "perfect-radio.toml", "--report", "report", "--no-plots"),
+        swarm_command(
+            "simulate", "perfect-radio.toml", "--report", "report", "--no-plots", "--no-recording"
+        ),
         capture_output=True,
         text=True,
         env=ENV,

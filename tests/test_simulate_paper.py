@@ -124,6 +124,8 @@ def test_report_contents(report: Path) -> None:
     for png in ("paths.png", "descriptors.png", "controls.png"):
         data = (report / png).read_bytes()
         assert data.startswith(b"\x89PNG") and len(data) > 20_000
+    # with its defaults it also writes the Rerun recording (tests/test_view.py reads one back)
+    assert (report / "flight.rrd").read_bytes()[:4] == b"RRF2"
 
 
 @pytest.mark.slow
