@@ -189,6 +189,7 @@ def ours(n: int, seconds: float, folder: Path) -> dict[str, Any]:
     return {
         "whole_s": round(whole, 3),
         "loop_s": metrics["wall_time_s"],
+        "startup_s": metrics.get("startup_s"),  # the process's age when the loop started
         "min_separation_m": metrics["separation"]["min_m"],
         "collisions": metrics["collisions"]["count"],
     }

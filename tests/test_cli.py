@@ -86,6 +86,8 @@ def test_short_flight_writes_a_report(tmp_path: Path) -> None:
     for name in ("flight.tlog", "events.jsonl", "metrics.json", "trajectory.json"):
         assert (tmp_path / name).stat().st_size > 0
     assert not (tmp_path / "flight.rrd").exists() and not list(tmp_path.glob("*.png"))
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["startup_s"] > 0 and metrics["wall_time_s"] > 0  # the process's start-up
 
 
 def test_help_explains_units() -> None:

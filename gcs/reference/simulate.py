@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -65,6 +66,7 @@ def simulate(
     without it none (an earlier flight's is removed: ``swarm replay`` makes it from the tlog)."""
     report_dir.mkdir(parents=True, exist_ok=True)
     flight = ReferenceFlight(scenario)
+    startup = _process_age_s()
     wall0 = time.perf_counter()
     record = flight.run(progress, links_every=status_stride(scenario.rates.dt_control_s))
     wall = time.perf_counter() - wall0
@@ -89,6 +91,9 @@ def simulate(
             "seed": scenario.seed,
             "mode": "in-process reference (swarm simulate)",
             "wall_time_s": round(wall, 3),
+            # how long the process had run when the flight started (imports, compiled code,
+            # scenario; the flight's set-up): swarm simulate's start-up
+            "startup_s": None if startup is None else round(startup, 2),
             "real_time_factor": round(scenario.duration_s / wall, 3) if wall > 0 else None,
             "settle_s": scenario.settle_s,
             "takeoff": takeoff_metrics(flight.takeoff_s, flight.plan),
@@ -118,6 +123,17 @@ def simulate(
     elif (rrd := write_recording(report_dir, scenario.n_drones)) is not None:
         files.append(rrd)
     return SimulationResult(record, flight.events, metrics, files)
+
+
+def _process_age_s() -> float | None:
+    """Seconds since this process started (Linux: /proc/self/stat's start time, in clock ticks
+    since boot); None where that cannot be read."""
+    try:
+        fields = Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()
+        started_s = int(fields[19]) / os.sysconf("SC_CLK_TCK")  # field 22 of the line
+        return time.clock_gettime(time.CLOCK_BOOTTIME) - started_s
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
 
 
 def status_stride(dt_s: float) -> int:
