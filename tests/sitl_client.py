@@ -97,8 +97,9 @@ def swarm_command(*args: str) -> list[str]:
         why = needs_the_machine_alone(args)
         if why:
             raise AssertionError(
-                f"swarm {' '.join(args[:2])}: {why}; add its module to REALTIME_MODULES or "
-                "DEFAULT_PORT_MODULES in tests/conftest.py so that make test runs it alone"
+                f"swarm {' '.join(args[:2])}: {why}; add its module to REALTIME_MODULES in "
+                "tests/conftest.py (or, on the default ports, parametrise its clock) so that "
+                "make test runs it alone"
             )
     return [sys.executable, "-m", "gcs.cli", *args]
 
