@@ -61,6 +61,8 @@ bench: $(STAMP)
 	# RotorPy is the reference the simulator's physics step is compared with (bench only)
 	$(BIN)/python -m pip install --quiet rotorpy
 	$(BIN)/python -m bench.run --out bench/results.json
+	# the issue targets, each as the plain command flies it: bench/results_targets.json, targets.md, .png
+	$(BIN)/python -m bench.targets
 
 clean:
 	rm -rf $(VENV) report .pytest_cache .mypy_cache .ruff_cache

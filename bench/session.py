@@ -85,6 +85,8 @@ def one_session(cwd: Path) -> dict[str, Any]:
     return {
         "exit_code": code,
         "real_time_factor_flying": round(rtf, 2),
+        # the session as its user lives it: simulated time over wall time from the command
+        "real_time_factor_whole": round(t_s / (wall_shutdown - started), 2),
         "shutdown_to_exit_s": round(after, 2),
         "started_to_ready_s": round(wall_takeoff - started, 2),
     }

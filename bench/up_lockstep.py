@@ -69,8 +69,15 @@ def _role(cmdline: list[str]) -> str | None:
     return None
 
 
-def run_case(n: int, per_process: int, kind: str, seconds: float) -> dict[str, Any]:
-    """One ``swarm up --clock lockstep`` run (module docstring)."""
+def run_case(
+    n: int, per_process: int | None, kind: str, seconds: float, clock: str = "lockstep"
+) -> dict[str, Any]:
+    """One ``swarm up`` run (module docstring); ``per_process`` None: ``swarm up``'s default
+    layout. Besides the settled figures, the whole flight's: ``rtf_whole`` (the flown simulated
+    time over the wall time from the command's start to the simulator's last status line, start-up
+    and take-off included), ``agent_cpu_us_whole`` (the agents' CPU per agent-tick over the same
+    span), the layout ``swarm up`` chose (its start line) and, on the realtime clock, the share
+    of ticks answered in time (the report's ``agent_timing``)."""
     import psutil
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -83,19 +90,23 @@ def run_case(n: int, per_process: int, kind: str, seconds: float) -> dict[str, A
             scenario.write_text(scenario_text(n, seconds), encoding="utf-8")
         report = Path(tmp) / "report"
         base, gcs = _free_block(n), _free_block(1)
+        swarm_id = f"bench{os.getpid()}x{n}x{per_process}"
         cmd = [sys.executable, "-m", "gcs.cli", "up", str(scenario), "--report", str(report),
-               "--clock", "lockstep", "--agents-per-process", str(per_process),
-               "--duration-s", str(seconds), "--base-port", str(base), "--gcs-port", str(gcs),
-               "--swarm-id", f"bench{os.getpid()}x{n}x{per_process}"]  # fmt: skip
+               "--clock", clock, "--duration-s", str(seconds), "--base-port", str(base),
+               "--gcs-port", str(gcs), "--swarm-id", swarm_id]  # fmt: skip
+        if per_process is not None:
+            cmd += ["--agents-per-process", str(per_process)]
         load = os.getloadavg()[0]
         wall0 = time.monotonic()
-        proc = subprocess.Popen(
-            cmd,
-            cwd=ROOT,
-            env={**os.environ, "MAVLINK20": "1", "PYTHONPATH": str(ROOT)},
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
+        out_path = Path(tmp) / "swarm-up.out"
+        with out_path.open("wb") as sink:
+            proc = subprocess.Popen(
+                cmd,
+                cwd=ROOT,
+                env={**os.environ, "MAVLINK20": "1", "PYTHONPATH": str(ROOT)},
+                stdout=sink,
+                stderr=subprocess.STDOUT,
+            )
         parent = psutil.Process(proc.pid)
         cpu: dict[int, tuple[str, float]] = {}
         samples: list[tuple[float, float, float, float, float]] = []  # wall, sim, agent, sim, gcs
@@ -127,7 +138,12 @@ def run_case(n: int, per_process: int, kind: str, seconds: float) -> dict[str, A
         proc.wait(60)
         wall = time.monotonic() - wall0
         text = log.read_text(errors="replace").replace("\r", "\n") if log.exists() else ""
-    lines = _status_lines(text)
+        said = out_path.read_text(errors="replace")
+        metrics_path = report / "metrics.json"
+        metrics = json.loads(metrics_path.read_text()) if metrics_path.exists() else {}
+    layout = next((line.strip() for line in said.splitlines() if " drones, " in line), None)
+    timing = metrics.get("agent_timing") or {}
+    whole = _whole_flight(samples, wall0, n)
     settled = [s for s in lines if s["sim"] >= FROM_S]
     rtf = None
     if len(settled) >= 3:
@@ -155,6 +171,30 @@ def run_case(n: int, per_process: int, kind: str, seconds: float) -> dict[str, A
         "wall_s": round(wall, 1),
         "exit": proc.returncode,
         "load_1min": round(load, 1),
+        "clock": clock,
+        "layout": layout,
+        **whole,
+        "in_time_mean": timing.get("in_time_mean"),
+        "in_time_min": timing.get("in_time_min"),
+        "worst_lag_ms": timing.get("worst_lag_ms"),
+    }
+
+
+def _whole_flight(
+    samples: list[tuple[float, float, float, float, float]], wall0: float, n: int
+) -> dict[str, float | None]:
+    """The whole flight's figures from the run's samples (wall, sim, agent, sim, gcs CPU):
+    simulated time flown over the wall time from the start to the first sample at it, and the
+    agents' CPU per agent-tick over that span (the agents' start-up included)."""
+    if not samples or samples[-1][1] <= 0:
+        return {"rtf_whole": None, "agent_cpu_us_whole": None, "flown_s": None}
+    flown = samples[-1][1]
+    end = next(s for s in samples if s[1] >= flown)
+    agent_us = 1e6 * end[2] / (n * flown * CONTROL_HZ)
+    return {
+        "rtf_whole": round(flown / (end[0] - wall0), 2),
+        "agent_cpu_us_whole": round(agent_us),
+        "flown_s": round(flown, 2),
     }
 
 

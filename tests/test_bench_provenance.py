@@ -5,6 +5,9 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
+from typing import Any
+
+import pytest
 
 from bench.provenance import write_result
 
@@ -33,3 +36,40 @@ def test_every_benchmark_writes_its_file_through_write_result() -> None:
         if path.name not in own and re.search(r"write_text\(\s*json\.dumps", path.read_text())
     ]
     assert writers == []
+
+
+def test_the_targets_bench_judges_each_figure_by_its_median_and_says_by_how_much(
+    tmp_path: Path, monkeypatch: Any
+) -> None:
+    """bench.targets: the median of the runs against each bound, more-is-better and
+    less-is-better alike; a failed run is a row saying so, not a crash; the table and the JSON
+    say met or missed and by what factor; an unknown target name is refused in one line."""
+    from bench import targets as bt
+
+    runs = iter([{"rtf_loop": 20.0, "whole_s": 2.5}, {"error": "boom"}, {"rtf_loop": 40.0}])
+
+    def run() -> dict[str, Any]:
+        row = next(runs)
+        if "error" in row:
+            raise RuntimeError("boom")
+        return row
+
+    fake = bt.Target(
+        "fake", "swarm simulate x", run,
+        (bt.Figure("rtf_loop", 30.0, True, "x", "loop"),
+         bt.Figure("whole_s", 2.0, False, "s", "whole")),
+    )  # fmt: skip
+    monkeypatch.setattr(bt, "TARGETS", (fake,))
+    out = tmp_path / "t.json"
+    assert bt.main(["--repeats", "3", "--out", str(out)]) == 0
+    got = json.loads(out.read_text())
+    assert got["commit"] and len(got["load_average"]) == 3
+    (entry,) = got["targets"]
+    assert entry["runs"][1] == {"error": "RuntimeError: boom"}
+    loop, whole = entry["figures"]
+    assert (loop["median"], loop["met"], loop["margin"]) == (30.0, True, 1.0)
+    assert (whole["median"], whole["met"], whole["margin"]) == (2.5, False, 0.8)
+    md = bt.table(got)
+    assert "| fake | `swarm simulate x` | whole | <= 2s | 2.5s | no (0.80 of the bound) |" in md
+    with pytest.raises(SystemExit):
+        bt.main(["--only", "nope", "--out", str(out)])
