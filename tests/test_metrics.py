@@ -314,3 +314,43 @@ def test_compute_metrics_is_json_and_reports_losses_tilt_thrust_and_extra():
     assert after_loss["peak_centroid_error_m"] == pytest.approx(math.sqrt(1.25))
     with pytest.raises(ValueError, match="clash"):
         compute_metrics(rec, 1.0, extra={"tracking": 1})
+
+
+def test_the_true_descriptors_of_all_samples_at_once_are_each_samples_own() -> None:
+    """descriptors_of works on every sample at once (blocks of them); each row is the swarm
+    frame of that sample's members with a position (protocols.model.descriptors.descriptors),
+    the world's axes where the desired orientation is not finite, NaN with fewer than two
+    members; and heading_mask is heading_defined's rule row by row."""
+    from gcs.report import metrics
+    from gcs.report.metrics import descriptors_of, heading_mask
+    from protocols.model.descriptors import descriptors, heading_defined
+
+    rng = np.random.default_rng(7)
+    t_n, n = 300, 7
+    pos = rng.normal(0.0, 2.0, (t_n, n, 3)) * np.array([3.0, 1.0, 0.2])
+    member = rng.random((t_n, n)) > 0.2
+    member[:5] = False  # nobody
+    member[5, :] = [True] + [False] * (n - 1)  # one drone
+    pos[10:20, 2] = np.nan  # a drone with no position
+    desired = rng.normal(0.0, 0.5, (t_n, 9))
+    desired[30:40, 4] = np.nan  # no desired orientation: the world's axes
+    desired[50:60, 6:9] = [2.0, 2.02, 0.1]  # length and width tied
+    got = descriptors_of(pos, member, desired)
+    small = metrics._BLOCK_VALUES
+    try:
+        metrics._BLOCK_VALUES = 3 * n  # three samples a block: the same rows
+        np.testing.assert_array_equal(descriptors_of(pos, member, desired), got)
+    finally:
+        metrics._BLOCK_VALUES = small
+    for k in range(t_n):
+        use = member[k] & np.all(np.isfinite(pos[k]), axis=1)
+        if use.sum() < 2:
+            assert np.isnan(got[k]).all()
+            continue
+        d = desired[k] if np.all(np.isfinite(desired[k])) else None
+        np.testing.assert_allclose(got[k], descriptors(pos[k][use], d), rtol=1e-9, atol=1e-9)
+    ties = got.copy()
+    ties[50:60, 6:9] = [2.0, 2.02, 0.1]
+    want = [bool(np.all(np.isfinite(a[6:9]))) and heading_defined(a[6:9]) for a in ties]
+    assert heading_mask(ties).tolist() == want
+    assert not heading_mask(ties)[50:60].any() and not heading_mask(ties)[:5].any()

@@ -56,12 +56,13 @@ from protocols.model.descriptor_vector import (
     SHAPE,
 )
 from protocols.model.descriptors import (
-    covariance,
-    desired_axes,
-    frame_from_moments,
-    heading_defined,
+    HEADING_TIE_RATIO,
+    align_axes_batch,
+    desired_axes_batch,
+    frame_vector_batch,
 )
 from protocols.model.frames import FloatArray, wrap_pi
+from protocols.runtime.compiled import loaded
 
 BoolArray = npt.NDArray[np.bool_]
 CENTROID_TOL_M = 0.05
@@ -70,6 +71,8 @@ HOLD_S = 1.0
 #: After a drone is lost, this long is left out of the steady-state figures (s).
 LOSS_WINDOW_S = 10.0
 _ANGLE_ROWS = range(ORIENTATION.start, ORIENTATION.stop)
+#: :func:`descriptors_of` works on blocks of at most this many positions (samples x drones)
+_BLOCK_VALUES = 200_000
 
 
 def descriptors_of(
@@ -78,15 +81,31 @@ def descriptors_of(
     """True descriptors (T, 9) of the members' positions (T, N, 3), axes assigned to ``desired``.
 
     ``member`` (T, N); ``desired`` (T, 9). NaN rows where fewer than 2 members have a position.
+    All samples at once, in blocks of :data:`_BLOCK_VALUES` positions: each sample's centre and
+    population covariance over its members (the others weigh nothing), its axes assigned to its
+    desired orientation (the world's where that is not finite) as one stacked decomposition.
     """
-    out = np.full((positions_ned_m.shape[0], 9), np.nan)
-    for k in range(positions_ned_m.shape[0]):
-        x = positions_ned_m[k][member[k] & np.all(np.isfinite(positions_ned_m[k]), axis=1)]
-        if x.shape[0] < 2:
-            continue
-        mu, sigma = covariance(x)
-        axes = desired_axes(desired[k]) if np.all(np.isfinite(desired[k])) else np.eye(3)
-        out[k] = frame_from_moments(mu, sigma, axes).vector()
+    t_n = positions_ned_m.shape[0]
+    out = np.full((t_n, 9), np.nan)
+    ok = member & np.all(np.isfinite(positions_ned_m), axis=2)
+    count = ok.sum(axis=1)
+    rows = np.flatnonzero(count >= 2)
+    step = max(1, _BLOCK_VALUES // max(1, positions_ned_m.shape[1]))
+    for start in range(0, rows.size, step):
+        r = rows[start : start + step]
+        w = ok[r][:, :, None]
+        x = np.where(w, positions_ned_m[r], 0.0)
+        c = count[r].astype(float)
+        mu = x.sum(axis=1) / c[:, None]
+        p = np.where(w, x - mu[:, None, :], 0.0)
+        sigma = np.einsum("tni,tnj->tij", p, p) / c[:, None, None]
+        d = desired[r]
+        axes_d = np.broadcast_to(np.eye(3), (r.size, 3, 3)).copy()
+        finite = np.all(np.isfinite(d), axis=1)
+        if finite.any():
+            axes_d[finite] = desired_axes_batch(d[finite])
+        axes, s = align_axes_batch(sigma, axes_d, compiled=loaded())
+        out[r] = frame_vector_batch(mu, axes, s)
     return out
 
 
@@ -96,10 +115,13 @@ def true_descriptors(record: FlightRecord) -> FloatArray:
 
 
 def heading_mask(a_true: FloatArray) -> BoolArray:
-    """(T,) True where the heading of ``a_true`` (T, 9) is defined (and the row finite)."""
-    return np.array(
-        [bool(np.all(np.isfinite(a[SHAPE]))) and heading_defined(a[SHAPE]) for a in a_true]
-    )
+    """(T,) True where the heading of ``a_true`` (T, 9) is defined (and the row finite): the
+    rule of :func:`~protocols.model.descriptors.heading_defined`, over every row at once."""
+    shape = a_true[:, SHAPE]
+    s1, s2 = shape[:, 0], shape[:, 1]
+    with np.errstate(invalid="ignore"):
+        defined = np.abs(s1 - s2) >= HEADING_TIE_RATIO * np.maximum(s1 + s2, 1e-12)
+    return np.all(np.isfinite(shape), axis=1) & defined
 
 
 def descriptor_errors(a: FloatArray, ref: FloatArray, heading_ok: BoolArray) -> FloatArray:
