@@ -243,3 +243,29 @@ def test_agent_status_carries_the_integrated_neighbour_ids_and_reads_older_logs(
     assert v.neighbour_ids(3) is None  # unknown, not "no neighbours"
     assert v.status[:, 9].tolist() == [3, 0, 50, 4]  # the count stays whole
     np.testing.assert_allclose(v.status[:, :9], np.tile(estimate, (4, 1)))
+
+
+def test_a_vehicle_sample_is_written_as_pymavlink_frames_it(tmp_path: Path) -> None:
+    """write_vehicle_sample packs the two payloads itself: the bytes are pymavlink's frames of
+    the same fields (float32 rounding, a payload's trailing zeros cut), from arrays or lists."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from protocols.mavlink.fast import pack
+
+    cases = [
+        ([1.0, -2.5, 0.1234567891], [0.3, 0.0, 0.0], [0.01, -0.02, 3.1], [0.0, 0.0, 0.0]),
+        ([1e-9, 123456.789, -3.0], [1.0, 2.0, 3.0], [0.0, 0.0, 0.0], [0.5, -0.5, 1e-3]),
+    ]
+    for k, (pos, vel, euler, rates) in enumerate(cases):
+        for as_array in (False, True):
+            path = tmp_path / f"s{k}{as_array}.tlog"
+            conv = np.array if as_array else list
+            with TlogWriter(path) as log:
+                log.write_vehicle_sample(1.234, 3, conv(pos), conv(vel), conv(euler), conv(rates))
+            mav = mavlink.MAVLink(None, srcSystem=3, srcComponent=1)
+            want = pack(mav.local_position_ned_encode(1234, *pos, *vel), mav)
+            want2 = pack(mav.attitude_encode(1234, *euler, *rates), mav)
+            data = path.read_bytes()
+            assert data[8 : 8 + len(want)] == want
+            assert data[16 + len(want) :] == want2
+            assert bytes(mav.local_position_ned_encode(1234, *pos, *vel).pack(mav)) == want

@@ -170,6 +170,16 @@ def _write_tlog(
                     log.write_statustext(ev.t_s, drone + 1, *said)
             if k % stride and k % hb_stride and k % status_every:
                 continue
+            if k % stride == 0:  # this tick's samples as lists of floats, once for every drone
+                sample = [
+                    values[k].tolist()
+                    for values in (
+                        (record.position_ned_m, record.velocity_ned_m_s, record.euler_rad)
+                        if reported is None
+                        else reported  # what the vehicles reported, then their true state
+                    )
+                ]
+                body_k = rates[k].tolist() if rates is not None else [[0.0] * 3] * record.n_drones
             for i in range(record.n_drones):
                 if t[k] > silent_from.get(i, np.inf):
                     continue
@@ -185,16 +195,8 @@ def _write_tlog(
                     log.write_heartbeat(float(t[k]), i + 1, is_armed, state)
                 if k % stride == 0:
                     body = rates[k, i] if rates is not None else np.zeros(3)
-                    if reported is None:
-                        pos, vel, euler = (
-                            record.position_ned_m,
-                            record.velocity_ned_m_s,
-                            record.euler_rad,
-                        )
-                    else:  # what the vehicle reported, then its true state (as the simulator sends)
-                        pos, vel, euler = reported
                     log.write_vehicle_sample(
-                        float(t[k]), i + 1, pos[k, i], vel[k, i], euler[k, i], body
+                        float(t[k]), i + 1, sample[0][i], sample[1][i], sample[2][i], body_k[i]
                     )
                     if reported is not None and quat is not None:
                         log.write_truth(

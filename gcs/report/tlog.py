@@ -62,11 +62,22 @@ from protocols.mavlink.conventions import (
     MAV_ESTIMATOR_TYPE_MOCAP,
     truth_odometry_fields,
 )
-from protocols.mavlink.fast import pack, parse
+from protocols.mavlink.fast import pack, pack_payload, parse
 from protocols.model.frames import FloatArray, zyx_from_quat_batch
 from protocols.model.geodesy import GeoPoint, ned_of_global_int
 
 _TS = struct.Struct(">Q")
+#: LOCAL_POSITION_NED's and ATTITUDE's payload: time_boot_ms and six floats
+_SAMPLE = struct.Struct("<Iffffff")
+_LPN, _ATT = common.MAVLink_local_position_ned_message, common.MAVLink_attitude_message
+assert _LPN.unpacker.format == _ATT.unpacker.format == _SAMPLE.format
+
+
+def _floats(values: Sequence[float] | FloatArray) -> Sequence[float]:
+    """``values`` as numbers ``struct`` packs: an array's as Python floats (one C call)."""
+    return values.tolist() if isinstance(values, np.ndarray) else values
+
+
 _Rows = list[tuple[float, ...]]
 _AUTOPILOT_COMPONENT = 1
 #: A vehicle whose last sample is older than this is reported NaN by ``TlogTrack.resample``.
@@ -138,24 +149,25 @@ class TlogWriter:
         self,
         t_s: float,
         sysid: int,
-        position_ned_m: FloatArray,
-        velocity_ned_m_s: FloatArray,
-        euler_rad: FloatArray,
-        body_rates_rad_s: FloatArray,
+        position_ned_m: Sequence[float] | FloatArray,
+        velocity_ned_m_s: Sequence[float] | FloatArray,
+        euler_rad: Sequence[float] | FloatArray,
+        body_rates_rad_s: Sequence[float] | FloatArray,
     ) -> None:
         """LOCAL_POSITION_NED and ATTITUDE of one vehicle at simulated time ``t_s`` (s).
 
         ``position_ned_m`` (3,), ``velocity_ned_m_s`` (3,), ``euler_rad`` (3,) roll, pitch, yaw,
-        ``body_rates_rad_s`` (3,) p, q, r. ``time_boot_ms`` is the simulated time in ms.
+        ``body_rates_rad_s`` (3,) p, q, r (arrays or lists of floats). ``time_boot_ms`` is the
+        simulated time in ms. The frames are pymavlink's for the same fields (both messages are
+        a uint32 and six floats: their payloads packed here, no message objects; a tlog's
+        codecs never sign).
         """
         ms = _time_boot_ms(t_s)
-        x, y, z = (float(v) for v in position_ned_m)
-        vx, vy, vz = (float(v) for v in velocity_ned_m_s)
-        roll, pitch, yaw = (float(v) for v in euler_rad)
-        p, q, r = (float(v) for v in body_rates_rad_s)
         mav = self.codec(sysid)
-        self.write_packet(t_s, pack(mav.local_position_ned_encode(ms, x, y, z, vx, vy, vz), mav))
-        self.write_packet(t_s, pack(mav.attitude_encode(ms, roll, pitch, yaw, p, q, r), mav))
+        lpn = _SAMPLE.pack(ms, *_floats(position_ned_m), *_floats(velocity_ned_m_s))
+        att = _SAMPLE.pack(ms, *_floats(euler_rad), *_floats(body_rates_rad_s))
+        self.write_packet(t_s, pack_payload(_LPN, lpn, mav))
+        self.write_packet(t_s, pack_payload(_ATT, att, mav))
 
     def write_truth(
         self,
