@@ -264,6 +264,9 @@ def build_plan(
     layout = host_layout(
         args if session is None else argparse.Namespace(**{**vars(args), "drones": None}), n
     )
+    multihost = layout.router is not None or layout.secrets is not None
+    if multihost and ardupilot_bin is not None:  # the flags' conflict first, then the ports
+        raise SupervisorError("--ardupilot-bin flies on one host: no router, secrets or hosts")
     ports = vehicle_ports(n, args.base_port)
     clash = port_clash(ports, args.gcs_port)
     if clash is not None:
@@ -272,9 +275,7 @@ def build_plan(
         check_udp_ports(ports[layout.sim_first : layout.sim_last + 1], "vehicle ports", layout.bind)
     if "gcs" in layout.parts:
         check_udp_ports([args.gcs_port], "ground station", layout.bind)
-    if layout.router is not None or layout.secrets is not None:
-        if ardupilot_bin is not None:
-            raise SupervisorError("--ardupilot-bin flies on one host: no router, secrets or hosts")
+    if multihost:
         return multihost_plan(args, scenario_path, layout, n, duration), n
     report: Path = args.report
     logs = report / "logs"
