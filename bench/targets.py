@@ -16,9 +16,10 @@ the default ones, as the README types it):
   grid for 25 s and a 250-drone one for 20 s; ``lockstep100`` also gives the hosted agent's CPU per
   agent-tick (maths and messaging, the simulator excluded) once airborne, at the default layout's
   K = 50 on two cores;
-- ``simulate9`` .. ``simulate1000``: ``swarm simulate --no-plots --no-recording`` of an N-drone
-  hover grid, 20 simulated seconds, on one core (bench/side_by_side.py's ``ours``): the flight
-  loop's real-time factor, and at N = 9 the whole process's wall time.
+- ``simulate9``, ``simulate25``, ``simulate100``: ``swarm simulate --no-plots --no-recording`` of
+  an N-drone hover grid, 20 simulated seconds, on one core (bench/side_by_side.py's ``ours``): the
+  flight loop's real-time factor, and at N = 9 the whole process's wall time. (The issue's N =
+  1000 is not flown: a scenario holds at most 250 drones, MAVLink's vehicle numbers.)
 
 Writes ``bench/results_targets.json`` (each target: its bound, the median figure, met or missed
 and by what factor, the runs; the commit and the machine's load), ``bench/targets.md`` (the
@@ -155,9 +156,6 @@ TARGETS: tuple[Target, ...] = (
     ),
     Target("simulate25", "swarm simulate (25-drone grid, 20 s)", _simulate(25), (_loop(25.0),)),
     Target("simulate100", "swarm simulate (100-drone grid, 20 s)", _simulate(100), (_loop(15.0),)),
-    Target(
-        "simulate1000", "swarm simulate (1000-drone grid, 20 s)", _simulate(1000), (_loop(1.0),)
-    ),
 )
 
 

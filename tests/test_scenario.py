@@ -274,7 +274,7 @@ BAD = [
     pytest.param(_set("drones", None), "drones: missing", id="no drones"),
     pytest.param(
         _set("drones", [{"position_ned_m": [0.0, 0.0, 0.0]}]),
-        "drones: need 2..1000 drones, got 1",
+        "drones: need 2..250 drones (MAVLink system ids 1..250), got 1",
         id="one drone",
     ),
     pytest.param(_set("drones", 3), "drones: must be an array of tables", id="drones scalar"),
@@ -508,3 +508,25 @@ def test_load_round_trip_from_a_written_file(tmp_path: Path) -> None:
     _generator().main([str(path)])
     sc = load_scenario(path)
     assert sc.source == str(path) and sc.n_drones == 9 and len(sc.faults) == 5
+
+
+def test_a_scenario_holds_as_many_drones_as_mavlink_numbers_vehicles(tmp_path: Path) -> None:
+    """A scenario's drones are MAVLink vehicles (system ids 1..250) and rows of the agents'
+    neighbour tables: 251 are refused in one line saying why, before anything flies."""
+    from protocols.mavlink.conventions import MAX_VEHICLES
+    from protocols.scenario.generator import MAX_DRONES as GENERATED
+    from protocols.scenario.scenario_file import MAX_DRONES
+
+    assert MAX_DRONES == GENERATED == MAX_VEHICLES == 250
+    drones = "".join(
+        f"[[drones]]\nposition_ned_m = [{2.0 * (k // 16)}, {2.0 * (k % 16)}, 0.0]\n"
+        for k in range(251)
+    )
+    path = tmp_path / "big.toml"
+    path.write_text(
+        'version = 1\nname = "big"\nduration_s = 5.0\n\n' + drones
+        + "[[trajectory.waypoints]]\nt_s = 0.0\ncentre_ned_m = [15.0, 15.0, -3.0]\n"
+        "spread_m = [9.0, 9.0, 0.0]\n"
+    )  # fmt: skip
+    with pytest.raises(ScenarioError, match=r"need 2\.\.250 drones \(MAVLink system ids"):
+        load_scenario(path)

@@ -269,3 +269,27 @@ def test_a_vehicle_sample_is_written_as_pymavlink_frames_it(tmp_path: Path) -> N
             assert data[8 : 8 + len(want)] == want
             assert data[16 + len(want) :] == want2
             assert bytes(mav.local_position_ned_encode(1234, *pos, *vel).pack(mav)) == want
+
+
+def test_an_agent_status_is_written_as_pymavlink_frames_it(tmp_path: Path) -> None:
+    """write_agent_status packs DEBUG_FLOAT_ARRAY's payload itself: pymavlink's frame of the
+    same fields (NaNs, layout 0 and 1 with neighbour ids)."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from protocols.mavlink.conventions import AGENT_COMPID, AGENT_STATUS_LAYOUT, AGENT_STATUS_NAME
+    from protocols.mavlink.fast import pack
+
+    values = np.array([1.0, -2.0, 3.5, 0.1, np.nan, 0.2, 4.0, 1.5, 0.25, 6.0, np.nan, 1.0])
+    for ids in (None, [7, 3, 12]):
+        path = tmp_path / f"status{ids is None}.tlog"
+        with TlogWriter(path) as log:
+            log.write_agent_status(2.5, 4, values, ids)
+        data = path.read_bytes()[8:]
+        mav = mavlink.MAVLink(None, srcSystem=4, srcComponent=AGENT_COMPID)
+        row = [float(v) for v in values]
+        layout = 0 if ids is None else AGENT_STATUS_LAYOUT
+        if ids is not None:
+            row += [float(j) for j in sorted(ids)]
+        row += [float("nan")] * (58 - len(row))
+        msg = mav.debug_float_array_encode(2_500_000, AGENT_STATUS_NAME.encode(), layout, row)
+        assert data == pack(msg, mav) == bytes(msg.pack(mav))

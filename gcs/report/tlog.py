@@ -71,6 +71,11 @@ _TS = struct.Struct(">Q")
 _SAMPLE = struct.Struct("<Iffffff")
 _LPN, _ATT = common.MAVLink_local_position_ned_message, common.MAVLink_attitude_message
 assert _LPN.unpacker.format == _ATT.unpacker.format == _SAMPLE.format
+#: an agent status's DEBUG_FLOAT_ARRAY payload: time_usec, array_id, name, data[58]
+_STATUS = struct.Struct("<QH10s58f")
+_DEBUG_FLOAT_ARRAY = common.MAVLink_debug_float_array_message
+assert _DEBUG_FLOAT_ARRAY.unpacker.format == _STATUS.format
+_STATUS_NAME = AGENT_STATUS_NAME.encode()
 
 
 def _floats(values: Sequence[float] | FloatArray) -> Sequence[float]:
@@ -210,8 +215,8 @@ class TlogWriter:
         data += [float("nan")] * (58 - len(data))
         mav = self.codec(sysid, AGENT_COMPID)
         usec = max(0, round(t_s * 1e6))
-        msg = mav.debug_float_array_encode(usec, AGENT_STATUS_NAME.encode(), layout, data)
-        self.write_packet(t_s, pack(msg, mav))
+        payload = _STATUS.pack(usec, layout, _STATUS_NAME, *data)  # pymavlink's field order
+        self.write_packet(t_s, pack_payload(_DEBUG_FLOAT_ARRAY, payload, mav))
 
     def write_heartbeat(
         self, t_s: float, sysid: int, armed: bool, system_status: int, custom_mode: int = 0

@@ -36,7 +36,7 @@ from protocols.scenario.layout import (
     radio_graph,
 )
 from protocols.scenario.outdoor import OUTDOOR_SENSORS, VEHICLE, outdoor_lines
-from protocols.scenario.scenario_file import Scenario, parse_scenario
+from protocols.scenario.scenario_file import MAX_DRONES, MIN_DRONES, Scenario, parse_scenario
 from protocols.scenario.templates import (
     SESSION_TEMPLATE,
     TEMPLATES,
@@ -57,7 +57,6 @@ __all__ = [
 ]
 
 FAULT_KINDS = ("dropout", "crash", "loss")
-MIN_DRONES, MAX_DRONES = 2, 250
 DEFAULT_LOSS = 0.2
 
 

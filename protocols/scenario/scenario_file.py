@@ -53,7 +53,10 @@ __all__ = [
 ]
 
 SUPPORTED_VERSIONS = (1,)
-MIN_DRONES, MAX_DRONES = 2, 1000
+#: a scenario's drones: every one a MAVLink vehicle (system ids 1..250; 251..255 are the ground
+#: stations': protocols/mavlink/conventions.py MAX_VEHICLES, held equal by tests/test_scenario.py)
+#: and a row of the agents' neighbour tables, which hold that many
+MIN_DRONES, MAX_DRONES = 2, 250
 MIN_SEPARATION_M = 0.5
 PAPER_KP = (0.5, 0.5, 1.75, 0.15, 0.15, 0.15, 0.5, 0.5, 0.5)
 #: Orientation's own PD gains (roll, pitch, yaw), drone_agent/core/cooperative.py.
@@ -646,7 +649,11 @@ def _drones(top: Table) -> tuple[DroneConfig, ...]:
         raise top.error("missing (required: [[drones]] tables with position_ned_m)", "drones")
     tables = top.tables("drones", ("position_ned_m", "yaw_deg"))
     if not MIN_DRONES <= len(tables) <= MAX_DRONES:
-        raise top.error(f"need {MIN_DRONES}..{MAX_DRONES} drones, got {len(tables)}", "drones")
+        raise top.error(
+            f"need {MIN_DRONES}..{MAX_DRONES} drones (MAVLink system ids 1..{MAX_DRONES}), "
+            f"got {len(tables)}",
+            "drones",
+        )
     drones = []
     for t in tables:
         pos = t.vec3("position_ned_m")
@@ -656,7 +663,7 @@ def _drones(top: Table) -> tuple[DroneConfig, ...]:
             )
         drones.append(DroneConfig(pos, t.number("yaw_deg", 0.0)))
     x = np.array([d.position_ned_m for d in drones])
-    gap = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=-1)  # N <= MAX_DRONES: <= 24 MB
+    gap = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=-1)  # N <= MAX_DRONES: <= 1.5 MB
     pairs = np.argwhere(np.triu(gap < MIN_SEPARATION_M, k=1))
     close = [(int(i), int(j)) for i, j in pairs]
     if close:
