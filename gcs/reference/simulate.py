@@ -194,14 +194,13 @@ def _write_tlog(
                     )
                     log.write_heartbeat(float(t[k]), i + 1, is_armed, state)
                 if k % stride == 0:
-                    body = rates[k, i] if rates is not None else np.zeros(3)
                     log.write_vehicle_sample(
                         float(t[k]), i + 1, sample[0][i], sample[1][i], sample[2][i], body_k[i]
                     )
                     if reported is not None and quat is not None:
                         log.write_truth(
                             float(t[k]), i + 1, record.position_ned_m[k, i],
-                            record.velocity_ned_m_s[k, i], quat[k, i], body,
+                            record.velocity_ned_m_s[k, i], quat[k, i], np.array(body_k[i]),
                         )  # fmt: skip
                 if k % status_every == 0 and np.all(np.isfinite(record.estimate[k, i])):
                     on = float(armed[k, i]) if armed is not None else 1.0
