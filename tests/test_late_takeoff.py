@@ -35,8 +35,9 @@ CLIMB_TOP_M = 5.0
 CENTRE_BAR_M, OVERSHOOT_BAR_M = 0.05, 0.10
 
 
-def climb_scenario(path: Path, side: int, duration_s: float = 20.0) -> Path:
-    """The late climb of the module doc, ``side`` x ``side`` drones, written to ``path``."""
+def climb_scenario(path: Path, side: int, duration_s: float = 20.0, *, aloft: bool = False) -> Path:
+    """The late climb of the module doc, ``side`` x ``side`` drones, written to ``path``; with
+    ``aloft``, a plan written in the air from its start (5 m up from t = 0)."""
     pos = np.array([(2.5 * (i // side), 2.5 * (i % side), 0.0) for i in range(side * side)])
     d = descriptors(pos)
     lines = [
@@ -50,7 +51,8 @@ def climb_scenario(path: Path, side: int, duration_s: float = 20.0) -> Path:
     ]
     for p in pos:
         lines += ["[[drones]]", f"position_ned_m = [{p[0]}, {p[1]}, 0.0]"]
-    for t, alt in ((0.0, 0.0), (10.0, CLIMB_TOP_M), (duration_s, CLIMB_TOP_M)):
+    knots = ((0.0, CLIMB_TOP_M),) if aloft else ((0.0, 0.0), (10.0, CLIMB_TOP_M))
+    for t, alt in (*knots, (duration_s, CLIMB_TOP_M)):
         lines += [
             "[[trajectory.waypoints]]",
             f"t_s = {t}",
@@ -218,3 +220,22 @@ def test_a_takeoff_typed_during_the_warm_up_waits_for_the_swarm(tmp_path: Path) 
           f"(re-timed by {takeoff['retimed_by_s']:.2f} s): centre error {error * 1000:.1f} mm, "
           f"overshoot {overshoot * 1000:.1f} mm")  # fmt: skip
     assert error < CENTRE_BAR_M and overshoot < OVERSHOOT_BAR_M, (error, overshoot)
+
+
+def test_a_plan_written_in_the_air_is_climbed_to_from_the_ground(tmp_path: Path) -> None:
+    """A user's plan that starts 5 m up (no rest on the ground): ``swarm simulate FILE`` flies
+    the swarm up to it from the ground rest to rest (protocols/model/plan_timing.py,
+    from_the_ground), then its waypoints; judged from flight.tlog as the late climb. Before, the
+    swarm left the ground towards a plan already 5 m up: a 100-drone grid overshot by 2 m and
+    sagged to 0.75 m; 250 drones climbed to 57 m."""
+    path = climb_scenario(tmp_path / "aloft100.toml", 10, aloft=True)
+    out = _run("simulate", str(path), cwd=tmp_path)
+    t0, error, overshoot = judge_takeoff(tmp_path / "report", 100)
+    print(f"N = 100, plan aloft: take-off {t0:.2f} s, centre error {error * 1000:.1f} mm, "
+          f"overshoot {overshoot * 1000:.1f} mm")  # fmt: skip
+    assert "plan re-timed by" in out, out
+    assert error < CENTRE_BAR_M and overshoot < OVERSHOOT_BAR_M, (error, overshoot)
+    plan = read_trajectory(tmp_path / "report" / "trajectory.json")
+    # the climb takes 2 s per metre (10 s to 5 m), from the take-off; then the plan as written
+    assert -plan.evaluate(t0)[0][2] == pytest.approx(0.0, abs=1e-9)
+    assert -plan.evaluate(t0 + 10.0)[0][2] == pytest.approx(CLIMB_TOP_M, abs=1e-9)

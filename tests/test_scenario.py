@@ -129,9 +129,22 @@ def test_minimal_scenario_defaults_and_conversions() -> None:
     assert sc.consensus.warmup_s == 3.0 and sc.consensus.delay_ticks == 1
     assert sc.waypoints[1].variance_m2 == (9.0, 1.0, 0.25)
     traj = sc.trajectory()
-    a, a_dot, _ = traj.evaluate(10.0)
+    # the plan is written 2 m up from its start: it climbs there from the ground first, in 4 s
+    # (protocols/model/plan_timing.py, from_the_ground), and flies the waypoints 4 s later
+    a0, a0_dot, _ = traj.evaluate(0.0)
+    np.testing.assert_allclose(a0, [1, 1, 0, 0, 0, 0, 4, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(a0_dot, np.zeros(9), atol=1e-12)
+    np.testing.assert_allclose(traj.evaluate(4.0)[0], [1, 1, -2, 0, 0, 0, 4, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(traj.evaluate(4.0)[1], np.zeros(9), atol=1e-12)
+    a, a_dot, _ = traj.evaluate(14.0)
     np.testing.assert_allclose(a, [5, 1, -2, 0, 0, math.pi / 2, 9, 1, 0.25], atol=1e-12)
     np.testing.assert_allclose(a_dot, [0.5, 0, 0, 0, 0, math.radians(9), 0, 0, 0], atol=1e-12)
+    # written on the ground from its start, it is flown as written
+    data = _base()
+    for w in data["trajectory"]["waypoints"]:
+        w["centre_ned_m"][2] = 0.0
+    ground = parse_scenario(data, "scenarios/mini.toml").trajectory()
+    np.testing.assert_allclose(ground.evaluate(10.0)[0][:2], [5, 1], atol=1e-12)
 
 
 def test_home_default_and_given() -> None:

@@ -13,6 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from protocols.mavlink.conventions import MAX_VEHICLES
 from protocols.model.trajectory import DescriptorTrajectory
 from protocols.wire.consensus_message import ConsensusMessage
 from protocols.wire.format import (
@@ -518,11 +519,31 @@ def test_encoder_refuses_what_cannot_be_sent(
         encode_consensus(message, position, SID)
 
 
+def test_the_largest_message_of_the_largest_swarm_is_sent_and_read() -> None:
+    """A drone of a 250-drone swarm that has heard, and kept an edge to, every other one (edges
+    stay while their link is down: a drone that flew past the swarm carries them all), under the
+    longest swarm id, fits the default limit and reads back bit for bit."""
+    others = [j for j in range(MAX_VEHICLES) if j != 7]
+    big = _with(
+        sender=7,
+        heard=frozenset(others),
+        edge_sums={j: np.full(18, 0.5 + j) for j in others},
+        edge_incarnations=dict.fromkeys(others, 3),
+        degree=len(others),
+    )
+    sid = "s" * 32
+    data = encode_consensus(big, POSITION, sid)
+    assert len(data) == MAX_CONSENSUS_BYTES
+    got = decode_consensus(data, sid).message
+    assert got.heard == big.heard and list(got.edge_sums) == others
+    assert all(got.edge_sums[j].tobytes() == big.edge_sums[j].tobytes() for j in others)
+
+
 def test_encoder_refuses_oversized_messages_and_bad_swarm_ids() -> None:
     big = _with(edge_sums={j: np.zeros(18) for j in range(200)})
     with pytest.raises(ValueError, match="exceeds"):
-        encode_consensus(big, POSITION, SID)
-    encode_consensus(big, POSITION, SID, max_bytes=64 * 1024)
+        encode_consensus(big, POSITION, SID, max_bytes=16 * 1024)
+    encode_consensus(big, POSITION, SID)
     with pytest.raises(ValueError, match="swarm id"):
         encode_consensus(MESSAGE, POSITION, "no/slash")
 

@@ -16,7 +16,7 @@ from gcs.station.planner import Envelope, PlanRefused, check_target, envelope_of
 from protocols.faults import Crash, Delay, Dropout, Fault, LinkCut, Loss, Partition
 from protocols.model.formation_fit import closest_pair, formation_positions
 from protocols.model.frames import G_M_S2
-from protocols.model.plan_timing import departure_s
+from protocols.model.plan_timing import GROUND_START_M, climb_s, departure_s
 from protocols.scenario.layout import radio_graph
 from protocols.scenario.scenario_file import Scenario, WaypointConfig
 
@@ -29,11 +29,19 @@ MAX_WAYPOINT_ROWS = 12
 def envelope_problem(scenario: Scenario, envelope: Envelope | None = None) -> str | None:
     """Why the scenario's plan leaves ``envelope`` (default: the ground station's), or None.
 
-    The plan is sampled at every waypoint and twice a second to ``duration_s``."""
+    The waypoints are checked as written, then the plan is sampled at every knot and twice a
+    second to ``duration_s`` or its end, whichever is later (a plan written in the air from its
+    start is flown later, after a climb)."""
     env = envelope or envelope_of(scenario.safety)
+    for w in scenario.waypoints:  # as written first: the message names the file's time
+        try:
+            check_target(w.waypoint().value, env)
+        except PlanRefused as exc:
+            return f"at t = {w.t_s:g} s: {exc}"
     plan = scenario.trajectory()
-    n = max(2, math.ceil(scenario.duration_s * ENVELOPE_SAMPLES_PER_S) + 1)
-    t = np.union1d(np.linspace(0.0, scenario.duration_s, n), [w.t_s for w in scenario.waypoints])
+    end_s = max(scenario.duration_s, plan.end_s)
+    n = max(2, math.ceil(end_s * ENVELOPE_SAMPLES_PER_S) + 1)
+    t = np.union1d(np.linspace(0.0, end_s, n), plan.t_knots_s)
     values = plan.evaluate_many(t)[0]
     for t_s, a in zip(t, values, strict=True):
         try:
@@ -242,11 +250,15 @@ def takeoff_lines(scenario: Scenario, ready_s: float | None, limit_s: float) -> 
         f"in process: {scenario.n_drones} drones, this radio graph, warm-up "
         f"{scenario.consensus.warmup_s:g} s)"
     ]
-    if hold is None:
-        altitude = -float(plan.evaluate(plan.start_s)[0][2])
+    altitude = -scenario.waypoints[0].centre_ned_m[2]
+    if altitude > GROUND_START_M:
         lines.append(
-            f"  WARNING: the plan starts {altitude:.1f} m up: the drones leave the ground "
-            f"at t = {ready_s:.2f} s towards it; start it on the ground to climb with it"
+            f"  NOTE: the plan starts {altitude:.1f} m up: the swarm climbs to it from the "
+            f"ground first, in {climb_s(altitude):g} s, and flies its waypoints that much later"
+        )
+    if hold is None:  # not from a scenario's plan, which always starts on the ground
+        lines.append(
+            "  WARNING: the plan starts in the air: the drones leave the ground towards it"
         )
     elif hold < ready_s:
         lines.append(

@@ -27,6 +27,13 @@ the plan is airborne from its start).
   a landing departs from the landed rest, not from the history before it.
 
 Only the plan is re-timed: the scenario's other events (faults, the end time) keep their times.
+
+A plan written **airborne from its start** (a scenario whose first waypoint is up in the air) is
+given a ground start first (:func:`from_the_ground`): the swarm climbs rest to rest from the
+ground below the first waypoint, taking :func:`climb_s`, and the written waypoints follow that
+much later. Without it the swarm, ready after its warm-up, would leave the ground towards a plan
+metres up at once: a 250-drone grid chasing a 3 m step climbed to 57 m, as the consensus estimate
+of its centre lagged the climb.
 """
 
 from __future__ import annotations
@@ -36,11 +43,48 @@ import weakref
 
 import numpy as np
 
-from protocols.model.trajectory import DescriptorTrajectory
+from protocols.model.descriptor_vector import CENTRE, I_PITCH, I_ROLL, SHAPE
+from protocols.model.trajectory import DescriptorTrajectory, Waypoint
 
 #: A plan's centre at most this high (m, up) is on the ground: the plan waits there for the
 #: swarm's take-off.
 GROUND_START_M = 0.5
+
+
+def climb_s(altitude_m: float) -> float:
+    """How long (s) a plan takes to climb rest to rest from the ground to ``altitude_m`` (m up):
+    at 0.5 m/s on average, at least 4 s (the generated scenarios' climb; a minimum-jerk climb
+    peaks at 15/8 of its average rate)."""
+    return max(4.0, 2.0 * abs(altitude_m))
+
+
+def from_the_ground(waypoints: list[Waypoint]) -> list[Waypoint]:
+    """``waypoints`` as flown: unchanged if the first is on the ground (its centre at most
+    :data:`GROUND_START_M` up); else (module doc) a ground waypoint first, at the first one's time
+    (below its centre, level, flat: no roll, pitch or height spread), and every written waypoint
+    :func:`climb_s` later, the first one at rest unless it says its own rate and acceleration
+    (as it was as the plan's first)."""
+    first = waypoints[0]
+    up = -float(first.value[2])
+    if up <= GROUND_START_M:
+        return waypoints
+    ground = first.value.copy()
+    ground[CENTRE.start + 2] = 0.0
+    ground[I_ROLL] = ground[I_PITCH] = 0.0
+    ground[SHAPE.stop - 1] = 0.0
+    zero = np.zeros_like(ground)
+    late = climb_s(up)
+    start = Waypoint(first.t_s, ground, zero, zero)
+    moved = [
+        Waypoint(
+            first.t_s + late,
+            first.value,
+            zero if first.rate is None else first.rate,
+            zero if first.accel is None else first.accel,
+        )
+    ]
+    moved += [Waypoint(w.t_s + late, w.value, w.rate, w.accel) for w in waypoints[1:]]
+    return [start, *moved]
 
 
 def tick_time_s(tick: int, control_period_ms: int) -> float:

@@ -33,6 +33,7 @@ from protocols.faults import (
 from protocols.model.formation_fit import fit_problem
 from protocols.model.frames import FloatArray
 from protocols.model.geodesy import GeoPoint
+from protocols.model.plan_timing import from_the_ground
 from protocols.model.trajectory import DescriptorTrajectory, Waypoint
 from protocols.scenario.schema import ScenarioError, Table
 
@@ -399,8 +400,11 @@ class Scenario:
         return np.array([d.position_ned_m for d in self.drones], dtype=float)
 
     def trajectory(self) -> DescriptorTrajectory:
-        """The descriptor trajectory a_d(t) (seq 0) through the waypoints, angles in radians."""
-        return DescriptorTrajectory.from_waypoints([w.waypoint() for w in self.waypoints], seq=0)
+        """The descriptor trajectory a_d(t) (seq 0) through the waypoints, angles in radians; a
+        plan written airborne from its start climbs to it from the ground first
+        (protocols.model.plan_timing.from_the_ground)."""
+        written = [w.waypoint() for w in self.waypoints]
+        return DescriptorTrajectory.from_waypoints(from_the_ground(written), seq=0)
 
 
 def load_scenario(path: str | Path) -> Scenario:

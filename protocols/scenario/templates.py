@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 from protocols.model.descriptors import covariance
 from protocols.model.frames import FloatArray
+from protocols.model.plan_timing import climb_s
 
 TEMPLATES = ("hover", "paper", "survey", "turn-and-stretch")
 #: The operator session's plan: on the ground, in the layout (``swarm up --drones N``).
@@ -101,8 +102,7 @@ def build_plan(o: PlanRequest, positions: FloatArray, spacing_m: float, warmup_s
     default_alt = 5.0 if o.template == "paper" else 3.0
     alt = default_alt if o.altitude_m is None else o.altitude_m
     (n0, e0, _), spread = _start(positions)
-    climb_s = max(4.0, 2.0 * alt)
-    up = warmup_s + climb_s
+    up = warmup_s + climb_s(alt)
     ground = (n0, e0, 0.0)
     head = [
         PlanPoint(0.0, ground, 0.0, spread, "on the ground: consensus warm-up before arming"),

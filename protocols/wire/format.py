@@ -73,9 +73,10 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from protocols.mavlink.conventions import MAX_VEHICLES
 from protocols.model.frames import FloatArray
 from protocols.wire.consensus_message import ConsensusMessage, EdgeIncarnations, EdgeSums
-from protocols.wire.keys import MAX_DRONE_ID, validate_swarm_id
+from protocols.wire.keys import MAX_DRONE_ID, MAX_SWARM_ID_LEN, validate_swarm_id
 
 MAGIC = 0x51
 WIRE_VERSION = 1
@@ -87,15 +88,22 @@ NO_INCARNATION = 0xFFFF_FFFF
 #: A take-off round on the wire that says nothing (the message's ``takeoff_round`` is None).
 NO_TAKEOFF = 0xFFFF_FFFF
 N_GAMMA = 18
-#: Default largest consensus payload accepted (bytes): about 110 edge sums.
-MAX_CONSENSUS_BYTES = 16 * 1024
-MAX_U32 = 0xFFFF_FFFF
-
 _HEAD = struct.Struct("<BBBB")
 _FIXED_V1 = struct.Struct("<IHH3fHH")
 _FIXED_V2 = struct.Struct("<IHHH3f3fHH")
 _FIXED_V3 = struct.Struct("<IHHHI3f3fHH")
 _FIXED_V4 = struct.Struct("<IHHHII3f3fHH")
+#: Largest consensus payload accepted (bytes): the largest a swarm can send, every other drone of
+#: the largest swarm heard and on an edge (edges are kept while their link is down, so a drone
+#: that has flown past many others carries many), with the longest swarm id.
+MAX_CONSENSUS_BYTES = (
+    _HEAD.size
+    + MAX_SWARM_ID_LEN
+    + _FIXED_V4.size
+    + (2 + 2 + 4) * (MAX_VEHICLES - 1)
+    + N_GAMMA * 8 * MAX_VEHICLES
+)
+MAX_U32 = 0xFFFF_FFFF
 _FIXED = {1: _FIXED_V1, 2: _FIXED_V2, 3: _FIXED_V3, 4: _FIXED_V4}
 _FLOATS = N_GAMMA * 8  # bytes of one (18,) float64 block
 _NOT_SAID = struct.pack("<I", NO_INCARNATION)
