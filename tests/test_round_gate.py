@@ -13,7 +13,7 @@ import pytest
 
 from drone_agent.process.link_faults import PairRandom
 from drone_agent.process.round_gate import RoundBook, RoundGate
-from drone_agent.process.transport_link import AgentLink, LinkSettings
+from drone_agent.process.transport_link import AgentLink, ConsensusHub, LinkSettings
 from protocols.bus.memory import MemoryBus
 from protocols.wire.format import Kind, Reason, WireError
 from protocols.wire.round_done import RoundDone, decode_round_done, encode_round_done
@@ -236,3 +236,27 @@ def test_gates_of_one_process_share_the_book_and_skip_only_their_own_drone() -> 
             link.close()
         book.close()
         far.close()
+
+
+def test_the_gates_and_links_of_one_process_hand_out_one_view_object() -> None:
+    """Agents of one process with the same roster (lockstep) or the same drones alive
+    (realtime) hand the batched core one frozenset: its mask per view object is built once, not
+    once per agent and tick (drone_agent/process/membership_views.py)."""
+    bus = MemoryBus()
+    session = bus.session()
+    book = RoundBook(session, SETTINGS.keys(), [0, 1, 2])
+    gates = [RoundGate(i, range(3), book) for i in range(3)]
+    assert gates[0].members() == frozenset({0, 1, 2})
+    assert gates[0].members() is gates[1].members() is gates[2].members()
+    hub = ConsensusHub(session, SETTINGS)
+    links = [AgentLink(session, i, (0.0, 0.0, 0.0), SETTINGS, hub) for i in range(3)]
+    try:
+        views = [link.members() for link in links]
+        assert views[0] == frozenset({0, 1, 2}), views
+        assert views[0] is views[1] is views[2] and links[0].members() is views[0]
+        links[2].close()
+        after = [link.members() for link in links[:2]]
+        assert after[0] == frozenset({0, 1}) and after[0] is after[1]
+    finally:
+        for link in links[:2]:
+            link.close()

@@ -432,7 +432,7 @@ class TakeoffClock:
     def round(self) -> int | None:
         """The take-off round the plan is flown on: its own while it flies, else the least one
         heard lately, else None (the swarm has not left the ground)."""
-        return self.batch.rounds((self.row,))[0]
+        return self.batch.round_of(self.row)
 
     def reset(self) -> None:
         """A new life of the agent: no round advertised or heard."""
@@ -479,6 +479,13 @@ class BatchTakeoff:
         self.advertised[row] = _NO_TAKEOFF
         self._heard[row] = _NO_TAKEOFF
         self._heard_at[row] = 0
+
+    def round_of(self, row: int) -> int | None:
+        """:meth:`rounds` of one row."""
+        t = int(self.advertised[row])
+        if t < 0:
+            t = int(self._heard[row])
+        return None if t < 0 else t
 
     def rounds(self, rows: Sequence[int]) -> list[int | None]:
         """The take-off round each row of ``rows`` flies the plan on: its own while it flies,

@@ -30,6 +30,7 @@ import itertools
 from collections import deque
 from collections.abc import Iterable, Sequence
 
+from drone_agent.process.membership_views import Views
 from protocols.bus.interface import Bus, Closeable, ClosesOnExit, Congestion
 from protocols.wire.format import WireError
 from protocols.wire.keys import SwarmKeys
@@ -58,6 +59,8 @@ class RoundBook(ClosesOnExit):
         self.rejected = 0
         #: one tuple per distinct roster of the process's gates (:meth:`roster_of`)
         self._rosters: dict[tuple[int, ...], tuple[int, ...]] = {}
+        #: the process's one frozenset per membership view (its gates' members())
+        self.views = Views()
         #: by roster (its tuple's id): the roster, version, round and :meth:`lows`' answer
         self._lows: dict[int, tuple[tuple[int, ...], int, int, tuple[int, int, int, bool]]] = {}
         #: moves whenever :meth:`poll` took in a marker or a liveliness change
@@ -190,7 +193,7 @@ class RoundGate:
         self._since: dict[int, float] = {}  # drone -> wall time we began waiting on its death
         self._tick = -1
         self._tick_since = 0.0
-        self._members = frozenset(self.roster)
+        self._members = self.book.views.of(self.roster)
         #: the roster, the book's tuple of it (None: to be made again after a change)
         self._shared: tuple[int, ...] | None = None
 
@@ -211,7 +214,7 @@ class RoundGate:
                 return False
             self._first_tick = tick
             self.roster = {j for j in self.roster if j in alive} | {self.me}
-            self._members = frozenset(self.roster)
+            self._members = self.book.views.of(self.roster)
             self._shared = None
         if tick > self._first_tick:
             book = self.book
@@ -246,7 +249,7 @@ class RoundGate:
                     self.roster.add(j)
                     changed = True
             if changed:
-                self._members = frozenset(self.roster)
+                self._members = self.book.views.of(self.roster)
                 self._shared = None
         return True
 

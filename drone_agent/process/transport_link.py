@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drone_agent.core.consensus.packing import from_step, message_columns
+from drone_agent.process.membership_views import Views
 from drone_agent.process.transport import BY_SENDER_ROUND, Position, SwarmMessageCounters
 from protocols.bus.interface import Bus, Closeable, ClosesOnExit, Congestion, Inbox, Publisher
 from protocols.wire.batch import ConsensusBatch, encode_columns, open_batch
@@ -228,6 +229,8 @@ class ConsensusHub(ClosesOnExit):
         self._bus, self._settings, self._keys = bus, settings, settings.keys()
         self._batch = batch
         self._sole = sole
+        #: the process's one frozenset per membership view (its agents' members())
+        self.views = Views()
         self._news = news
         # pulled ring channels (no Python on Zenoh's threads), drained by :meth:`pump`
         self._subs: dict[Cell, Inbox] = {}
@@ -476,6 +479,8 @@ class AgentLink(ClosesOnExit):
         self._counts: Counter[str] = Counter()
         self._alive: set[int] = set()
         self._alive_lock = threading.Lock()
+        #: members() as handed out, until the next liveliness change (None: to be made)
+        self._members: frozenset[int] | None = None
         self._plan: PlanMessage | None = None
         self._plan_payload: bytes | None = None
         self._plan_inbox: deque[bytes] = deque(maxlen=64)
@@ -528,6 +533,7 @@ class AgentLink(ClosesOnExit):
                 self._alive.add(drone)
             else:
                 self._alive.discard(drone)
+            self._members = None
 
     def _on_plan(self, _key: str, payload: bytes) -> None:
         self._plan_inbox.append(payload)
@@ -635,9 +641,12 @@ class AgentLink(ClosesOnExit):
         return {}
 
     def members(self) -> frozenset[int]:
-        """The drones whose liveliness tokens are alive, this one included."""
+        """The drones whose liveliness tokens are alive, this one included: the process's one
+        object for that view (drone_agent/process/membership_views.py) while it does not change."""
         with self._alive_lock:
-            return frozenset(self._alive)
+            if self._members is None:
+                self._members = self._hub.views.of(self._alive)
+            return self._members
 
     def publish_status(self, status: AgentStatus) -> None:
         """Publish this agent's status."""
