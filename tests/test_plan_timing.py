@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 
 from protocols.model.plan_timing import (
+    climb_s,
     departure_s,
     flown_plan,
     flown_time_s,
+    from_the_ground,
     ground_stretches,
     shift_s,
     tick_time_s,
@@ -94,3 +96,28 @@ def test_a_takeoff_that_cuts_a_landing_short_departs_from_its_bottom() -> None:
     assert ground_stretches(cut) == [(-np.inf, 0.0), (40.0, 41.0)]
     assert flown_time_s(cut, 42.0, None) == 41.0
     assert shift_s(cut, 41.2) == pytest.approx(0.2)
+
+
+def test_a_plan_written_in_the_air_gets_a_ground_start() -> None:
+    """from_the_ground: a plan whose first waypoint is up in the air climbs there from the
+    ground below it first (level, flat), rest to rest, in climb_s; the written waypoints follow
+    that much later, unchanged (the first at rest, or at its own rate); one written on the
+    ground is left as it is."""
+    tilted = [0.0, 0.0, -6.0, 0.1, 0.2, 0.3, 4.0, 1.0, 0.5]
+    moving = Waypoint(0.0, tilted, rate=[1.0, 0, 0, 0, 0, 0, 0, 0, 0])
+    later = Waypoint(10.0, [10.0, 0.0, -6.0, 0.1, 0.2, 0.3, 4.0, 1.0, 0.5])
+    flown = from_the_ground([moving, later])
+    assert climb_s(6.0) == 12.0 and climb_s(1.0) == 4.0
+    assert [w.t_s for w in flown] == [0.0, 12.0, 22.0]
+    ground = flown[0]
+    assert ground.value.tolist() == [0.0, 0.0, 0.0, 0.0, 0.0, 0.3, 4.0, 1.0, 0.0]
+    assert not ground.rate.any() and not ground.accel.any()
+    assert flown[1].value.tolist() == tilted and flown[1].rate.tolist()[0] == 1.0
+    plan = DescriptorTrajectory.from_waypoints(flown)
+    written = DescriptorTrajectory.from_waypoints([moving, later])
+    for t in (0.0, 3.3, 7.0, 10.0):
+        np.testing.assert_allclose(plan.evaluate(t + 12.0)[0], written.evaluate(t)[0], atol=1e-12)
+    up = -plan.evaluate_many(np.linspace(0.0, 12.0, 121))[0][:, 2]
+    assert up[0] == 0.0 and np.all(np.diff(up) >= 0.0) and up.max() == pytest.approx(6.0)
+    on_the_ground = [Waypoint(0.0, [0, 0, -0.4, 0, 0, 0, 1, 1, 0]), later]
+    assert from_the_ground(on_the_ground) is on_the_ground
