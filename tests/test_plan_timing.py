@@ -1,6 +1,6 @@
 """The plan's clock (protocols/model/plan_timing.py): a plan that starts on the ground is held until
 the swarm takes off and flown from there; one that starts airborne, or rests past the take-off,
-is flown as written."""
+is flown as written; a scenario's plan written in the air gets a ground start first."""
 
 from __future__ import annotations
 
