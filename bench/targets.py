@@ -22,8 +22,9 @@ the default ones, as the README types it):
   1000 is not flown: a scenario holds at most 250 drones, MAVLink's vehicle numbers.)
 
 Writes ``bench/results_targets.json`` (each target: its bound, the median figure, met or missed
-and by what factor, the runs; the commit and the machine's load), ``bench/targets.md`` (the
-table) and ``bench/targets.png`` (each figure over its bound).
+and by what factor, the runs, and the commit and load average it was measured at),
+``bench/targets.md`` (the table) and ``bench/targets.png`` (each figure over its bound). With
+``--only``, the other targets' entries are kept from the file as they were measured.
 """
 
 from __future__ import annotations
@@ -179,9 +180,11 @@ def judge(target: Target, runs: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def targets(only: Sequence[str] | None = None, repeats: int = 3) -> dict[str, Any]:
-    """Measure the targets (``only`` these names), ``repeats`` runs each, taking turns."""
+    """Measure the targets (``only`` these names), ``repeats`` runs each, taking turns. Each
+    target's entry carries the commit, the load average when its runs began and their count."""
     chosen = [t for t in TARGETS if not only or t.name in only]
     runs: dict[str, list[dict[str, Any]]] = {t.name: [] for t in chosen}
+    start = {"commit": commit(), "load_average": load_average(), "repeats": repeats}
     for k in range(repeats):
         for t in chosen:
             print(f"[{k + 1}/{repeats}] {t.name}: {t.command}", flush=True)
@@ -194,20 +197,37 @@ def targets(only: Sequence[str] | None = None, repeats: int = 3) -> dict[str, An
     return {
         "command": "python -m bench.targets",
         "repeats": repeats,
-        "targets": [judge(t, runs[t.name]) for t in chosen],
+        "targets": [{**judge(t, runs[t.name]), **start} for t in chosen],
         "commit": commit(),
         "load_average_end": load_average(),
     }
 
 
+def merged(result: dict[str, Any], path: Path) -> dict[str, Any]:
+    """``result`` with the targets it did not measure kept from the file at ``path`` (each
+    entry says where it was measured), in the order of :data:`TARGETS`."""
+    try:
+        old = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return result
+    entries = {t["name"]: t for t in old.get("targets", [])}
+    for t in old.get("targets", []):  # an entry from before entries carried their own
+        t.setdefault("commit", old.get("commit"))
+        t.setdefault("load_average", old.get("load_average"))
+        t.setdefault("repeats", old.get("repeats"))
+    entries.update({t["name"]: t for t in result["targets"]})
+    order = [t.name for t in TARGETS if t.name in entries]
+    return {**result, "targets": [entries[name] for name in order]}
+
+
 def table(result: dict[str, Any]) -> str:
     """The targets as a Markdown table."""
     lines = [
-        f"Targets at {result.get('commit')} (`python -m bench.targets`, median of "
-        f"{result['repeats']}; load average at the start {result.get('load_average')}).",
+        "Targets (`python -m bench.targets`): each the median of its runs, at the commit and "
+        "with the load average at the start its row gives.",
         "",
-        "| target | command | figure | bound | measured | met |",
-        "|---|---|---|---|---|---|",
+        "| target | command | figure | bound | measured | met | at (runs, load) |",
+        "|---|---|---|---|---|---|---|",
     ]
     for t in result["targets"]:
         for f in t["figures"]:
@@ -215,9 +235,12 @@ def table(result: dict[str, Any]) -> str:
             verdict = "yes" if f["met"] else (
                 "no" if f["margin"] is None else f"no ({f['margin']:.2f} of the bound)"
             )  # fmt: skip
+            at = t.get("commit", result.get("commit"))
+            runs = t.get("repeats", result.get("repeats"))
+            load = t.get("load_average", result.get("load_average"))
             lines.append(
                 f"| {t['name']} | `{t['command']}` | {f['what']} | {f['sense']} "
-                f"{f['bound']:g}{f['unit']} | {value} | {verdict} |"
+                f"{f['bound']:g}{f['unit']} | {value} | {verdict} | {at} ({runs}, {load}) |"
             )
     return "\n".join(lines) + "\n"
 
@@ -261,6 +284,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                      f"known: {', '.join(t.name for t in TARGETS)}")  # fmt: skip
     start_load = load_average()
     result = {**targets(names, args.repeats), "load_average": start_load}
+    if names:  # the other targets' entries are kept from the file, as they were measured
+        result = merged(result, args.out)
     write_result(args.out, result, indent=2)
     if args.out == OUT_JSON:
         OUT_MD.write_text(table(result), encoding="utf-8")

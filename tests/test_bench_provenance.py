@@ -69,7 +69,19 @@ def test_the_targets_bench_judges_each_figure_by_its_median_and_says_by_how_much
     loop, whole = entry["figures"]
     assert (loop["median"], loop["met"], loop["margin"]) == (30.0, True, 1.0)
     assert (whole["median"], whole["met"], whole["margin"]) == (2.5, False, 0.8)
+    assert entry["commit"] == got["commit"] and entry["repeats"] == 3
     md = bt.table(got)
     assert "| fake | `swarm simulate x` | whole | <= 2s | 2.5s | no (0.80 of the bound) |" in md
     with pytest.raises(SystemExit):
         bt.main(["--only", "nope", "--out", str(out)])
+    # --only measures those and keeps the other entries of the file as they were measured
+    other = bt.Target("other", "swarm up y", lambda: {"rtf_loop": 50.0},
+                      (bt.Figure("rtf_loop", 30.0, True, "x", "loop"),))  # fmt: skip
+    monkeypatch.setattr(bt, "TARGETS", (fake, other))
+    runs = iter([{"rtf_loop": 99.0}])
+    assert bt.main(["--only", "other", "--repeats", "1", "--out", str(out)]) == 0
+    both = json.loads(out.read_text())
+    assert [t["name"] for t in both["targets"]] == ["fake", "other"]
+    assert both["targets"][0] == entry
+    assert both["targets"][1]["figures"][0]["median"] == 50.0
+    assert both["targets"][1]["repeats"] == 1
