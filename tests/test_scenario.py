@@ -529,8 +529,9 @@ def test_a_scenario_holds_as_many_drones_as_mavlink_numbers_vehicles(tmp_path: P
     from protocols.mavlink.conventions import MAX_VEHICLES
     from protocols.scenario.generator import MAX_DRONES as GENERATED
     from protocols.scenario.scenario_file import MAX_DRONES
+    from protocols.wire.keys import MAX_SWARM
 
-    assert MAX_DRONES == GENERATED == MAX_VEHICLES == 250
+    assert MAX_DRONES == GENERATED == MAX_VEHICLES == MAX_SWARM == 250
     drones = "".join(
         f"[[drones]]\nposition_ned_m = [{2.0 * (k // 16)}, {2.0 * (k % 16)}, 0.0]\n"
         for k in range(251)

@@ -54,12 +54,21 @@ ENTITIES = {
 @pytest.fixture(scope="module")
 def report(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A 6-s flight of four drones, flown by ``swarm simulate``'s code in this process, the
-    link between drones 0 and 1 cut over :data:`CUT_S`."""
+    link between drones 0 and 1 cut over :data:`CUT_S`: the warm-up, then a brisk climb to 2 m
+    (its plan climbs in 1 s from the ground: the agents' estimates lag the truth enough to be
+    seen beside it on the plots), a hover."""
     tmp = tmp_path_factory.mktemp("view")
     path = write_scenario(
         tmp / "hover.toml", SQUARE, centre=(2.0, 1.5, -2.0), spread=(2.0, 1.5, 0.0), duration_s=6.0,
         extra=LINK_CUT,
     )  # fmt: skip
+    climb = "[[trajectory.waypoints]]\nt_s = 0.0\ncentre_ned_m = [2.0, 1.5, 0.0]\n"
+    text = path.read_text().replace(
+        "[[trajectory.waypoints]]\nt_s = 0.0\n",
+        climb + "spread_m = [2.0, 1.5, 0.0]\n\n[[trajectory.waypoints]]\nt_s = 1.0\n",
+        1,
+    )
+    path.write_text(text)
     out = tmp / "report"
     result = simulate(load_scenario(path), out, plots=False)
     assert out / "flight.rrd" in result.files

@@ -13,7 +13,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from protocols.mavlink.conventions import MAX_VEHICLES
 from protocols.model.trajectory import DescriptorTrajectory
 from protocols.wire.consensus_message import ConsensusMessage
 from protocols.wire.format import (
@@ -27,6 +26,7 @@ from protocols.wire.format import (
     decode_consensus,
     encode_consensus,
 )
+from protocols.wire.keys import MAX_SWARM
 from protocols.wire.plan import FlightCommand, PlanMessage, decode_plan, encode_plan
 from protocols.wire.status import (
     STATUS_VERSION,
@@ -523,7 +523,7 @@ def test_the_largest_message_of_the_largest_swarm_is_sent_and_read() -> None:
     """A drone of a 250-drone swarm that has heard, and kept an edge to, every other one (edges
     stay while their link is down: a drone that flew past the swarm carries them all), under the
     longest swarm id, fits the default limit and reads back bit for bit."""
-    others = [j for j in range(MAX_VEHICLES) if j != 7]
+    others = [j for j in range(MAX_SWARM) if j != 7]
     big = _with(
         sender=7,
         heard=frozenset(others),

@@ -73,10 +73,9 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from protocols.mavlink.conventions import MAX_VEHICLES
 from protocols.model.frames import FloatArray
 from protocols.wire.consensus_message import ConsensusMessage, EdgeIncarnations, EdgeSums
-from protocols.wire.keys import MAX_DRONE_ID, MAX_SWARM_ID_LEN, validate_swarm_id
+from protocols.wire.keys import MAX_DRONE_ID, MAX_SWARM, MAX_SWARM_ID_LEN, validate_swarm_id
 
 MAGIC = 0x51
 WIRE_VERSION = 1
@@ -100,8 +99,8 @@ MAX_CONSENSUS_BYTES = (
     _HEAD.size
     + MAX_SWARM_ID_LEN
     + _FIXED_V4.size
-    + (2 + 2 + 4) * (MAX_VEHICLES - 1)
-    + N_GAMMA * 8 * MAX_VEHICLES
+    + (2 + 2 + 4) * (MAX_SWARM - 1)
+    + N_GAMMA * 8 * MAX_SWARM
 )
 MAX_U32 = 0xFFFF_FFFF
 _FIXED = {1: _FIXED_V1, 2: _FIXED_V2, 3: _FIXED_V3, 4: _FIXED_V4}

@@ -33,6 +33,9 @@ from dataclasses import dataclass
 ROOT = "swarm"
 MAX_SWARM_ID_LEN = 32
 MAX_DRONE_ID = 0xFFFF  # drone ids travel as uint16 on the wire
+#: Drones in the largest swarm (MAVLink numbers its vehicles 1..250:
+#: protocols.mavlink.conventions.MAX_VEHICLES, equal by test): what the payload limits allow for.
+MAX_SWARM = 250
 _SWARM_ID_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,31}")
 
 Cell = tuple[int, int, int]
