@@ -17,6 +17,7 @@ import argparse
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -105,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
                "--swarm-id", f"profile{os.getpid()}"]  # fmt: skip
         env = {**os.environ, "MAVLINK20": "1", "PYTHONPATH": str(ROOT)}
         flight = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
-                                  stderr=subprocess.DEVNULL)  # fmt: skip
+                                  stderr=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
         try:
             time.sleep(args.warmup_s)
             roles = _roles(flight.pid) if flight.poll() is None else []
@@ -131,7 +132,11 @@ def main(argv: list[str] | None = None) -> int:
                 s.wait()
         finally:
             flight.terminate()
-            flight.wait(60)
+            try:
+                flight.wait(60)
+            except subprocess.TimeoutExpired:  # a large, slow swarm still writing its report
+                os.killpg(flight.pid, signal.SIGKILL)
+                flight.wait(10)
     text = "".join(
         f"{role}:\n{summarise(args.out / f'{role}.txt')}"
         for role, _ in roles
