@@ -63,10 +63,11 @@ def report(tmp_path_factory: pytest.TempPathFactory) -> Path:
         extra=LINK_CUT,
     )  # fmt: skip
     climb = "[[trajectory.waypoints]]\nt_s = 0.0\ncentre_ned_m = [2.0, 1.5, 0.0]\n"
-    text = path.read_text().replace(
-        "[[trajectory.waypoints]]\nt_s = 0.0\n",
-        climb + "spread_m = [2.0, 1.5, 0.0]\n\n[[trajectory.waypoints]]\nt_s = 1.0\n",
-        1,
+    written = path.read_text()
+    first = "[[trajectory.waypoints]]\nt_s = 0.0\n"
+    assert first in written
+    text = written.replace(
+        first, climb + "spread_m = [2.0, 1.5, 0.0]\n\n[[trajectory.waypoints]]\nt_s = 1.0\n", 1
     )
     path.write_text(text)
     out = tmp / "report"

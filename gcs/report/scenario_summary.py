@@ -16,7 +16,7 @@ from gcs.station.planner import Envelope, PlanRefused, check_target, envelope_of
 from protocols.faults import Crash, Delay, Dropout, Fault, LinkCut, Loss, Partition
 from protocols.model.formation_fit import closest_pair, formation_positions
 from protocols.model.frames import G_M_S2
-from protocols.model.plan_timing import GROUND_START_M, climb_s, departure_s
+from protocols.model.plan_timing import departure_s, lead_in_s
 from protocols.scenario.layout import radio_graph
 from protocols.scenario.scenario_file import Scenario, WaypointConfig
 
@@ -251,16 +251,13 @@ def takeoff_lines(scenario: Scenario, ready_s: float | None, limit_s: float) -> 
         f"{scenario.consensus.warmup_s:g} s)"
     ]
     altitude = -scenario.waypoints[0].centre_ned_m[2]
-    if altitude > GROUND_START_M:
+    if late := lead_in_s(altitude):
         lines.append(
             f"  NOTE: the plan starts {altitude:.1f} m up: the swarm climbs to it from the "
-            f"ground first, in {climb_s(altitude):g} s, and flies its waypoints that much later"
+            f"ground first, in {late:g} s, and flies its waypoints that much later"
         )
-    if hold is None:  # not from a scenario's plan, which always starts on the ground
-        lines.append(
-            "  WARNING: the plan starts in the air: the drones leave the ground towards it"
-        )
-    elif hold < ready_s:
+    # hold is None only for a plan airborne from its start, which a scenario's never is
+    if hold is not None and hold < ready_s:
         lines.append(
             f"  WARNING: the plan starts moving at t = {hold:g} s, before the swarm can be "
             f"ready: it will be flown about {ready_s - hold:.2f} s late (held on the ground "

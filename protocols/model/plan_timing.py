@@ -31,9 +31,9 @@ Only the plan is re-timed: the scenario's other events (faults, the end time) ke
 A plan written **airborne from its start** (a scenario whose first waypoint is up in the air) is
 given a ground start first (:func:`from_the_ground`): the swarm climbs rest to rest from the
 ground below the first waypoint, taking :func:`climb_s`, and the written waypoints follow that
-much later. Without it the swarm, ready after its warm-up, would leave the ground towards a plan
-metres up at once: a 250-drone grid chasing a 3 m step climbed to 57 m, as the consensus estimate
-of its centre lagged the climb.
+much later (:func:`lead_in_s`). Without it the swarm, ready after its warm-up, would leave the
+ground towards a plan metres up at once: a 250-drone grid chasing a 3 m step climbed to 57 m, as
+the consensus estimate of its centre lagged the climb.
 """
 
 from __future__ import annotations
@@ -58,6 +58,12 @@ def climb_s(altitude_m: float) -> float:
     return max(4.0, 2.0 * abs(altitude_m))
 
 
+def lead_in_s(first_up_m: float) -> float:
+    """How much later (s) a plan whose first waypoint is ``first_up_m`` (m) up is flown: the
+    ground start's :func:`climb_s` if it is above :data:`GROUND_START_M`, else 0."""
+    return climb_s(first_up_m) if first_up_m > GROUND_START_M else 0.0
+
+
 def from_the_ground(waypoints: list[Waypoint]) -> list[Waypoint]:
     """``waypoints`` as flown: unchanged if the first is on the ground (its centre at most
     :data:`GROUND_START_M` up); else (module doc) a ground waypoint first, at the first one's time
@@ -65,15 +71,14 @@ def from_the_ground(waypoints: list[Waypoint]) -> list[Waypoint]:
     :func:`climb_s` later, the first one at rest unless it says its own rate and acceleration
     (as it was as the plan's first)."""
     first = waypoints[0]
-    up = -float(first.value[2])
-    if up <= GROUND_START_M:
+    late = lead_in_s(-float(first.value[2]))
+    if not late:
         return waypoints
     ground = first.value.copy()
     ground[CENTRE.start + 2] = 0.0
     ground[I_ROLL] = ground[I_PITCH] = 0.0
     ground[SHAPE.stop - 1] = 0.0
     zero = np.zeros_like(ground)
-    late = climb_s(up)
     start = Waypoint(first.t_s, ground, zero, zero)
     moved = [
         Waypoint(

@@ -92,19 +92,23 @@ _FIXED_V1 = struct.Struct("<IHH3fHH")
 _FIXED_V2 = struct.Struct("<IHHH3f3fHH")
 _FIXED_V3 = struct.Struct("<IHHHI3f3fHH")
 _FIXED_V4 = struct.Struct("<IHHHII3f3fHH")
+MAX_U32 = 0xFFFF_FFFF
+_FIXED = {1: _FIXED_V1, 2: _FIXED_V2, 3: _FIXED_V3, 4: _FIXED_V4}
+_FLOATS = N_GAMMA * 8  # bytes of one (18,) float64 block
+
+
+def consensus_body_bytes(n_heard: int, n_edges: int) -> int:
+    """The bytes of a consensus payload's fields (all but the common header) with ``n_heard``
+    heard ids and ``n_edges`` edge sums."""
+    return _FIXED_V4.size + 2 * (n_heard + n_edges) + 4 * n_edges + _FLOATS * (1 + n_edges)
+
+
 #: Largest consensus payload accepted (bytes): the largest a swarm can send, every other drone of
 #: the largest swarm heard and on an edge (edges are kept while their link is down, so a drone
 #: that has flown past many others carries many), with the longest swarm id.
 MAX_CONSENSUS_BYTES = (
-    _HEAD.size
-    + MAX_SWARM_ID_LEN
-    + _FIXED_V4.size
-    + (2 + 2 + 4) * (MAX_SWARM - 1)
-    + N_GAMMA * 8 * MAX_SWARM
+    _HEAD.size + MAX_SWARM_ID_LEN + consensus_body_bytes(MAX_SWARM - 1, MAX_SWARM - 1)
 )
-MAX_U32 = 0xFFFF_FFFF
-_FIXED = {1: _FIXED_V1, 2: _FIXED_V2, 3: _FIXED_V3, 4: _FIXED_V4}
-_FLOATS = N_GAMMA * 8  # bytes of one (18,) float64 block
 _NOT_SAID = struct.pack("<I", NO_INCARNATION)
 _VEC3_F32 = struct.Struct("<3f")
 
@@ -373,12 +377,6 @@ def _consensus_size(swarm_id: str, n_heard: int, n_edges: int) -> int:
     """The bytes of a single consensus payload with these counts, header included."""
     head = len(encode_header(Kind.CONSENSUS, swarm_id, CONSENSUS_VERSION))
     return head + consensus_body_bytes(n_heard, n_edges)
-
-
-def consensus_body_bytes(n_heard: int, n_edges: int) -> int:
-    """The bytes of a consensus payload's fields (all but the common header) with ``n_heard``
-    heard ids and ``n_edges`` edge sums."""
-    return _FIXED_V4.size + 2 * (n_heard + n_edges) + 4 * n_edges + _FLOATS * (1 + n_edges)
 
 
 class MessageColumns(NamedTuple):
