@@ -174,6 +174,11 @@ def test_judge_passes_a_drill_within_its_criteria() -> None:
             "centroid error rose above its start by 0.15 m > 0.1 m",
         ),
         (Criteria(max_estimate=0.05), {"peak_estimate": 0.1}, "peak estimate error"),
+        (  # a failure says when the peak was and where the drill started from
+            Criteria(),
+            {"peak_spread": 0.3, "start_spread": 0.18, "peak_at_s": {"spread": 1.5}},
+            "peak spread error 0.3 > 0.25 (at +1.50 s; 0.18 at the drill's start)",
+        ),
         (Criteria(), {"reconverge_s": None}, "did not re-converge"),
         (Criteria(), {"reconverge_s": 25.0}, "re-converged after 25 s > 20 s"),
         (Criteria(), {"min_separation_m": 0.7}, "separation 0.7 m < 1 m"),

@@ -76,11 +76,29 @@ def catalogue(
     return done, cwd / "drills"
 
 
+def _failed_drills(report: Path) -> str:
+    """What a failed drill's record says (its figures, when its peaks were, the events of its
+    window): a failure on a CI machine leaves no folder to look into."""
+    try:
+        data = json.loads((report / "drills.json").read_text())
+        events = [json.loads(line) for line in (report / "swarm" / "events.jsonl").open()]
+    except (OSError, ValueError) as exc:
+        return f"\n(no record: {exc})"
+    out = []
+    for drill in data["drills"]:
+        if drill["passed"]:
+            continue
+        t0 = drill["t_start_s"]
+        out.append(f"\n{json.dumps(drill)}")
+        out += [f"\n  {e}" for e in events if t0 - 1.0 <= e.get("t_s", -1e9) <= t0 + 30.0]
+    return "".join(out)
+
+
 def test_every_drill_of_the_catalogue_passes(
     catalogue: tuple[subprocess.CompletedProcess[str], Path],
 ) -> None:
     done, report = catalogue
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:] + _failed_drills(report)
     data = json.loads((report / "drills.json").read_text())
     assert data["passed"] and data["drones"] == 9 and data["clock"] == "lockstep"
     assert [d["name"] for d in data["drills"]] == list(CATALOGUE)

@@ -402,11 +402,21 @@ class Measurement:
     ended: tuple[str, ...] = ()
     extra: Mapping[str, Any] = field(default_factory=dict)
     start_centroid_m: float | None = None  # the centroid error at the drill's first sample
+    start_spread: float | None = None  # the spread error at the drill's first sample
+    #: when each peak was (s after the drill's start): where to look in the record of a failure
+    peak_at_s: Mapping[str, float] = field(default_factory=dict)
 
 
 def _peak(x: FloatArray) -> float | None:
     finite = x[np.isfinite(x)]
     return float(finite.max()) if finite.size else None
+
+
+def _peak_at(t_s: FloatArray, x: FloatArray, t0_s: float) -> float | None:
+    """Seconds after ``t0_s`` of the first sample at the peak of ``x`` (None: none finite)."""
+    if not np.isfinite(x).any():
+        return None
+    return round(float(t_s[int(np.nanargmax(x))] - t0_s), 3)
 
 
 def measure(
@@ -427,9 +437,21 @@ def measure(
         judged[during, i] = False
     s = series(replace(w, member=judged))
     sep, _ = separation(w.t_s[during], w.position_ned_m[during], w.airborne[during])
+    t = w.t_s[during]
+    peaks = {
+        name: at
+        for name, x in (
+            ("centroid", s.centroid_m[during]),
+            ("spread", s.spread[during]),
+            ("estimate", s.estimate[during]),
+        )
+        if (at := _peak_at(t, x, w.t_start_s)) is not None
+    }
     return Measurement(
         peak_centroid_m=_peak(s.centroid_m[during]),
         start_centroid_m=_peak(s.centroid_m[first : first + 1]),
+        start_spread=_peak(s.spread[first : first + 1]),
+        peak_at_s=peaks,
         peak_spread=_peak(s.spread[during]),
         peak_estimate=_peak(s.estimate[during]),
         reconverge_s=reconverge_time(s, w.t_recover_s),
@@ -511,24 +533,34 @@ def judge(spec: DrillSpec, m: Measurement, t_start_s: float = float("nan")) -> D
         if m.extra.get(said) is False:
             fail.append(f"refused by the ground station: {m.extra.get(reason)}")
 
-    def over(value: float | None, limit: float | None, what: str, unit: str = "") -> None:
+    def over(
+        value: float | None, limit: float | None, what: str, unit: str = "", peak: str = ""
+    ) -> None:
         if limit is None:
             return
         if value is None:
             fail.append(f"{what}: not measured")
         elif value > limit:
-            fail.append(f"{what} {value:.3g}{unit} > {limit:g}{unit}")
+            notes = []
+            if (at := m.peak_at_s.get(peak)) is not None:
+                notes.append(f"at {at:+.2f} s")
+            if peak == "spread" and m.start_spread is not None:
+                notes.append(f"{m.start_spread:.3g} at the drill's start")
+            said = f" ({'; '.join(notes)})" if notes else ""
+            fail.append(f"{what} {value:.3g}{unit} > {limit:g}{unit}{said}")
 
-    over(m.peak_centroid_m, c.max_centroid_m, "peak centroid error", " m")
+    over(m.peak_centroid_m, c.max_centroid_m, "peak centroid error", " m", "centroid")
     if c.max_centroid_rise_m is not None:
         rise = (
             None
             if m.peak_centroid_m is None or m.start_centroid_m is None
             else m.peak_centroid_m - m.start_centroid_m
         )
-        over(rise, c.max_centroid_rise_m, "centroid error rose above its start by", " m")
-    over(m.peak_spread, c.max_spread, "peak spread error")
-    over(m.peak_estimate, c.max_estimate, "peak estimate error")
+        over(
+            rise, c.max_centroid_rise_m, "centroid error rose above its start by", " m", "centroid"
+        )
+    over(m.peak_spread, c.max_spread, "peak spread error", "", "spread")
+    over(m.peak_estimate, c.max_estimate, "peak estimate error", "", "estimate")
     if c.reconverge_s is not None:
         if m.reconverge_s is None:
             fail.append("did not re-converge")
@@ -613,6 +645,8 @@ def to_json(results: Sequence[DrillResult], info: Mapping[str, Any]) -> dict[str
                 "peak_centroid_error_m": m.peak_centroid_m,
                 "start_centroid_error_m": m.start_centroid_m,
                 "peak_spread_error": m.peak_spread,
+                "start_spread_error": m.start_spread,
+                "peak_at_s": dict(m.peak_at_s),
                 "peak_estimate_error": m.peak_estimate,
                 "time_to_reconverge_s": m.reconverge_s,
                 "min_separation_m": m.min_separation_m,
