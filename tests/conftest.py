@@ -162,7 +162,8 @@ def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pyte
         return
     reports = [
         r
-        for kind in ("passed", "failed", "error", "skipped")
+        # "": the passing setup and teardown phases (a module's flight is often its fixture's)
+        for kind in ("passed", "failed", "error", "skipped", "")
         for r in terminalreporter.stats.get(kind, [])
         if hasattr(r, "duration") and getattr(r, "when", None) in ("setup", "call", "teardown")
     ]

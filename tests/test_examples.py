@@ -20,13 +20,13 @@ EXAMPLES = ROOT / "examples"
 def test_the_gain_sweep_flies_every_seed_and_plots(tmp_path: Path) -> None:
     out = subprocess.run(
         [sys.executable, str(EXAMPLES / "gain_sweep.py"), "--out", str(tmp_path / "sweep"),
-         "--seeds", "0", "3"],
+         "--seeds", "3"],
         capture_output=True, text=True, env=ENV, cwd=tmp_path, timeout=900,
     )  # fmt: skip
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
     runs = re.findall(r"rho (\S+) seed (\d): shape estimate error (\S+) m² RMS", out.stdout)
     assert sorted((rho, int(seed)) for rho, seed, _ in runs) == sorted(
-        (rho, seed) for rho in ("1", "4") for seed in (0, 3)
+        (rho, seed) for rho in ("1", "4") for seed in (3,)
     )
     assert all(0 <= float(rms) < 1.0 for _, _, rms in runs)
     # each figure is the one metrics.json holds for its flight

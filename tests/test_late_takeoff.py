@@ -33,6 +33,8 @@ pytestmark = pytest.mark.slow
 CLIMB_TOP_M = 5.0
 #: the bars of the issue: centre within 5 cm of the plan as flown, no overshoot above 10 cm
 CENTRE_BAR_M, OVERSHOOT_BAR_M = 0.05, 0.10
+#: the side of the grid that ``swarm up`` flies as well
+UP_SIDE = 5
 
 
 def climb_scenario(path: Path, side: int, duration_s: float = 20.0, *, aloft: bool = False) -> Path:
@@ -122,16 +124,31 @@ class Simulated:
         return self.side * self.side
 
 
-@pytest.fixture(scope="module", params=[5, 10], ids=lambda side: f"{side}")
+_FLOWN: dict[int, Simulated] = {}
+
+
+def _simulated(side: int, tmp_path_factory: pytest.TempPathFactory) -> Simulated:
+    """The climb of ``side`` x ``side`` drones by ``swarm simulate``, flown once per module."""
+    if side not in _FLOWN:
+        folder = tmp_path_factory.mktemp(f"climb{side * side}")
+        path = climb_scenario(folder / f"climb{side * side}.toml", side)
+        sim = folder / "sim"
+        sim.mkdir()
+        _FLOWN[side] = Simulated(side, path, sim, _run("simulate", str(path), cwd=sim))
+    return _FLOWN[side]
+
+
+@pytest.fixture(scope="module", params=[UP_SIDE, 10], ids=lambda side: f"{side}")
 def simulated(
     request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
 ) -> Simulated:
-    side: int = request.param
-    folder = tmp_path_factory.mktemp(f"climb{side * side}")
-    path = climb_scenario(folder / f"climb{side * side}.toml", side)
-    sim = folder / "sim"
-    sim.mkdir()
-    return Simulated(side, path, sim, _run("simulate", str(path), cwd=sim))
+    return _simulated(request.param, tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def simulated_up(tmp_path_factory: pytest.TempPathFactory) -> Simulated:
+    """The grid that ``swarm up`` flies as well (UP_SIDE x UP_SIDE)."""
+    return _simulated(UP_SIDE, tmp_path_factory)
 
 
 def test_simulate_waits_for_the_swarm_and_does_not_overshoot(simulated: Simulated) -> None:
@@ -146,11 +163,13 @@ def test_simulate_waits_for_the_swarm_and_does_not_overshoot(simulated: Simulate
 
 
 def test_swarm_up_lockstep_flies_the_same_retimed_plan(
-    tmp_path: Path, simulated: Simulated
+    tmp_path: Path, simulated_up: Simulated
 ) -> None:
     """``swarm up SCENARIO`` with its defaults (lockstep, default ports): the same take-off and
-    bars, and the very flight of ``swarm simulate`` (bit for bit)."""
-    n, path, sim = simulated.n, simulated.scenario, simulated.folder
+    bars, and the very flight of ``swarm simulate`` (bit for bit). The 25-drone grid: the
+    100-drone one took two minutes of the suite's critical path for what the 25 show (its
+    distributed flight is bench.up_lockstep's, which says whether every drone flew)."""
+    n, path, sim = simulated_up.n, simulated_up.scenario, simulated_up.folder
     up = tmp_path / "up"
     up.mkdir()
     with _default_ports_lock():
@@ -228,10 +247,10 @@ def test_a_plan_written_in_the_air_is_climbed_to_from_the_ground(tmp_path: Path)
     from_the_ground), then its waypoints; judged from flight.tlog as the late climb. Before, the
     swarm left the ground towards a plan already 5 m up: a 100-drone grid overshot by 2 m and
     sagged to 0.75 m; 250 drones climbed to 57 m."""
-    path = climb_scenario(tmp_path / "aloft100.toml", 10, aloft=True)
+    path = climb_scenario(tmp_path / "aloft25.toml", 5, aloft=True)
     out = _run("simulate", str(path), cwd=tmp_path)
-    t0, error, overshoot = judge_takeoff(tmp_path / "report", 100)
-    print(f"N = 100, plan aloft: take-off {t0:.2f} s, centre error {error * 1000:.1f} mm, "
+    t0, error, overshoot = judge_takeoff(tmp_path / "report", 25)
+    print(f"N = 25, plan aloft: take-off {t0:.2f} s, centre error {error * 1000:.1f} mm, "
           f"overshoot {overshoot * 1000:.1f} mm")  # fmt: skip
     assert "plan re-timed by" in out, out
     assert error < CENTRE_BAR_M and overshoot < OVERSHOOT_BAR_M, (error, overshoot)
