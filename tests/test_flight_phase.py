@@ -467,6 +467,32 @@ def test_batch_takeoff_is_takeoff_clock_row_by_row() -> None:
     assert len(seen) >= 2  # a take-off forgotten (landed, silence) and another one
 
 
+def test_arrivals_of_a_hosts_shared_inboxes_are_those_of_its_lists() -> None:
+    """A host's agents' inboxes share their message objects (one message reaches every agent of
+    the process in range): read from :class:`Inboxes` (each distinct message once) the arrivals
+    are the plain lists' value for value, in the same order."""
+    from drone_agent.core.flight_phase import Arrivals
+    from drone_agent.core.inboxes import Inboxes
+
+    rng = np.random.default_rng(5)
+    messages = [
+        ConsensusMessage(s, 40 - int(rng.integers(0, 3)), np.zeros(18), {}, frozenset(), 0,
+                         ready_hops=int(rng.integers(0, 4)),
+                         takeoff_round=None if s % 3 else 100 + s)
+        for s in range(12)
+    ]  # fmt: skip
+    lists = [[m for m in messages if rng.random() < 0.6] for _ in range(7)]
+    lists[3] = []  # a row that heard nobody
+    rows = [2, 0, 5, 6, 1, 4, 3]
+    plain = Arrivals.of_inboxes(rows, lists)
+    shared = Arrivals.of_inboxes(rows, Inboxes(lists))
+    assert plain.takeoff is not None and shared.takeoff is not None
+    for name in ("receiver", "sender", "round", "level", "takeoff"):
+        a, b = getattr(plain, name), getattr(shared, name)
+        assert a.dtype == b.dtype and np.array_equal(a, b), name
+    assert plain.sender.size == sum(map(len, lists)) and set(plain.takeoff.tolist()) > {-1}
+
+
 def test_agents_that_leave_apart_agree_on_the_first_take_off_round() -> None:
     """A line of 6 whose agents decide to fly at rounds 10..15 (losses, say): within the line's
     diameter in ticks every one advertises round 10; one that has not left the ground yet flies

@@ -35,6 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drone_agent.core.agent_core import AgentConfig, AgentOutput, Setpoint
+from drone_agent.core.inboxes import Inboxes
 from drone_agent.core.jit_math import jit
 from drone_agent.core.thrust_attitude import ThrustLimits
 from protocols.model.frames import G_M_S2
@@ -398,10 +399,19 @@ class Arrivals:
         with_takeoff: bool = True,
     ) -> Arrivals:
         """The arrivals of the inboxes of rows ``rows`` (one inbox each, in order); their
-        take-off rounds too unless not ``with_takeoff``."""
-        messages = [m for inbox in inboxes for m in inbox]
+        take-off rounds too unless not ``with_takeoff``. Given as
+        :class:`~drone_agent.core.inboxes.Inboxes` (a host's agents, whose inboxes share most
+        messages: each reaches every agent of the process in range), each distinct message is
+        read once and its values indexed out (a 50-agent process read ~16 values an agent-tick
+        one by one: 8 % of its time)."""
+        if isinstance(inboxes, Inboxes):
+            messages, which = inboxes.distinct()
+            counts: Sequence[int] = inboxes.counts
+        else:
+            messages = [m for inbox in inboxes for m in inbox]
+            which, counts = None, [len(b) for b in inboxes]
         n = len(messages)
-        receiver = np.repeat(np.asarray(rows, dtype=np.intp), [len(b) for b in inboxes])
+        receiver = np.repeat(np.asarray(rows, dtype=np.intp), counts)
         sender = np.fromiter((m.sender for m in messages), dtype=np.intp, count=n)
         rounds = np.fromiter((m.round for m in messages), dtype=np.int64, count=n)
         levels = np.fromiter((m.ready_hops for m in messages), dtype=np.int64, count=n)
@@ -409,6 +419,9 @@ class Arrivals:
         if with_takeoff:
             said = (m.takeoff_round for m in messages)
             takeoff = np.fromiter((_NO_TAKEOFF if t is None else t for t in said), np.int64, n)
+        if which is not None:
+            sender, rounds, levels = sender[which], rounds[which], levels[which]
+            takeoff = None if takeoff is None else takeoff[which]
         return Arrivals(receiver, sender, rounds, levels, takeoff)
 
 

@@ -44,6 +44,7 @@ from drone_agent.core.flight_phase import (
     Readiness,
     TakeoffClock,
 )
+from drone_agent.core.inboxes import Inboxes
 from drone_agent.process.hosted_agent import DueTick, HostedAgent, RunOptions
 from drone_agent.process.round_gate import RoundBook, RoundGate
 from drone_agent.process.transport import AgentTransport, Position
@@ -350,6 +351,8 @@ class AgentHost:
         one call, then all publish."""
         ticks = [t for _, t in group]
         first = ticks[0]
+        # read once, for the consensus, the separation layer and the readiness (Arrivals)
+        inboxes = Inboxes([t.inbox for t in ticks])
         outs = self._core.tick(
             [t.core.row for t in ticks],
             first.tick,
@@ -357,13 +360,13 @@ class AgentHost:
             np.array([t.sample.position_ned_m for t in ticks], dtype=float),
             np.array([t.sample.velocity_ned_m_s for t in ticks], dtype=float),
             [t.plan for t in ticks],
-            [t.inbox for t in ticks],
+            inboxes,
             [t.members for t in ticks],
             [t.climb_to for t in ticks],
             [t.t_s if t.plan_t_s is None else t.plan_t_s for t in ticks],
         )
         rows = [t.core.row for t in ticks]
-        arrivals = Arrivals.of_inboxes(rows, [t.inbox for t in ticks])
+        arrivals = Arrivals.of_inboxes(rows, inboxes)
         self._readiness.update(
             rows,
             outs[0].message.round,
