@@ -38,6 +38,7 @@ flies the formation.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
@@ -68,6 +69,11 @@ from protocols.wire.status import AgentMode, AgentStatus, Health
 
 #: Agent modes in which the vehicle flies the agent's setpoints: disarmed under it = lost.
 _FLYING_MODES = frozenset({AgentMode.FLYING, AgentMode.HOLDING})
+#: The health flags as ints (a status sums them: :meth:`HostedAgent._publish_status`).
+_VEHICLE_LINK, _ESTIMATE_FINITE, _CONVERGED, _SEPARATING, _PLAN = (
+    int(Health.VEHICLE_LINK), int(Health.ESTIMATE_FINITE), int(Health.CONVERGED),
+    int(Health.SEPARATING), int(Health.PLAN),
+)  # fmt: skip
 #: Neighbours above this altitude (m) fly: an agent that first hears them so is a late joiner.
 NEIGHBOURS_AIRBORNE_M = 1.0
 #: A late joiner whose vehicle is this far (m) below its flying neighbours climbs first.
@@ -465,18 +471,20 @@ class HostedAgent:
 
     def _publish_status(self) -> None:
         out = self.last_output
-        health = Health.NONE
+        # the flags summed as ints, made a Health once (an IntFlag's | costs ~10 us a call: a
+        # 50-agent process spent 1 % of its time there)
+        health = 0
         if self.clock() - self._last_sample_wall <= self.options.vehicle_timeout_s:
-            health |= Health.VEHICLE_LINK
-        if out is not None and np.all(np.isfinite(out.estimate)):
-            health |= Health.ESTIMATE_FINITE
+            health += _VEHICLE_LINK
+        if out is not None and all(map(math.isfinite, out.estimate.tolist())):
+            health += _ESTIMATE_FINITE
         if self.converged:
-            health |= Health.CONVERGED
+            health += _CONVERGED
         if out is not None and out.separating:
-            health |= Health.SEPARATING
+            health += _SEPARATING
         received = self.transport.plan()
         if received is not None or self.fallback_plan is not None:
-            health |= Health.PLAN
+            health += _PLAN
         estimate = out.estimate if out is not None else np.full(9, np.nan)
         self.transport.publish_status(
             AgentStatus(
@@ -485,7 +493,7 @@ class HostedAgent:
                 t_s=max(self.last_tick, 0) * self.options.control_period_ms / 1000.0,
                 mode=self.mode,
                 armed=self.link.status.armed,
-                health=health,
+                health=Health(health),
                 estimate=estimate,
                 neighbours=out.active_neighbours if out is not None else (),
                 counters=self.transport.counters().status(self.core.rejected_setpoints),
