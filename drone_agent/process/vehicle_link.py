@@ -52,6 +52,15 @@ _POSITION = common.MAVLink_local_position_ned_message
 _ATTITUDE = common.MAVLink_attitude_message
 #: SET_ATTITUDE_TARGET type_mask: ignore body rates, use attitude and thrust.
 IGNORE_BODY_RATES = 0b0000_0111
+_SAT = common.MAVLink_set_attitude_target_message
+#: SET_ATTITUDE_TARGET's payload in wire order: time_boot_ms, q (w, x, y, z), the three body
+#: rates, thrust, target system and component, type_mask
+_SET_ATTITUDE_TARGET = _SAT.unpacker
+#: whether this pymavlink's message has those fields (else every setpoint takes the message path)
+_SETPOINT_FRAME = _SAT.ordered_fieldnames == [
+    "time_boot_ms", "q", "body_roll_rate", "body_pitch_rate", "body_yaw_rate", "thrust",
+    "target_system", "target_component", "type_mask",
+]  # fmt: skip
 #: ArduCopter dialect: a position and an attitude at most this far apart (ms) make one sample.
 PAIR_MS = 30
 #: Messages a dialect reads (parameters, EKF and GPS state, pre-arm checks).
@@ -368,8 +377,10 @@ class VehicleLink:
 
     # -- send ----------------------------------------------------------------------------------
     def _send(self, msg: Any) -> None:
+        self._send_frame(mavlink_fast.pack(msg, self._mav))  # msg.pack's bytes
+
+    def _send_frame(self, data: bytes) -> None:
         try:
-            data = mavlink_fast.pack(msg, self._mav)  # msg.pack's bytes
             if self._listen:
                 if self._peer is None:  # nobody has spoken to us yet
                     self.counters.tx_errors += 1
@@ -385,6 +396,16 @@ class VehicleLink:
         """SET_ATTITUDE_TARGET: attitude quaternion (w, x, y, z) body -> NED and normalised
         thrust 0..1; ``time_boot_ms`` echoes the tick it answers (lockstep handshake)."""
         q = [float(v) for v in quat_wxyz]
+        if _SETPOINT_FRAME and not self._mav.signing.sign_outgoing:
+            # the frame packed from the fields in wire order: the bytes of pymavlink's message
+            # object packed (tests/test_vehicle_fast_path.py), without building the object
+            # (~7 us -> ~1 us, every agent every tick)
+            payload = _SET_ATTITUDE_TARGET.pack(
+                int(time_boot_ms) & 0xFFFFFFFF, *q, 0.0, 0.0, 0.0, float(thrust),
+                self.sysid, AUTOPILOT_COMPID, IGNORE_BODY_RATES,
+            )  # fmt: skip
+            self._send_frame(mavlink_fast.pack_payload(_SAT, payload, self._mav))
+            return
         self._send(
             self._mav.set_attitude_target_encode(
                 int(time_boot_ms) & 0xFFFFFFFF,
