@@ -228,6 +228,10 @@ class RoundGate:
             low, low_drone, rest, joining = book.lows(self._shared, need)
             if (rest if low_drone == self.me else low) >= need and not joining:
                 return True
+            if not joining and self.roster <= alive:
+                # someone of the roster has not finished its round and every one is alive: the
+                # loop below would stop at the first of them and change nothing before it
+                return False
             newcomers = done.keys() - self.roster
             changed = False
             for j in sorted(self.roster):
