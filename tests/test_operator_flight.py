@@ -48,15 +48,17 @@ class Run:
     report: Path
     obs: SwarmObserver
     args: tuple[str, ...] = ()
+    cwd: Path = ROOT
 
     def _typed(self, *words: str) -> subprocess.CompletedProcess[str]:
-        """``swarm WORDS`` typed as a user types it (plus the run's endpoint flags, if any)."""
+        """``swarm WORDS`` typed as a user types it in ``cwd`` (plus the run's endpoint flags, if
+        any)."""
         return subprocess.run(
             swarm_command(*words, *self.args),
             capture_output=True,
             text=True,
             env=ENV,
-            cwd=ROOT,
+            cwd=self.cwd,
             timeout=30,
         )
 
@@ -181,10 +183,11 @@ def test_land_then_take_off_the_flying_paper_swarm(tmp_path: Path, clock: str) -
     deadline = time.monotonic() + 60.0
     while not run_file.exists() and time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.1)
-    # the endpoint every operator command uses by default
-    assert json.loads(run_file.read_text())["zenoh"] == DEFAULT_ENDPOINT
-    with observer(swarm_id="swarm", connect=(DEFAULT_ENDPOINT,)) as obs:
-        run = Run(proc, report, obs)
+    # the default rendezvous, or the free port the run moved to when another run on the machine
+    # held it: the operator's commands, typed in the run's folder, find it either way
+    endpoint = json.loads(run_file.read_text())["zenoh"]
+    with observer(swarm_id="swarm", connect=(endpoint,)) as obs:
+        run = Run(proc, report, obs, cwd=tmp_path)
         try:
             run.wait_modes(range(9), AgentMode.FLYING, 90.0)
             run.wait_t(8.0)  # climbed to 4.8 m (the paper's take-off)

@@ -14,6 +14,7 @@ The run holds the machine's default ports under the lock other runs use
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import signal
@@ -69,7 +70,10 @@ class Session:
             assert self.proc.poll() is None, self.log()
             time.sleep(0.1)
         assert run_file.exists(), self.log()
-        self.obs = SwarmObserver(swarm_id="swarm", connect=(DEFAULT_ENDPOINT,))
+        # where the run meets: the default rendezvous, or the free port it moved to when another
+        # run on the machine held that (the operator's commands, typed in cwd, follow it too)
+        endpoint = json.loads(run_file.read_text()).get("zenoh") or DEFAULT_ENDPOINT
+        self.obs = SwarmObserver(swarm_id="swarm", connect=(endpoint,))
         return self
 
     def __exit__(self, *_exc: object) -> None:

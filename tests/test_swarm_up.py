@@ -6,11 +6,13 @@ the swarm ``swarm up`` starts with the README's defaults."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import socket
 import subprocess
+import threading
 import time
 from pathlib import Path
 
@@ -168,6 +170,30 @@ def _cmdline(pid: int) -> str:
         return ""
 
 
+def _status_typed_in(cwd: Path, taken: str, typed: list[subprocess.CompletedProcess[str]]) -> None:
+    """``swarm status`` typed in ``cwd`` (no flags) until it lists the 4 drones, once the run has
+    moved from the ``taken`` endpoint (its run file says where to), while it flies."""
+    run_file = cwd / "report" / "logs" / "run.json"
+    deadline = time.monotonic() + 50.0
+    while time.monotonic() < deadline:
+        with contextlib.suppress(OSError, ValueError):
+            if json.loads(run_file.read_text())["zenoh"] != taken:
+                break
+        time.sleep(0.05)
+    while time.monotonic() < deadline:
+        argv = swarm_command("status")
+        said = subprocess.run(argv, capture_output=True, text=True, env=ENV, cwd=cwd, timeout=30)
+        typed.append(said)
+        if len(_status_rows(typed[-1].stdout)) == 4:
+            return
+        time.sleep(0.2)
+
+
+def _status_rows(text: str) -> list[list[str]]:
+    """The drone rows of ``swarm status``'s table."""
+    return [w for w in (ln.split() for ln in text.splitlines()[2:]) if w and w[0].isdigit()]
+
+
 def test_a_rendezvous_port_taken_as_the_run_starts_moves_the_run(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -202,9 +228,21 @@ def test_a_rendezvous_port_taken_as_the_run_starts_moves_the_run(
         port = taken.getsockname()[1]
         plan.move_rendezvous(f"tcp/127.0.0.1:{port}")  # picked while free, then taken
         said: list[str] = []
-        reason = supervise(plan, said.append)
+        typed: list[subprocess.CompletedProcess[str]] = []
+        operator = threading.Thread(
+            target=_status_typed_in, args=(tmp_path, plan.zenoh_endpoint, typed)
+        )
+        operator.start()
+        try:
+            reason = supervise(plan, said.append)
+        finally:
+            operator.join(60.0)
     assert reason == "finished", (reason, said)
     assert any("was taken by another process" in line for line in said), said
+    assert any(f"typed in {tmp_path} they find it" in line for line in said), said
+    # ``swarm status`` typed in the run's folder, without --zenoh-connect, reached the moved run
+    assert typed and typed[-1].returncode == 0, "\n".join(f"{t.stdout} {t.stderr}" for t in typed)
+    assert len(_status_rows(typed[-1].stdout)) == 4, typed[-1].stdout
     run = json.loads((report / "logs" / "run.json").read_text())
     assert run["zenoh"] == plan.zenoh_endpoint != f"tcp/127.0.0.1:{port}"
     assert "Address already in use" in (report / "logs" / "gcs.log").read_text()

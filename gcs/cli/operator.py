@@ -11,6 +11,9 @@ Exit codes: 0 accepted, 1 refused, 2 usage error or no ground station answering 
 from __future__ import annotations
 
 import argparse
+import json
+import socket
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from gcs.cli.secured import add_secrets_flags
@@ -22,6 +25,10 @@ if TYPE_CHECKING:  # numpy (the planner), imported when a command is sent, not b
     from protocols.secrets.swarm_secrets import RoleSecrets
 
 ANSWER_TIMEOUT_S = 2.0
+#: Where the operator's commands meet a swarm when nothing says otherwise.
+DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{RENDEZVOUS_PORT}"
+#: The run file of a ``swarm up`` started in this folder with its default report folder.
+SESSION_RUN_FILE = Path("report") / "logs" / "run.json"
 OPERATOR_COMMANDS = (
     "takeoff", "formation", "move", "rotate", "scale", "hold", "land", "status", "shutdown",
 )  # fmt: skip
@@ -37,9 +44,10 @@ def add_operator_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--swarm-id", default="swarm", help="swarm name on Zenoh (default %(default)s)")
     p.add_argument(
         "--zenoh-connect",
-        default=f"tcp/127.0.0.1:{RENDEZVOUS_PORT}",
+        default=None,
         metavar="ENDPOINT",
-        help="where the ground station listens, or the swarm's router (default %(default)s)",
+        help="where the ground station listens, or the swarm's router (default: where the "
+        f"session started in this folder meets, from {SESSION_RUN_FILE}, else {DEFAULT_ENDPOINT})",
     )
     add_secrets_flags(p, "operator")
 
@@ -113,12 +121,44 @@ def request_of(args: argparse.Namespace) -> Request:
         raise OperatorError(str(exc)) from None
 
 
+def session_endpoint(folder: Path = Path()) -> str:
+    """Where the operator's commands meet the swarm when ``--zenoh-connect`` is not given: the
+    endpoint of the ``swarm up`` started in ``folder`` (its default report folder's run file)
+    while something listens there, else the default rendezvous. ``swarm up`` moves to a free
+    port when another run holds the default one: a command typed in the session's folder follows
+    it there instead of reaching the other run."""
+    try:
+        about = json.loads((folder / SESSION_RUN_FILE).read_text())
+        endpoint = str(about["zenoh"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return DEFAULT_ENDPOINT
+    if endpoint != DEFAULT_ENDPOINT and _listening(endpoint):
+        return endpoint
+    return DEFAULT_ENDPOINT
+
+
+def _listening(endpoint: str) -> bool:
+    """Whether a TCP endpoint ``tcp/HOST:PORT`` accepts connections (a run that ended left its
+    run file behind: its port is closed)."""
+    proto, _, where = endpoint.partition("/")
+    host, _, port = where.rpartition(":")
+    if proto != "tcp" or not port.isdigit():
+        return False
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=0.5):
+            return True
+    except OSError:
+        return False
+
+
 def connect(args: argparse.Namespace) -> Swarm:
     """The swarm of ``args`` (``--swarm-id``, ``--zenoh-connect``, ``--secrets``, ``--role``),
     through :meth:`gcs.api.Swarm.connect`; OperatorError (one line) if it cannot be reached."""
     from gcs.api.errors import SwarmError
     from gcs.api.swarm import Swarm
 
+    if args.zenoh_connect is None:
+        args.zenoh_connect = session_endpoint()
     try:
         return Swarm.connect(
             args.zenoh_connect, args.swarm_id, getattr(args, "secrets", None),

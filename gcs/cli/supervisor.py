@@ -381,11 +381,31 @@ def _move_rendezvous(plan: RunPlan, progress: Callable[[str], None] | None) -> N
             child.stop()
     plan.move_rendezvous(f"tcp/127.0.0.1:{free_tcp_port()}")
     if progress is not None:
+        folder = None if plan.run_file is None else _session_folder(plan.run_file)
+        follow = "" if folder is None else f"typed in {folder} they find it; elsewhere "
         progress(
             f"{taken} was taken by another process as the run started: Zenoh moves to "
-            f"{plan.zenoh_endpoint} (operator commands: --zenoh-connect {plan.zenoh_endpoint})"
+            f"{plan.zenoh_endpoint} (operator commands: {follow}--zenoh-connect "
+            f"{plan.zenoh_endpoint})"
         )
     _start(plan)
+
+
+def _session_folder(run_file: Path) -> str | None:
+    """The folder where operator commands find a run whose run file is ``run_file`` by
+    themselves ("this folder" for the current one), None if there is none (a report folder not
+    named ``report``)."""
+    from gcs.cli.operator import SESSION_RUN_FILE
+
+    root = run_file
+    for _ in SESSION_RUN_FILE.parts:
+        root = root.parent
+    if root / SESSION_RUN_FILE != run_file:
+        return None
+    try:
+        return "this folder" if root.resolve() == Path.cwd().resolve() else str(root)
+    except OSError:
+        return str(root)
 
 
 def _signal(child: Child | None, sig: int) -> None:
