@@ -33,6 +33,26 @@ def test_defining_a_compiled_function_does_not_load_numba() -> None:
     assert done.stdout.split() == ["False", "False"]
 
 
+def test_numba_loads_without_scipys_linear_algebra_which_imports_as_usual_after() -> None:
+    """import_numba: numba's BLAS check does not import scipy.linalg (a quarter of numba's
+    start); compiled code runs; scipy.linalg imports as usual afterwards."""
+    code = (
+        "import sys\n"
+        "from protocols.runtime.compiled import compiled, import_numba\n"
+        "from drone_agent.core.jit_math import nmax\n"
+        "import_numba()\n"
+        "print(compiled(nmax)(1.5, 3.0), 'scipy.linalg' in sys.modules, "
+        "'numpy.f2py' in sys.modules)\n"
+        "import scipy.linalg.cython_blas, scipy.linalg\n"
+        "print(scipy.linalg.norm([3.0, 4.0]))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ["3.0", "False", "False", "5.0"]
+
+
 def _hyp(a: float, b: float) -> float:
     return math.sqrt(a * a + b * b)
 

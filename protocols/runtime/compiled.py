@@ -61,8 +61,7 @@ class Compiled:
         """numba's dispatcher of the function (compiled, or loaded from the cache, the first
         time), with its callees compiled first."""
         if self._dispatcher is None:
-            import numba
-
+            numba = import_numba()
             namespace = self.py_func.__globals__
             names = {
                 name: compiled(value)
@@ -109,6 +108,40 @@ def compiled(fn: Any) -> Any:
     if hasattr(fn, "py_func"):
         return fn
     return jit(fn).dispatcher()
+
+
+#: scipy's BLAS and LAPACK modules, which numba imports as it loads its array functions only to
+#: offer ``np.dot`` and ``np.linalg`` inside compiled code (no compiled function here uses them)
+_BLAS_MODULES = ("scipy.linalg.cython_blas", "scipy.linalg.cython_lapack")
+
+
+def import_numba() -> Any:
+    """numba, imported and its compiler's functions loaded, without scipy's linear algebra.
+
+    numba loads its array functions (on the first compile or cache load) and, with them, checks
+    for BLAS by importing ``scipy.linalg``: ~0.15-0.35 s of every process that flies, a quarter
+    of numba's start (and ``numpy.f2py`` with it). No compiled function of the project calls
+    BLAS or LAPACK (``np.dot``, ``np.linalg``, ``@``: plain numpy code does), so the check is
+    answered "not there" while numba loads: those two modules read as missing
+    (``sys.modules[name] = None``) for that moment only, and scipy imports them as usual
+    afterwards (e.g. :mod:`protocols.scenario.layout`'s ``scipy.sparse``). A compiled function
+    that called BLAS would fail to compile saying numba has no ``np.dot`` (tests compile every
+    one of them)."""
+    if "numba" in sys.modules and "numba.np.arraymath" in sys.modules:
+        return sys.modules["numba"]
+    blocked = [name for name in _BLAS_MODULES if name not in sys.modules]
+    for name in blocked:
+        sys.modules[name] = None  # type: ignore[assignment]
+    try:
+        import numba
+        from numba.core.registry import cpu_target
+
+        cpu_target.target_context.refresh()  # loads numba.np.arraymath (and its BLAS check)
+    finally:
+        for name in blocked:
+            if sys.modules.get(name, "") is None:
+                del sys.modules[name]
+    return numba
 
 
 def loaded() -> bool:
