@@ -282,6 +282,36 @@ def test_collisions_are_counted_once_per_pair_per_contact_across_chunks():
     assert whole["count"] == 3
 
 
+def _separation_over_every_pair(t, pos, airborne, c=0.3):  # type: ignore[no-untyped-def]
+    """The separation as an (T, N, N) matrix of norms over the upper triangle: the reference."""
+    n = pos.shape[1]
+    d = np.linalg.norm(pos[:, :, None, :] - pos[:, None, :, :], axis=-1)
+    valid = airborne[:, :, None] & airborne[:, None, :] & np.triu(np.ones((n, n), bool), 1)
+    d = np.where(valid & np.isfinite(d), d, np.inf)
+    k, i, j = np.unravel_index(np.argmin(d), d.shape)
+    close = d < c
+    rising = close & ~np.concatenate([np.zeros((1, n, n), bool), close[:-1]])
+    episodes = [
+        {"t_s": float(t[k_]), "pair": [int(i_), int(j_)]} for k_, i_, j_ in np.argwhere(rising)
+    ]
+    return float(d[k, i, j]), float(t[k]), [int(i), int(j)], episodes
+
+
+def test_separation_over_the_pairs_gives_the_matrix_of_norms_figures_bit_for_bit():
+    """The pairs i < j as one axis: the same minimum (its bits, time and pair, the first of ties),
+    the same collision episodes in the same order, with grounded drones and lost samples (NaN)."""
+    rng = np.random.default_rng(5)
+    t = grid(6.0)
+    pos = rng.uniform(-3.0, 3.0, size=(t.size, 12, 3))
+    pos[40:60, 3] = pos[40:60, 7] + 0.01  # a contact, and ties across samples
+    pos[100:110, 5] = np.nan
+    airborne = rng.random((t.size, 12)) > 0.2
+    best, collisions = separation(t, pos, airborne, collision_distance_m=0.3, chunk_samples=17)
+    min_m, t_min, pair, episodes = _separation_over_every_pair(t, pos, airborne)
+    assert (best["min_m"], best["t_s"], best["pair"]) == (min_m, t_min, pair)
+    assert collisions["episodes"] == episodes[:100] and collisions["count"] == len(episodes)
+
+
 # --- the whole report -----------------------------------------------------------------------
 
 

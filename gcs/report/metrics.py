@@ -327,25 +327,30 @@ def separation(
     episodes: list[dict[str, Any]] = []
     if n < 2 or t_s.size == 0:
         return best, {"distance_m": collision_distance_m, "count": 0, "episodes": episodes}
-    upper = np.triu(np.ones((n, n), dtype=bool), k=1)
-    prev = np.zeros((n, n), dtype=bool)
+    # the pairs i < j in row order: (T, pairs) arrays, the order an (T, N, N) argmin or argwhere
+    # over the upper triangle visits them in (ties and episodes listed as they were)
+    first, second = np.triu_indices(n, k=1)
+    prev = np.zeros(first.shape[0], dtype=bool)
     count = 0
-    chunk = chunk_samples or max(1, 1_000_000 // max(1, n * n * 3))
+    chunk = chunk_samples or max(1, 1_000_000 // max(1, first.shape[0] * 3))
     for k0 in range(0, t_s.shape[0], chunk):
         x = positions_ned_m[k0 : k0 + chunk]
-        d = np.linalg.norm(x[:, :, None, :] - x[:, None, :, :], axis=-1)
+        diff = x[:, first] - x[:, second]
+        # np.linalg.norm's own arithmetic (the sum of the squares, then its root): its bits
+        d = np.sqrt(np.add.reduce(diff * diff, axis=-1))
         air = airborne[k0 : k0 + chunk]
-        valid = air[:, :, None] & air[:, None, :] & upper & np.isfinite(d)
+        valid = air[:, first] & air[:, second] & np.isfinite(d)
         d = np.where(valid, d, np.inf)
-        k, i, j = np.unravel_index(np.argmin(d), d.shape)
-        if np.isfinite(d[k, i, j]) and (best["min_m"] is None or d[k, i, j] < best["min_m"]):
-            best = {"min_m": float(d[k, i, j]), "t_s": float(t_s[k0 + k]), "pair": [int(i), int(j)]}
+        k, p = np.unravel_index(np.argmin(d), d.shape)
+        if np.isfinite(d[k, p]) and (best["min_m"] is None or d[k, p] < best["min_m"]):
+            pair = [int(first[p]), int(second[p])]
+            best = {"min_m": float(d[k, p]), "t_s": float(t_s[k0 + k]), "pair": pair}
         close = d < collision_distance_m
         rising = close & ~np.concatenate([prev[None], close[:-1]])
         prev = close[-1]
         count += int(rising.sum())
-        for k, i, j in np.argwhere(rising)[: max(0, max_listed - len(episodes))]:
-            episodes.append({"t_s": float(t_s[k0 + k]), "pair": [int(i), int(j)]})
+        for k, p in np.argwhere(rising)[: max(0, max_listed - len(episodes))]:
+            episodes.append({"t_s": float(t_s[k0 + k]), "pair": [int(first[p]), int(second[p])]})
     collisions = {"distance_m": collision_distance_m, "count": count, "episodes": episodes}
     return best, collisions
 
