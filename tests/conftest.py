@@ -58,7 +58,8 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 # two pytest-xdist workers at once (lockstep and in-process flights give the same result however
 # loaded the machine is, and unit tests do not care), then the ``serial`` tests one at a time.
 # Serial: flights paced by the wall clock (a second flight beside them on two cores makes them
-# miss ticks: their verdicts depend on the machine's load). Flights on the default ports
+# miss ticks: their verdicts depend on the machine's load), except the lockstep case of a test
+# parametrised by its ``clock`` in a realtime module. Flights on the default ports
 # (14540.., 14550, Zenoh 7447: only one run on the machine can have them) fly in the first part,
 # all in one xdist group, so one after the other on one worker (the other tests take ports the
 # system hands out, above 32767, never these); those of them on the realtime clock are serial.
@@ -128,7 +129,9 @@ def pytest_collection_modifyitems(
     for item in items:
         module = item.module.__name__.rsplit(".", 1)[-1] if item.module is not None else ""
         default_ports = module in DEFAULT_PORT_MODULES
-        if module in REALTIME_MODULES or (default_ports and _on_the_realtime_clock(item)):
+        if (module in REALTIME_MODULES and not _on_the_clock(item, "lockstep")) or (
+            default_ports and _on_the_clock(item, "realtime")
+        ):
             item.add_marker(pytest.mark.serial)
         if worker:
             group = DEFAULT_PORTS_GROUP if default_ports else _SHARED_GROUPS.get(module, module)
@@ -140,10 +143,10 @@ def pytest_collection_modifyitems(
 DEFAULT_PORTS_GROUP = "default ports"
 
 
-def _on_the_realtime_clock(item: pytest.Item) -> bool:
-    """Whether ``item`` is a case of a ``clock`` parametrisation on the realtime clock."""
+def _on_the_clock(item: pytest.Item, clock: str) -> bool:
+    """Whether ``item`` is a case of a ``clock`` parametrisation on ``clock``."""
     callspec = getattr(item, "callspec", None)
-    return callspec is not None and callspec.params.get("clock") == "realtime"
+    return callspec is not None and callspec.params.get("clock") == clock
 
 
 # -- the suite's times ------------------------------------------------------------------------
