@@ -58,8 +58,9 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 # two pytest-xdist workers at once (lockstep and in-process flights give the same result however
 # loaded the machine is, and unit tests do not care), then the ``serial`` tests one at a time.
 # Serial: flights paced by the wall clock (a second flight beside them on two cores makes them
-# miss ticks: their verdicts depend on the machine's load), except the lockstep case of a test
-# parametrised by its ``clock`` in a realtime module. Flights on the default ports
+# miss ticks: their verdicts depend on the machine's load), except, in a realtime module, the
+# lockstep case of a test parametrised by its ``clock`` and a test marked ``lockstep``. Flights
+# on the default ports
 # (14540.., 14550, Zenoh 7447: only one run on the machine can have them) fly in the first part,
 # all in one xdist group, so one after the other on one worker (the other tests take ports the
 # system hands out, above 32767, never these); those of them on the realtime clock are serial.
@@ -117,6 +118,14 @@ _SHARED_GROUPS = {
 }
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers",
+        "lockstep: flies on the lockstep clock only, its verdict the same however loaded the "
+        "machine is: in a realtime module, it runs in make test's parallel part",
+    )
+
+
 @pytest.hookimpl(wrapper=True)  # before -m selects and xdist reads the groups
 def pytest_collection_modifyitems(
     config: pytest.Config, items: list[pytest.Item]
@@ -129,7 +138,8 @@ def pytest_collection_modifyitems(
     for item in items:
         module = item.module.__name__.rsplit(".", 1)[-1] if item.module is not None else ""
         default_ports = module in DEFAULT_PORT_MODULES
-        if (module in REALTIME_MODULES and not _on_the_clock(item, "lockstep")) or (
+        lockstep = _on_the_clock(item, "lockstep") or item.get_closest_marker("lockstep")
+        if (module in REALTIME_MODULES and not lockstep) or (
             default_ports and _on_the_clock(item, "realtime")
         ):
             item.add_marker(pytest.mark.serial)

@@ -91,6 +91,7 @@ def _first_after(t: np.ndarray, ok: np.ndarray, t0: float, hold_s: float = 1.0) 
     return None
 
 
+@pytest.mark.lockstep  # beside another flight (make test's parallel part): the same figures
 def test_agents_killed_in_flight_come_back_into_the_formation(tmp_path: Path) -> None:
     scenario = write_scenario(
         tmp_path / "hover.toml",
