@@ -159,6 +159,20 @@ def test_a_lost_drones_centroid_jump_is_geometry_not_a_failure() -> None:
     assert crash.criteria.max_centroid_rise_m == 0.1 and crash.criteria.max_centroid_m is None
 
 
+def test_a_lost_drones_spread_jump_is_geometry_its_rise_is_judged() -> None:
+    # CI: drone 8 on the rim of the 8 left after the dropout took 0.299 of the spread with it
+    losing = {d.name: d for d in catalogue(9)}["crash"].criteria
+    assert losing.max_spread is None and losing.max_spread_rise == 0.05
+    gone = {"lost": (8,), "peak_centroid_m": 0.6, "start_centroid_m": 0.6}
+    jump = _measurement(peak_spread=0.2993, start_spread=0.2993, **gone)
+    assert judge(_spec(losing), jump).passed
+    assert not judge(_spec(Criteria()), jump).passed
+    rose = judge(_spec(losing), _measurement(peak_spread=0.36, start_spread=0.2993, **gone))
+    assert rose.failures == (
+        "spread error rose above its start by 0.0607 > 0.05 (0.299 at the drill's start)",
+    )
+
+
 def test_judge_passes_a_drill_within_its_criteria() -> None:
     result = judge(_spec(Criteria(max_estimate=0.05)), _measurement())
     assert result.passed and result.failures == ()

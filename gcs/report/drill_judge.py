@@ -92,6 +92,9 @@ class Criteria:
     ``max_centroid_rise_m``: how far the centroid error may rise above its value at the drill's
     start (a drill that takes a drone out moves the others' centroid at once by the lost drone's
     offset over N - 1: that jump is geometry; the controller must close it, not add to it);
+    ``max_spread_rise``: the same for the spread error (the jump is the lost drone's share of the
+    spread, which depends on where the survivors of earlier drills stand: 0.3 for a drone on the
+    rim of 8);
     ``max_estimate``: peak member estimate error over the window (relative); ``reconverge_s``:
     re-converged at most this long after the fault ended; ``min_separation_m``; ``lost``: exactly
     these drones lost; ``rejected``: each of these reasons counted at least once; ``may_end``:
@@ -101,6 +104,7 @@ class Criteria:
     max_centroid_m: float | None = 0.5
     max_centroid_rise_m: float | None = None
     max_spread: float | None = 0.25
+    max_spread_rise: float | None = None
     max_estimate: float | None = None
     reconverge_s: float | None = 20.0
     min_separation_m: float | None = 1.0
@@ -122,6 +126,11 @@ class Criteria:
             )
         if self.max_spread is not None:
             out.append(f"peak spread error <= {100 * self.max_spread:g} %")
+        if self.max_spread_rise is not None:
+            out.append(
+                f"spread error never more than {100 * self.max_spread_rise:g} % above its jump "
+                "when the drone leaves"
+            )
         if self.max_estimate is not None:
             out.append(f"every estimate within {100 * self.max_estimate:g} % throughout")
         if self.reconverge_s is not None:
@@ -183,8 +192,12 @@ def catalogue(n_drones: int, loss: float = 0.5) -> tuple[DrillSpec, ...]:
     crashed, dropped, restarted = last, last - 1, n_drones // 2
     hold = Criteria(max_estimate=0.05)
     # a lost drone's absence jumps the others' centroid by its offset / (N - 1) (0.35-0.56 m
-    # for a corner of the 3 x 3 grid): judged is that the swarm closes it without overshoot
-    losing = Criteria(max_centroid_m=None, max_centroid_rise_m=0.1)
+    # for a corner of the 3 x 3 grid) and their spread by its share (up to 0.3 for a drone on
+    # the rim of the 8 the dropout left, wherever they settled): judged is that the swarm closes
+    # both without overshoot
+    losing = Criteria(
+        max_centroid_m=None, max_centroid_rise_m=0.1, max_spread=None, max_spread_rise=0.05
+    )
     # split in two, each group averages its own half only: while the formation changes shape
     # no estimator can know the other half's (9.7 % seen with a 25 % stretch); judged are the
     # formation while split and the re-convergence after the heal
@@ -560,6 +573,13 @@ def judge(spec: DrillSpec, m: Measurement, t_start_s: float = float("nan")) -> D
             rise, c.max_centroid_rise_m, "centroid error rose above its start by", " m", "centroid"
         )
     over(m.peak_spread, c.max_spread, "peak spread error", "", "spread")
+    if c.max_spread_rise is not None:
+        rise = (
+            None
+            if m.peak_spread is None or m.start_spread is None
+            else m.peak_spread - m.start_spread
+        )
+        over(rise, c.max_spread_rise, "spread error rose above its start by", "", "spread")
     over(m.peak_estimate, c.max_estimate, "peak estimate error", "", "estimate")
     if c.reconverge_s is not None:
         if m.reconverge_s is None:
