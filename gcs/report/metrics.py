@@ -65,6 +65,7 @@ from protocols.model.frames import FloatArray, wrap_pi
 from protocols.runtime.compiled import loaded
 
 BoolArray = npt.NDArray[np.bool_]
+IntArray = npt.NDArray[np.intp]
 CENTROID_TOL_M = 0.05
 VARIANCE_TOL_M2 = 0.1
 HOLD_S = 1.0
@@ -320,7 +321,9 @@ def separation(
 
     ``positions_ned_m`` (T, N, 3), ``airborne`` (T, N). Returns ``(separation, collisions)``;
     pairs are drone indices (i < j); at most ``max_listed`` episodes are listed (all are counted).
-    Time is processed in chunks of ``chunk_samples`` (default: about 1e6 pair coordinates).
+    Time is processed in chunks of ``chunk_samples`` (default: up to 25, about 1e6 pair
+    coordinates); in each, only the pairs that can be the closest or collide are measured
+    (:func:`_near_pairs`), with the arithmetic of all of them: the same bits, ties and order.
     """
     n = positions_ned_m.shape[1]
     best: dict[str, Any] = {"min_m": None, "t_s": None, "pair": None}
@@ -332,27 +335,75 @@ def separation(
     first, second = np.triu_indices(n, k=1)
     prev = np.zeros(first.shape[0], dtype=bool)
     count = 0
-    chunk = chunk_samples or max(1, 1_000_000 // max(1, first.shape[0] * 3))
+    chunk = chunk_samples or max(1, min(25, 1_000_000 // max(1, first.shape[0] * 3)))
     for k0 in range(0, t_s.shape[0], chunk):
         x = positions_ned_m[k0 : k0 + chunk]
-        diff = x[:, first] - x[:, second]
-        # np.linalg.norm's own arithmetic (the sum of the squares, then its root): its bits
-        d = np.sqrt(np.add.reduce(diff * diff, axis=-1))
         air = airborne[k0 : k0 + chunk]
-        valid = air[:, first] & air[:, second] & np.isfinite(d)
-        d = np.where(valid, d, np.inf)
-        k, p = np.unravel_index(np.argmin(d), d.shape)
-        if np.isfinite(d[k, p]) and (best["min_m"] is None or d[k, p] < best["min_m"]):
-            pair = [int(first[p]), int(second[p])]
-            best = {"min_m": float(d[k, p]), "t_s": float(t_s[k0 + k]), "pair": pair}
+        near, bound = _near_pairs(x, air, first, second, collision_distance_m)
+        d = _pair_distances(x, air, first[near], second[near])
+        if near.size and not (d <= bound).any():  # no measured pair proved the bound: all
+            near = np.arange(first.shape[0])
+            d = _pair_distances(x, air, first, second)
+        if near.size:
+            k, p = np.unravel_index(np.argmin(d), d.shape)
+            if np.isfinite(d[k, p]) and (best["min_m"] is None or d[k, p] < best["min_m"]):
+                q = int(near[p])
+                pair = [int(first[q]), int(second[q])]
+                best = {"min_m": float(d[k, p]), "t_s": float(t_s[k0 + k]), "pair": pair}
         close = d < collision_distance_m
-        rising = close & ~np.concatenate([prev[None], close[:-1]])
-        prev = close[-1]
+        rising = close & ~np.concatenate([prev[near][None], close[:-1]])
+        prev[:] = False  # a pair left out is nowhere near colliding in this chunk
+        prev[near] = close[-1]
         count += int(rising.sum())
         for k, p in np.argwhere(rising)[: max(0, max_listed - len(episodes))]:
-            episodes.append({"t_s": float(t_s[k0 + k]), "pair": [int(first[p]), int(second[p])]})
+            q = int(near[p])
+            episodes.append({"t_s": float(t_s[k0 + k]), "pair": [int(first[q]), int(second[q])]})
     collisions = {"distance_m": collision_distance_m, "count": count, "episodes": episodes}
     return best, collisions
+
+
+def _pair_distances(
+    x: FloatArray, air: BoolArray, first: IntArray, second: IntArray
+) -> FloatArray:
+    """(T, pairs) distances of the pairs, inf where a pair is not both airborne and known."""
+    diff = x[:, first] - x[:, second]
+    # np.linalg.norm's own arithmetic (the sum of the squares, then its root): its bits
+    d = np.sqrt(np.add.reduce(diff * diff, axis=-1))
+    valid = air[:, first] & air[:, second] & np.isfinite(d)
+    return np.where(valid, d, np.inf)
+
+
+#: Slack (m) on the bound of :func:`_near_pairs` against rounding: a pair left out is farther
+#: than the bound by more than this, so never the closest pair, tied with it or colliding.
+_BOUND_SLACK_M = 1e-6
+
+
+def _near_pairs(
+    x: FloatArray, air: BoolArray, first: IntArray, second: IntArray, collision_m: float
+) -> tuple[IntArray, float]:
+    """The pairs (indices into ``first``/``second``, ascending) that may come within a bound of
+    each other in the chunk ``x`` (T, N, 3), and that bound (m).
+
+    Each drone's samples where it is airborne and known lie in a box: within half its diagonal
+    of its centre. At every sample where both are, two drones are within their centres' distance
+    plus both half-diagonals of each other: the smallest such reach over the pairs (at least
+    ``collision_m``) is the bound, and a pair whose boxes are farther apart than it is never the
+    chunk's closest pair, tied with it or colliding, as long as some pair measured within it
+    (the caller checks; none when no two drones are airborne together)."""
+    seen = air[..., None] & np.isfinite(x)
+    lo = np.where(seen, x, np.inf).min(axis=0)
+    hi = np.where(seen, x, -np.inf).max(axis=0)
+    active = np.all(seen.any(axis=0), axis=-1)
+    both = active[first] & active[second]
+    if not both.any():
+        return np.zeros(0, dtype=np.intp), collision_m
+    with np.errstate(invalid="ignore"):
+        centre = np.where(active[:, None], (lo + hi) / 2.0, 0.0)
+        half = np.where(active, np.linalg.norm(hi - lo, axis=-1) / 2.0, 0.0)
+    apart = np.linalg.norm(centre[first] - centre[second], axis=-1)
+    reach = half[first] + half[second]
+    bound = max(collision_m, float(np.where(both, apart + reach, np.inf).min()))
+    return np.flatnonzero(both & (apart - reach <= bound + _BOUND_SLACK_M)), bound
 
 
 def _max_over(values: FloatArray, mask: BoolArray, t_s: FloatArray) -> dict[str, Any] | None:
