@@ -180,6 +180,7 @@ def up_with_a_frozen_agent(
             swarm_command(
                 # a process per drone (flags may say otherwise): one frozen agent, not all
                 *("up", str(scenario), "--report", str(report), "--agents-per-process", "1"),
+                *("--no-plots", "--no-recording"),
                 *flags,
                 *("--base-port", str(base), "--gcs-port", str(gcs_port)),
                 *("--swarm-id", swarm_id, "--zenoh-connect", obs.endpoint),

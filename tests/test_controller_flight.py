@@ -113,7 +113,8 @@ def test_the_pd_example_holds_the_formation_in_both_runners(
     base, gcs_port = free_port_block(4), free_udp_port()
     _run(
         *swarm_command("up", str(scenario), "--clock", "lockstep", "--agents-per-process", "2"),
-        *("--report", "up", "--base-port", str(base), "--gcs-port", str(gcs_port)),
+        *("--report", "up", "--no-plots", "--no-recording"),
+        *("--base-port", str(base), "--gcs-port", str(gcs_port)),
         *("--swarm-id", "pdex", "--zenoh-connect", rendezvous),
         cwd=tmp_path,
     )
@@ -174,7 +175,8 @@ def test_a_controller_that_fails_in_flight_leaves_the_swarm_holding(
     base, gcs_port = free_port_block(4), free_udp_port()
     _run(
         *swarm_command("up", str(scenario), "--clock", "lockstep", "--agents-per-process", "4"),
-        *("--report", "up", "--base-port", str(base), "--gcs-port", str(gcs_port)),
+        *("--report", "up", "--no-plots", "--no-recording"),
+        *("--base-port", str(base), "--gcs-port", str(gcs_port)),
         *("--swarm-id", "pdfail", "--zenoh-connect", rendezvous),
         cwd=tmp_path,
     )

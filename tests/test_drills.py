@@ -182,6 +182,7 @@ def test_crash_drill_in_a_flying_signed_swarm(tmp_path: Path) -> None:
                 # (each a new process) reach the ground station before the run ends, however
                 # slowly a loaded machine starts them (lockstep ran ahead of them on CI)
                 *("up", str(scenario), "--report", str(report), "--clock", "realtime"),
+                *("--no-plots", "--no-recording"),
                 *("--base-port", str(base), "--gcs-port", str(gcs_port)),
                 *("--swarm-id", SWARM, "--zenoh-connect", obs.endpoint),
                 *("--signing-key", str(key)),

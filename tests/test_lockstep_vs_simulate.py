@@ -111,11 +111,15 @@ def test_lockstep_flight_is_the_in_process_flight(tmp_path: Path, rendezvous: st
     base, gcs_port = free_port_block(9), free_udp_port()
     _run(
         *swarm_command("up", str(scenario), "--clock", "lockstep", "--agents-per-process", "9"),
-        *("--duration-s", str(DURATION_S), "--report", "up"),
+        *("--duration-s", str(DURATION_S), "--report", "up", "--no-plots", "--no-recording"),
         *("--base-port", str(base), "--gcs-port", str(gcs_port), "--swarm-id", "div"),
         *("--zenoh-connect", rendezvous),
         cwd=tmp_path,
     )
+    # --no-plots --no-recording: the report's figures without its PNGs and flight.rrd
+    files = {p.name for p in (tmp_path / "up").iterdir()}
+    assert {"flight.tlog", "events.jsonl", "metrics.json", "trajectory.json"} <= files, files
+    assert not {f for f in files if f.endswith((".png", ".rrd"))}, files
     sim = vehicle_samples(tmp_path / "sim" / "flight.tlog")
     up = vehicle_samples(tmp_path / "up" / "flight.tlog")
     both = sim.keys() & up.keys()

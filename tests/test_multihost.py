@@ -115,6 +115,7 @@ def test_paper_flight_across_four_hosts(
         common = [
             "up", str(PAPER), "--router", router, "--duration-s", str(duration_s),
             "--swarm-id", "paper", *(["--secrets", str(secrets)] if secured else []),
+            "--no-plots", "--no-recording",
         ]  # fmt: skip
         procs: list[subprocess.Popen[bytes]] = []
         try:

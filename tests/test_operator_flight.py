@@ -276,7 +276,8 @@ def test_every_operator_command_flies_as_typed(tmp_path: Path) -> None:
     base, gcs_port = free_port_block(9), free_udp_port()
     report = tmp_path / "report"
     with observer(swarm_id="ops") as obs:
-        cmd = ["up", str(scenario), "--report", str(report), "--clock", clock,
+        cmd = ["up", str(scenario), "--report", str(report), "--no-plots", "--no-recording",
+               "--clock", clock,
                "--agents-per-process", "9", "--base-port", str(base), "--gcs-port", str(gcs_port),
                "--swarm-id", "ops", "--zenoh-connect", obs.endpoint]  # fmt: skip
         run = _start(cmd, ROOT, report, obs, "--swarm-id", "ops", "--zenoh-connect", obs.endpoint)

@@ -65,6 +65,8 @@ def _up(scenario: Path, out: Path, n: int, *extra: str) -> str:
             str(scenario),
             "--report",
             str(out),
+            "--no-plots",
+            "--no-recording",
             "--base-port",
             str(free_port_block(n)),
             "--gcs-port",

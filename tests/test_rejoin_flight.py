@@ -107,7 +107,7 @@ def test_agents_killed_in_flight_come_back_into_the_formation(tmp_path: Path) ->
     with observer() as obs:
         proc = subprocess.Popen(
             swarm_command(
-                *("up", str(scenario), "--report", str(report)),
+                *("up", str(scenario), "--report", str(report), "--no-plots", "--no-recording"),
                 # a process per drone: drone 3's is killed and typed again, alone
                 *("--agents-per-process", "1"),
                 *("--base-port", str(base), "--gcs-port", str(gcs_port)),

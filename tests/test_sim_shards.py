@@ -120,7 +120,7 @@ def test_two_simulator_shards_fly_one_swarm(tmp_path: Path, clock: str) -> None:
     router = free_loopback_endpoint()
     common = [
         "up", str(scenario), "--router", router, "--clock", clock, "--swarm-id", "shards",
-        "--base-port", str(base), "--gcs-port", str(gcs_port),
+        "--base-port", str(base), "--gcs-port", str(gcs_port), "--no-plots", "--no-recording",
     ]  # fmt: skip
     if clock == "realtime":  # one agreed start
         start_at = str(time.time() + 12.0)

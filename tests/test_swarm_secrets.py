@@ -222,7 +222,8 @@ def test_secured_swarm_up_flies_and_status_says_secured(secrets: Path, tmp_path:
     router = free_loopback_endpoint()
     proc = subprocess.Popen(
         swarm_command(
-            "up", str(scenario), "--report", str(report), "--base-port", str(free_port_block(4)),
+            "up", str(scenario), "--report", str(report), "--no-plots", "--no-recording",
+            "--base-port", str(free_port_block(4)),
             "--gcs-port", str(free_udp_port()), "--swarm-id", SWARM_ID, "--clock", "realtime",
             "--secrets", str(secrets), "--router", router, "--only", "router,gcs,sim,agents",
             "--duration-s", "25",

@@ -102,6 +102,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument(
+        "--no-recording",
+        action="store_true",
+        help="skip flight.rrd (swarm replay makes it from the tlog when it opens the report)",
+    )
+    p.add_argument(
         "--run-file",
         type=Path,
         metavar="FILE",
@@ -238,6 +243,7 @@ def run(args: argparse.Namespace) -> int:
         duration_s=args.duration_s,
         telemetry_hz=args.telemetry_hz,
         plots=not args.no_plots,
+        recording=not args.no_recording,
         run_file=args.run_file,
         resume=args.resume,
         signing_key=key,

@@ -250,6 +250,8 @@ def multihost_plan(
                 ("--telemetry-hz", TELEMETRY_HZ),
                 ("--run-file", logs / RUN_FILE),
                 ("--duration-s", duration_s),
+                ("--no-plots", args.no_plots),
+                ("--no-recording", args.no_recording),
                 ("--quiet", True),
             ]
         )

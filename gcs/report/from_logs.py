@@ -15,7 +15,7 @@ from gcs.report.flight_record import FlightRecord
 from gcs.report.metrics import compute_metrics
 from gcs.report.plots import write_plots
 from gcs.report.trajectory_file import write_trajectory
-from gcs.view.recording import write_recording
+from gcs.view.recording import RRD, write_recording
 from protocols.model.trajectory import DescriptorTrajectory
 
 
@@ -46,10 +46,12 @@ def write_report(
     extra: dict[str, Any],
     plots: bool = True,
     max_thrust_n: float | None = None,
+    recording: bool = True,
 ) -> list[Path]:
     """Write ``trajectory.json``, ``metrics.json`` (when there is a record), the plots and, where
-    Rerun is installed, ``flight.rrd`` (from the report's files); ``max_thrust_n`` (N) gives the
-    metrics' max_thrust_ratio."""
+    Rerun is installed and ``recording``, ``flight.rrd`` (from the report's files; without it,
+    an earlier flight's is removed: swarm replay makes it when it opens the report);
+    ``max_thrust_n`` (N) gives the metrics' max_thrust_ratio."""
     files = [write_trajectory(plan, report_dir / "trajectory.json")]
     metrics_path = report_dir / "metrics.json"
     metrics = record_metrics(record, settle_s, extra, max_thrust_n)
@@ -57,6 +59,8 @@ def write_report(
     files.append(metrics_path)
     if plots and record is not None:
         files += write_plots(record, report_dir)
-    if record is not None and (rrd := write_recording(report_dir, record.n_drones)) is not None:
+    if not recording:
+        (report_dir / RRD).unlink(missing_ok=True)  # not an earlier flight's, under this one's name
+    elif record is not None and (rrd := write_recording(report_dir, record.n_drones)) is not None:
         files.append(rrd)
     return files

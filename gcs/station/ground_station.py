@@ -108,6 +108,7 @@ class GcsOptions:
     telemetry_hz: float = 10.0
     plan_query_s: float = 1.0
     plots: bool = True
+    recording: bool = True  # flight.rrd with the report
     on_line: Callable[[str], None] | None = None
     run_file: Path | None = None
     resume: bool = False
@@ -398,6 +399,7 @@ class GroundStation:
             extra,
             self._o.plots,
             vehicle_params(self._o.scenario).max_thrust_n,
+            self._o.recording,
         )
 
     def _vehicle_text(self, t_s: float, drone: int, severity: int, text: str) -> None:
