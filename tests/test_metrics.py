@@ -312,7 +312,6 @@ def test_separation_over_the_pairs_gives_the_matrix_of_norms_figures_bit_for_bit
     assert collisions["episodes"] == episodes[:100] and collisions["count"] == len(episodes)
 
 
-
 @pytest.mark.parametrize("chunk", [None, 1, 7, 25])
 def test_separation_measuring_only_the_near_pairs_gives_every_pairs_figures(chunk):
     """A 40-drone swarm on the move (random walks, some contacts, ties, grounded drones, lost
@@ -350,6 +349,7 @@ def test_separation_measures_every_pair_when_the_nearest_boxes_never_fly_togethe
     min_m, t_min, pair, episodes = _separation_over_every_pair(t, pos, airborne)
     assert (best["min_m"], best["t_s"], best["pair"]) == (min_m, t_min, pair) == (5.0, 0.0, [1, 2])
     assert collisions["count"] == len(episodes) == 0
+
 
 # --- the whole report -----------------------------------------------------------------------
 

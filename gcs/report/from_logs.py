@@ -14,6 +14,7 @@ from typing import Any
 from gcs.report.flight_record import FlightRecord
 from gcs.report.metrics import compute_metrics
 from gcs.report.plots import write_plots
+from gcs.report.tlog import TlogTrack
 from gcs.report.trajectory_file import write_trajectory
 from gcs.view.recording import RRD, write_recording
 from protocols.model.trajectory import DescriptorTrajectory
@@ -47,11 +48,13 @@ def write_report(
     plots: bool = True,
     max_thrust_n: float | None = None,
     recording: bool = True,
+    track: TlogTrack | None = None,
 ) -> list[Path]:
     """Write ``trajectory.json``, ``metrics.json`` (when there is a record), the plots and, where
     Rerun is installed and ``recording``, ``flight.rrd`` (from the report's files; without it,
     an earlier flight's is removed: swarm replay makes it when it opens the report);
-    ``max_thrust_n`` (N) gives the metrics' max_thrust_ratio."""
+    ``max_thrust_n`` (N) gives the metrics' max_thrust_ratio; ``track``: flight.tlog already
+    read."""
     files = [write_trajectory(plan, report_dir / "trajectory.json")]
     metrics_path = report_dir / "metrics.json"
     metrics = record_metrics(record, settle_s, extra, max_thrust_n)
@@ -59,8 +62,9 @@ def write_report(
     files.append(metrics_path)
     if plots and record is not None:
         files += write_plots(record, report_dir)
+    rrd = None
     if not recording:
         (report_dir / RRD).unlink(missing_ok=True)  # not an earlier flight's, under this one's name
-    elif record is not None and (rrd := write_recording(report_dir, record.n_drones)) is not None:
-        files.append(rrd)
-    return files
+    elif record is not None:
+        rrd = write_recording(report_dir, record.n_drones, track)
+    return files if rrd is None else [*files, rrd]

@@ -362,9 +362,7 @@ def separation(
     return best, collisions
 
 
-def _pair_distances(
-    x: FloatArray, air: BoolArray, first: IntArray, second: IntArray
-) -> FloatArray:
+def _pair_distances(x: FloatArray, air: BoolArray, first: IntArray, second: IntArray) -> FloatArray:
     """(T, pairs) distances of the pairs, inf where a pair is not both airborne and known."""
     diff = x[:, first] - x[:, second]
     # np.linalg.norm's own arithmetic (the sum of the squares, then its root): its bits

@@ -400,6 +400,7 @@ class GroundStation:
             self._o.plots,
             vehicle_params(self._o.scenario).max_thrust_n,
             self._o.recording,
+            track,
         )
 
     def _vehicle_text(self, t_s: float, drone: int, severity: int, text: str) -> None:

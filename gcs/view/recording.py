@@ -10,6 +10,10 @@ from __future__ import annotations
 
 import importlib.util
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from gcs.report.tlog import TlogTrack
 
 RRD = "flight.rrd"
 INSTALL_HINT = (
@@ -33,15 +37,18 @@ def require_rerun() -> None:
         raise RerunMissing(INSTALL_HINT)
 
 
-def write_recording(report_dir: Path, n_drones: int | None = None) -> Path | None:
-    """Write ``report_dir/flight.rrd`` from the report's flight.tlog, events.jsonl and
-    trajectory.json; None (nothing written) without Rerun or without a flight in the tlog."""
+def write_recording(
+    report_dir: Path, n_drones: int | None = None, track: TlogTrack | None = None
+) -> Path | None:
+    """Write ``report_dir/flight.rrd`` from the report's flight.tlog (``track``: already read),
+    events.jsonl and trajectory.json; None (nothing written) without Rerun or without a flight
+    in the tlog."""
     if not rerun_available():
         return None
     from gcs.view.rerun_log import write_rrd
     from gcs.view.scene import scene_from_report
 
-    scene = scene_from_report(report_dir, n_drones)
+    scene = scene_from_report(report_dir, n_drones, track)
     if scene is None:
         return None
     return write_rrd(scene, report_dir / RRD, recording_id=f"quadswarm-{report_dir.resolve().name}")

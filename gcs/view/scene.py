@@ -167,10 +167,13 @@ def tlog_rate_hz(track: TlogTrack) -> float | None:
     return 1.0 / step if step > 0 else None
 
 
-def scene_from_report(report_dir: Path, n_drones: int | None = None) -> Scene | None:
+def scene_from_report(
+    report_dir: Path, n_drones: int | None = None, track: TlogTrack | None = None
+) -> Scene | None:
     """The scene of the report in ``report_dir`` (None if its tlog holds no flight). ``n_drones``
-    defaults to the largest system id in the tlog."""
-    track = read_tlog(report_dir / TLOG)
+    defaults to the largest system id in the tlog; ``track``: its flight.tlog already read."""
+    if track is None:
+        track = read_tlog(report_dir / TLOG)
     events = read_events(report_dir / EVENTS) if (report_dir / EVENTS).exists() else []
     plan = read_plan(report_dir / TRAJECTORY)
     n = n_drones if n_drones is not None else max(track.vehicles, default=0)
