@@ -200,7 +200,7 @@ def test_help_explains_templates_layouts_and_faults() -> None:
 def _fly(scenario: Path, report: Path, duration_s: float) -> None:
     proc = _swarm(
         "simulate", str(scenario), "--duration-s", str(duration_s), "--report", str(report),
-        "--no-plots", "--progress", "off", timeout=600,
+        "--no-plots", "--no-recording", "--progress", "off", timeout=600,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
 
