@@ -293,3 +293,63 @@ def test_an_agent_status_is_written_as_pymavlink_frames_it(tmp_path: Path) -> No
         row += [float("nan")] * (58 - len(row))
         msg = mav.debug_float_array_encode(2_500_000, AGENT_STATUS_NAME.encode(), layout, row)
         assert data == pack(msg, mav) == bytes(msg.pack(mav))
+
+
+def test_the_frequent_records_read_without_message_objects_read_as_pymavlinks(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """TlogReader reads LOCAL_POSITION_NED, ATTITUDE, ACTUATOR_OUTPUT_STATUS and agent statuses
+    from their unpacked payloads and skips the messages it never reads unbuilt: the track is the
+    one pymavlink's message objects give, value for value, beside signed and MAVLink 1 records,
+    a status from another component, truth, heartbeats, texts and a record with a bad checksum."""
+    from pymavlink.dialects.v10 import common as v1
+    from pymavlink.dialects.v20 import ardupilotmega
+    from pymavlink.dialects.v20 import common as v2
+
+    import gcs.report.tlog as tlog
+    from protocols.mavlink.conventions import AGENT_COMPID
+
+    s = truth(3)
+    path = tmp_path / "mixed.tlog"
+    rng = np.random.default_rng(4)
+    with TlogWriter(path) as w:
+        for k, t in enumerate(s["t"][:40]):
+            for i in range(N_DRONES):
+                w.write_vehicle_sample(
+                    t, i + 1, s["pos"][k, i], s["vel"][k, i], s["euler"][k, i], s["rates"][k, i]
+                )
+                quat = [1.0, *(0.5 * s["euler"][k, i])]
+                w.write_truth(t, i + 1, s["pos"][k, i], s["vel"][k, i], quat, s["rates"][k, i])
+                forces = [float(f) for f in rng.uniform(0.0, 3.0, 4)] + [0.0] * 28
+                w.write_message(t, i + 1, v2.MAVLink_actuator_output_status_message(
+                    int(t * 1e6), 15, forces))  # fmt: skip
+                values = np.array([*rng.normal(size=9), 2, 3, 1], dtype=float)
+                w.write_agent_status(t, i + 1, values, [0, 2] if k % 2 else None)
+                w.write_message(t, i + 1, v2.MAVLink_sys_status_message(*[0] * 13))
+            w.write_heartbeat(t, 1, armed=True, system_status=4)
+        other = v2.MAVLink(None, srcSystem=2, srcComponent=AGENT_COMPID + 1)  # not an agent's
+        w.write_packet(0.5, other.debug_float_array_encode(1, b"AGENT", 1, [1.0] * 58).pack(other))
+        signed = v2.MAVLink(None, srcSystem=3, srcComponent=1)
+        signed.signing.secret_key = bytes(32)
+        signed.signing.sign_outgoing = True
+        w.write_packet(0.6, signed.local_position_ned_encode(600, 1, 2, 3, 4, 5, 6).pack(signed))
+        old = v1.MAVLink(None, srcSystem=2, srcComponent=1)
+        w.write_packet(0.7, old.attitude_encode(700, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6).pack(old))
+        bad = bytearray(v2.MAVLink(None, 1, 1).attitude_encode(800, 1, 1, 1, 1, 1, 1).pack(
+            v2.MAVLink(None, 1, 1)))  # fmt: skip
+        bad[-1] ^= 0xFF
+        w.write_packet(0.8, bytes(bad))
+        w.write_statustext(0.9, 2, 2, "drone 2 lost")
+    fast = read_tlog(path)
+    monkeypatch.setattr(tlog, "_FAST_ROWS", {})
+    every = frozenset(c.msgname for c in ardupilotmega.mavlink_map.values())
+    monkeypatch.setattr(tlog, "_READ", every)
+    built = read_tlog(path)
+    assert fast.vehicles.keys() == built.vehicles.keys() == {1, 2, 3}
+    for sysid, v in fast.vehicles.items():
+        u = built.vehicles[sysid]
+        for name in ("t_s", "position_ned_m", "status_t_s", "status", "status_layout"):
+            np.testing.assert_array_equal(getattr(v, name), getattr(u, name), err_msg=name)
+        assert v.neighbour_ids(1) == u.neighbour_ids(1)
+    assert fast.vehicles[1].status.shape[0] == 40 and fast.bad_records == built.bad_records == 1
+    assert [x.text for x in fast.statustexts] == [x.text for x in built.statustexts]

@@ -62,7 +62,7 @@ from protocols.mavlink.conventions import (
     MAV_ESTIMATOR_TYPE_MOCAP,
     truth_odometry_fields,
 )
-from protocols.mavlink.fast import pack, pack_payload, parse
+from protocols.mavlink.fast import Frame, frames, pack, pack_payload, parse
 from protocols.model.frames import FloatArray, zyx_from_quat_batch
 from protocols.model.geodesy import GeoPoint, ned_of_global_int
 
@@ -428,9 +428,21 @@ class TlogReader:
             try:
                 if length is None:
                     raise common.MAVError("no MAVLink marker")
-                fast = parse(data[ofs + 8 : end])  # an unsigned MAVLink 2 record, usually
-                msg = fast[0] if fast else self._codec.decode(bytearray(data[ofs + 8 : end]))
-            except common.MAVError:
+                record = data[ofs + 8 : end]
+                checked = frames(record)  # an unsigned MAVLink 2 record, usually
+                if checked is not None and len(checked) == 1:
+                    frame = checked[0]
+                    if frame.cls.msgname not in _READ:  # checked, and nothing to read in it
+                        resyncing, ofs = False, end
+                        continue
+                    if (rows := _FAST_ROWS.get(frame.cls.msgname)) is not None:
+                        t_rec = _TS.unpack_from(data, ofs)[0] * 1e-6 - self.epoch_offset_s
+                        resyncing, ofs = False, end
+                        self._fast(rows, frame, t_rec)
+                        continue
+                fast = parse(record) if checked is not None else None
+                msg = fast[0] if fast else self._codec.decode(bytearray(record))
+            except (common.MAVError, ardupilotmega.MAVError):  # each dialect has its own class
                 self._bad += 0 if resyncing else 1
                 resyncing = True
                 ofs += 1  # resynchronise byte by byte, as mavlogdump does
@@ -440,6 +452,34 @@ class TlogReader:
             ofs = end
             self._message(msg, t_rec)
         return ofs
+
+    def _fast(self, rows: _FieldRows, frame: Frame, t_rec: float) -> None:
+        """The rows :meth:`_message` makes of the most frequent messages, from the unpacked
+        payload's fields (the values of pymavlink's message object) without building it."""
+        t = frame.cls.unpacker.unpack(frame.body)
+        name, sysid = frame.cls.msgname, frame.sysid
+        if name == "LOCAL_POSITION_NED":
+            self._pos.setdefault(sysid, []).append(tuple(t[i] for i in rows.scalars))
+        elif name == "ATTITUDE":
+            self._att.setdefault(sysid, []).append(tuple(t[i] for i in rows.scalars))
+            self._att_rec.setdefault(sysid, []).append(t_rec * 1000.0)
+        elif name == "ACTUATOR_OUTPUT_STATUS":
+            at = rows.arrays["actuator"]
+            row = (t[rows.at["time_usec"]] / 1000.0, *t[at : at + ACTUATOR_ROTORS])
+            self._act.setdefault(sysid, []).append(row)
+        elif name == "DEBUG_FLOAT_ARRAY":
+            if frame.compid != AGENT_COMPID:
+                return
+            if _name(t[rows.at["name"]].rstrip(b"\x00")) != AGENT_STATUS_NAME:
+                return
+            at = rows.arrays["data"]
+            layout = int(t[rows.at["array_id"]])
+            values = t[at : at + AGENT_STATUS_VALUES]
+            ids: Sequence[float] = t[at + AGENT_STATUS_VALUES : at + 58]
+            if layout != AGENT_STATUS_LAYOUT:  # 0 (older logs): no ids there
+                ids = [float("nan")] * AGENT_NEIGHBOUR_SLOTS
+            row = (t[rows.at["time_usec"]] / 1000.0, *values, float(layout), *ids)
+            self._agent.setdefault(sysid, []).append(row)
 
     def _message(self, msg: Any, t_rec: float) -> None:
         sysid = msg.get_srcSystem()
@@ -528,6 +568,51 @@ class TlogReader:
             for t, row in zip(self._att_rec.get(sysid, []), self._att.get(sysid, []), strict=True)
         ]
         return pos, att
+
+
+@dataclass(frozen=True)
+class _FieldRows:
+    """Where a message's fields are in its unpacked payload (``cls.unpacker``'s tuple, wire
+    order): ``at`` each field's first value, ``arrays`` an array field's first element,
+    ``scalars`` the fields in their declared order when none is an array."""
+
+    at: dict[str, int]
+    arrays: dict[str, int]
+    scalars: tuple[int, ...]
+
+
+def _field_rows(cls: Any) -> _FieldRows:
+    """Where the fields of pymavlink message class ``cls`` are (protocols.mavlink.fast.message_of
+    reads them from the same places)."""
+    at: dict[str, int] = {}
+    arrays: dict[str, int] = {}
+    for name, order in zip(cls.fieldnames, cls.orders, strict=True):
+        tip = sum(cls.lengths[:order])
+        at[name] = tip
+        if cls.lengths[order] > 1 and cls.fieldtypes[cls.fieldnames.index(name)] != "char":
+            arrays[name] = tip
+    scalars = () if arrays else tuple(at[n] for n in cls.fieldnames)
+    return _FieldRows(at, arrays, scalars)
+
+
+#: The messages :class:`TlogReader` reads rows from its own way (nine in ten records of a flight).
+_FAST_ROWS = {
+    cls.msgname: _field_rows(cls)
+    for cls in (
+        common.MAVLink_local_position_ned_message,
+        common.MAVLink_attitude_message,
+        common.MAVLink_actuator_output_status_message,
+        common.MAVLink_debug_float_array_message,
+    )
+}
+#: The messages TlogReader._message reads; a checked frame of another is skipped unbuilt.
+_READ = frozenset(
+    {
+        "LOCAL_POSITION_NED", "ATTITUDE", "ODOMETRY", "GLOBAL_POSITION_INT", "GPS_GLOBAL_ORIGIN",
+        "ACTUATOR_OUTPUT_STATUS", "DEBUG_FLOAT_ARRAY", "HEARTBEAT", "NAMED_VALUE_FLOAT",
+        "STATUSTEXT",
+    }
+)  # fmt: skip
 
 
 def _packet_length(data: bytes, ofs: int) -> int | None:
