@@ -353,3 +353,23 @@ def test_the_frequent_records_read_without_message_objects_read_as_pymavlinks(
         assert v.neighbour_ids(1) == u.neighbour_ids(1)
     assert fast.vehicles[1].status.shape[0] == 40 and fast.bad_records == built.bad_records == 1
     assert [x.text for x in fast.statustexts] == [x.text for x in built.statustexts]
+
+
+def test_a_log_read_piece_by_piece_tracks_as_it_reads_whole(logged, tmp_path: Path) -> None:
+    """TlogReader.track() after each piece (a drills run asks every half second, converting
+    only the rows read since) ends with the track read_tlog gives of the whole log."""
+    from gcs.report.tlog import TlogReader
+
+    path, _ = logged
+    data = path.read_bytes()
+    reader, used = TlogReader(epoch_offset_s=1_700_000_000.0), 0
+    for cut in (0, 57, 2000, 2001, 9000, len(data) // 2, len(data)):
+        used += reader.feed(data[used:cut])
+        partial = reader.track()
+        assert all(v.t_s.size <= N_SAMPLES for v in partial.vehicles.values())
+    whole = read_tlog(path, epoch_offset_s=1_700_000_000.0)
+    got = reader.track()
+    assert got.vehicles.keys() == whole.vehicles.keys()
+    for sysid, v in whole.vehicles.items():
+        for name in ("t_s", "position_ned_m", "euler_rad", "heartbeat_t_s", "armed"):
+            np.testing.assert_array_equal(getattr(got.vehicles[sysid], name), getattr(v, name))

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # numpy and pymavlink, imported when the drills run, not by the parser
     from gcs.report.drill_judge import DrillResult, DrillSpec, Step, Window
-    from gcs.report.tlog import TlogReader
+    from gcs.report.tlog import TlogReader, TlogTrack
 
 #: Altitude of a session's steady formation (m).
 ALTITUDE_M = 3.0
@@ -171,7 +171,11 @@ def run(args: argparse.Namespace) -> int:
     (report / "drills.json").write_text(json.dumps(to_json(results, info), indent=2) + "\n")
     from gcs.report.drill_logs import plot_drills  # matplotlib: only when there is a report
 
-    plot_drills(report / "swarm", results, n, report / "drills.png")
+    try:
+        whole = _track(swarm)  # the log as the run left it, not read again from its start
+    except OSError:
+        whole = None
+    plot_drills(report / "swarm", results, n, report / "drills.png", whole)
     for line in table(results):
         print(line)
     print(f"wrote {report / 'drills.json'} and {report / 'drills.png'}")
@@ -604,14 +608,18 @@ def _window(
 ) -> tuple[Window, list[dict[str, Any]]]:
     """The judged samples between ``t_from`` and ``t_to`` from the ground station's logs (the
     flight log read on from where the last call stopped)."""
-    path = swarm.dir / "flight.tlog"
-    with path.open("rb") as f:
-        f.seek(swarm.tlog_offset)
-        swarm.tlog_offset += swarm.tlog.feed(f.read())
-    track = swarm.tlog.track()
     from gcs.report.drill_logs import window_from_logs
 
+    track = _track(swarm)
     return window_from_logs(swarm.dir, swarm.n, t_from, t_to, t_start, t_recover, track)
+
+
+def _track(swarm: Swarm) -> TlogTrack:
+    """The ground station's flight log so far, read on from where the last call stopped."""
+    with (swarm.dir / "flight.tlog").open("rb") as f:
+        f.seek(swarm.tlog_offset)
+        swarm.tlog_offset += swarm.tlog.feed(f.read())
+    return swarm.tlog.track()
 
 
 def _positions(swarm: Swarm) -> dict[int, list[float]]:

@@ -64,8 +64,15 @@ def window_from_logs(
     return Window(t, pos, est, desired, member, airborne, t_start, t_recover), events
 
 
-def plot_drills(folder: Path, results: Sequence[DrillResult], n: int, path: Path) -> None:
-    """Formation and estimate errors over the whole run, each drill's window shaded."""
+def plot_drills(
+    folder: Path,
+    results: Sequence[DrillResult],
+    n: int,
+    path: Path,
+    track: TlogTrack | None = None,
+) -> None:
+    """Formation and estimate errors over the whole run, each drill's window shaded
+    (``track``: the run's flight.tlog already read)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -75,7 +82,7 @@ def plot_drills(folder: Path, results: Sequence[DrillResult], n: int, path: Path
         return
     end = max(r.t_start_s + r.spec.length_s for r in results)
     try:
-        w, _ = window_from_logs(folder, n, 0.0, end, 0.0, 0.0)
+        w, _ = window_from_logs(folder, n, 0.0, end, 0.0, 0.0, track)
     except (OSError, ValueError):
         return
     s = series(w)

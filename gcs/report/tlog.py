@@ -414,6 +414,9 @@ class TlogReader:
         self._texts: list[StatusText] = []
         self._chunks: dict[tuple[int, int], list[bytes]] = {}
         self._bad = 0
+        #: (table, sysid) -> rows already made arrays, and those arrays: track() converts only
+        #: the rows read since its last call (a drills run asks for it every half second)
+        self._tables: dict[tuple[str, int], tuple[int, list[FloatArray]]] = {}
 
     def feed(self, data: bytes) -> int:
         """Parse the records of ``data``; the number of bytes consumed (a truncated last record
@@ -538,19 +541,43 @@ class TlogReader:
                 pos[s], att[s] = self._ardupilot_rows(s)
         vehicles = {
             s: _track(
-                pos.get(s, []), att.get(s, []), act.get(s, []), agent.get(s, []), beats.get(s, [])
+                *(
+                    _by_time(rows.get(s, []), width)
+                    if s in self._ardupilot and kind in ("pos", "att")  # made anew each call
+                    else self._table(kind, s, rows.get(s, []), width)
+                    for kind, rows, width in (
+                        ("pos", pos, 7),
+                        ("att", att, 7),
+                        ("act", act, 1 + ACTUATOR_ROTORS),
+                        ("agent", agent, 2 + AGENT_STATUS_VALUES + AGENT_NEIGHBOUR_SLOTS),
+                        ("beats", beats, 3),
+                    )
+                )
             )
             for s in sorted(set(pos) | set(att) | set(act) | set(agent))
         }
         for s, rows in self._truth.items():
             if s in vehicles:
-                vehicles[s] = _with_truth(vehicles[s], _by_time(rows, 14))
+                vehicles[s] = _with_truth(vehicles[s], self._table("truth", s, rows, 14))
         for s, values in self._named.items():
             if s in vehicles:
                 vehicles[s].named = {
                     name: _by_time([tuple(r) for r in rows], 2) for name, rows in values.items()
                 }
         return TlogTrack(vehicles, list(self._texts), self._bad)
+
+    def _table(
+        self, kind: str, sysid: int, rows: list[tuple[float, ...]], width: int
+    ) -> FloatArray:
+        """``_by_time(rows, width)``, converting only the rows added since the last call."""
+        done, arrays = self._tables.get((kind, sysid), (0, []))
+        if len(rows) > done:
+            arrays.append(np.asarray(rows[done:], dtype=float).reshape(-1, width))
+        if len(arrays) > 1:
+            arrays[:] = [np.concatenate(arrays)]
+        self._tables[(kind, sysid)] = (len(rows), arrays)
+        table = arrays[0] if arrays else np.empty((0, width))
+        return table[np.argsort(table[:, 0], kind="stable")]
 
     def _ardupilot_rows(self, sysid: int) -> tuple[_Rows, _Rows]:
         """An ArduCopter vehicle's position rows (record ms, NED about the origin, velocity) and
@@ -647,17 +674,11 @@ def _name(raw: Any) -> str:
 
 
 def _track(
-    pos: list[tuple[float, ...]],
-    att: list[tuple[float, ...]],
-    act: list[tuple[float, ...]],
-    agent: list[tuple[float, ...]],
-    beats: list[tuple[float, ...]],
+    p: FloatArray, a: FloatArray, f: FloatArray, st: FloatArray, hb: FloatArray
 ) -> VehicleTrack:
-    """Rows ``(time ms, values...)`` of each message, sorted by time, as a track."""
-    p, a, f = _by_time(pos, 7), _by_time(att, 7), _by_time(act, 1 + ACTUATOR_ROTORS)
-    st = _by_time(agent, 2 + AGENT_STATUS_VALUES + AGENT_NEIGHBOUR_SLOTS)
+    """Rows ``(time ms, values...)`` of each message (position, attitude, actuators, agent
+    status, heartbeat), sorted by time, as a track."""
     end = 1 + AGENT_STATUS_VALUES
-    hb = _by_time(beats, 3)
     return VehicleTrack(
         t_s=p[:, 0] / 1000.0,
         position_ned_m=p[:, 1:4],
