@@ -124,6 +124,11 @@ def pytest_configure(config: pytest.Config) -> None:
         "lockstep: flies on the lockstep clock only, its verdict the same however loaded the "
         "machine is: in a realtime module, it runs in make test's parallel part",
     )
+    config.addinivalue_line(
+        "markers",
+        "no_ports: takes no port (swarm simulate, one process): in a default-port module, it "
+        "runs in its module's xdist group, not in the one chain of default-port flights",
+    )
 
 
 @pytest.hookimpl(wrapper=True)  # before -m selects and xdist reads the groups
@@ -137,7 +142,7 @@ def pytest_collection_modifyitems(
     worker = hasattr(config, "workerinput")
     for item in items:
         module = item.module.__name__.rsplit(".", 1)[-1] if item.module is not None else ""
-        default_ports = module in DEFAULT_PORT_MODULES
+        default_ports = module in DEFAULT_PORT_MODULES and not item.get_closest_marker("no_ports")
         lockstep = _on_the_clock(item, "lockstep") or item.get_closest_marker("lockstep")
         if (module in REALTIME_MODULES and not lockstep) or (
             default_ports and _on_the_clock(item, "realtime")

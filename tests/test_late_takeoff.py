@@ -151,6 +151,7 @@ def simulated_up(tmp_path_factory: pytest.TempPathFactory) -> Simulated:
     return _simulated(UP_SIDE, tmp_path_factory)
 
 
+@pytest.mark.no_ports
 def test_simulate_waits_for_the_swarm_and_does_not_overshoot(simulated: Simulated) -> None:
     n = simulated.n
     assert "plan re-timed by" in simulated.out, simulated.out
@@ -241,6 +242,7 @@ def test_a_takeoff_typed_during_the_warm_up_waits_for_the_swarm(tmp_path: Path) 
     assert error < CENTRE_BAR_M and overshoot < OVERSHOOT_BAR_M, (error, overshoot)
 
 
+@pytest.mark.no_ports
 def test_a_plan_written_in_the_air_is_climbed_to_from_the_ground(tmp_path: Path) -> None:
     """A user's plan that starts 5 m up (no rest on the ground): ``swarm simulate FILE`` flies
     the swarm up to it from the ground rest to rest (protocols/model/plan_timing.py,
