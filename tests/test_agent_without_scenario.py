@@ -60,6 +60,7 @@ def test_agents_without_a_scenario_fly_the_ground_stations_plan(tmp_path: Path) 
             swarm_command(
                 *("gcs", "--scenario", str(scenario), "--report", str(tmp_path / "r")),
                 *("--gcs-port", str(gcs_port), "--swarm-id", SWARM, "--quiet"),
+                *("--no-plots", "--no-recording"),
                 *obs.zenoh_args,
             ),
             stdout=subprocess.DEVNULL,
