@@ -206,14 +206,13 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--no-plots",
         action="store_true",
-        help="the report without its PNG plots (~2 s less at the end of every run; for CI and "
-        "sweeps)",
+        help="the report without its PNG plots (the report is written sooner; for CI and sweeps)",
     )
     p.add_argument(
         "--no-recording",
         action="store_true",
-        help="the report without flight.rrd (~1 s less; swarm replay makes it from the tlog when "
-        "it opens the report)",
+        help="the report without flight.rrd (swarm replay makes it from the tlog when it opens "
+        "the report)",
     )
     p.add_argument(
         "--land-at-end",

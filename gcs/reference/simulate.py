@@ -25,7 +25,7 @@ from gcs.report.flight_record import FlightRecord
 from gcs.report.metrics import compute_metrics
 from gcs.report.tlog import TlogWriter
 from gcs.report.trajectory_file import write_trajectory
-from gcs.view.recording import RRD, write_recording
+from gcs.view.recording import report_recording
 from protocols.model.plan_timing import takeoff_metrics
 from protocols.scenario.scenario_file import Scenario
 
@@ -118,9 +118,7 @@ def simulate(
         from gcs.report.plots import write_plots  # matplotlib: ~0.3 s, paid only when plotting
 
         files += write_plots(record, report_dir)
-    if not recording:
-        (report_dir / RRD).unlink(missing_ok=True)  # not an earlier flight's, under this one's name
-    elif (rrd := write_recording(report_dir, scenario.n_drones)) is not None:
+    if (rrd := report_recording(report_dir, scenario.n_drones, recording)) is not None:
         files.append(rrd)
     return SimulationResult(record, flight.events, metrics, files)
 

@@ -16,7 +16,7 @@ from gcs.report.metrics import compute_metrics
 from gcs.report.plots import write_plots
 from gcs.report.tlog import TlogTrack
 from gcs.report.trajectory_file import write_trajectory
-from gcs.view.recording import RRD, write_recording
+from gcs.view.recording import report_recording
 from protocols.model.trajectory import DescriptorTrajectory
 
 
@@ -62,9 +62,8 @@ def write_report(
     files.append(metrics_path)
     if plots and record is not None:
         files += write_plots(record, report_dir)
-    rrd = None
-    if not recording:
-        (report_dir / RRD).unlink(missing_ok=True)  # not an earlier flight's, under this one's name
-    elif record is not None:
-        rrd = write_recording(report_dir, record.n_drones, track)
-    return files if rrd is None else [*files, rrd]
+    if record is not None or not recording:  # no flight: nothing to record
+        n = None if record is None else record.n_drones
+        rrd = report_recording(report_dir, n, recording, track)
+        files += [] if rrd is None else [rrd]
+    return files

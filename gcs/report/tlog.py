@@ -62,7 +62,7 @@ from protocols.mavlink.conventions import (
     MAV_ESTIMATOR_TYPE_MOCAP,
     truth_odometry_fields,
 )
-from protocols.mavlink.fast import Frame, frames, pack, pack_payload, parse
+from protocols.mavlink.fast import Frame, frames, message_of, pack, pack_payload
 from protocols.model.frames import FloatArray, zyx_from_quat_batch
 from protocols.model.geodesy import GeoPoint, ned_of_global_int
 
@@ -443,8 +443,9 @@ class TlogReader:
                         resyncing, ofs = False, end
                         self._fast(rows, frame, t_rec)
                         continue
-                fast = parse(record) if checked is not None else None
-                msg = fast[0] if fast else self._codec.decode(bytearray(record))
+                msg = message_of(checked[0], record) if checked and len(checked) == 1 else None
+                if msg is None:  # signed, MAVLink 1, another dialect's or a bad one
+                    msg = self._codec.decode(bytearray(record))
             except (common.MAVError, ardupilotmega.MAVError):  # each dialect has its own class
                 self._bad += 0 if resyncing else 1
                 resyncing = True
@@ -468,20 +469,15 @@ class TlogReader:
             self._att_rec.setdefault(sysid, []).append(t_rec * 1000.0)
         elif name == "ACTUATOR_OUTPUT_STATUS":
             at = rows.arrays["actuator"]
-            row = (t[rows.at["time_usec"]] / 1000.0, *t[at : at + ACTUATOR_ROTORS])
+            row = _actuator_row(t[rows.at["time_usec"]], t[at : at + ACTUATOR_ROTORS])
             self._act.setdefault(sysid, []).append(row)
-        elif name == "DEBUG_FLOAT_ARRAY":
-            if frame.compid != AGENT_COMPID:
-                return
-            if _name(t[rows.at["name"]].rstrip(b"\x00")) != AGENT_STATUS_NAME:
-                return
+        elif (
+            name == "DEBUG_FLOAT_ARRAY"
+            and frame.compid == AGENT_COMPID
+            and _name(t[rows.at["name"]].rstrip(b"\x00")) == AGENT_STATUS_NAME
+        ):
             at = rows.arrays["data"]
-            layout = int(t[rows.at["array_id"]])
-            values = t[at : at + AGENT_STATUS_VALUES]
-            ids: Sequence[float] = t[at + AGENT_STATUS_VALUES : at + 58]
-            if layout != AGENT_STATUS_LAYOUT:  # 0 (older logs): no ids there
-                ids = [float("nan")] * AGENT_NEIGHBOUR_SLOTS
-            row = (t[rows.at["time_usec"]] / 1000.0, *values, float(layout), *ids)
+            row = _status_row(t[rows.at["time_usec"]], t[rows.at["array_id"]], t[at : at + 58])
             self._agent.setdefault(sysid, []).append(row)
 
     def _message(self, msg: Any, t_rec: float) -> None:
@@ -507,17 +503,11 @@ class TlogReader:
         elif mtype == "GPS_GLOBAL_ORIGIN" and sysid == GCS_SYSID:
             self.origin = GeoPoint(msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
         elif mtype == "ACTUATOR_OUTPUT_STATUS":
-            forces = msg.actuator[:ACTUATOR_ROTORS]
-            self._act.setdefault(sysid, []).append((msg.time_usec / 1000.0, *forces))
+            self._act.setdefault(sysid, []).append(_actuator_row(msg.time_usec, msg.actuator))
         elif mtype == "DEBUG_FLOAT_ARRAY" and msg.get_srcComponent() == AGENT_COMPID:
             if _name(msg.name) == AGENT_STATUS_NAME:
-                layout = int(msg.array_id)
-                values = list(msg.data[:AGENT_STATUS_VALUES])
-                ids = list(msg.data[AGENT_STATUS_VALUES:58])
-                if layout != AGENT_STATUS_LAYOUT:  # 0 (older logs): no ids there
-                    ids = [float("nan")] * AGENT_NEIGHBOUR_SLOTS
-                row = (msg.time_usec / 1000.0, *values, float(layout), *ids)
-                self._agent.setdefault(sysid, []).append(row)
+                status = _status_row(msg.time_usec, msg.array_id, msg.data)
+                self._agent.setdefault(sysid, []).append(status)
         elif mtype == "HEARTBEAT" and msg.get_srcComponent() == _AUTOPILOT_COMPONENT:
             if msg.autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA:
                 self._ardupilot.add(sysid)
@@ -597,6 +587,20 @@ class TlogReader:
         return pos, att
 
 
+def _actuator_row(time_usec: int, actuator: Sequence[float]) -> tuple[float, ...]:
+    """An ACTUATOR_OUTPUT_STATUS row: (ms, the rotors' forces)."""
+    return (time_usec / 1000.0, *actuator[:ACTUATOR_ROTORS])
+
+
+def _status_row(time_usec: int, layout: int, data: Sequence[float]) -> tuple[float, ...]:
+    """An agent status row (DEBUG_FLOAT_ARRAY "AGENT"): (ms, values, layout, neighbour ids;
+    NaN ids in layout 0, the older logs' that had none)."""
+    ids: Sequence[float] = data[AGENT_STATUS_VALUES:58]
+    if int(layout) != AGENT_STATUS_LAYOUT:
+        ids = [float("nan")] * AGENT_NEIGHBOUR_SLOTS
+    return (time_usec / 1000.0, *data[:AGENT_STATUS_VALUES], float(int(layout)), *ids)
+
+
 @dataclass(frozen=True)
 class _FieldRows:
     """Where a message's fields are in its unpacked payload (``cls.unpacker``'s tuple, wire
@@ -613,10 +617,10 @@ def _field_rows(cls: Any) -> _FieldRows:
     reads them from the same places)."""
     at: dict[str, int] = {}
     arrays: dict[str, int] = {}
-    for name, order in zip(cls.fieldnames, cls.orders, strict=True):
+    for name, kind, order in zip(cls.fieldnames, cls.fieldtypes, cls.orders, strict=True):
         tip = sum(cls.lengths[:order])
         at[name] = tip
-        if cls.lengths[order] > 1 and cls.fieldtypes[cls.fieldnames.index(name)] != "char":
+        if cls.lengths[order] > 1 and kind != "char":
             arrays[name] = tip
     scalars = () if arrays else tuple(at[n] for n in cls.fieldnames)
     return _FieldRows(at, arrays, scalars)
@@ -632,7 +636,8 @@ _FAST_ROWS = {
         common.MAVLink_debug_float_array_message,
     )
 }
-#: The messages TlogReader._message reads; a checked frame of another is skipped unbuilt.
+#: The messages TlogReader._message reads (keep the two together); a checked frame of another
+#: is skipped unbuilt.
 _READ = frozenset(
     {
         "LOCAL_POSITION_NED", "ATTITUDE", "ODOMETRY", "GLOBAL_POSITION_INT", "GPS_GLOBAL_ORIGIN",

@@ -52,3 +52,15 @@ def write_recording(
     if scene is None:
         return None
     return write_rrd(scene, report_dir / RRD, recording_id=f"quadswarm-{report_dir.resolve().name}")
+
+
+def report_recording(
+    report_dir: Path, n_drones: int | None, wanted: bool, track: TlogTrack | None = None
+) -> Path | None:
+    """A report's ``flight.rrd``: written when ``wanted`` (:func:`write_recording`), otherwise an
+    earlier flight's removed, so that none lies under this one's name (swarm replay makes it
+    when it opens the report). Its path, None when there is none."""
+    if not wanted:
+        (report_dir / RRD).unlink(missing_ok=True)
+        return None
+    return write_recording(report_dir, n_drones, track)
