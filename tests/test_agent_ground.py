@@ -219,8 +219,9 @@ def test_garbage_on_the_consensus_keys_is_dropped_and_counted(tmp_path: Path) ->
         assert _all_within(obs, list(range(9)), TRUTH)
 
 
-@pytest.mark.parametrize("order", [[8, 0, 4, 2, 6, 1, 7, 3, 5], [3, 7, 5, 1, 0, 8, 2, 6, 4]])
-def test_agents_started_one_by_one_converge_the_same(tmp_path: Path, order: list[int]) -> None:
+def test_agents_started_one_by_one_converge_the_same(tmp_path: Path) -> None:
+    # neither by index nor by position: corners, centre, edges, back and forth
+    order = [8, 0, 4, 2, 6, 1, 7, 3, 5]
     scenario = _scenario(tmp_path)
     base = free_port_block(9)
     with (

@@ -170,7 +170,7 @@ def test_crash_drill_in_a_flying_signed_swarm(tmp_path: Path) -> None:
         FIVE,
         centre=(2.0, 1.5, -3.0),
         spread=(2.0, 1.5, 0.0),
-        duration_s=30.0,
+        duration_s=24.0,
         settle_s=8.0,
     )
     base, gcs_port = free_port_block(5), free_udp_port()
@@ -178,7 +178,7 @@ def test_crash_drill_in_a_flying_signed_swarm(tmp_path: Path) -> None:
     with observer() as obs, MavPeer(ATTACKED + 1, 191, (HOST, base + ATTACKED)) as attacker:
         proc = subprocess.Popen(
             swarm_command(
-                # the scenario's 30 s on the wall clock: after t = 10 s the three drills below
+                # the scenario's 24 s on the wall clock: after t = 10 s the three drills below
                 # (each a new process) reach the ground station before the run ends, however
                 # slowly a loaded machine starts them (lockstep ran ahead of them on CI)
                 *("up", str(scenario), "--report", str(report), "--clock", "realtime"),

@@ -114,7 +114,7 @@ def test_shard_sync_waits_for_every_peer_and_drops_a_silent_one() -> None:
 def test_two_simulator_shards_fly_one_swarm(tmp_path: Path, clock: str) -> None:
     scenario = write_scenario(
         tmp_path / "hover.toml", SQUARE, centre=(2.0, 1.5, -2.0), spread=(2.0, 1.5, 0.0),
-        duration_s=22.0, settle_s=8.0,
+        duration_s=16.0, settle_s=8.0,
     )  # fmt: skip
     base, gcs_port = free_port_block(4), free_udp_port()
     router = free_loopback_endpoint()
@@ -123,7 +123,7 @@ def test_two_simulator_shards_fly_one_swarm(tmp_path: Path, clock: str) -> None:
         "--base-port", str(base), "--gcs-port", str(gcs_port), "--no-plots", "--no-recording",
     ]  # fmt: skip
     if clock == "realtime":  # one agreed start
-        start_at = str(time.time() + 12.0)
+        start_at = str(time.time() + 9.0)
         clocks = [["--start-at", start_at], ["--start-at", start_at]]
     else:  # the shards agree on every tick
         sync = [f"127.0.0.1:{free_udp_port()}", f"127.0.0.1:{free_udp_port()}"]

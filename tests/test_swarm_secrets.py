@@ -226,7 +226,7 @@ def test_secured_swarm_up_flies_and_status_says_secured(secrets: Path, tmp_path:
             "--base-port", str(free_port_block(4)),
             "--gcs-port", str(free_udp_port()), "--swarm-id", SWARM_ID, "--clock", "realtime",
             "--secrets", str(secrets), "--router", router, "--only", "router,gcs,sim,agents",
-            "--duration-s", "25",
+            "--duration-s", "18",
         ),
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=ENV, cwd=ROOT,
     )  # fmt: skip
