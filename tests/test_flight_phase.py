@@ -13,9 +13,12 @@ from drone_agent.core.agent_core import AgentConfig, AgentOutput, Setpoint
 from drone_agent.core.consensus.scalar import ConsensusParams
 from drone_agent.core.flight_phase import (
     AIRBORNE_ALTITUDE_M,
+    REQUESTS,
+    BatchFlightPhase,
     FlightPhase,
     Readiness,
     Request,
+    VehicleArrays,
     VehicleView,
 )
 from drone_agent.core.thrust_attitude import ThrustLimits
@@ -520,3 +523,59 @@ def test_agents_that_leave_apart_agree_on_the_first_take_off_round() -> None:
         for clock in clocks:
             clock.update(round_, False, [])
     assert [c.round for c in clocks] == [None] * n
+
+
+def test_a_batch_decides_as_its_rows_do_one_by_one() -> None:
+    """BatchFlightPhase (the in-process runner's: one compiled call for every agent) gives each
+    row the order and latches that row's own FlightPhase (a hosted agent's) gives, over random
+    commands, vehicles, setpoints (none, the formation's, one below the minimum thrust) and
+    latches, tick after tick."""
+    rng = np.random.default_rng(7)
+    n = 64
+    batch = BatchFlightPhase(n, LIMITS)
+    alone = [FlightPhase(LIMITS) for _ in range(n)]
+    commands = list(FlightCommand)
+    setpoints = [None, FORMATION, ZERO, Setpoint(-0.2, 0.1, 1.0, 0.7, True)]
+    for _ in range(40):
+        rows = sorted(rng.choice(n, size=int(rng.integers(1, n + 1)), replace=False).tolist())
+        k = len(rows)
+        command = [commands[c] for c in rng.integers(0, len(commands), k)]
+        arm = rng.random(k) < 0.8
+        converged = rng.random(k) < 0.6
+        sps = [setpoints[c] for c in rng.integers(0, len(setpoints), k)]
+        up = rng.choice([0.0, 0.2, LAND_HANDOVER_ALTITUDE_M, 3.0], k)
+        on_ground = [None, False, True]
+        views = [
+            VehicleView(
+                armed=bool(rng.random() < 0.5),
+                in_offboard=bool(rng.random() < 0.5),
+                in_land=bool(rng.random() < 0.3),
+                in_hold=bool(rng.random() < 0.3),
+                altitude_m=float(rng.choice([0.0, 0.05, AIRBORNE_ALTITUDE_M, 0.25, 4.0])),
+                on_ground=on_ground[int(rng.integers(0, 3))],
+            )
+            for _ in range(k)
+        ]
+        yaw = rng.uniform(-3, 3, k)
+        orders = batch.decide(
+            rows, [int(c) for c in command], arm, converged, sps, up, VehicleArrays.of(views), yaw
+        )
+        for p, r in enumerate(rows):
+            want = alone[r].decide(
+                command[p], bool(arm[p]), bool(converged[p]), sps[p], float(up[p]), views[p],
+                float(yaw[p]),
+            )  # fmt: skip
+            sp = want.setpoint
+            assert (AgentMode(int(orders.mode[p])), REQUESTS[int(orders.request[p])]) == (
+                want.mode,
+                want.request,
+            )
+            assert orders.setpoint[p].tolist() == [
+                sp.roll_rad, sp.pitch_rad, sp.yaw_rad, sp.thrust_normalised
+            ]  # fmt: skip
+            assert bool(orders.limited[p]) == sp.limited
+            assert (batch.committed[r], batch.landed[r], batch.handed_over[r]) == (
+                alone[r].committed,
+                alone[r].landed,
+                alone[r].handed_over,
+            )

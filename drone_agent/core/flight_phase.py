@@ -38,7 +38,7 @@ from drone_agent.core.agent_core import AgentConfig, AgentOutput, Setpoint
 from drone_agent.core.inboxes import Inboxes
 from drone_agent.core.jit_math import jit
 from drone_agent.core.thrust_attitude import ThrustLimits
-from protocols.model.frames import G_M_S2
+from protocols.model.frames import G_M_S2, FloatArray
 from protocols.runtime.fast_dataclass import frozen_factory
 from protocols.wire.consensus_message import ConsensusMessage
 from protocols.wire.plan import LAND_HANDOVER_ALTITUDE_M, FlightCommand
@@ -538,22 +538,305 @@ class BatchTakeoff:
         return [None if t < 0 else t for t in self.advertised[r].tolist()]
 
 
-class FlightPhase:
-    """One agent's flight phase (see the module doc). Call :meth:`decide` once per tick."""
+#: :class:`Request` by its code in the compiled rule (:func:`_decide_row`), and back
+REQUESTS = (Request.NONE, Request.ARM_OFFBOARD, Request.LAND_MODE, Request.HOLD_MODE)
+_R_NONE, _R_ARM_OFFBOARD, _R_LAND, _R_HOLD = 0, 1, 2, 3
+_CODE_OF_REQUEST = {r: k for k, r in enumerate(REQUESTS)}
+_FLY, _GROUND = int(FlightCommand.FLY), int(FlightCommand.GROUND)
+_M_WARMUP, _M_READY, _M_FLYING = int(AgentMode.WARMUP), int(AgentMode.READY), int(AgentMode.FLYING)
+_M_LANDING, _M_HOLDING = int(AgentMode.LANDING), int(AgentMode.HOLDING)
+_M_LANDED = int(AgentMode.LANDED)
+#: a vehicle's land detector as the compiled rule takes it: -1 says nothing, 0 off, 1 on the ground
+ON_GROUND_UNKNOWN = -1
 
-    def __init__(self, limits: ThrustLimits) -> None:
+
+@jit
+def _decide_row(  # type: ignore[no-untyped-def]
+    command,
+    arm_allowed,
+    converged,
+    has_setpoint,
+    roll,
+    pitch,
+    yaw_sp,
+    thrust,
+    limited,
+    commanded_altitude_m,
+    armed,
+    in_offboard,
+    in_land,
+    in_hold,
+    altitude_m,
+    on_ground,
+    yaw_rad,
+    committed,
+    landed,
+    handed_over,
+    min_thrust,
+    hover_thrust,
+):
+    """The one rule of a tick's order (:meth:`FlightPhase.decide`, module doc), on one agent's
+    numbers: ``command`` a FlightCommand's value, ``on_ground`` -1/0/1 (says nothing / off /
+    on the ground), the setpoint's fields (read only with ``has_setpoint``) and the phase's
+    three latches. Returns (mode, request code, roll, pitch, yaw, thrust, limited, committed,
+    landed, handed_over): :class:`AgentMode` and :data:`REQUESTS` codes, the setpoint to send
+    (the core's, the hover or the idle one), the new latches."""
+    if armed:
+        airborne = True
+    elif on_ground >= 0:
+        airborne = on_ground == 0
+    else:
+        airborne = altitude_m > AIRBORNE_ALTITUDE_M
+    kind = 0  # the setpoint sent: 0 the core's, 1 hover, 2 idle
+    mode = _M_WARMUP
+    request = _R_NONE
+    decided = False
+    if command == _FLY:
+        if has_setpoint and arm_allowed and (committed or converged):
+            committed, landed = True, False
+            decided = True
+            if armed and in_offboard:
+                handed_over = False
+                mode = _M_FLYING
+            else:  # arming, or taking the vehicle back from a failsafe or from LAND
+                mode = _M_FLYING if armed else _M_READY
+                request = _R_ARM_OFFBOARD
+        elif airborne:  # nothing valid to fly: the autopilot holds its altitude
+            decided = True
+            mode, kind = _M_HOLDING, 1
+            request = _R_NONE if in_hold else _R_HOLD
+    elif airborne:  # LAND or GROUND
+        decided = True
+        mode = _M_LANDING
+        if in_land:  # handed over (or its own failsafe): it lands and disarms
+            handed_over = True
+            kind = 1
+        elif (
+            command == _GROUND
+            or commanded_altitude_m <= LAND_HANDOVER_ALTITUDE_M
+            or altitude_m <= TOUCHDOWN_FLOOR_M
+            or not has_setpoint
+        ):
+            handed_over = True
+            request = _R_LAND
+            kind = 0 if has_setpoint else 1
+    if not decided:  # disarmed on the ground
+        handed_over = False
+        if committed:
+            committed, landed = False, True
+        kind = 2
+        mode = _M_LANDED if landed else _M_READY if converged else _M_WARMUP
+    # the invariant: an airborne vehicle gets at least the minimum thrust
+    if kind == 0 and airborne and not thrust >= min_thrust:
+        kind = 1
+    if kind == 1:
+        return (mode, request, 0.0, 0.0, yaw_rad, hover_thrust, False, committed, landed,
+                handed_over)  # fmt: skip
+    if kind == 2:
+        return mode, request, 0.0, 0.0, yaw_rad, 0.0, False, committed, landed, handed_over
+    return mode, request, roll, pitch, yaw_sp, thrust, limited, committed, landed, handed_over
+
+
+@jit
+def _decide_rows(  # type: ignore[no-untyped-def]
+    rows,
+    command,
+    arm_allowed,
+    converged,
+    has_setpoint,
+    setpoint,
+    limited,
+    commanded_altitude_m,
+    armed,
+    in_offboard,
+    in_land,
+    in_hold,
+    altitude_m,
+    on_ground,
+    yaw_rad,
+    committed,
+    landed,
+    handed_over,
+    min_thrust,
+    hover_thrust,
+    mode_out,
+    request_out,
+    setpoint_out,
+    limited_out,
+):
+    """:func:`_decide_row` for each of ``rows`` (the batch's latches, indexed by row, updated in
+    place), the p-th row's inputs and outputs at p: ``setpoint`` and ``setpoint_out`` (P, 4)
+    roll, pitch, yaw, thrust."""
+    for p in range(rows.shape[0]):
+        r = rows[p]
+        got = _decide_row(
+            command[p], arm_allowed[p], converged[p], has_setpoint[p], setpoint[p, 0],
+            setpoint[p, 1], setpoint[p, 2], setpoint[p, 3], limited[p],
+            commanded_altitude_m[p], armed[p], in_offboard[p], in_land[p], in_hold[p],
+            altitude_m[p], on_ground[p], yaw_rad[p], committed[r], landed[r], handed_over[r],
+            min_thrust, hover_thrust,
+        )  # fmt: skip
+        mode_out[p], request_out[p] = got[0], got[1]
+        setpoint_out[p, 0], setpoint_out[p, 1] = got[2], got[3]
+        setpoint_out[p, 2], setpoint_out[p, 3] = got[4], got[5]
+        limited_out[p] = got[6]
+        committed[r], landed[r], handed_over[r] = got[7], got[8], got[9]
+
+
+@dataclass(frozen=True)
+class BatchOrders:
+    """A :meth:`BatchFlightPhase.decide` call's orders, the p-th of its rows at p: ``mode``
+    (P,) :class:`AgentMode` values, ``request`` (P,) :data:`REQUESTS` codes, ``setpoint`` (P, 4)
+    roll, pitch, yaw (rad) and normalised thrust, ``limited`` (P,)."""
+
+    mode: npt.NDArray[np.int64]
+    request: npt.NDArray[np.int64]
+    setpoint: FloatArray
+    limited: npt.NDArray[np.bool_]
+
+
+class BatchFlightPhase:
+    """The flight phases of ``n`` agents (the module doc's rule, :func:`_decide_row`), as
+    arrays: the latches ``committed``, ``landed`` and ``handed_over`` (n,), and one compiled
+    call per tick for the rows that decide (:meth:`decide`). :class:`FlightPhase` is a view of
+    one row."""
+
+    def __init__(self, n: int, limits: ThrustLimits) -> None:
         self.limits = limits
         #: decided to fly; latched until the vehicle is disarmed on the ground again
-        self.committed = False
+        self.committed = np.zeros(n, dtype=np.bool_)
         #: has landed (disarmed on the ground after flying) and not flown since
-        self.landed = False
+        self.landed = np.zeros(n, dtype=np.bool_)
         #: the vehicle was handed to the autopilot's LAND mode: its disarm is expected
-        self.handed_over = False
+        self.handed_over = np.zeros(n, dtype=np.bool_)
+        #: the least thrust (0..1 of the maximum) an airborne vehicle may be sent
+        self.min_thrust = limits.thrust_range_n[0] / limits.max_thrust_n
+        #: the thrust of :func:`hover_setpoint`
+        self.hover_thrust = hover_setpoint(limits, 0.0).thrust_normalised
+
+    def reset(self, row: int) -> None:
+        """Row ``row`` starts afresh (a new agent of that drone)."""
+        self.committed[row] = self.landed[row] = self.handed_over[row] = False
+
+    def decide(
+        self,
+        rows: Sequence[int],
+        command: npt.ArrayLike,
+        arm_allowed: npt.ArrayLike,
+        converged: npt.ArrayLike,
+        setpoints: Sequence[Setpoint | None],
+        commanded_altitude_m: npt.ArrayLike,
+        vehicles: VehicleArrays,
+        yaw_rad: npt.ArrayLike,
+    ) -> BatchOrders:
+        """Each of ``rows``' order of this tick, its inputs at the same place in the others (a
+        :class:`FlightCommand` value each, the core's checked setpoint or None, the plan's
+        centre altitude (m, up), what its vehicle reports, its heading)."""
+        k = len(rows)
+        has = np.array([s is not None for s in setpoints], dtype=np.bool_)
+        sp = np.zeros((k, 4))
+        lim = np.zeros(k, dtype=np.bool_)
+        for p, s in enumerate(setpoints):
+            if s is not None:
+                sp[p] = (s.roll_rad, s.pitch_rad, s.yaw_rad, s.thrust_normalised)
+                lim[p] = s.limited
+        orders = BatchOrders(
+            np.zeros(k, dtype=np.int64),
+            np.zeros(k, dtype=np.int64),
+            np.zeros((k, 4)),
+            np.zeros(k, dtype=np.bool_),
+        )
+        _decide_rows(
+            np.asarray(rows, dtype=np.int64),
+            np.asarray(command, dtype=np.int64),
+            np.asarray(arm_allowed, dtype=np.bool_),
+            np.asarray(converged, dtype=np.bool_),
+            has,
+            sp,
+            lim,
+            np.asarray(commanded_altitude_m, dtype=np.float64),
+            vehicles.armed,
+            vehicles.in_offboard,
+            vehicles.in_land,
+            vehicles.in_hold,
+            vehicles.altitude_m,
+            vehicles.on_ground,
+            np.asarray(yaw_rad, dtype=np.float64),
+            self.committed,
+            self.landed,
+            self.handed_over,
+            self.min_thrust,
+            self.hover_thrust,
+            orders.mode,
+            orders.request,
+            orders.setpoint,
+            orders.limited,
+        )
+        return orders
+
+
+@dataclass(frozen=True)
+class VehicleArrays:
+    """What P vehicles last reported (:class:`VehicleView`'s fields as arrays): ``armed``,
+    ``in_offboard``, ``in_land``, ``in_hold`` (P,) bool, ``altitude_m`` (P,) m up, ``on_ground``
+    (P,) -1 (the vehicle says nothing: the altitude decides), 0 or 1."""
+
+    armed: npt.NDArray[np.bool_]
+    in_offboard: npt.NDArray[np.bool_]
+    in_land: npt.NDArray[np.bool_]
+    in_hold: npt.NDArray[np.bool_]
+    altitude_m: FloatArray
+    on_ground: npt.NDArray[np.int64]
+
+    @classmethod
+    def of(cls, views: Sequence[VehicleView]) -> VehicleArrays:
+        """The arrays of ``views``."""
+        return cls(
+            np.array([v.armed for v in views], dtype=np.bool_),
+            np.array([v.in_offboard for v in views], dtype=np.bool_),
+            np.array([v.in_land for v in views], dtype=np.bool_),
+            np.array([v.in_hold for v in views], dtype=np.bool_),
+            np.array([v.altitude_m for v in views], dtype=np.float64),
+            np.array([_on_ground_code(v.on_ground) for v in views], dtype=np.int64),
+        )
+
+
+def _on_ground_code(on_ground: bool | None) -> int:
+    return ON_GROUND_UNKNOWN if on_ground is None else int(bool(on_ground))
+
+
+class FlightPhase:
+    """One agent's flight phase (see the module doc): row ``row`` of a :class:`BatchFlightPhase`
+    (a batch of its own unless ``batch`` is given), started afresh. Call :meth:`decide` once per
+    tick (or the batch's for several rows at once)."""
+
+    def __init__(
+        self, limits: ThrustLimits, batch: BatchFlightPhase | None = None, row: int = 0
+    ) -> None:
+        self.limits = limits
+        self.batch = batch if batch is not None else BatchFlightPhase(1, limits)
+        self.row = row
+        self.batch.reset(row)
+
+    @property
+    def committed(self) -> bool:
+        """Decided to fly; latched until the vehicle is disarmed on the ground again."""
+        return bool(self.batch.committed[self.row])
+
+    @property
+    def landed(self) -> bool:
+        """Has landed (disarmed on the ground after flying) and not flown since."""
+        return bool(self.batch.landed[self.row])
+
+    @property
+    def handed_over(self) -> bool:
+        """The vehicle was handed to the autopilot's LAND mode: its disarm is expected."""
+        return bool(self.batch.handed_over[self.row])
 
     @property
     def min_thrust_normalised(self) -> float:
         """The least thrust (0..1 of the maximum) an airborne vehicle may be sent."""
-        return self.limits.thrust_range_n[0] / self.limits.max_thrust_n
+        return self.batch.min_thrust
 
     def decide(
         self,
@@ -571,65 +854,32 @@ class FlightPhase:
         checked setpoint, None if it has none; ``commanded_altitude_m``: the plan's centre
         altitude now (m, up); ``yaw_rad``: the vehicle's heading, for level setpoints.
         """
-        order = self._decide(
-            command, arm_allowed, converged, setpoint, commanded_altitude_m, vehicle, yaw_rad
-        )
-        return self._safe(order, vehicle, yaw_rad)
+        b, r = self.batch, self.row
+        s = setpoint if setpoint is not None else _NO_SETPOINT
+        got = _decide_row(
+            int(command), bool(arm_allowed), bool(converged), setpoint is not None,
+            float(s.roll_rad), float(s.pitch_rad), float(s.yaw_rad), float(s.thrust_normalised),
+            bool(s.limited), float(commanded_altitude_m), bool(vehicle.armed),
+            bool(vehicle.in_offboard), bool(vehicle.in_land), bool(vehicle.in_hold),
+            float(vehicle.altitude_m), _on_ground_code(vehicle.on_ground), float(yaw_rad),
+            bool(b.committed[r]), bool(b.landed[r]), bool(b.handed_over[r]), b.min_thrust,
+            b.hover_thrust,
+        )  # fmt: skip
+        mode, request, roll, pitch, yaw, thrust, limited, committed, landed, handed = got
+        b.committed[r], b.landed[r], b.handed_over[r] = committed, landed, handed
+        if setpoint is not None and (roll, pitch, yaw, thrust, limited) == (
+            setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad,
+            setpoint.thrust_normalised, setpoint.limited,
+        ):  # fmt: skip
+            sent = setpoint  # the core's, as it is
+        else:
+            sent = _new_setpoint(roll, pitch, yaw, thrust, limited)
+        return _new_order(AgentMode(mode), sent, REQUESTS[request])
 
-    def _decide(
-        self,
-        command: FlightCommand,
-        arm_allowed: bool,
-        converged: bool,
-        setpoint: Setpoint | None,
-        commanded_altitude_m: float,
-        vehicle: VehicleView,
-        yaw_rad: float,
-    ) -> Order:
-        if command == FlightCommand.FLY:
-            if setpoint is not None and arm_allowed and (self.committed or converged):
-                self.committed, self.landed = True, False
-                if vehicle.armed and vehicle.in_offboard:
-                    self.handed_over = False
-                    return _new_order(AgentMode.FLYING, setpoint, Request.NONE)
-                # arming, or taking the vehicle back from a failsafe or from LAND
-                mode = AgentMode.FLYING if vehicle.armed else AgentMode.READY
-                return _new_order(mode, setpoint, Request.ARM_OFFBOARD)
-            if vehicle.airborne:  # nothing valid to fly: the autopilot holds its altitude
-                request = Request.NONE if vehicle.in_hold else Request.HOLD_MODE
-                return _new_order(AgentMode.HOLDING, hover_setpoint(self.limits, yaw_rad), request)
-        elif vehicle.airborne:  # LAND or GROUND
-            if vehicle.in_land:  # handed over (or its own failsafe): it lands and disarms
-                self.handed_over = True
-                return _new_order(
-                    AgentMode.LANDING, hover_setpoint(self.limits, yaw_rad), Request.NONE
-                )
-            handover = (
-                command == FlightCommand.GROUND
-                or commanded_altitude_m <= LAND_HANDOVER_ALTITUDE_M
-                or vehicle.altitude_m <= TOUCHDOWN_FLOOR_M
-            )
-            if handover or setpoint is None:
-                self.handed_over = True
-                landing = setpoint or hover_setpoint(self.limits, yaw_rad)
-                return _new_order(AgentMode.LANDING, landing, Request.LAND_MODE)
-            return _new_order(AgentMode.LANDING, setpoint, Request.NONE)
-        # disarmed on the ground
-        self.handed_over = False
-        if self.committed:
-            self.committed, self.landed = False, True
-        if self.landed:
-            return _new_order(AgentMode.LANDED, idle_setpoint(yaw_rad), Request.NONE)
-        return _new_order(
-            AgentMode.READY if converged else AgentMode.WARMUP, idle_setpoint(yaw_rad), Request.NONE
-        )
 
-    def _safe(self, order: Order, vehicle: VehicleView, yaw_rad: float) -> Order:
-        """The invariant, enforced: an airborne vehicle gets at least the minimum thrust."""
-        sp = order.setpoint
-        if vehicle.airborne and not sp.thrust_normalised >= self.min_thrust_normalised:
-            return _new_order(order.mode, hover_setpoint(self.limits, yaw_rad), order.request)
-        return order
+_new_setpoint = frozen_factory(Setpoint)
+#: the fields read when an agent has no setpoint (not used by the rule then)
+_NO_SETPOINT = Setpoint(0.0, 0.0, 0.0, 0.0, False)
 
 
 @jit

@@ -20,7 +20,12 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from drone_agent.core.flight_phase import Request, VehicleView
+from drone_agent.core.flight_phase import (
+    ON_GROUND_UNKNOWN,
+    Request,
+    VehicleArrays,
+    VehicleView,
+)
 from drone_agent.process.hosted_agent import RunOptions
 from protocols.model.frames import FloatArray, quat_from_zyx
 from protocols.runtime.fast_dataclass import frozen_factory
@@ -48,7 +53,7 @@ def reported(values: FloatArray) -> FloatArray:
 
 
 def received(
-    drones: Sequence[int], commands: Sequence[tuple[float, float, float, float]]
+    drones: Sequence[int], commands: Sequence[tuple[float, float, float, float]] | FloatArray
 ) -> tuple[npt.NDArray[np.intp], FloatArray, FloatArray, FloatArray]:
     """The setpoints ``commands`` (roll, pitch, yaw rad, normalised thrust) of ``drones`` as their
     vehicles take them from a swarm agent: the agent's quaternion
@@ -92,6 +97,24 @@ class AutopilotLink:
             for i, up in zip(drones, altitude_m, strict=True)
         ]
 
+    def vehicle_arrays(self, drones: Sequence[int], altitude_m: npt.ArrayLike) -> VehicleArrays:
+        """:meth:`views` as arrays, for a batch of flight phases (one per drone)."""
+        ap = self.world.autopilot
+        idx = np.asarray(drones, dtype=np.intp)
+        mode = ap.mode[idx]
+        if self.world.estimator is not None:
+            on_ground = ap.landed[idx].astype(np.int64)
+        else:
+            on_ground = np.full(idx.shape[0], ON_GROUND_UNKNOWN, dtype=np.int64)
+        return VehicleArrays(
+            ap.armed[idx].astype(np.bool_),
+            mode == _OFFBOARD,
+            mode == _LAND,
+            mode == _HOLD,
+            np.asarray(altitude_m, dtype=np.float64),
+            on_ground,
+        )
+
     def request(
         self, drone: int, request: Request, view: VehicleView, t_s: float
     ) -> list[VehicleEvent]:
@@ -116,7 +139,9 @@ class AutopilotLink:
         return events
 
     def hand_setpoints(
-        self, drones: Sequence[int], commands: Sequence[tuple[float, float, float, float]]
+        self,
+        drones: Sequence[int],
+        commands: Sequence[tuple[float, float, float, float]] | FloatArray,
     ) -> None:
         """The agents of ``drones`` answer the tick with ``commands`` (roll, pitch, yaw rad,
         normalised thrust): their vehicles keep the valid ones (:func:`received`), received now."""

@@ -28,7 +28,12 @@ import numpy as np
 
 from drone_agent.core.agent_core import AgentCore, BatchAgentCore, BatchOutputs
 from drone_agent.core.config import agent_config
-from drone_agent.core.flight_phase import BatchReadiness, BatchTakeoff, FlightPhase
+from drone_agent.core.flight_phase import (
+    REQUESTS,
+    BatchFlightPhase,
+    BatchReadiness,
+    BatchTakeoff,
+)
 from drone_agent.process.fault_timeline import TimedAction, timeline
 from drone_agent.process.link_faults import LinkFaults, PairRandom, radio_links
 from gcs.reference.autopilot_link import AutopilotLink, reported
@@ -50,6 +55,9 @@ from sitl_sim.vehicle.tunables import FleetAttitudeGains
 from sitl_sim.vehicle.world import World, WorldConfig
 
 AIRBORNE_ALTITUDE_M = 0.1
+#: an agent's mode by its value (BatchFlightPhase's orders)
+_MODES = {int(m): m for m in AgentMode}
+_FLY = int(FlightCommand.FLY)
 
 
 def world_of(scenario: Scenario) -> World:
@@ -126,7 +134,7 @@ class ReferenceFlight:
             i: AgentCore(i, self.config, self.core) for i in range(self.n)
         }
         self.readiness = BatchReadiness(self.n, self.config)
-        self.phases = [FlightPhase(self.config.limits) for _ in range(self.n)]
+        self.phases = BatchFlightPhase(self.n, self.config.limits)
         #: each agent's mode after its last tick (its flight phase's order)
         self.agent_modes = [AgentMode.STARTING] * self.n
         self.takeoff = BatchTakeoff(self.n, self.config.consensus.heard_timeout_ticks)
@@ -277,7 +285,7 @@ class ReferenceFlight:
             self._vehicle_event(e)
         link, phases, modes = self.link, self.phases, self.agent_modes
         for i in list(self.agents):
-            reason = link.lost(i, modes[i], phases[i].handed_over)
+            reason = link.lost(i, modes[i], bool(phases.handed_over[i]))
             if reason is not None:
                 self._leave(i)
                 self._event("agent_left", drone=i, reason=reason)
@@ -330,7 +338,7 @@ class ReferenceFlight:
         phases = self.phases
         # the swarm's take-off round, agreed over the messages (flight_phase.TakeoffClock)
         takeoffs = self.takeoff.update(
-            live, k, [phases[i].committed for i in live], self.network.arrivals
+            live, k, phases.committed[live].tolist(), self.network.arrivals
         )
         if self.takeoff_s is None and (said := [t for t in takeoffs if t is not None]):
             self._took_off(min(said))
@@ -348,43 +356,41 @@ class ReferenceFlight:
         pos: np.ndarray,
         state: np.ndarray,
         t_s: float,
-    ) -> list[tuple[float, float, float, float]]:
+    ) -> np.ndarray:
         """What each live agent's flight phase decides for its vehicle
         (drone_agent/core/flight_phase.py, the same decision as every ``swarm agent``; the
         scenario's plan always says FLY): the requests go to its autopilot, and the setpoints (roll,
         pitch, yaw, thrust) that answer the tick are returned, one per agent."""
         phases, separating, modes = self.phases, self.separating, self.agent_modes
-        committed = [phases[i].committed for i in live]
-        ready_all = self._ready(live, cols, members, committed)
+        committed = phases.committed[live]
+        ready_all = self._ready(live, cols, members, committed.tolist())
         estimate = self.world.estimate()  # (the believed yaw; the true one with ideal sensors)
         believed_yaw = yaw_from_quat_batch(state[QUAT]) if estimate is None else estimate[2][2]
-        yaw = reported(believed_yaw).tolist()
-        altitude = (-pos[live, 2]).tolist()
-        views = self.link.views(live, altitude)
-        request = self.link.request
-        commands: list[tuple[float, float, float, float]] = []
-        for i, now_separating, setpoint, up_m, ready, flies, vehicle in zip(
+        yaw = reported(believed_yaw)[live]
+        altitude = -pos[live, 2]
+        orders = phases.decide(
             live,
-            cols.separating,
+            [_FLY] * len(live),
+            [True] * len(live),
+            committed | np.asarray(ready_all, dtype=bool),
             cols.setpoints,
-            (-cols.desired[:, 2]).tolist(),
-            ready_all,
-            committed,
-            views,
-            strict=True,
+            -cols.desired[:, 2],
+            self.link.vehicle_arrays(live, altitude),
+            yaw,
+        )
+        asks = orders.request.tolist()
+        for p, (i, now_separating, mode) in enumerate(
+            zip(live, cols.separating, orders.mode.tolist(), strict=True)
         ):
             if now_separating != separating[i]:
                 separating[i] = now_separating
                 self._event("separation" if now_separating else "separation_end", drone=i)
-            order = phases[i].decide(
-                FlightCommand.FLY, True, flies or ready, setpoint, up_m, vehicle, yaw[i]
-            )
-            modes[i] = order.mode
-            for e in request(i, order.request, vehicle, t_s):
-                self._vehicle_event(e)
-            sp = order.setpoint
-            commands.append((sp.roll_rad, sp.pitch_rad, sp.yaw_rad, sp.thrust_normalised))
-        return commands
+            modes[i] = _MODES[mode]
+            if asks[p]:  # (the few that ask their autopilot something this tick)
+                view = self.link.views([i], [float(altitude[p])])[0]
+                for e in self.link.request(i, REQUESTS[asks[p]], view, t_s):
+                    self._vehicle_event(e)
+        return orders.setpoint
 
     def _fly_none(self, k: int, rec: _Recorder) -> None:
         """Control tick ``k`` with no live agent: no message, no setpoint, only the record."""
