@@ -351,6 +351,12 @@ def test_status_golden_bytes() -> None:
     # an agent of an older build (version 2: no radio counter) is read with 0 there
     older = decode_status(bytes.fromhex(STATUS_V2_HEX), SID)
     assert older == STATUS_BEFORE_RADIO and older.counters.rx_lost_radio == 0
+    # decoded as the constructor makes a status: its enums, a read-only float estimate
+    decoded = decode_status(bytes.fromhex(STATUS_HEX), SID)
+    assert type(decoded.mode) is AgentMode and type(decoded.health) is Health
+    assert decoded.estimate.dtype == np.float64 and not decoded.estimate.flags.writeable
+    assert decoded.counters == StatusCounters(100, 1, 2, 3, 50, 0, 4)
+    assert type(decoded.neighbours) is tuple and decoded.neighbours == (1, 5)
 
 
 def test_status_takeoff_round_round_trips_and_version_1_decodes_without_one() -> None:

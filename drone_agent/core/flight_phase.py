@@ -746,22 +746,23 @@ class BatchFlightPhase:
             np.zeros((k, 4)),
             np.zeros(k, dtype=np.bool_),
         )
+        c = np.ascontiguousarray  # one compiled form: every array C-ordered
         _decide_rows(
-            np.asarray(rows, dtype=np.int64),
-            np.asarray(command, dtype=np.int64),
-            np.asarray(arm_allowed, dtype=np.bool_),
-            np.asarray(converged, dtype=np.bool_),
+            c(rows, dtype=np.int64),
+            c(command, dtype=np.int64),
+            c(arm_allowed, dtype=np.bool_),
+            c(converged, dtype=np.bool_),
             has,
             sp,
             lim,
-            np.asarray(commanded_altitude_m, dtype=np.float64),
-            vehicles.armed,
-            vehicles.in_offboard,
-            vehicles.in_land,
-            vehicles.in_hold,
-            vehicles.altitude_m,
-            vehicles.on_ground,
-            np.asarray(yaw_rad, dtype=np.float64),
+            c(commanded_altitude_m, dtype=np.float64),
+            c(vehicles.armed, dtype=np.bool_),
+            c(vehicles.in_offboard, dtype=np.bool_),
+            c(vehicles.in_land, dtype=np.bool_),
+            c(vehicles.in_hold, dtype=np.bool_),
+            c(vehicles.altitude_m, dtype=np.float64),
+            c(vehicles.on_ground, dtype=np.int64),
+            c(yaw_rad, dtype=np.float64),
             self.committed,
             self.landed,
             self.handed_over,
@@ -880,6 +881,17 @@ class FlightPhase:
 _new_setpoint = frozen_factory(Setpoint)
 #: the fields read when an agent has no setpoint (not used by the rule then)
 _NO_SETPOINT = Setpoint(0.0, 0.0, 0.0, 0.0, False)
+
+
+def warm_up(limits: ThrustLimits) -> None:
+    """Load the flight phase's compiled rule in both its forms (one row, a batch), compiling it
+    first if numba's cache does not have it (drone_agent.core.agent_core.warm_up)."""
+    view = VehicleView(False, False, False, False, 0.0)
+    FlightPhase(limits).decide(FlightCommand.GROUND, False, False, None, 0.0, view, 0.0)
+    BatchFlightPhase(1, limits).decide(
+        [0], [int(FlightCommand.GROUND)], [False], [False], [None], [0.0],
+        VehicleArrays.of([view]), [0.0],
+    )  # fmt: skip
 
 
 @jit

@@ -62,7 +62,15 @@ from protocols.mavlink.conventions import (
     MAV_ESTIMATOR_TYPE_MOCAP,
     truth_odometry_fields,
 )
-from protocols.mavlink.fast import Frame, frames, message_of, pack, pack_payload
+from protocols.mavlink.fast import (
+    FieldPlaces,
+    Frame,
+    field_places,
+    frames,
+    message_of,
+    pack,
+    pack_payload,
+)
 from protocols.model.frames import FloatArray, zyx_from_quat_batch
 from protocols.model.geodesy import GeoPoint, ned_of_global_int
 
@@ -457,7 +465,7 @@ class TlogReader:
             self._message(msg, t_rec)
         return ofs
 
-    def _fast(self, rows: _FieldRows, frame: Frame, t_rec: float) -> None:
+    def _fast(self, rows: FieldPlaces, frame: Frame, t_rec: float) -> None:
         """The rows :meth:`_message` makes of the most frequent messages, from the unpacked
         payload's fields (the values of pymavlink's message object) without building it."""
         t = frame.cls.unpacker.unpack(frame.body)
@@ -601,34 +609,9 @@ def _status_row(time_usec: int, layout: int, data: Sequence[float]) -> tuple[flo
     return (time_usec / 1000.0, *data[:AGENT_STATUS_VALUES], float(int(layout)), *ids)
 
 
-@dataclass(frozen=True)
-class _FieldRows:
-    """Where a message's fields are in its unpacked payload (``cls.unpacker``'s tuple, wire
-    order): ``at`` each field's first value, ``arrays`` an array field's first element,
-    ``scalars`` the fields in their declared order when none is an array."""
-
-    at: dict[str, int]
-    arrays: dict[str, int]
-    scalars: tuple[int, ...]
-
-
-def _field_rows(cls: Any) -> _FieldRows:
-    """Where the fields of pymavlink message class ``cls`` are (protocols.mavlink.fast.message_of
-    reads them from the same places)."""
-    at: dict[str, int] = {}
-    arrays: dict[str, int] = {}
-    for name, kind, order in zip(cls.fieldnames, cls.fieldtypes, cls.orders, strict=True):
-        tip = sum(cls.lengths[:order])
-        at[name] = tip
-        if cls.lengths[order] > 1 and kind != "char":
-            arrays[name] = tip
-    scalars = () if arrays else tuple(at[n] for n in cls.fieldnames)
-    return _FieldRows(at, arrays, scalars)
-
-
 #: The messages :class:`TlogReader` reads rows from its own way (nine in ten records of a flight).
 _FAST_ROWS = {
-    cls.msgname: _field_rows(cls)
+    cls.msgname: field_places(cls)
     for cls in (
         common.MAVLink_local_position_ned_message,
         common.MAVLink_attitude_message,

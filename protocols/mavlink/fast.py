@@ -30,6 +30,7 @@ os.environ["MAVLINK20"] = "1"  # before any pymavlink import (DEPENDENCIES.md)
 
 import struct
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from operator import attrgetter
 from typing import Any, NamedTuple
 
@@ -211,3 +212,36 @@ def message_of(f: Frame, data: bytes) -> Any:
         cls.id, 0, f.compat_flags, len(frame) - _HEADER_LEN - 2, f.seq, f.sysid, f.compid
     )
     return msg
+
+
+@dataclass(frozen=True)
+class FieldPlaces:
+    """Where a message's fields are in its unpacked payload (``cls.unpacker``'s tuple, wire
+    order): ``at`` each field's first value, ``arrays`` an array field's first element,
+    ``scalars`` the fields in their declared order when none is an array."""
+
+    at: dict[str, int]
+    arrays: dict[str, int]
+    scalars: tuple[int, ...]
+
+
+_PLACES: dict[type, FieldPlaces] = {}
+
+
+def field_places(cls: Any) -> FieldPlaces:
+    """Where the fields of pymavlink message class ``cls`` are (:func:`message_of` reads them
+    from the same places), for a reader that takes a frame's values without building its
+    message object; made once per class."""
+    got = _PLACES.get(cls)
+    if got is not None:
+        return got
+    at: dict[str, int] = {}
+    arrays: dict[str, int] = {}
+    for name, kind, order in zip(cls.fieldnames, cls.fieldtypes, cls.orders, strict=True):
+        tip = sum(cls.lengths[:order])
+        at[name] = tip
+        if cls.lengths[order] > 1 and kind != "char":
+            arrays[name] = tip
+    scalars = () if arrays else tuple(at[n] for n in cls.fieldnames)
+    got = _PLACES[cls] = FieldPlaces(at, arrays, scalars)
+    return got
