@@ -44,13 +44,16 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     them at the same moment on a fresh checkout (seconds of CPU each, which timing-sensitive
     realtime flights would feel)."""
     _session_start[0] = time.monotonic()
+    from drone_agent.core import flight_phase
     from drone_agent.core.agent_core import warm_up
     from drone_agent.core.config import agent_config
     from protocols.scenario.scenario_file import load_scenario
     from sitl_sim.physics import jit as physics_jit
 
     physics_jit.ready()
-    warm_up(agent_config(load_scenario(Path(__file__).parents[1] / "scenarios" / "paper.toml")))
+    config = agent_config(load_scenario(Path(__file__).parents[1] / "scenarios" / "paper.toml"))
+    warm_up(config)
+    flight_phase.warm_up(config.limits)
 
 
 # -- make test's two parts -------------------------------------------------------------------

@@ -128,7 +128,7 @@ def test_world_rotor_forces_and_message() -> None:
     world.rotor_speed_rad_s = np.full((4, 2), hover_speed)
     forces = rotor_forces_n(world)
     np.testing.assert_allclose(forces.sum(axis=0), params.weight_n, rtol=1e-9)
-    msg = actuator_output_status(1_020_000, forces[:, 1])
+    msg = actuator_output_status(1_020_000, forces[:, 1]).message()
     assert msg.time_usec == 1_020_000 and msg.active == 0b1111
     np.testing.assert_allclose(msg.actuator[:4], forces[:, 1], rtol=1e-6)
     assert msg.actuator[4:] == [0.0] * 28

@@ -212,9 +212,6 @@ def warm_up(config: AgentConfig) -> None:
         _, outs = pair.step((0, 1), round_, np.zeros((2, 18)), inboxes, (None, None))
         inboxes = [[outs[1].message], [outs[0].message]]
     NeighbourTable(config.consensus.dt_s).hear((0,), 3, inboxes[:1])
-    from drone_agent.core import flight_phase  # (which imports this module)
-
-    flight_phase.warm_up(config.limits)
     _warm = True
 
 

@@ -702,6 +702,7 @@ class BatchFlightPhase:
     one row."""
 
     def __init__(self, n: int, limits: ThrustLimits) -> None:
+        warm_up(limits)
         self.limits = limits
         #: decided to fly; latched until the vehicle is disarmed on the ground again
         self.committed = np.zeros(n, dtype=np.bool_)
@@ -883,9 +884,17 @@ _new_setpoint = frozen_factory(Setpoint)
 _NO_SETPOINT = Setpoint(0.0, 0.0, 0.0, 0.0, False)
 
 
+_warm = False
+
+
 def warm_up(limits: ThrustLimits) -> None:
-    """Load the flight phase's compiled rule in both its forms (one row, a batch), compiling it
-    first if numba's cache does not have it (drone_agent.core.agent_core.warm_up)."""
+    """Load the flight phase's compiled rule in both its forms (one row, a batch) once per
+    process, compiling it first if numba's cache does not have it: a first tick must not pay it
+    (as drone_agent.core.agent_core.warm_up). Called by :class:`BatchFlightPhase`."""
+    global _warm
+    if _warm:
+        return
+    _warm = True
     view = VehicleView(False, False, False, False, 0.0)
     FlightPhase(limits).decide(FlightCommand.GROUND, False, False, None, 0.0, view, 0.0)
     BatchFlightPhase(1, limits).decide(

@@ -39,8 +39,10 @@ import numpy as np
 from drone_agent.core.agent_core import AgentConfig, AgentCore, BatchAgentCore
 from drone_agent.core.flight_phase import (
     Arrivals,
+    BatchFlightPhase,
     BatchReadiness,
     BatchTakeoff,
+    FlightPhase,
     Readiness,
     TakeoffClock,
 )
@@ -148,6 +150,8 @@ class AgentHost:
         self._takeoff = BatchTakeoff(
             len(self._core.agent_ids), config.consensus.heard_timeout_ticks
         )
+        #: and their flight phases
+        self._phases = BatchFlightPhase(len(self._core.agent_ids), config.limits)
         self._bus = bus
         self._factory = transport_factory
         self._config = config
@@ -427,8 +431,9 @@ class AgentHost:
         takeoff = TakeoffClock(self._config.consensus.heard_timeout_ticks, self._takeoff, core.row)
         readiness.reset()  # a new life
         takeoff.reset()
+        phase = FlightPhase(self._config.limits, self._phases, core.row)  # (afresh)
         return HostedAgent(
-            core, slot.link, transport, self._plan, options, clock, gate, readiness, takeoff
+            core, slot.link, transport, self._plan, options, clock, gate, readiness, takeoff, phase
         )
 
     def close(self) -> None:

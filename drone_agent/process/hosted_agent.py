@@ -150,9 +150,11 @@ class HostedAgent:
         gate: RoundGate | None = None,
         readiness: Readiness | None = None,
         takeoff: TakeoffClock | None = None,
+        phase: FlightPhase | None = None,
     ) -> None:
         """``readiness`` and ``takeoff``: its rows of its host's readiness and take-off clocks
-        (updated by the host for all its agents at once); its own if None."""
+        (updated by the host for all its agents at once), ``phase`` its row of the host's flight
+        phases; its own if None."""
         if options.lockstep and gate is None:
             raise ValueError("a lockstep agent needs its round gate")
         self.core, self.link, self.transport = core, link, transport
@@ -174,7 +176,7 @@ class HostedAgent:
         self._last_heartbeat = -1e9
         self._last_command = -1e9
         self.readiness = readiness if readiness is not None else Readiness(core.config)
-        self.phase = FlightPhase(core.config.limits)
+        self.phase = phase if phase is not None else FlightPhase(core.config.limits)
         timeout = core.config.consensus.heard_timeout_ticks
         self.takeoff = takeoff if takeoff is not None else TakeoffClock(timeout)
         self.left = False

@@ -31,7 +31,7 @@ os.environ["MAVLINK20"] = "1"  # before any pymavlink import (DEPENDENCIES.md)
 import struct
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from operator import attrgetter
+from operator import attrgetter, itemgetter
 from typing import Any, NamedTuple
 
 from fastcrc.crc16 import mcrf4xx
@@ -90,9 +90,62 @@ def _fields_of(cls: type) -> _Fields:
     return fields
 
 
+class Packed(NamedTuple):
+    """A message as its class and its full payload (its fields in wire order, ``cls.unpacker``'s
+    layout), made by :func:`packed` without pymavlink's message object; :func:`pack` frames it
+    as it frames the object."""
+
+    cls: Any
+    payload: bytes
+
+    def message(self) -> Any:
+        """pymavlink's message object of the same fields."""
+        return _built(self.cls, self.payload)
+
+
+_WIRE: dict[type, Callable[[Sequence[Any]], Sequence[Any]]] = {}
+
+
+def packed(cls: Any, *values: Any) -> Packed:
+    """Message class ``cls`` with ``values`` in its declared order, as its constructor takes
+    them (a numeric array as a sequence of its length, a char array as bytes), packed."""
+    wire = _WIRE.get(cls)
+    if wire is None:
+        wire = _WIRE[cls] = _wire_order(cls)
+    return Packed(cls, cls.unpacker.pack(*wire(values)))
+
+
+def _wire_order(cls: Any) -> Callable[[Sequence[Any]], Sequence[Any]]:
+    """The wire-order values (arrays spread) of a message's declared-order values."""
+    names = list(cls.fieldnames)
+    types = dict(zip(names, cls.fieldtypes, strict=True))
+    plan = [
+        (names.index(name), 0 if types[name] == "char" else length)
+        for name, length in zip(cls.ordered_fieldnames, cls.array_lengths, strict=True)
+    ]
+    if not any(length for _, length in plan):
+        return itemgetter(*(k for k, _ in plan)) if len(plan) > 1 else lambda v: (v[plan[0][0]],)
+
+    def spread(values: Sequence[Any]) -> list[Any]:
+        out: list[Any] = []
+        for k, length in plan:
+            if length:
+                out.extend(values[k][:length])
+            else:
+                out.append(values[k])
+        return out
+
+    return spread
+
+
 def pack(msg: Any, codec: Any) -> bytes:
     """``msg.pack(codec)``: the same MAVLink 2 frame (codec's system, component and sequence
-    number; trailing zero bytes of the payload cut), without pymavlink's per-frame objects."""
+    number; trailing zero bytes of the payload cut), without pymavlink's per-frame objects. A
+    :class:`Packed` message is framed from its payload (signed: from the object it makes)."""
+    if type(msg) is Packed:
+        if codec.signing.sign_outgoing:
+            return bytes(msg.message().pack(codec))
+        return pack_payload(msg.cls, msg.payload, codec)
     if codec.signing.sign_outgoing:
         return bytes(msg.pack(codec))
     cls = type(msg)
@@ -179,11 +232,11 @@ def parse(data: bytes) -> list[Any] | None:
     return out
 
 
-def message_of(f: Frame, data: bytes) -> Any:
-    """The message object of frame ``f`` of ``data`` (pymavlink's MAVLink.decode, unsigned)."""
-    cls = f.cls
+def _built(cls: Any, body: bytes) -> Any:
+    """Message class ``cls``'s object of the full payload ``body`` (wire order), None if it
+    does not unpack or pymavlink cannot build it."""
     try:
-        t = cls.unpacker.unpack(f.body)
+        t = cls.unpacker.unpack(body)
     except struct.error:
         return None
     orders, lengths = cls.orders, cls.lengths
@@ -200,8 +253,16 @@ def message_of(f: Frame, data: bytes) -> Any:
             )
     values = [v.rstrip(b"\x00") if isinstance(v, bytes) else v for v in values]
     try:
-        msg = cls(*values)
+        return cls(*values)
     except Exception:  # as pymavlink: a message it cannot build is not a message
+        return None
+
+
+def message_of(f: Frame, data: bytes) -> Any:
+    """The message object of frame ``f`` of ``data`` (pymavlink's MAVLink.decode, unsigned)."""
+    cls = f.cls
+    msg = _built(cls, f.body)
+    if msg is None:
         return None
     frame = bytearray(data[f.start : f.end])
     msg._signed = False

@@ -47,6 +47,7 @@ from protocols.mavlink.conventions import (
     SYS_STATUS_PREARM_CHECK,
     truth_odometry_fields,
 )
+from protocols.mavlink.fast import packed
 from protocols.model.frames import FloatArray, wxyz_from_zyx
 from sitl_sim.physics.dynamics import POS, QUAT, RATES, VEL
 from sitl_sim.vehicle.autopilot import Autopilot, Mode
@@ -180,14 +181,16 @@ def attitude(snap: Snapshot, i: int) -> Any:
     """ATTITUDE: (roll, pitch, yaw) rad and body rates rad/s at the snapshot's time."""
     roll, pitch, yaw = snap.euler_rad[i]
     p, q, r = snap.rates_rad_s[i]
-    return mavlink.MAVLink_attitude_message(snap.time_boot_ms, roll, pitch, yaw, p, q, r)
+    return packed(mavlink.MAVLink_attitude_message, snap.time_boot_ms, roll, pitch, yaw, p, q, r)
 
 
 def local_position_ned(snap: Snapshot, i: int) -> Any:
     """LOCAL_POSITION_NED: position (m) and velocity (m/s) in the world NED frame."""
     x, y, z = snap.position_ned_m[i]
     vx, vy, vz = snap.velocity_ned_m_s[i]
-    return mavlink.MAVLink_local_position_ned_message(snap.time_boot_ms, x, y, z, vx, vy, vz)
+    return packed(
+        mavlink.MAVLink_local_position_ned_message, snap.time_boot_ms, x, y, z, vx, vy, vz
+    )
 
 
 def truth_odometry(world: World, i: int) -> Any:
@@ -230,7 +233,9 @@ def actuator_output_status(t_usec: int, forces_n: FloatArray) -> Any:
     time ``t_usec`` (µs); the other 28 actuators are 0 and not active."""
     actuator = [float(f) for f in forces_n[:ACTUATOR_ROTORS]]
     actuator += [0.0] * (32 - len(actuator))
-    return mavlink.MAVLink_actuator_output_status_message(t_usec, ACTUATOR_ROTORS_ACTIVE, actuator)
+    return packed(
+        mavlink.MAVLink_actuator_output_status_message, t_usec, ACTUATOR_ROTORS_ACTIVE, actuator
+    )
 
 
 #: NAMED_VALUE_FLOAT names of an agent's timing, sent to the GCS once per status interval in
