@@ -69,3 +69,24 @@ def test_ticks_never_sent_and_echoes_of_the_future_are_ignored() -> None:
     t.echo(0, None)
     stats = t.interval()
     assert not stats.active[0] and stats.swarm_share is None and not stats.overloaded
+
+
+def test_the_ticks_before_an_agents_first_answer_are_not_counted() -> None:
+    """An agent still starting (its process joining the swarm) is not late: its ticks count
+    from its first answer on; a stall after that counts in full."""
+    t = TickAnswers(2)
+    for k in range(30):
+        t.sent(k, [0, 1])
+        t.echo(0, k)
+        if k >= 20:  # agent 1 answers from tick 20 on, every tick in time
+            t.echo(1, k)
+    stats = t.interval()
+    assert stats.expected[1] == 10 and stats.in_time[1] == 10 and stats.share(1) == 1.0
+    assert stats.worst_lag_ticks[1] == 0 and not stats.overloaded
+    for k in range(30, 60):  # then it stalls for 20 ticks and answers again
+        t.sent(k, [0, 1])
+        t.echo(0, k)
+        if k >= 50:
+            t.echo(1, k)
+    stats = t.interval()
+    assert stats.expected[1] == 30 and stats.in_time[1] == 10 and stats.overloaded

@@ -8,7 +8,10 @@ offboard timeout, fails safe. This tracker makes that visible:
 
 - a tick is *answered in time* when its echo arrives before the next tick's state goes out;
   ticks left unanswered count as missed once the agent answers again (a silence that never ends
-  is an agent that died, a drop-out, not an overload);
+  is an agent that died, a drop-out, not an overload); the ticks before an agent's first answer
+  are not counted (an agent still starting, e.g. a hundred of them joining the swarm in the
+  first pass of their processes, is not late: its vehicle waits on the ground, disarmed, as the
+  lag below reads it too);
 - the *lag* of an agent is how many ticks its vehicle has gone without a fresh answer: sampled
   as each tick goes out (the newest tick sent, minus the newest tick echoed, minus one: 0 for an
   agent that answered the previous tick), and, like the misses, counted once the agent answers
@@ -110,7 +113,8 @@ class TickAnswers:
         idx = np.fromiter(vehicles, dtype=np.int64)
         if idx.size == 0:
             return
-        unanswered = idx[(self._current[idx] >= 0) & ~self._answered[idx]]
+        started = self._newest_echo[idx] >= 0  # (an agent not started yet is not late)
+        unanswered = idx[started & (self._current[idx] >= 0) & ~self._answered[idx]]
         self._missed[unanswered] += 1
         self._current[idx] = tick
         self._answered[idx] = False
