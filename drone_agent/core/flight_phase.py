@@ -42,7 +42,7 @@ from protocols.model.frames import G_M_S2, FloatArray
 from protocols.runtime.fast_dataclass import frozen_factory
 from protocols.wire.consensus_message import ConsensusMessage
 from protocols.wire.plan import LAND_HANDOVER_ALTITUDE_M, FlightCommand
-from protocols.wire.status import AgentMode
+from protocols.wire.status import MODE_OF, AgentMode
 
 #: A vehicle above this altitude (m) is airborne whatever it says about arming.
 AIRBORNE_ALTITUDE_M = 0.1
@@ -72,17 +72,6 @@ class VehicleView:
     in_hold: bool
     altitude_m: float
     on_ground: bool | None = None
-
-    @property
-    def airborne(self) -> bool:
-        """Armed, or off the ground: its motors must not be cut by a setpoint. Off the ground:
-        as its land detector says where it says, else above :data:`AIRBORNE_ALTITUDE_M` (a
-        vehicle whose estimate wanders by more than that reports its landed state)."""
-        if self.armed:
-            return True
-        if self.on_ground is not None:
-            return not self.on_ground
-        return self.altitude_m > AIRBORNE_ALTITUDE_M
 
 
 @dataclass(frozen=True)
@@ -538,10 +527,12 @@ class BatchTakeoff:
         return [None if t < 0 else t for t in self.advertised[r].tolist()]
 
 
-#: :class:`Request` by its code in the compiled rule (:func:`_decide_row`), and back
+#: :class:`Request` by its code in the compiled rule (:func:`_decide_row`)
 REQUESTS = (Request.NONE, Request.ARM_OFFBOARD, Request.LAND_MODE, Request.HOLD_MODE)
 _R_NONE, _R_ARM_OFFBOARD, _R_LAND, _R_HOLD = 0, 1, 2, 3
-_CODE_OF_REQUEST = {r: k for k, r in enumerate(REQUESTS)}
+#: the setpoint an order sends, by its code in the compiled rule: the core's, the hover one
+#: (:func:`hover_setpoint`), the idle one (:func:`idle_setpoint`)
+_SENT_CORE, _SENT_HOVER, _SENT_IDLE = 0, 1, 2
 _FLY, _GROUND = int(FlightCommand.FLY), int(FlightCommand.GROUND)
 _M_WARMUP, _M_READY, _M_FLYING = int(AgentMode.WARMUP), int(AgentMode.READY), int(AgentMode.FLYING)
 _M_LANDING, _M_HOLDING = int(AgentMode.LANDING), int(AgentMode.HOLDING)
@@ -551,16 +542,25 @@ ON_GROUND_UNKNOWN = -1
 
 
 @jit
+def _airborne(armed, on_ground, altitude_m):  # type: ignore[no-untyped-def]
+    """Armed, or off the ground: its motors must not be cut by a setpoint. Off the ground: as its
+    land detector says where it says (``on_ground`` 0 or 1; -1 says nothing), else above
+    :data:`AIRBORNE_ALTITUDE_M` (a vehicle whose estimate wanders by more than that reports its
+    landed state)."""
+    if armed:
+        return True
+    if on_ground >= 0:
+        return on_ground == 0
+    return altitude_m > AIRBORNE_ALTITUDE_M
+
+
+@jit
 def _decide_row(  # type: ignore[no-untyped-def]
     command,
     arm_allowed,
     converged,
     has_setpoint,
-    roll,
-    pitch,
-    yaw_sp,
     thrust,
-    limited,
     commanded_altitude_m,
     armed,
     in_offboard,
@@ -568,26 +568,18 @@ def _decide_row(  # type: ignore[no-untyped-def]
     in_hold,
     altitude_m,
     on_ground,
-    yaw_rad,
     committed,
     landed,
     handed_over,
     min_thrust,
-    hover_thrust,
 ):
     """The one rule of a tick's order (:meth:`FlightPhase.decide`, module doc), on one agent's
-    numbers: ``command`` a FlightCommand's value, ``on_ground`` -1/0/1 (says nothing / off /
-    on the ground), the setpoint's fields (read only with ``has_setpoint``) and the phase's
-    three latches. Returns (mode, request code, roll, pitch, yaw, thrust, limited, committed,
-    landed, handed_over): :class:`AgentMode` and :data:`REQUESTS` codes, the setpoint to send
-    (the core's, the hover or the idle one), the new latches."""
-    if armed:
-        airborne = True
-    elif on_ground >= 0:
-        airborne = on_ground == 0
-    else:
-        airborne = altitude_m > AIRBORNE_ALTITUDE_M
-    kind = 0  # the setpoint sent: 0 the core's, 1 hover, 2 idle
+    numbers: ``command`` a FlightCommand's value, the core's setpoint's thrust (read only with
+    ``has_setpoint``), ``on_ground`` as :func:`_airborne` takes it, and the phase's three
+    latches. Returns (mode, request, sent, committed, landed, handed_over): :class:`AgentMode`'s
+    value, the :data:`REQUESTS` code, the setpoint to send (``_SENT_*``), the new latches."""
+    airborne = _airborne(armed, on_ground, altitude_m)
+    sent = _SENT_CORE
     mode = _M_WARMUP
     request = _R_NONE
     decided = False
@@ -603,14 +595,14 @@ def _decide_row(  # type: ignore[no-untyped-def]
                 request = _R_ARM_OFFBOARD
         elif airborne:  # nothing valid to fly: the autopilot holds its altitude
             decided = True
-            mode, kind = _M_HOLDING, 1
+            mode, sent = _M_HOLDING, _SENT_HOVER
             request = _R_NONE if in_hold else _R_HOLD
     elif airborne:  # LAND or GROUND
         decided = True
         mode = _M_LANDING
         if in_land:  # handed over (or its own failsafe): it lands and disarms
             handed_over = True
-            kind = 1
+            sent = _SENT_HOVER
         elif (
             command == _GROUND
             or commanded_altitude_m <= LAND_HANDOVER_ALTITUDE_M
@@ -619,22 +611,17 @@ def _decide_row(  # type: ignore[no-untyped-def]
         ):
             handed_over = True
             request = _R_LAND
-            kind = 0 if has_setpoint else 1
+            sent = _SENT_CORE if has_setpoint else _SENT_HOVER
     if not decided:  # disarmed on the ground
         handed_over = False
         if committed:
             committed, landed = False, True
-        kind = 2
+        sent = _SENT_IDLE
         mode = _M_LANDED if landed else _M_READY if converged else _M_WARMUP
     # the invariant: an airborne vehicle gets at least the minimum thrust
-    if kind == 0 and airborne and not thrust >= min_thrust:
-        kind = 1
-    if kind == 1:
-        return (mode, request, 0.0, 0.0, yaw_rad, hover_thrust, False, committed, landed,
-                handed_over)  # fmt: skip
-    if kind == 2:
-        return mode, request, 0.0, 0.0, yaw_rad, 0.0, False, committed, landed, handed_over
-    return mode, request, roll, pitch, yaw_sp, thrust, limited, committed, landed, handed_over
+    if sent == _SENT_CORE and airborne and not thrust >= min_thrust:
+        sent = _SENT_HOVER
+    return mode, request, sent, committed, landed, handed_over
 
 
 @jit
@@ -666,21 +653,22 @@ def _decide_rows(  # type: ignore[no-untyped-def]
 ):
     """:func:`_decide_row` for each of ``rows`` (the batch's latches, indexed by row, updated in
     place), the p-th row's inputs and outputs at p: ``setpoint`` and ``setpoint_out`` (P, 4)
-    roll, pitch, yaw, thrust."""
+    roll, pitch, yaw, thrust (the hover and idle ones level at ``yaw_rad``)."""
     for p in range(rows.shape[0]):
         r = rows[p]
-        got = _decide_row(
-            command[p], arm_allowed[p], converged[p], has_setpoint[p], setpoint[p, 0],
-            setpoint[p, 1], setpoint[p, 2], setpoint[p, 3], limited[p],
+        mode, request, sent, committed[r], landed[r], handed_over[r] = _decide_row(
+            command[p], arm_allowed[p], converged[p], has_setpoint[p], setpoint[p, 3],
             commanded_altitude_m[p], armed[p], in_offboard[p], in_land[p], in_hold[p],
-            altitude_m[p], on_ground[p], yaw_rad[p], committed[r], landed[r], handed_over[r],
-            min_thrust, hover_thrust,
+            altitude_m[p], on_ground[p], committed[r], landed[r], handed_over[r], min_thrust,
         )  # fmt: skip
-        mode_out[p], request_out[p] = got[0], got[1]
-        setpoint_out[p, 0], setpoint_out[p, 1] = got[2], got[3]
-        setpoint_out[p, 2], setpoint_out[p, 3] = got[4], got[5]
-        limited_out[p] = got[6]
-        committed[r], landed[r], handed_over[r] = got[7], got[8], got[9]
+        mode_out[p], request_out[p] = mode, request
+        if sent == _SENT_CORE:
+            setpoint_out[p, :] = setpoint[p, :]
+            limited_out[p] = limited[p]
+        else:
+            setpoint_out[p, 0], setpoint_out[p, 1], setpoint_out[p, 2] = 0.0, 0.0, yaw_rad[p]
+            setpoint_out[p, 3] = hover_thrust if sent == _SENT_HOVER else 0.0
+            limited_out[p] = False
 
 
 @dataclass(frozen=True)
@@ -802,6 +790,18 @@ class VehicleArrays:
             np.array([_on_ground_code(v.on_ground) for v in views], dtype=np.int64),
         )
 
+    def view(self, p: int) -> VehicleView:
+        """The p-th vehicle's :class:`VehicleView` (the inverse of :meth:`of`)."""
+        g = int(self.on_ground[p])
+        return VehicleView(
+            bool(self.armed[p]),
+            bool(self.in_offboard[p]),
+            bool(self.in_land[p]),
+            bool(self.in_hold[p]),
+            float(self.altitude_m[p]),
+            None if g == ON_GROUND_UNKNOWN else bool(g),
+        )
+
 
 def _on_ground_code(on_ground: bool | None) -> int:
     return ON_GROUND_UNKNOWN if on_ground is None else int(bool(on_ground))
@@ -857,31 +857,23 @@ class FlightPhase:
         altitude now (m, up); ``yaw_rad``: the vehicle's heading, for level setpoints.
         """
         b, r = self.batch, self.row
-        s = setpoint if setpoint is not None else _NO_SETPOINT
-        got = _decide_row(
-            int(command), bool(arm_allowed), bool(converged), setpoint is not None,
-            float(s.roll_rad), float(s.pitch_rad), float(s.yaw_rad), float(s.thrust_normalised),
-            bool(s.limited), float(commanded_altitude_m), bool(vehicle.armed),
-            bool(vehicle.in_offboard), bool(vehicle.in_land), bool(vehicle.in_hold),
-            float(vehicle.altitude_m), _on_ground_code(vehicle.on_ground), float(yaw_rad),
-            bool(b.committed[r]), bool(b.landed[r]), bool(b.handed_over[r]), b.min_thrust,
-            b.hover_thrust,
+        thrust = 0.0 if setpoint is None else float(setpoint.thrust_normalised)
+        mode, request, sent, committed, landed, handed = _decide_row(
+            int(command), bool(arm_allowed), bool(converged), setpoint is not None, thrust,
+            float(commanded_altitude_m), bool(vehicle.armed), bool(vehicle.in_offboard),
+            bool(vehicle.in_land), bool(vehicle.in_hold), float(vehicle.altitude_m),
+            _on_ground_code(vehicle.on_ground), bool(b.committed[r]), bool(b.landed[r]),
+            bool(b.handed_over[r]), b.min_thrust,
         )  # fmt: skip
-        mode, request, roll, pitch, yaw, thrust, limited, committed, landed, handed = got
         b.committed[r], b.landed[r], b.handed_over[r] = committed, landed, handed
-        if setpoint is not None and (roll, pitch, yaw, thrust, limited) == (
-            setpoint.roll_rad, setpoint.pitch_rad, setpoint.yaw_rad,
-            setpoint.thrust_normalised, setpoint.limited,
-        ):  # fmt: skip
-            sent = setpoint  # the core's, as it is
+        if sent == _SENT_CORE:
+            assert setpoint is not None  # (the rule sends the core's only when there is one)
+            order_setpoint = setpoint
+        elif sent == _SENT_HOVER:
+            order_setpoint = hover_setpoint(self.limits, yaw_rad)
         else:
-            sent = _new_setpoint(roll, pitch, yaw, thrust, limited)
-        return _new_order(AgentMode(mode), sent, REQUESTS[request])
-
-
-_new_setpoint = frozen_factory(Setpoint)
-#: the fields read when an agent has no setpoint (not used by the rule then)
-_NO_SETPOINT = Setpoint(0.0, 0.0, 0.0, 0.0, False)
+            order_setpoint = idle_setpoint(yaw_rad)
+        return _new_order(MODE_OF[mode], order_setpoint, REQUESTS[request])
 
 
 _warm = False

@@ -28,7 +28,6 @@ from drone_agent.core.flight_phase import (
 )
 from drone_agent.process.hosted_agent import RunOptions
 from protocols.model.frames import FloatArray, quat_from_zyx
-from protocols.runtime.fast_dataclass import frozen_factory
 from protocols.wire.status import AgentMode
 from sitl_sim.vehicle.autopilot import Mode, VehicleEvent
 from sitl_sim.vehicle.setpoint_jit import validate_attitude_targets
@@ -37,7 +36,6 @@ from sitl_sim.vehicle.world import World
 #: Agent modes in which the vehicle flies the agent's setpoints: disarmed under them, it is lost
 #: (drone_agent/process/hosted_agent.py).
 FLYING_MODES = frozenset({AgentMode.FLYING, AgentMode.HOLDING})
-_new_vehicle_view = frozen_factory(VehicleView)
 _OFFBOARD, _LAND, _HOLD = int(Mode.OFFBOARD), int(Mode.LAND), int(Mode.HOLD)
 
 
@@ -83,25 +81,15 @@ class AutopilotLink:
         self.retry_s = retry_s
         self._last_request_s = [-1e9] * world.n
 
-    def views(self, drones: Sequence[int], altitude_m: Sequence[float]) -> list[VehicleView]:
-        """What the agents of ``drones`` know of their vehicles at this tick: armed and mode as
-        the last HEARTBEAT said (the autopilot now), ``altitude_m`` (m, up) as reported."""
-        ap = self.world.autopilot
-        armed, mode = ap.armed.tolist(), ap.mode.tolist()
-        # the land detector's word, as the simulator sends it each tick where the state estimates
-        # are not the truth (EXTENDED_SYS_STATE), else none: the altitude decides
-        landed = ap.landed.tolist() if self.world.estimator is not None else [None] * len(armed)
-        view = _new_vehicle_view  # (armed, in_offboard, in_land, in_hold, altitude_m, on_ground)
-        return [
-            view(armed[i], mode[i] == _OFFBOARD, mode[i] == _LAND, mode[i] == _HOLD, up, landed[i])
-            for i, up in zip(drones, altitude_m, strict=True)
-        ]
-
     def vehicle_arrays(self, drones: Sequence[int], altitude_m: npt.ArrayLike) -> VehicleArrays:
-        """:meth:`views` as arrays, for a batch of flight phases (one per drone)."""
+        """What the agents of ``drones`` know of their vehicles at this tick, for a batch of
+        flight phases: armed and mode as the last HEARTBEAT said (the autopilot now),
+        ``altitude_m`` (m, up) as reported."""
         ap = self.world.autopilot
         idx = np.asarray(drones, dtype=np.intp)
         mode = ap.mode[idx]
+        # the land detector's word, as the simulator sends it each tick where the state estimates
+        # are not the truth (EXTENDED_SYS_STATE), else none: the altitude decides
         if self.world.estimator is not None:
             on_ground = ap.landed[idx].astype(np.int64)
         else:

@@ -45,7 +45,7 @@ from protocols.model.trajectory import DescriptorTrajectory
 from protocols.runtime.collector import flight_collector
 from protocols.scenario.scenario_file import Scenario
 from protocols.wire.plan import FlightCommand
-from protocols.wire.status import AgentMode
+from protocols.wire.status import MODE_OF, AgentMode
 from sitl_sim.physics.attitude_control import euler_from_quat_batch, yaw_from_quat_batch
 from sitl_sim.physics.dynamics import POS, QUAT, RATES, VEL, wrench_from_rotor_speeds
 from sitl_sim.sim_config import crash_timeline
@@ -55,8 +55,6 @@ from sitl_sim.vehicle.tunables import FleetAttitudeGains
 from sitl_sim.vehicle.world import World, WorldConfig
 
 AIRBORNE_ALTITUDE_M = 0.1
-#: an agent's mode by its value (BatchFlightPhase's orders)
-_MODES = {int(m): m for m in AgentMode}
 _FLY = int(FlightCommand.FLY)
 
 
@@ -367,7 +365,7 @@ class ReferenceFlight:
         estimate = self.world.estimate()  # (the believed yaw; the true one with ideal sensors)
         believed_yaw = yaw_from_quat_batch(state[QUAT]) if estimate is None else estimate[2][2]
         yaw = reported(believed_yaw)[live]
-        altitude = -pos[live, 2]
+        vehicles = self.link.vehicle_arrays(live, -pos[live, 2])
         orders = phases.decide(
             live,
             [_FLY] * len(live),
@@ -375,7 +373,7 @@ class ReferenceFlight:
             committed | np.asarray(ready_all, dtype=bool),
             cols.setpoints,
             -cols.desired[:, 2],
-            self.link.vehicle_arrays(live, altitude),
+            vehicles,
             yaw,
         )
         asks = orders.request.tolist()
@@ -385,9 +383,9 @@ class ReferenceFlight:
             if now_separating != separating[i]:
                 separating[i] = now_separating
                 self._event("separation" if now_separating else "separation_end", drone=i)
-            modes[i] = _MODES[mode]
+            modes[i] = MODE_OF[mode]
             if asks[p]:  # (the few that ask their autopilot something this tick)
-                view = self.link.views([i], [float(altitude[p])])[0]
+                view = vehicles.view(p)
                 for e in self.link.request(i, REQUESTS[asks[p]], view, t_s):
                     self._vehicle_event(e)
         return orders.setpoint

@@ -163,18 +163,14 @@ class TelemetryReceiver:
                     self.malformed += 1
                     continue
             for msg in messages:
-                if isinstance(msg, Frame):
-                    if 1 <= msg.sysid <= 254:
-                        self.sim_address = (str(address[0]), int(address[1]))
-                        self._address_of[msg.sysid] = self.sim_address
-                        self._fast(msg, data)
-                    continue
-                sysid = msg.get_srcSystem()
-                if msg.get_type() != "BAD_DATA" and 1 <= sysid <= 254:
+                frame = isinstance(msg, Frame)
+                sysid = msg.sysid if frame else msg.get_srcSystem()
+                if (frame or msg.get_type() != "BAD_DATA") and 1 <= sysid <= 254:
                     self.sim_address = (str(address[0]), int(address[1]))
                     self._address_of[sysid] = self.sim_address
-                text = self._handle(msg)
-                if text is not None:
+                    if frame:
+                        self._fast(msg, data)
+                if not frame and (text := self._handle(msg)) is not None:
                     texts.append(text)
 
     def log_agent_status(self, status: AgentStatus) -> None:

@@ -57,37 +57,53 @@ _Fields = Callable[[Any], Sequence[Any]]
 _FIELDS: dict[type, _Fields] = {}
 
 
-def _fields_of(cls: type) -> _Fields:
-    """The wire-order values of a message of class ``cls``, arrays spread out (as its pack)."""
-    getter = _FIELDS.get(cls)
-    if getter is not None:
-        return getter
-    names = list(cls.ordered_fieldnames)  # type: ignore[attr-defined]
-    lengths = dict(zip(names, cls.array_lengths, strict=True))  # type: ignore[attr-defined]
-    types = dict(zip(cls.fieldnames, cls.fieldtypes, strict=True))  # type: ignore[attr-defined]
-    # a char array is packed from its raw bytes (pymavlink keeps the text as ``name`` and the
-    # bytes as ``_name_raw``); other arrays are spread out
-    plan = [
-        (f"_{name}_raw", 0) if types[name] == "char" else (name, lengths[name]) for name in names
+def _wire_plan(cls: Any) -> list[tuple[str, int, int]]:
+    """Each field of message class ``cls`` in wire order: the attribute its value is packed from,
+    its place among the constructor's (declared) arguments, and its length where the value is an
+    array spread out (0: one value; a char array is packed from its raw bytes: pymavlink keeps
+    the text as ``name`` and the bytes as ``_name_raw``)."""
+    names = list(cls.fieldnames)
+    types = dict(zip(names, cls.fieldtypes, strict=True))
+    return [
+        (f"_{name}_raw", names.index(name), 0)
+        if types[name] == "char"
+        else (name, names.index(name), length)
+        for name, length in zip(cls.ordered_fieldnames, cls.array_lengths, strict=True)
     ]
-    if not any(length for _, length in plan):  # no arrays to spread: one C call
-        getter = attrgetter(*(name for name, _ in plan))
-        flat: _Fields = (lambda msg: (getter(msg),)) if len(plan) == 1 else getter
-        _FIELDS[cls] = flat
-        return flat
 
-    def fields(msg: Any) -> list[Any]:
+
+def _spread(
+    plan: list[tuple[Any, int]], values: Callable[[Any, Any], Any]
+) -> Callable[[Any], list[Any]]:
+    """The wire-order values of a message, arrays spread out, from ``values(key)`` of each field
+    (``plan``: each field's key and its spread length, 0 for one value)."""
+
+    def fields(source: Any) -> list[Any]:
         out: list[Any] = []
-        for name, length in plan:
-            value = getattr(msg, name)
+        for key, length in plan:
+            value = values(source, key)
             if length:
                 out.extend(value[:length])
             else:
                 out.append(value)
         return out
 
-    _FIELDS[cls] = fields
     return fields
+
+
+def _fields_of(cls: type) -> _Fields:
+    """The wire-order values of a message of class ``cls``, arrays spread out (as its pack)."""
+    getter = _FIELDS.get(cls)
+    if getter is not None:
+        return getter
+    plan = [(name, length) for name, _, length in _wire_plan(cls)]
+    if not any(length for _, length in plan):  # no arrays to spread: one C call
+        get = attrgetter(*(name for name, _ in plan))
+        getter = (lambda msg: (get(msg),)) if len(plan) == 1 else get
+    else:
+        getter = _spread(plan, getattr)
+    _FIELDS[cls] = getter
+    return getter
 
 
 class Packed(NamedTuple):
@@ -117,25 +133,11 @@ def packed(cls: Any, *values: Any) -> Packed:
 
 def _wire_order(cls: Any) -> Callable[[Sequence[Any]], Sequence[Any]]:
     """The wire-order values (arrays spread) of a message's declared-order values."""
-    names = list(cls.fieldnames)
-    types = dict(zip(names, cls.fieldtypes, strict=True))
-    plan = [
-        (names.index(name), 0 if types[name] == "char" else length)
-        for name, length in zip(cls.ordered_fieldnames, cls.array_lengths, strict=True)
-    ]
-    if not any(length for _, length in plan):
-        return itemgetter(*(k for k, _ in plan)) if len(plan) > 1 else lambda v: (v[plan[0][0]],)
-
-    def spread(values: Sequence[Any]) -> list[Any]:
-        out: list[Any] = []
-        for k, length in plan:
-            if length:
-                out.extend(values[k][:length])
-            else:
-                out.append(values[k])
-        return out
-
-    return spread
+    plan = [(k, length) for _, k, length in _wire_plan(cls)]
+    if not any(length for _, length in plan):  # no arrays to spread: one C call
+        get = itemgetter(*(k for k, _ in plan))
+        return (lambda values: (get(values),)) if len(plan) == 1 else get
+    return _spread(plan, lambda values, k: values[k])
 
 
 def pack(msg: Any, codec: Any) -> bytes:
