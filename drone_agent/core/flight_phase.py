@@ -73,6 +73,12 @@ class VehicleView:
     altitude_m: float
     on_ground: bool | None = None
 
+    @property
+    def airborne(self) -> bool:
+        """Armed, or off the ground: its motors must not be cut by a setpoint (the rule's
+        :func:`_airborne`)."""
+        return bool(_airborne(self.armed, _on_ground_code(self.on_ground), self.altitude_m))
+
 
 @dataclass(frozen=True)
 class Order:
