@@ -20,7 +20,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from drone_agent.core.consensus.kernels import edge_sums, pair_increments, pair_rounds
+from drone_agent.core.consensus.kernels import (
+    edge_sums,
+    pair_increments,
+    pair_rounds,
+    receive_common,
+)
 from drone_agent.core.consensus.packing import (
     Outgoing,
     Pack,
@@ -39,6 +44,8 @@ from protocols.wire.consensus_message import ConsensusMessage
 
 #: Round tag of an empty history slot (no real round is this old).
 _NO_ROUND = -(2**62)
+#: No membership view, for :func:`receive_common`.
+_NO_MASK = np.zeros((0, 0), dtype=bool)
 
 
 @dataclass
@@ -382,6 +389,17 @@ class BatchConsensus:
             rounds = np.array([m.round for m in messages], dtype=np.int64)
         q = rounds[which]
         pos = np.repeat(np.arange(rows.shape[0]), mail.counts)
+        incarnations = np.array([m.incarnation for m in messages], dtype=np.int64)
+        if mail.packed is not None and not carried:
+            pack, at = mail.packed
+            if receive_common(
+                rows, pos, j, q, which, incarnations, at, pack.keys, pack.span, pack.sums,
+                pack.tags, self._ids, self._own_inc, self._inc,
+                _NO_MASK if member_mask is None else member_mask, round_,
+                self.params.history_ticks, self._peer, self._arrived, self._latest,
+                self._has_q_for_me, self._q_for_me,
+            ):  # fmt: skip
+                return _Due(pos, j, q, which, messages, mail.packed)
         me = self._ids[rows][pos]
         valid = (j != me) & (q >= round_ - self.params.history_ticks) & (j >= 0)
         if carried:
@@ -397,7 +415,7 @@ class BatchConsensus:
             if sel.shape[0] == 0:
                 return None
             pos, j, q, which = pos[sel], j[sel], q[sel], which[sel]
-        fresh = self._incarnations(rows, pos, j, which, messages)
+        fresh = self._incarnations(rows, pos, j, incarnations[which])
         if fresh is not None:
             if fresh.shape[0] == 0:
                 return None
@@ -441,13 +459,12 @@ class BatchConsensus:
         rows: npt.NDArray[np.intp],
         pos: npt.NDArray[np.intp],
         j: npt.NDArray[np.intp],
-        which: npt.NDArray[np.intp],
-        messages: list[ConsensusMessage],
+        incs: npt.NDArray[np.int64],
     ) -> npt.NDArray[np.intp] | None:
-        """The incarnation rules (consensus.py): a newer incarnation of a peer drops every state
-        towards it first; values of an older one are stale (counted). Returns the positions of
-        the values kept, None if all are."""
-        incs = np.array([m.incarnation for m in messages], dtype=np.int64)[which]
+        """The incarnation rules (consensus.py) over the values (``incs`` the incarnation each
+        carries): a newer incarnation of a peer drops every state towards it first; values of an
+        older one are stale (counted). Returns the positions of the values kept, None if all
+        are."""
         row = rows[pos]
         known = self._inc[row, j]
         if (incs == known).all():  # the usual case

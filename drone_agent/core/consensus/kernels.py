@@ -115,3 +115,86 @@ def edge_sums(rows, edge, has_q_for_me, q_for_me, q_own, q_recv, total):  # type
                 d = q_own[r, j, ch] - q_recv[r, j, ch]
                 total[p, ch] = total[p, ch] + d if started else d
             started = True
+
+
+@jit
+def receive_common(  # type: ignore[no-untyped-def]
+    rows,
+    pos,
+    sender,
+    rounds,
+    which,
+    incarnation,
+    at,
+    keys,
+    span,
+    sums,
+    tags,
+    ids,
+    own_inc,
+    inc,
+    member_mask,
+    round_,
+    history,
+    peer,
+    arrived,
+    latest,
+    has_q_for_me,
+    q_for_me,
+):
+    """:meth:`~drone_agent.core.consensus.estimator.BatchConsensus._receive` of a step whose
+    values are all of the usual kind, in one pass: every value valid (not the row's own, within
+    the history, listed by the row's membership view: ``member_mask`` (P, M), or (0, 0) for no
+    view), of the incarnation known of its sender, due (a round before ``round_``), no two alike
+    and in (agent, sender, round) order, and every message read from one step's arrays (``at``
+    its position in them: ``keys``, ``span``, ``sums``, ``tags`` of its
+    :class:`~drone_agent.core.consensus.packing.Pack`). Checks all that first and returns False,
+    changing nothing, if any value is not so (the caller files them the general way); else
+    notes every value's sender heard this round and each (agent, sender)'s newest round and the
+    ``Q_ji`` it carries (made with the agent's own incarnation), as the general way does, and
+    returns True: every value is due, in the order given."""
+    n = pos.shape[0]
+    masked = member_mask.shape[0] > 0
+    oldest = round_ - history
+    for t in range(n):
+        p, j, q = pos[t], sender[t], rounds[t]
+        r = rows[p]
+        me = ids[r]
+        if j == me or j < 0 or q < oldest or q >= round_ or me >= span:
+            return False
+        if masked and not member_mask[p, j]:
+            return False
+        if incarnation[which[t]] != inc[r, j]:
+            return False
+        if t > 0:
+            p0, j0 = pos[t - 1], sender[t - 1]
+            if p < p0 or (p == p0 and (j < j0 or (j == j0 and q <= rounds[t - 1]))):
+                return False
+    n_keys = keys.shape[0]
+    for t in range(n):
+        p, j, q = pos[t], sender[t], rounds[t]
+        r = rows[p]
+        peer[r, j] = True
+        arrived[r, j] = round_
+        if t + 1 < n and pos[t + 1] == p and sender[t + 1] == j:
+            continue  # not the newest of its (agent, sender): the last one is
+        if q <= latest[r, j]:
+            continue
+        latest[r, j] = q
+        wanted = at[which[t]] * span + ids[r]
+        lo, hi = 0, n_keys  # the first key >= wanted
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if keys[mid] < wanted:
+                lo = mid + 1
+            else:
+                hi = mid
+        has = lo < n_keys and keys[lo] == wanted
+        if has:
+            tag = tags[lo]
+            has = tag < 0 or tag == own_inc[r]  # made with this incarnation
+        has_q_for_me[r, j] = has
+        if has:
+            for ch in range(sums.shape[1]):
+                q_for_me[r, j, ch] = sums[lo, ch]
+    return True
