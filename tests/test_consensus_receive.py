@@ -1,7 +1,9 @@
-"""The consensus step's compiled filing of the usual step (kernels.receive_common) leaves every
-state and output exactly as the general filing does, over random radios that delay, lose,
-duplicate and reorder messages, membership views that change, restarted and listening rows, rows
-that skip a round and messages rebuilt outside their step (read one by one)."""
+"""The consensus step's compiled parts are the general code bit for bit: the filing of the usual
+step (kernels.receive_common) leaves every state and output exactly as the general filing does,
+over random radios that delay, lose, duplicate and reorder messages, membership views that change,
+restarted and listening rows, rows that skip a round and messages rebuilt outside their step (read
+one by one); the end of a step (heard-sets, rule 5's check, estimates, history) is numpy's
+formula."""
 
 from __future__ import annotations
 
@@ -154,3 +156,42 @@ def test_the_usual_step_is_filed_as_the_general_way_files_it(
 ) -> None:
     usual, general = _run(seed, monkeypatch)
     assert usual > 30 and general > 5, (usual, general)  # both ways were taken
+
+
+def test_the_step_settles_as_numpy_would() -> None:
+    """The compiled end of a step (heard-sets, rule 5's check, the estimates and the history) is
+    numpy's formula bit for bit, NaN included."""
+    from drone_agent.core.consensus.kernels import any_dead, edge_sums, heard_now, settle
+
+    rng = np.random.default_rng(3)
+    k, m, h, ch = 6, 9, 5, 18
+    rows = np.array([4, 0, 2, 5], dtype=np.intp)
+    peer, edge = rng.random((k, m)) < 0.5, rng.random((k, m)) < 0.5
+    arrived = rng.integers(0, 20, size=(k, m))
+    mask = rng.random((rows.shape[0], m)) < 0.8
+    assert any_dead(rows, peer, edge, mask) == bool(((peer[rows] | edge[rows]) & ~mask).any())
+    assert not any_dead(rows, peer, edge, np.ones_like(mask))
+    heard, degree = np.empty((rows.shape[0], m), dtype=bool), np.empty(rows.shape[0], np.int64)
+    heard_now(rows, peer, arrived, 12, heard, degree)
+    expected = peer[rows] & (arrived[rows] >= 12)
+    assert np.array_equal(heard, expected) and np.array_equal(degree, expected.sum(axis=1))
+    q = [rng.normal(size=(k, m, ch)) for _ in range(3)]
+    has = rng.random((k, m)) < 0.5
+    zeta = rng.normal(size=(rows.shape[0], ch))
+    zeta[1, 3] = np.nan
+    hist = [np.zeros((k, h), np.int64), np.zeros((k, h, ch)), np.zeros((k, h)),
+            np.zeros((k, h), np.int64), np.zeros((k, h, m), bool)]  # fmt: skip
+    total = np.zeros((rows.shape[0], ch))
+    recv = q[2].copy()
+    edge_sums(rows, edge, has, q[0], q[1], recv, total)
+    gamma = np.zeros((rows.shape[0], ch))
+    settle(rows, 17, 0.7 * 0.5, zeta, edge, has, q[0], q[1], q[2], heard, degree, *hist, gamma)
+    assert np.array_equal(gamma, 0.7 * 0.5 * total + zeta, equal_nan=True)
+    assert np.array_equal(q[2], recv)  # the Q_ji refreshed (rule 1)
+    slot = 17 % h
+    assert (hist[0][rows, slot] == 17).all()
+    assert np.array_equal(hist[1][rows, slot], gamma, equal_nan=True)
+    assert np.array_equal(hist[2][rows, slot], np.abs(gamma).max(axis=1), equal_nan=True)
+    assert np.isnan(hist[2][rows[1], slot])
+    assert np.array_equal(hist[3][rows, slot], degree)
+    assert np.array_equal(hist[4][rows, slot], heard)

@@ -21,10 +21,12 @@ import numpy as np
 import numpy.typing as npt
 
 from drone_agent.core.consensus.kernels import (
-    edge_sums,
+    any_dead,
+    heard_now,
     pair_increments,
     pair_rounds,
     receive_common,
+    settle,
 )
 from drone_agent.core.consensus.packing import (
     Outgoing,
@@ -36,6 +38,7 @@ from drone_agent.core.consensus.packing import (
 )
 from drone_agent.core.consensus.params import ConsensusOutput, ConsensusParams
 from drone_agent.core.inboxes import alone, distinct_messages
+from drone_agent.core.jit_math import f64
 from drone_agent.core.moments import N_CHANNELS
 from protocols.mavlink.conventions import MAX_VEHICLES
 from protocols.model.frames import FloatArray
@@ -274,19 +277,20 @@ class BatchConsensus:
             self._grow(int(mail.senders.max()) + 1)
         member_mask = self._member_mask(members)
         due = None if mail is None else self._receive(rows_arr, round_, mail, member_mask)
-        if member_mask is not None:
+        if member_mask is not None and any_dead(rows_arr, self._peer, self._edge, member_mask):
             self._discard_dead(rows_arr, member_mask)
-        timeout = self.params.heard_timeout_ticks
-        heard = self._peer[rows_arr] & (self._arrived[rows_arr] >= round_ - timeout)
-        degree = heard.sum(axis=1)
+        n_rows = rows_arr.shape[0]
+        heard = np.empty((n_rows, self._m), dtype=bool)
+        degree = np.empty(n_rows, dtype=np.int64)
+        oldest = round_ - self.params.heard_timeout_ticks
+        heard_now(rows_arr, self._peer, self._arrived, oldest, heard, degree)
         active, disagreement = self._integrate(rows_arr, round_, due)
-        gamma = self.params.f * 0.5 * self._eta_total(rows_arr) + np.asarray(zeta, dtype=float)
-        slot = round_ % self.params.history_ticks
-        self._hist_round[rows_arr, slot] = round_
-        self._hist_gamma[rows_arr, slot] = gamma
-        self._hist_largest[rows_arr, slot] = np.abs(gamma).max(axis=1)
-        self._hist_degree[rows_arr, slot] = degree
-        self._hist_heard[rows_arr, slot] = heard
+        gamma = np.zeros((n_rows, N_CHANNELS))
+        settle(
+            rows_arr, round_, self.params.f * 0.5, f64(zeta), self._edge, self._has_q_for_me,
+            self._q_for_me, self._q_own, self._q_recv, heard, degree, self._hist_round,
+            self._hist_gamma, self._hist_largest, self._hist_degree, self._hist_heard, gamma,
+        )  # fmt: skip
         outgoing = self._outputs(rows_arr, round_, gamma, heard, motion)
         return gamma, outgoing, active, disagreement
 
@@ -675,15 +679,6 @@ class BatchConsensus:
             keep = (ids >= 0) & (ids < self._m)
             heard[owner[keep], ids[keep]] = True
         return heard
-
-    def _eta_total(self, rows: npt.NDArray[np.intp]) -> FloatArray:
-        """``sum_j (Q_ij - Q_ji)`` (len(rows), 18) over each row's edges, ``Q_ji`` refreshed from
-        the newest message of j that carried one (rule 1), summed in neighbour order."""
-        total = np.zeros((rows.shape[0], N_CHANNELS))
-        edge_sums(
-            rows, self._edge, self._has_q_for_me, self._q_for_me, self._q_own, self._q_recv, total
-        )
-        return total
 
     def _heard_sets(
         self, rows: npt.NDArray[np.intp], heard: npt.NDArray[np.bool_]

@@ -100,8 +100,9 @@ def pair_increments(  # type: ignore[no-untyped-def]
 
 @jit
 def edge_sums(rows, edge, has_q_for_me, q_for_me, q_own, q_recv, total):  # type: ignore[no-untyped-def]
-    """:meth:`~drone_agent.core.consensus.estimator.BatchConsensus._eta_total` per row, its edges in
-    neighbour order."""
+    """``sum_j (Q_ij - Q_ji)`` (P, 18) into ``total`` over each row's edges, in neighbour order,
+    ``Q_ji`` refreshed from the newest message of j that carried one (rule 1); a row with no edge
+    keeps its ``total``."""
     for p in range(rows.shape[0]):
         r = rows[p]
         started = False
@@ -198,3 +199,69 @@ def receive_common(  # type: ignore[no-untyped-def]
             for ch in range(sums.shape[1]):
                 q_for_me[r, j, ch] = sums[lo, ch]
     return True
+
+
+@jit
+def any_dead(rows, peer, edge, member_mask):  # type: ignore[no-untyped-def]
+    """Whether a row has a peer or an edge its membership view (``member_mask`` (P, M)) no
+    longer lists (rule 5 then drops them)."""
+    for p in range(rows.shape[0]):
+        r = rows[p]
+        for j in range(member_mask.shape[1]):
+            if (peer[r, j] or edge[r, j]) and not member_mask[p, j]:
+                return True
+    return False
+
+
+@jit
+def heard_now(rows, peer, arrived, oldest, heard, degree):  # type: ignore[no-untyped-def]
+    """Which peers each row hears (``heard`` (P, M)): a message of theirs arrived at round
+    ``oldest`` or later; and how many (``degree`` (P,))."""
+    for p in range(rows.shape[0]):
+        r = rows[p]
+        d = 0
+        for j in range(heard.shape[1]):
+            h = peer[r, j] and arrived[r, j] >= oldest
+            heard[p, j] = h
+            d += h
+        degree[p] = d
+
+
+@jit
+def settle(  # type: ignore[no-untyped-def]
+    rows,
+    round_,
+    half_f,
+    zeta,
+    edge,
+    has_q_for_me,
+    q_for_me,
+    q_own,
+    q_recv,
+    heard,
+    degree,
+    hist_round,
+    hist_gamma,
+    hist_largest,
+    hist_degree,
+    hist_heard,
+    gamma,
+):
+    """Each row's estimate ``gamma = f/2 sum_j (Q_ij - Q_ji) + zeta`` (:func:`edge_sums`; ``half_f``
+    is ``f * 0.5``), and its round in the history: the round, gamma, its largest magnitude, the
+    degree and the heard-set, in slot ``round_ % history``."""
+    edge_sums(rows, edge, has_q_for_me, q_for_me, q_own, q_recv, gamma)
+    slot = round_ % hist_round.shape[1]
+    for p in range(rows.shape[0]):
+        r = rows[p]
+        hist_round[r, slot] = round_
+        largest = 0.0
+        for ch in range(gamma.shape[1]):
+            g = half_f * gamma[p, ch] + zeta[p, ch]
+            gamma[p, ch] = g
+            hist_gamma[r, slot, ch] = g
+            largest = abs(g) if ch == 0 else nmax(largest, abs(g))
+        hist_largest[r, slot] = largest
+        hist_degree[r, slot] = degree[p]
+        for j in range(heard.shape[1]):
+            hist_heard[r, slot, j] = heard[p, j]
