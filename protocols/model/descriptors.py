@@ -28,6 +28,23 @@ from protocols.runtime.compiled import jit, loaded
 #: Heading is reported undefined while |s1 - s2| / (s1 + s2) is below this (ALGORITHM.md §2).
 HEADING_TIE_RATIO = 0.05
 
+try:  # numpy's own kernel of np.linalg.eigh, without its per-call checks (a third of its cost
+    # on a few 3 x 3 matrices, which the agents' core decomposes every tick)
+    from numpy.linalg import _umath_linalg
+
+    def _eigenvectors(sym: FloatArray) -> FloatArray:
+        """``np.linalg.eigh(sym)[1]`` of finite symmetric float64 matrices (K, 3, 3), the same
+        bits (its lower triangle, as eigh's default); NaN where LAPACK would not converge (a
+        warning), where eigh raises."""
+        vectors: FloatArray = _umath_linalg.eigh_lo(sym, signature="d->dd")[1]
+        return vectors
+
+except ImportError:  # pragma: no cover - a numpy without it
+
+    def _eigenvectors(sym: FloatArray) -> FloatArray:
+        vectors: FloatArray = np.linalg.eigh(sym)[1]
+        return vectors
+
 
 @dataclass(frozen=True)
 class SwarmFrame:
@@ -86,11 +103,11 @@ def align_axes_batch(
     sym = 0.5 * (sigma + np.swapaxes(sigma, 1, 2))
     finite = np.isfinite(sym.reshape(k_n, 9)).all(axis=1)
     if finite.all():
-        evecs = np.linalg.eigh(sym)[1]
+        evecs = _eigenvectors(sym)
     else:
         evecs = np.full((k_n, 3, 3), np.nan)
         if finite.any():
-            evecs[finite] = np.linalg.eigh(sym[finite])[1]
+            evecs[finite] = _eigenvectors(sym[finite])
     overlap = np.abs(np.swapaxes(desired_axes, 1, 2) @ evecs)  # [K, desired k, eigen j]
     axes = np.empty((k_n, 3, 3))
     assign = _assign_axes_compiled if compiled else _assign_axes

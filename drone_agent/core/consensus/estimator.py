@@ -22,6 +22,7 @@ import numpy.typing as npt
 
 from drone_agent.core.consensus.kernels import (
     any_dead,
+    edge_rows,
     heard_now,
     pair_increments,
     pair_rounds,
@@ -722,22 +723,17 @@ class BatchConsensus:
             )
             positions, velocities = list(moved[0]), list(moved[1])
         listening = self.observing[rows]
-        edges = self._edge[rows]
         if listening.any():  # a listening row says it hears nobody, sends no sums
             heard = heard & ~listening[:, None]
-            edges = edges & ~listening[:, None]
-        pos, ids = np.nonzero(edges)
-        span = edges.shape[1]
-        pair = rows[pos] * self._m + ids
-        sums = _flat(self._q_own).take(pair, axis=0)
-        tags = _flat(self._inc).take(pair)
+        ids, keys, sums, tags, bounds = edge_rows(
+            rows, self._edge, self.observing, self._q_own, self._inc
+        )
         sums.flags.writeable = False  # shared by the messages' EdgeSums
         tags.flags.writeable = False
         ids.flags.writeable = False
-        bounds = np.searchsorted(pos, np.arange(rows.shape[0] + 1)).tolist()
         heard_sets = self._heard_sets(rows, heard)
         heard.flags.writeable = False
-        pack = Pack(pos * span + ids, ids, bounds, span, sums, tags, gamma, heard)
+        pack = Pack(keys, ids, bounds.tolist(), self._m, sums, tags, gamma, heard)
         pack.heard_sets = heard_sets
         if moved is not None:
             pack.positions, pack.velocities = moved

@@ -4,6 +4,8 @@ rules and the increments over a step's due values, and each row's edge sums
 
 from __future__ import annotations
 
+import numpy as np
+
 from drone_agent.core.jit_math import jit, nmax, nmin
 
 
@@ -265,3 +267,39 @@ def settle(  # type: ignore[no-untyped-def]
         hist_degree[r, slot] = degree[p]
         for j in range(heard.shape[1]):
             hist_heard[r, slot, j] = heard[p, j]
+
+
+@jit
+def edge_rows(rows, edge, observing, q_own, inc):  # type: ignore[no-untyped-def]
+    """What each row's message carries of its edges, the rows in turn and each one's edges in
+    neighbour order (a listening row: none): the neighbour ids (E,), their keys ``position * M +
+    neighbour`` (E,), the running sums ``Q_ij`` (E, 18) and the incarnations they were made with
+    (E,), and where each row's edges start (P + 1,)."""
+    n_rows, m = rows.shape[0], edge.shape[1]
+    bounds = np.empty(n_rows + 1, dtype=np.int64)
+    total = 0
+    for p in range(n_rows):
+        bounds[p] = total
+        r = rows[p]
+        if not observing[r]:
+            for j in range(m):
+                total += edge[r, j]
+    bounds[n_rows] = total
+    ids = np.empty(total, dtype=np.int64)
+    keys = np.empty(total, dtype=np.int64)
+    sums = np.empty((total, q_own.shape[2]))
+    tags = np.empty(total, dtype=np.int64)
+    e = 0
+    for p in range(n_rows):
+        r = rows[p]
+        if observing[r]:
+            continue
+        for j in range(m):
+            if edge[r, j]:
+                ids[e] = j
+                keys[e] = p * m + j
+                tags[e] = inc[r, j]
+                for ch in range(q_own.shape[2]):
+                    sums[e, ch] = q_own[r, j, ch]
+                e += 1
+    return ids, keys, sums, tags, bounds
