@@ -34,13 +34,48 @@ def load_average() -> list[float]:
     return [round(x, 2) for x in os.getloadavg()]
 
 
+def machine_speed(repeats: int = 5) -> dict[str, float]:
+    """How fast this machine runs the kind of code the tool is made of, now: the best of
+    ``repeats`` timings of a fixed pure-Python loop (``python_ms``: a million additions) and of a
+    fixed run of small numpy calls (``numpy_us``: one call on a (25, 18) array, as the agents'
+    core makes hundreds a tick). The same code's figures measured on two days compare only
+    beside these: a shared virtual machine runs the same code up to three times slower on one
+    day than on another."""
+    import time
+
+    import numpy as np
+
+    def loop() -> None:
+        total = 0
+        for i in range(1_000_000):
+            total += i
+
+    a = np.ones((25, 18))
+
+    def small() -> None:
+        for _ in range(1000):
+            np.abs(a).max(axis=1)
+
+    best: dict[str, float] = {}
+    for name, fn, scale in (("python_ms", loop, 1e3), ("numpy_us", small, 1e3)):
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        best[name] = round(min(times) * scale, 2)  # numpy: per call, in microseconds
+    return best
+
+
 def write_result(path: Path, result: dict[str, Any], indent: int = 2) -> None:
     """Write ``result`` as JSON to ``path`` with where it was measured: ``commit`` (the
     checkout's, unless the result names its own), ``load_average`` (the machine's now, unless
-    the result recorded it when it started) and ``written_utc``."""
+    the result recorded it when it started), ``machine_speed`` (:func:`machine_speed`, unless
+    the result recorded it) and ``written_utc``."""
     stamped = {
         "commit": commit(),
         "load_average": load_average(),
+        "machine_speed": machine_speed(),
         **result,
         "written_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
     }

@@ -26,7 +26,7 @@ from bench.layouts import layouts
 from bench.messaging_floor import messaging_floor
 from bench.physics import physics_step
 from bench.physics_tick import physics_tick
-from bench.provenance import commit, load_average
+from bench.provenance import commit, load_average, machine_speed
 from bench.runners_gap import runners_gap
 from bench.session import session
 from bench.settling import settling
@@ -78,6 +78,7 @@ def machine_info() -> dict[str, Any]:
         "utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "commit": commit(),
         "load_average": load_average(),
+        "machine_speed": machine_speed(),
     }
 
 

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bench.provenance import commit, load_average, write_result
+from bench.provenance import commit, load_average, machine_speed, write_result
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT_JSON = ROOT / "bench" / "results_targets.json"
@@ -181,10 +181,16 @@ def judge(target: Target, runs: list[dict[str, Any]]) -> dict[str, Any]:
 
 def targets(only: Sequence[str] | None = None, repeats: int = 3) -> dict[str, Any]:
     """Measure the targets (``only`` these names), ``repeats`` runs each, taking turns. Each
-    target's entry carries the commit, the load average when its runs began and their count."""
+    target's entry carries the commit, the load average and the machine's speed
+    (:func:`~bench.provenance.machine_speed`) when its runs began, and their count."""
     chosen = [t for t in TARGETS if not only or t.name in only]
     runs: dict[str, list[dict[str, Any]]] = {t.name: [] for t in chosen}
-    start = {"commit": commit(), "load_average": load_average(), "repeats": repeats}
+    start = {
+        "commit": commit(),
+        "load_average": load_average(),
+        "machine_speed": machine_speed(),
+        "repeats": repeats,
+    }
     for k in range(repeats):
         for t in chosen:
             print(f"[{k + 1}/{repeats}] {t.name}: {t.command}", flush=True)
@@ -224,9 +230,11 @@ def table(result: dict[str, Any]) -> str:
     """The targets as a Markdown table."""
     lines = [
         "Targets (`python -m bench.targets`): each the median of its runs, at the commit and "
-        "with the load average at the start its row gives.",
+        "with the load average at the start its row gives, and the machine's speed then: a "
+        "fixed pure-Python loop's time (bench/provenance.py's machine_speed; the same code "
+        "runs slower in proportion on a slower day).",
         "",
-        "| target | command | figure | bound | measured | met | at (runs, load) |",
+        "| target | command | figure | bound | measured | met | at (runs, load, Python loop) |",
         "|---|---|---|---|---|---|---|",
     ]
     for t in result["targets"]:
@@ -238,9 +246,12 @@ def table(result: dict[str, Any]) -> str:
             at = t.get("commit", result.get("commit"))
             runs = t.get("repeats", result.get("repeats"))
             load = t.get("load_average", result.get("load_average"))
+            speed = (t.get("machine_speed") or {}).get("python_ms")
+            loop = "not measured" if speed is None else f"{speed:g} ms"
             lines.append(
                 f"| {t['name']} | `{t['command']}` | {f['what']} | {f['sense']} "
-                f"{f['bound']:g}{f['unit']} | {value} | {verdict} | {at} ({runs}, {load}) |"
+                f"{f['bound']:g}{f['unit']} | {value} | {verdict} | {at} ({runs}, {load}, "
+                f"{loop}) |"
             )
     return "\n".join(lines) + "\n"
 

@@ -22,6 +22,8 @@ def test_a_result_is_written_with_its_commit_load_and_time(tmp_path: Path) -> No
     assert got["load_average"] == [0.1, 0.2, 0.3]  # the result's own, from when it started
     assert re.fullmatch(r"[0-9a-f]{7,}(\+changes)?", got["commit"])
     assert got["written_utc"].startswith("20")
+    speed = got["machine_speed"]  # how fast the machine ran then: figures of two days compare
+    assert speed["python_ms"] > 0 and speed["numpy_us"] > 0
     write_result(out, {"rows": []})
     assert len(json.loads(out.read_text())["load_average"]) == 3  # now's, when it has none
 
