@@ -292,19 +292,27 @@ class BatchReadiness:
         :attr:`ready`, and the new levels :attr:`level`, by row)."""
         rows_arr = np.asarray(rows, dtype=np.intp)
         n_rows = rows_arr.shape[0]
-        views = [members] * n_rows if isinstance(members, frozenset) else list(members)
+        rows_list = rows_arr.tolist()
+        one_view: frozenset[int] | None = None
+        if isinstance(members, frozenset):
+            one_view, views = members, [members] * n_rows
+        else:
+            views = list(members)
         # own settling: calm ticks in a row with the same membership view
         last = self._members
-        same = np.fromiter(
-            (
-                (m is v or m == v)
-                for m, v in zip((last[r] for r in rows_arr.tolist()), views, strict=True)
-            ),
-            dtype=bool,
-            count=n_rows,
-        )
-        for r, v in zip(rows_arr.tolist(), views, strict=True):
-            last[r] = v
+        if one_view is not None and all(last[r] is one_view for r in rows_list):  # usual
+            same = np.ones(n_rows, dtype=bool)
+        else:
+            same = np.fromiter(
+                (
+                    (m is v or m == v)
+                    for m, v in zip((last[r] for r in rows_list), views, strict=True)
+                ),
+                dtype=bool,
+                count=n_rows,
+            )
+            for r, v in zip(rows_list, views, strict=True):
+                last[r] = v
         values = np.asarray(disagreement, dtype=float)
         below = values < self.tolerance
         if self.plateau:
@@ -329,8 +337,15 @@ class BatchReadiness:
             self._grow(int(rows_arr.max()) + 1)
         updating = np.zeros(self.k, dtype=bool)
         updating[rows_arr] = True
-        caps = np.fromiter((max(len(v), 1) for v in views), dtype=np.int64, count=n_rows)
+        if one_view is not None:
+            caps = np.full(n_rows, max(len(one_view), 1), dtype=np.int64)
+        else:
+            caps = np.fromiter((max(len(v), 1) for v in views), dtype=np.int64, count=n_rows)
         level = np.empty(n_rows, dtype=np.int64)
+        if one_view is not None:  # one mask for all rows
+            member = self._member_mask(one_view)[None]
+        else:
+            member = self._member_masks(views)
         _settled_levels(
             rows_arr,
             updating,
@@ -341,7 +356,7 @@ class BatchReadiness:
             self._round,
             self._level,
             int(round_) - 1 - self.timeout,
-            self._member_masks(views),
+            member,
             np.ascontiguousarray(agrees, dtype=np.bool_),
             caps,
             level,
@@ -919,7 +934,8 @@ def _settled_levels(  # type: ignore[no-untyped-def]
 ):
     """:meth:`BatchReadiness.update`'s flood: the arrivals filed in delivery order (per (row,
     sender) the first copy of its highest round, newer than the one held), senders not heard
-    since round ``oldest`` or not in the row's view (``member`` (P, M)) dropped, and each row's
+    since round ``oldest`` or not in the row's view (``member`` (P, M), or (1, M): one view for
+    every row) dropped, and each row's
     level: 0 unless it agrees, else ``min(cap, 1 + the lowest level held)`` (``cap`` with
     none; ``caps`` (P,))."""
     for t in range(receiver.shape[0]):
@@ -927,12 +943,14 @@ def _settled_levels(  # type: ignore[no-untyped-def]
         if updating[r] and rounds[t] > round_table[r, j]:
             round_table[r, j] = rounds[t]
             level_table[r, j] = levels[t]
+    shared = member.shape[0] - 1  # 0: one view for all rows
     for p in range(rows.shape[0]):
         r = rows[p]
         cap = caps[p]
         lowest = cap
+        v = min(p, shared)
         for j in range(round_table.shape[1]):
-            if round_table[r, j] < oldest or not member[p, j]:
+            if round_table[r, j] < oldest or not member[v, j]:
                 round_table[r, j] = _NO_ROUND
             elif round_table[r, j] != _NO_ROUND:
                 lowest = min(lowest, level_table[r, j])
