@@ -356,6 +356,12 @@ class BatchAgentCore:
         """Each row's plan value, rate and acceleration (len(plans), 9) at its plan time,
         every distinct (plan, time) evaluated once (plans with equal content, e.g. one plan
         decoded by each agent's own transport, count as one)."""
+        if plans and len(plans) == len(times_s):  # one plan object and one time for all: one
+            one, t0 = plans[0], times_s[0]  # evaluation (swarm simulate's usual tick)
+            if all(p is one for p in plans) and times_s.count(t0) == len(times_s):
+                a, a_dot, a_ddot = one.evaluate(t0)
+                n = len(plans)
+                return a[None].repeat(n, 0), a_dot[None].repeat(n, 0), a_ddot[None].repeat(n, 0)
         groups: dict[tuple[bytes, float], list[int]] = {}
         first: dict[tuple[bytes, float], DescriptorTrajectory] = {}
         for k, (plan, t_s) in enumerate(zip(plans, times_s, strict=True)):
