@@ -87,3 +87,11 @@ def test_the_targets_bench_judges_each_figure_by_its_median_and_says_by_how_much
     assert both["targets"][0] == entry
     assert both["targets"][1]["figures"][0]["median"] == 50.0
     assert both["targets"][1]["repeats"] == 1
+
+
+def test_the_ab_bench_refuses_a_checkout_without_its_venv(tmp_path: Path, capsys: Any) -> None:
+    """bench.ab names the checkout that cannot run and stops (exit 2), with no traceback."""
+    from bench import ab
+
+    assert ab.main(["--before", str(tmp_path)]) == 2
+    assert "has no .venv" in capsys.readouterr().err

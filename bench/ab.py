@@ -1,0 +1,121 @@
+"""``swarm simulate`` of two checkouts side by side, the same hour: how much a change sped the
+in-process flight loop up, on a machine whose speed swings more than the change does.
+
+``python -m bench.ab --before DIR [--after DIR] [--sizes 25,100] [--runs 5] [--seconds 20]``:
+the bench's N-drone hover grid (bench/side_by_side.py's scenario) flown by ``swarm simulate
+--no-plots --no-recording`` in each checkout (its own ``.venv``), the two taking turns run by run,
+each on one core (``taskset -c 1`` where there is one); the flight loop's wall time
+(``metrics.json``'s ``wall_time_s``) of every run, their medians and the after/before ratio per
+size. ``--after`` defaults to this checkout. Each checkout's compiled code is loaded (or compiled)
+by one run first, not counted. Writes ``bench/results_ab.json`` (with both commits and the
+machine's speed at the start and the end: bench/provenance.py). Not in ``make bench``: a tool
+for a change's author, who names the checkout before it (``git worktree add DIR REV``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from bench.provenance import ROOT, machine_speed, write_result
+from bench.side_by_side import SPACING_M
+
+OUT = ROOT / "bench" / "results_ab.json"
+
+
+def _commit(tree: Path) -> str:
+    done = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], cwd=tree, capture_output=True, text=True
+    )
+    return done.stdout.strip() or str(tree)
+
+
+def _loop_s(tree: Path, scenario: Path, seconds: float, report: Path) -> float:
+    """One ``swarm simulate`` of ``scenario`` in checkout ``tree``: its flight loop's wall time."""
+    python = tree / ".venv" / "bin" / "python"
+    pin = ["taskset", "-c", "1"] if shutil.which("taskset") else []
+    argv = [*pin, str(python), "-m", "gcs.cli", "simulate", str(scenario), "--duration-s",
+            f"{seconds:g}", "--report", str(report), "--no-plots", "--no-recording",
+            "--progress", "off"]  # fmt: skip
+    done = subprocess.run(argv, cwd=tree, capture_output=True, text=True, timeout=3600)
+    if done.returncode != 0:
+        raise RuntimeError(f"swarm simulate failed in {tree}: {done.stderr[-400:]}")
+    wall: float = json.loads((report / "metrics.json").read_text())["wall_time_s"]
+    return wall
+
+
+def compare(
+    before: Path, after: Path, sizes: list[int], runs: int, seconds: float
+) -> dict[str, Any]:
+    """The A/B of the module doc."""
+    from protocols.scenario.generator import GeneratorOptions, generate
+
+    speed_start = machine_speed()
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="bench-ab-") as tmp:
+        folder = Path(tmp)
+        for n in sizes:
+            scenario = folder / f"hover{n}.toml"
+            options = GeneratorOptions(n, "grid", spacing_m=SPACING_M, template="hover")
+            scenario.write_text(generate(options, str(scenario)).text)
+            times: dict[str, list[float]] = {"before": [], "after": []}
+            for k in range(runs + 1):
+                for side, tree in (("before", before), ("after", after)):
+                    s = _loop_s(tree, scenario, seconds, folder / f"r{n}-{side}-{k}")
+                    if k:  # the first: compiled code loaded or compiled
+                        times[side].append(round(s, 3))
+                        print(f"N = {n} {side} run {k}: loop {s:.3f} s", flush=True)
+            b, a = statistics.median(times["before"]), statistics.median(times["after"])
+            rows.append({
+                "n": n,
+                "seconds": seconds,
+                "before_loop_s": times["before"],
+                "after_loop_s": times["after"],
+                "median_before_s": round(b, 3),
+                "median_after_s": round(a, 3),
+                "after_over_before": round(a / b, 3),
+                "rtf_loop_before": round(seconds / b, 2),
+                "rtf_loop_after": round(seconds / a, 2),
+            })  # fmt: skip
+    return {
+        "command": "python -m bench.ab",
+        "before": _commit(before),
+        "after": _commit(after),
+        "runs": runs,
+        "rows": rows,
+        "machine_speed_start": speed_start,
+        "machine_speed_end": machine_speed(),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench.ab", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--before", type=Path, required=True, help="the checkout before the change")
+    ap.add_argument("--after", type=Path, default=ROOT, help="the checkout after (this one)")
+    ap.add_argument("--sizes", default="25,100", help="drone counts, comma separated")
+    ap.add_argument("--runs", type=int, default=5, help="runs per checkout and size")
+    ap.add_argument("--seconds", type=float, default=20.0, help="simulated seconds per run")
+    args = ap.parse_args(argv)
+    for tree in (args.before, args.after):
+        if not (tree / ".venv" / "bin" / "python").exists():
+            print(f"bench.ab: {tree} has no .venv (run make venv there)", file=sys.stderr)
+            return 2
+    sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
+    result = compare(args.before.resolve(), args.after.resolve(), sizes, args.runs, args.seconds)
+    write_result(OUT, result)
+    for row in result["rows"]:
+        print(f"N = {row['n']}: loop {row['median_before_s']} s -> {row['median_after_s']} s "
+              f"({row['after_over_before']} of before)")  # fmt: skip
+    print(f"written: {OUT.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
