@@ -6,7 +6,7 @@ the bench's N-drone hover grid (bench/side_by_side.py's scenario) flown by ``swa
 --no-plots --no-recording`` in each checkout (its own ``.venv``), the two taking turns run by run,
 each on one core (``taskset -c 1`` where there is one); the flight loop's wall time
 (``metrics.json``'s ``wall_time_s``) of every run, their medians and the after/before ratio per
-size. ``--after`` defaults to this checkout. Each checkout's compiled code is loaded (or compiled)
+size, of the medians and (``after_over_before_paired``) the median of each pair's ratio. ``--after`` defaults to this checkout. Each checkout's compiled code is loaded (or compiled)
 by one run first, not counted. Writes ``bench/results_ab.json`` (with both commits and the
 machine's speed at the start and the end: bench/provenance.py). Not in ``make bench``: a tool
 for a change's author, who names the checkout before it (``git worktree add DIR REV``).
@@ -73,6 +73,11 @@ def compare(
                         times[side].append(round(s, 3))
                         print(f"N = {n} {side} run {k}: loop {s:.3f} s", flush=True)
             b, a = statistics.median(times["before"]), statistics.median(times["after"])
+            # each after-run over the before-run just ahead of it: the two of a pair met the
+            # same minute of the machine (its speed drifts over minutes)
+            paired = statistics.median(
+                x / y for x, y in zip(times["after"], times["before"], strict=True)
+            )
             rows.append({
                 "n": n,
                 "seconds": seconds,
@@ -81,6 +86,7 @@ def compare(
                 "median_before_s": round(b, 3),
                 "median_after_s": round(a, 3),
                 "after_over_before": round(a / b, 3),
+                "after_over_before_paired": round(paired, 3),
                 "rtf_loop_before": round(seconds / b, 2),
                 "rtf_loop_after": round(seconds / a, 2),
             })  # fmt: skip
@@ -112,7 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     write_result(OUT, result)
     for row in result["rows"]:
         print(f"N = {row['n']}: loop {row['median_before_s']} s -> {row['median_after_s']} s "
-              f"({row['after_over_before']} of before)")  # fmt: skip
+              f"({row['after_over_before']} of before; pair by pair "
+              f"{row['after_over_before_paired']})")  # fmt: skip
     print(f"written: {OUT.relative_to(ROOT)}")
     return 0
 
