@@ -6,8 +6,9 @@ the bench's N-drone hover grid (bench/side_by_side.py's scenario) flown by ``swa
 --no-plots --no-recording`` in each checkout (its own ``.venv``), the two taking turns run by run,
 each on one core (``taskset -c 1`` where there is one); the flight loop's wall time
 (``metrics.json``'s ``wall_time_s``) of every run, their medians and the after/before ratio per
-size, of the medians and (``after_over_before_paired``) the median of each pair's ratio. ``--after`` defaults to this checkout. Each checkout's compiled code is loaded (or compiled)
-by one run first, not counted. Writes ``bench/results_ab.json`` (with both commits and the
+size, of the medians and (``after_over_before_paired``) the median of each pair's ratio.
+``--after`` defaults to this checkout. Each checkout's compiled code is loaded (or compiled) by
+one run first, not counted. Writes ``bench/results_ab.json`` (with both commits and the
 machine's speed at the start and the end: bench/provenance.py). Not in ``make bench``: a tool
 for a change's author, who names the checkout before it (``git worktree add DIR REV``).
 """
