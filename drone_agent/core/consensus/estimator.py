@@ -7,7 +7,11 @@ Per step, what must look at each message is Python (listing the distinct message
 senders and rounds, the ``Q_ji`` they carry for a plain mapping); everything else, the filing of
 the values (validity, membership, duplicates, the newest message per peer, rounds kept for later)
 and every pairing rule with the tanh increments, is array operations over all the (agent,
-neighbour, round) values of the step. Pure and I/O-free.
+neighbour, round) values of the step. A usual step (every value valid, due, of the incarnation
+known, in order, from one step's arrays: every steady tick of ``swarm simulate``) is filed by one
+compiled pass instead (kernels.receive_common), which leaves any other step to the numpy filing
+untouched; the heard-sets, the estimates with their history and the edges a message carries are
+compiled passes too. Pure and I/O-free.
 """
 
 from __future__ import annotations
