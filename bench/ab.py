@@ -25,17 +25,10 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from bench.provenance import ROOT, machine_speed, write_result
+from bench.provenance import ROOT, commit, machine_speed, write_result
 from bench.side_by_side import SPACING_M
 
 OUT = ROOT / "bench" / "results_ab.json"
-
-
-def _commit(tree: Path) -> str:
-    done = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], cwd=tree, capture_output=True, text=True
-    )
-    return done.stdout.strip() or str(tree)
 
 
 def _loop_s(tree: Path, scenario: Path, seconds: float, report: Path) -> float:
@@ -93,8 +86,8 @@ def compare(
             })  # fmt: skip
     return {
         "command": "python -m bench.ab",
-        "before": _commit(before),
-        "after": _commit(after),
+        "before": commit(before) or str(before),
+        "after": commit(after) or str(after),
         "runs": runs,
         "rows": rows,
         "machine_speed_start": speed_start,
@@ -114,7 +107,14 @@ def main(argv: list[str] | None = None) -> int:
         if not (tree / ".venv" / "bin" / "python").exists():
             print(f"bench.ab: {tree} has no .venv (run make venv there)", file=sys.stderr)
             return 2
-    sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
+    try:
+        sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
+    except ValueError:
+        sizes = []
+    if not sizes or min(sizes) < 2:
+        print(f"bench.ab: --sizes takes drone counts like 25,100, got {args.sizes!r}",
+              file=sys.stderr)  # fmt: skip
+        return 2
     result = compare(args.before.resolve(), args.after.resolve(), sizes, args.runs, args.seconds)
     write_result(OUT, result)
     for row in result["rows"]:

@@ -13,16 +13,16 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def commit() -> str | None:
-    """The checkout's commit (with "+changes" when it has uncommitted changes); None outside
-    git."""
+def commit(root: Path = ROOT) -> str | None:
+    """The commit of the checkout at ``root`` (this one by default; with "+changes" when it has
+    uncommitted changes); None outside git."""
     try:
         head = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
+            ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True
         ).stdout.strip()
         dirty = subprocess.run(
             ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=ROOT, capture_output=True, text=True,
+            cwd=root, capture_output=True, text=True,
         ).stdout.strip()  # fmt: skip
     except OSError:
         return None

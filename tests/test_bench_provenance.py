@@ -95,3 +95,10 @@ def test_the_ab_bench_refuses_a_checkout_without_its_venv(tmp_path: Path, capsys
 
     assert ab.main(["--before", str(tmp_path)]) == 2
     assert "has no .venv" in capsys.readouterr().err
+
+
+def test_the_ab_bench_refuses_sizes_that_are_not_drone_counts(capsys: Any) -> None:
+    from bench import ab
+
+    assert ab.main(["--before", str(ab.ROOT), "--sizes", "many"]) == 2
+    assert "--sizes takes drone counts" in capsys.readouterr().err

@@ -215,6 +215,12 @@ def warm_up(config: AgentConfig) -> None:
     _warm = True
 
 
+def _for_every_row(plan: DescriptorTrajectory, t_s: float, n: int) -> StateTriple:
+    """``plan``'s value, rate and acceleration at ``t_s``, each repeated for ``n`` rows."""
+    a, a_dot, a_ddot = plan.evaluate(t_s)
+    return a[None].repeat(n, 0), a_dot[None].repeat(n, 0), a_ddot[None].repeat(n, 0)
+
+
 class BatchAgentCore:
     """Estimators + controllers of the drones ``agent_ids``, one row each. Call :meth:`tick`
     once per control round with the rows due in that round."""
@@ -359,9 +365,7 @@ class BatchAgentCore:
         if plans and len(plans) == len(times_s):  # one plan object and one time for all: one
             one, t0 = plans[0], times_s[0]  # evaluation (swarm simulate's usual tick)
             if all(p is one for p in plans) and times_s.count(t0) == len(times_s):
-                a, a_dot, a_ddot = one.evaluate(t0)
-                n = len(plans)
-                return a[None].repeat(n, 0), a_dot[None].repeat(n, 0), a_ddot[None].repeat(n, 0)
+                return _for_every_row(one, t0, len(plans))
         groups: dict[tuple[bytes, float], list[int]] = {}
         first: dict[tuple[bytes, float], DescriptorTrajectory] = {}
         for k, (plan, t_s) in enumerate(zip(plans, times_s, strict=True)):
@@ -373,9 +377,7 @@ class BatchAgentCore:
             first.setdefault((key, t_s), plan)
         if len(groups) == 1:
             (((_, t_s), plan),) = first.items()
-            a, a_dot, a_ddot = plan.evaluate(t_s)
-            n = len(plans)
-            return a[None].repeat(n, 0), a_dot[None].repeat(n, 0), a_ddot[None].repeat(n, 0)
+            return _for_every_row(plan, t_s, len(plans))
         out = (np.empty((len(plans), 9)), np.empty((len(plans), 9)), np.empty((len(plans), 9)))
         for (key, t_s), ks in groups.items():
             for dst, value in zip(out, first[(key, t_s)].evaluate(t_s), strict=True):
