@@ -52,6 +52,7 @@ from sitl_sim.mavlink_edge.streams import (
     SYS_STATUS,
     StreamTable,
 )
+from sitl_sim.mavlink_edge.telemetry_out import TickTelemetry
 from sitl_sim.network import Network
 from sitl_sim.pacing import Pacer, RateMeter
 from sitl_sim.shard_sync import ShardSync
@@ -154,7 +155,25 @@ class SimServer:
                 world.autopilot, self._snapshot, i
             ),
         }
-        self._builders.update(dialect.builders(self))
+        own = dialect.builders(self)
+        self._builders.update(own)
+        # the messages packed for every vehicle at once (the same bytes; not where the dialect
+        # builds its own): sitl_sim/mavlink_edge/telemetry_out.py
+        rows = {
+            ATTITUDE: lambda: messages.attitude_rows(self._snapshot),
+            LOCAL_POSITION_NED: lambda: messages.local_position_ned_rows(self._snapshot),
+            ACTUATOR_OUTPUT_STATUS: lambda: messages.actuator_output_status_rows(
+                messages.time_usec(world), self._rotor_forces()
+            ),
+            ATTITUDE_TARGET: lambda: messages.attitude_target_rows(world),
+            GLOBAL_POSITION_INT: lambda: map_telemetry.global_position_int_rows(
+                self._snapshot, self._map_fix(), home
+            ),
+        }
+        self._telemetry = TickTelemetry(
+            self._builders,
+            {msg_id: build for msg_id, build in rows.items() if msg_id not in own},
+        )
         #: the dialect's message that keys the barrier, and the tick's state re-sent
         self._tick_message = dialect.tick_message
         self._tick_state = dialect.tick_state
@@ -406,23 +425,13 @@ class SimServer:
         tick = world.tick
         self._snapshot = world.snapshot()
         silent = world.autopilot.silent
-        build = self._builders
         self.agent.streams.shared.due(tick)
         self.gcs.streams.shared.due(tick)
-        sent_to: list[int] = []
-        tick_message = self._tick_message
-        for side, is_agent in ((self.agent, True), (self.gcs, False)):
-            streams = side.streams
-            for i, channel in enumerate(side.channels):
-                if silent[i] or not channel.active:
-                    continue
-                due = streams.of(i).due(tick)
-                for msg_id in due:
-                    channel.send(build[msg_id](i))
-                if is_agent and tick_message in due:
-                    sent_to.append(i)
-            if is_agent:  # the agents' states leave first: in lockstep they wait for them
-                self.net.flush()
+        telemetry = self._telemetry
+        telemetry.new_tick()
+        sent_to = telemetry.send(self.agent, tick, silent, self._tick_message)
+        self.net.flush()  # the agents' states leave first: in lockstep they wait for them
+        telemetry.send(self.gcs, tick, silent, None)
         self.net.flush()
         return sent_to
 

@@ -154,6 +154,15 @@ def pack(msg: Any, codec: Any) -> bytes:
     return pack_payload(cls, cls.unpacker.pack(*_fields_of(cls)(msg)), codec)
 
 
+def payload_of(msg: Any) -> tuple[Any, bytes]:
+    """A message's class and full payload (its fields in wire order), as :func:`pack` frames
+    them: a :class:`Packed` one's own, a pymavlink object's packed from its fields."""
+    if type(msg) is Packed:
+        return msg.cls, msg.payload
+    cls = type(msg)
+    return cls, cls.unpacker.pack(*_fields_of(cls)(msg))
+
+
 def pack_payload(cls: Any, payload: bytes, codec: Any) -> bytes:
     """The unsigned MAVLink 2 frame of message class ``cls`` with the full ``payload`` (its
     fields in wire order, ``cls.unpacker``'s layout), from ``codec``'s system and component with

@@ -174,6 +174,24 @@ class Endpoint:
         else:
             batches.append(bytearray(packet))
 
+    def queue_frames(self, data: bytes, ends: list[int], start: int) -> None:
+        """Queue the frames ``data[start:ends[0]]``, ``data[ends[0]:ends[1]]``, ... as
+        :meth:`queue` one by one would (several at once where they fit in one datagram)."""
+        if not ends:
+            return
+        batches = self._batches
+        if not batches and self.outbox is not None:
+            self.outbox.add(self)
+        end = ends[-1]
+        if batches and len(batches[-1]) + end - start <= MAX_DATAGRAM_BYTES:
+            batches[-1] += data[start:end]  # all fit in the datagram under way
+        elif not batches and end - start <= MAX_DATAGRAM_BYTES:
+            batches.append(bytearray(data[start:end]))
+        else:
+            for stop in ends:
+                self.queue(data[start:stop])
+                start = stop
+
     def flush(self) -> None:
         """Send the queued frames to the peer (dropped when there is none)."""
         batches, self._batches = self._batches, []

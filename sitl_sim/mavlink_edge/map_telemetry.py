@@ -80,6 +80,31 @@ def global_position_int(
     )  # fmt: skip
 
 
+_GLOBAL_POSITION = np.dtype(
+    [("t", "<u4"), ("where", "<i4", (4,)), ("v", "<i2", (3,)), ("hdg", "<u2")]
+)
+
+
+def global_position_int_rows(snap: Snapshot, fix: MapFix, home: GeoPoint) -> Any:
+    """:func:`global_position_int` of every vehicle (sitl_sim/mavlink_edge/messages.py
+    ``Rows``: the same bytes; None where a value would not pack as struct packs it)."""
+    _, velocity, euler, _ = snap.columns()
+    yaw = euler[:, 2]
+    if not (np.isfinite(velocity).all() and np.isfinite(yaw).all()):
+        return None  # (round() refuses them: the one-by-one builder raises as before)
+    alt = np.array(fix.alt_mm, dtype=np.int64)
+    where = np.stack([np.array(fix.lat_e7, dtype=np.int64), np.array(fix.lon_e7, dtype=np.int64),
+                      alt, alt - round(home.alt_m * 1000.0)], axis=1)  # fmt: skip
+    if not (0 <= snap.time_boot_ms < 2**32 and (np.abs(where) < 2**31).all()):
+        return None
+    rows = np.empty(where.shape[0], dtype=_GLOBAL_POSITION)
+    rows["t"] = snap.time_boot_ms
+    rows["where"] = where
+    rows["v"] = np.clip(np.rint(velocity * 100.0), -_I16, _I16)
+    rows["hdg"] = np.mod(np.rint(np.degrees(yaw) * 100.0).astype(np.int64), 36000)
+    return rows.view(np.uint8).reshape(where.shape[0], _GLOBAL_POSITION.itemsize)
+
+
 def gps_raw_int(snap: Snapshot, fix: MapFix, accuracy_m: float, i: int) -> Any:
     """GPS_RAW_INT of vehicle ``i``: a 3-D fix at the telemetry position; ``accuracy_m`` the
     horizontal and vertical accuracy claimed (m)."""

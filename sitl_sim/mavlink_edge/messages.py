@@ -36,6 +36,8 @@ os.environ["MAVLINK20"] = "1"  # before any pymavlink import (DEPENDENCIES.md)
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
 from pymavlink.dialects.v20 import common as mavlink
 
 from protocols.mavlink.conventions import (
@@ -49,6 +51,7 @@ from protocols.mavlink.conventions import (
 )
 from protocols.mavlink.fast import packed
 from protocols.model.frames import FloatArray, wxyz_from_zyx
+from protocols.runtime.compiled import jit
 from sitl_sim.physics.dynamics import POS, QUAT, RATES, VEL
 from sitl_sim.vehicle.autopilot import Autopilot, Mode
 from sitl_sim.vehicle.battery import Battery
@@ -175,6 +178,92 @@ def _battery_fields(battery: Battery | None, i: int) -> tuple[int, int, int]:
     voltage_v, current_a, remaining = battery.reading(i)
     voltage_mv = min(_U16 - 1, max(0, round(1000.0 * voltage_v)))
     return voltage_mv, min(32767, max(0, round(100.0 * current_a))), round(100.0 * remaining)
+
+
+#: A message's payloads for every vehicle at once: (N, payload size) bytes, each row what the
+#: vehicle's one-by-one builder packs (the same bytes); None where some value would not pack as
+#: struct packs it (a non-finite or too large float: the one-by-one builder is used then)
+Rows = npt.NDArray[np.uint8] | None
+_TIME_AND_SIX = np.dtype([("t", "<u4"), ("v", "<f4", (6,))])  # ATTITUDE, LOCAL_POSITION_NED
+_ACTUATOR_OUTPUT = np.dtype([("t", "<u8"), ("active", "<u4"), ("v", "<f4", (32,))])
+
+
+def _float32(values: FloatArray) -> npt.NDArray[np.float32] | None:
+    """``values`` as struct's ``f`` packs each (C's conversion); None if one is not finite or
+    too large for a float32 (struct refuses it: the one-by-one builder raises as before)."""
+    out = values.astype(np.float32)
+    return out if np.isfinite(out).all() else None
+
+
+def _time_and_six(time_value: int, first: FloatArray, second: FloatArray) -> Rows:
+    """Rows of ``<Iffffff``: a time, then the three values of ``first`` and ``second``."""
+    six = _float32(np.concatenate((first, second), axis=1))
+    if six is None or not 0 <= time_value < 2**32:
+        return None
+    rows = np.empty(six.shape[0], dtype=_TIME_AND_SIX)
+    rows["t"] = time_value
+    rows["v"] = six
+    return rows.view(np.uint8).reshape(six.shape[0], _TIME_AND_SIX.itemsize)
+
+
+def attitude_rows(snap: Snapshot) -> Rows:
+    """:func:`attitude` of every vehicle (:data:`Rows`)."""
+    _, _, euler, rates = snap.columns()
+    return _time_and_six(snap.time_boot_ms, euler, rates)
+
+
+def local_position_ned_rows(snap: Snapshot) -> Rows:
+    """:func:`local_position_ned` of every vehicle (:data:`Rows`)."""
+    position, velocity, _, _ = snap.columns()
+    return _time_and_six(snap.time_boot_ms, position, velocity)
+
+
+def actuator_output_status_rows(t_usec: int, forces_n: FloatArray) -> Rows:
+    """:func:`actuator_output_status` of every vehicle (``forces_n`` (4, N); :data:`Rows`)."""
+    forces = _float32(np.asarray(forces_n, dtype=np.float64)[:ACTUATOR_ROTORS].T)
+    if forces is None or not 0 <= t_usec < 2**64:
+        return None
+    rows = np.zeros(forces.shape[0], dtype=_ACTUATOR_OUTPUT)
+    rows["t"] = t_usec
+    rows["active"] = ACTUATOR_ROTORS_ACTIVE
+    rows["v"][:, :ACTUATOR_ROTORS] = forces
+    return rows.view(np.uint8).reshape(forces.shape[0], _ACTUATOR_OUTPUT.itemsize)
+
+
+_ATTITUDE_TARGET = np.dtype(
+    [("t", "<u4"), ("q", "<f4", (4,)), ("rates", "<f4", (3,)), ("thrust", "<f4"), ("mask", "u1")]
+)
+
+
+@jit(calls={"wxyz_from_zyx": wxyz_from_zyx})
+def _quaternions(euler, out):  # type: ignore[no-untyped-def]
+    """:func:`wxyz_from_zyx` of each vehicle's ``euler`` (3, N) (roll, pitch, yaw) into ``out``
+    (N, 4): compiled as it is (the C library's functions: the same bits)."""
+    for i in range(euler.shape[1]):
+        w, x, y, z = wxyz_from_zyx(euler[2, i], euler[1, i], euler[0, i])
+        out[i, 0] = w
+        out[i, 1] = x
+        out[i, 2] = y
+        out[i, 3] = z
+
+
+def attitude_target_rows(world: World) -> Rows:
+    """:func:`attitude_target` of every vehicle (:data:`Rows`)."""
+    euler, thrust = world.commanded()
+    euler = np.ascontiguousarray(euler, dtype=np.float64)
+    q = np.empty((euler.shape[1], 4))
+    _quaternions(euler, q)
+    flown = np.where(world.autopilot.armed, np.asarray(thrust, dtype=np.float64), 0.0)
+    values = _float32(np.concatenate((q, flown[:, None]), axis=1))
+    t = world.time_boot_ms()
+    if values is None or not 0 <= t < 2**32:
+        return None
+    rows = np.zeros(values.shape[0], dtype=_ATTITUDE_TARGET)
+    rows["t"] = t
+    rows["q"] = values[:, :4]
+    rows["thrust"] = values[:, 4]
+    rows["mask"] = IGNORE_BODY_RATES
+    return rows.view(np.uint8).reshape(values.shape[0], _ATTITUDE_TARGET.itemsize)
 
 
 def attitude(snap: Snapshot, i: int) -> Any:

@@ -195,6 +195,12 @@ class StreamTable:
         self._own: dict[int, StreamSchedule] = {}
         self.n = n
 
+    @property
+    def split(self) -> dict[int, StreamSchedule]:
+        """The vehicles with schedules of their own (read only); the others follow
+        :attr:`shared`."""
+        return self._own
+
     def of(self, vehicle: int) -> StreamSchedule:
         """The schedule vehicle ``vehicle`` follows (possibly the shared one: read only)."""
         return self._own.get(vehicle, self.shared)

@@ -132,6 +132,18 @@ class Snapshot:
     velocity_ned_m_s: list[list[float]]
     euler_rad: list[list[float]]
     rates_rad_s: list[list[float]]
+    #: the same values as arrays (N, 3) each, in that order (None: made from the lists), for the
+    #: telemetry of every vehicle at once (sitl_sim/mavlink_edge/telemetry_out.py)
+    arrays: tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None = None
+
+    def columns(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Position, velocity, attitude and rates of every vehicle, (N, 3) arrays each."""
+        if self.arrays is not None:
+            return self.arrays
+        return tuple(  # type: ignore[return-value]
+            np.array(v, dtype=np.float64).reshape(-1, 3)
+            for v in (self.position_ned_m, self.velocity_ned_m_s, self.euler_rad, self.rates_rad_s)
+        )
 
 
 class World:
@@ -274,13 +286,15 @@ class World:
             pos, vel, euler = estimate
         if self.config.position_noise_m > 0.0:
             pos = pos + self.rng.normal(0.0, self.config.position_noise_m, pos.shape)
+        arrays = (pos.T, vel.T, euler.T, self.state[RATES].T)
         return Snapshot(
             tick=self.tick,
             time_boot_ms=self.time_boot_ms(),
-            position_ned_m=pos.T.tolist(),
-            velocity_ned_m_s=vel.T.tolist(),
-            euler_rad=euler.T.tolist(),
-            rates_rad_s=self.state[RATES].T.tolist(),
+            position_ned_m=arrays[0].tolist(),
+            velocity_ned_m_s=arrays[1].tolist(),
+            euler_rad=arrays[2].tolist(),
+            rates_rad_s=arrays[3].tolist(),
+            arrays=tuple(np.array(a, dtype=np.float64) for a in arrays),  # type: ignore[arg-type]
         )
 
     def commanded(self) -> tuple[FloatArray, FloatArray]:
