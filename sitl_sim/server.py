@@ -52,7 +52,7 @@ from sitl_sim.mavlink_edge.streams import (
     SYS_STATUS,
     StreamTable,
 )
-from sitl_sim.mavlink_edge.telemetry_out import TickTelemetry
+from sitl_sim.mavlink_edge.telemetry_out import TickTelemetry, warm
 from sitl_sim.network import Network
 from sitl_sim.pacing import Pacer, RateMeter
 from sitl_sim.shard_sync import ShardSync
@@ -170,6 +170,7 @@ class SimServer:
                 self._snapshot, self._map_fix(), home
             ),
         }
+        warm()  # before the first tick: a first compile takes seconds
         self._telemetry = TickTelemetry(
             self._builders,
             {msg_id: build for msg_id, build in rows.items() if msg_id not in own},

@@ -544,7 +544,10 @@ def run(args: argparse.Namespace) -> int:
             "and stops everything",
             file=sys.stderr,
         )
-    warm_compiled("swarm up", plan.sim is not None, bool(plan.agents), Path(scenario))
+    warm_compiled(
+        "swarm up", plan.sim is not None, bool(plan.agents), Path(scenario),
+        links=plan.sim is not None,
+    )  # fmt: skip
     with interrupt_flag() as stop, live_view(args, scenario) as url:
         if url is not None:
             print(f"swarm up: live view (Rerun) at {url}", file=sys.stderr, flush=True)

@@ -247,12 +247,18 @@ def _quaternions(euler, out):  # type: ignore[no-untyped-def]
         out[i, 3] = z
 
 
-def attitude_target_rows(world: World) -> Rows:
-    """:func:`attitude_target` of every vehicle (:data:`Rows`)."""
-    euler, thrust = world.commanded()
+def quaternions(euler: FloatArray) -> FloatArray:
+    """(N, 4) :func:`wxyz_from_zyx` of each vehicle's (roll, pitch, yaw) ``euler`` (3, N)."""
     euler = np.ascontiguousarray(euler, dtype=np.float64)
     q = np.empty((euler.shape[1], 4))
     _quaternions(euler, q)
+    return q
+
+
+def attitude_target_rows(world: World) -> Rows:
+    """:func:`attitude_target` of every vehicle (:data:`Rows`)."""
+    euler, thrust = world.commanded()
+    q = quaternions(euler)
     flown = np.where(world.autopilot.armed, np.asarray(thrust, dtype=np.float64), 0.0)
     values = _float32(np.concatenate((q, flown[:, None]), axis=1))
     t = world.time_boot_ms()

@@ -28,12 +28,12 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from protocols.mavlink.fast import payload_of
 from protocols.mavlink.frame_batch import frames_of
+from sitl_sim.mavlink_edge import messages
 from sitl_sim.mavlink_edge.channel import Channel
 from sitl_sim.mavlink_edge.dispatch import LinkSide
-from sitl_sim.mavlink_edge.messages import Rows
 
 #: A message's payloads for every vehicle now (messages.Rows)
-RowBuilder = Callable[[], Rows]
+RowBuilder = Callable[[], messages.Rows]
 _UNBUILT = object()
 
 
@@ -56,7 +56,7 @@ class TickTelemetry:
         """The world moved on: rows are made again when next asked."""
         self._made.clear()
 
-    def _rows_of(self, msg_id: int) -> Rows:
+    def _rows_of(self, msg_id: int) -> messages.Rows:
         made = self._made.get(msg_id, _UNBUILT)
         if made is _UNBUILT:
             made = self._made[msg_id] = self._rows[msg_id]()
@@ -187,3 +187,11 @@ class TickTelemetry:
             (head[0, vehicle] + step) & 0xFF, head[1, vehicle], head[2, vehicle],
         )  # fmt: skip
         return data, ends, counts
+
+
+def warm() -> None:
+    """Load (or compile) the compiled parts now, so that a first tick does not pay for them: one
+    frame and one quaternion."""
+    one = np.ones(1, dtype=np.int64)
+    frames_of(np.zeros(1, dtype=np.uint8), one - 1, one, one, one, one, one, one)
+    messages.quaternions(np.zeros((3, 1)))
