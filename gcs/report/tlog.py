@@ -71,6 +71,7 @@ from protocols.mavlink.fast import (
     pack,
     pack_payload,
 )
+from protocols.mavlink.frame_batch import frames_of
 from protocols.model.frames import FloatArray, zyx_from_quat_batch
 from protocols.model.geodesy import GeoPoint, ned_of_global_int
 
@@ -84,6 +85,16 @@ _STATUS = struct.Struct("<QH10s58f")
 _DEBUG_FLOAT_ARRAY = common.MAVLink_debug_float_array_message
 assert _DEBUG_FLOAT_ARRAY.unpacker.format == _STATUS.format
 _STATUS_NAME = AGENT_STATUS_NAME.encode()
+_STATUS_ROW = np.dtype([("t", "<u8"), ("layout", "<u2"), ("name", "S10"), ("data", "<f4", (58,))])
+assert _STATUS_ROW.itemsize == _STATUS.size
+
+
+def _as_float32(values: Sequence[float]) -> list[float]:
+    """``values`` rounded to float32 as ``struct``'s ``f`` rounds them, except that a finite value
+    beyond float32's range becomes +-inf (``struct`` refuses it: a diverged agent estimate must
+    not stop the ground station's log)."""
+    with np.errstate(over="ignore"):
+        return np.array(values, dtype=np.float64).astype(np.float32).tolist()
 
 
 def _floats(values: Sequence[float] | FloatArray) -> Sequence[float]:
@@ -221,10 +232,64 @@ class TlogWriter:
             layout = AGENT_STATUS_LAYOUT
             data += [float(j) for j in sorted(neighbour_ids)[:AGENT_NEIGHBOUR_SLOTS]]
         data += [float("nan")] * (58 - len(data))
+        data = _as_float32(data)
         mav = self.codec(sysid, AGENT_COMPID)
         usec = max(0, round(t_s * 1e6))
         payload = _STATUS.pack(usec, layout, _STATUS_NAME, *data)  # pymavlink's field order
         self.write_packet(t_s, pack_payload(_DEBUG_FLOAT_ARRAY, payload, mav))
+
+    def write_agent_statuses(
+        self,
+        t_s: Sequence[float],
+        sysids: Sequence[int],
+        values: FloatArray,
+        neighbour_ids: Sequence[Sequence[int]],
+    ) -> None:
+        """:meth:`write_agent_status` of each row (``values`` (n, AGENT_STATUS_VALUES)) in order
+        (layout 1): the same records, their payloads laid out together and framed in one
+        compiled call (protocols/mavlink/frame_batch.py)."""
+        n = len(sysids)
+        if n == 0:
+            return
+        rows = np.full(n, np.nan, dtype=np.float64).repeat(58).reshape(n, 58)
+        rows[:, :AGENT_STATUS_VALUES] = np.asarray(values, dtype=np.float64)[
+            :, :AGENT_STATUS_VALUES
+        ]
+        for r, ids in enumerate(neighbour_ids):
+            if ids:
+                kept = sorted(ids)[:AGENT_NEIGHBOUR_SLOTS]
+                rows[r, AGENT_STATUS_VALUES : AGENT_STATUS_VALUES + len(kept)] = kept
+        with np.errstate(over="ignore"):
+            data = rows.astype(np.float32)  # (beyond float32: inf, as _as_float32)
+        times = [round(t * 1e6) for t in t_s]
+        if min(times) + self.epoch_offset_us < 0 or max(times) >= 2**62:
+            for r in range(n):  # as one by one (which raises where it must)
+                self.write_agent_status(t_s[r], sysids[r], values[r], neighbour_ids[r])
+            return
+        payload = np.zeros(n, dtype=_STATUS_ROW)
+        payload["t"] = [max(0, t) for t in times]
+        payload["layout"] = AGENT_STATUS_LAYOUT
+        payload["name"] = _STATUS_NAME
+        payload["data"] = data
+        codecs = [self.codec(s, AGENT_COMPID) for s in sysids]
+        size = _STATUS.size
+        head = np.array(
+            [[size] * n, [_DEBUG_FLOAT_ARRAY.id] * n, [_DEBUG_FLOAT_ARRAY.crc_extra] * n,
+             [c.seq for c in codecs], [c.srcSystem for c in codecs],
+             [c.srcComponent for c in codecs]], dtype=np.int64,
+        )  # fmt: skip
+        framed, ends = frames_of(payload.view(np.uint8), np.arange(n, dtype=np.int64) * size, *head)
+        if self._file is None:
+            raise RuntimeError("TlogWriter is not open (use it as a context manager)")
+        stamps = [(t + self.epoch_offset_us) & ~0x3 for t in times]
+        start = 0
+        out = []
+        for stamp, end in zip(stamps, ends, strict=True):
+            out.append(_TS.pack(stamp))
+            out.append(framed[start:end])
+            start = end
+        self._file.write(b"".join(out))
+        self.n_records += n
 
     def write_heartbeat(
         self, t_s: float, sysid: int, armed: bool, system_status: int, custom_mode: int = 0

@@ -419,8 +419,8 @@ class GroundStation:
                 self._t_status_s = max(self._t_status_s, status.t_s)
                 if kind:
                     self.events.record(status.t_s, kind, drone=status.drone)
-                self.telemetry.log_agent_status(status)
                 self._takeoff_of[status.drone] = status.takeoff_round
+            self.telemetry.log_agent_statuses(statuses)
         self._track_takeoff()
         while self._liveliness:
             key, alive = self._liveliness.popleft()

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import socket
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,12 +30,17 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega, common
 
 from gcs.report.tlog import TlogWriter
-from protocols.mavlink.conventions import GCS_COMPID, GCS_SYSID, MAV_AUTOPILOT_ARDUPILOTMEGA
+from protocols.mavlink.conventions import (
+    AGENT_STATUS_VALUES,
+    GCS_COMPID,
+    GCS_SYSID,
+    MAV_AUTOPILOT_ARDUPILOTMEGA,
+)
 from protocols.mavlink.fast import Frame, fast_receive_ok, field_places, frames, message_of, pack
 from protocols.mavlink.signing import setup_signing
 from protocols.mavlink.swarm_clock import VehicleClock
 from protocols.model.geodesy import GeoPoint, ned_of_global_int
-from protocols.wire.status import AgentStatus
+from protocols.wire.status import N_ESTIMATE, AgentStatus
 
 _MAX_DATAGRAM = 65535
 _ARMED_FLAG = 128  # MAV_MODE_FLAG_SAFETY_ARMED
@@ -179,6 +185,17 @@ class TelemetryReceiver:
         self._tlog.write_agent_status(
             status.t_s, status.drone + 1, np.array(values, dtype=float), status.neighbours
         )
+
+    def log_agent_statuses(self, statuses: Sequence[AgentStatus]) -> None:
+        """:meth:`log_agent_status` of each, in order (the same records, written together)."""
+        values = np.empty((len(statuses), AGENT_STATUS_VALUES))
+        for row, status in zip(values, statuses, strict=True):
+            row[:N_ESTIMATE] = status.estimate
+            row[N_ESTIMATE:] = (len(status.neighbours), int(status.mode), int(status.armed))
+        self._tlog.write_agent_statuses(
+            [s.t_s for s in statuses], [s.drone + 1 for s in statuses], values,
+            [s.neighbours for s in statuses],
+        )  # fmt: skip
 
     def send_command(self, drone: int, command: int, *params: float) -> None:
         """COMMAND_LONG ``command`` with up to 7 ``params`` to vehicle ``drone`` (index; system id
