@@ -11,12 +11,20 @@ size, of the medians and (``after_over_before_paired``) the median of each pair'
 one run first, not counted. Writes ``bench/results_ab.json`` (with both commits and the
 machine's speed at the start and the end: bench/provenance.py). Not in ``make bench``: a tool
 for a change's author, who names the checkout before it (``git worktree add DIR REV``).
+
+``--up`` compares the distributed flight instead: ``swarm up`` (lockstep, the default layout) of
+the hover grid of bench/up_lockstep.py (``run_case``, ``--seconds`` simulated, 25 by default),
+flown by each checkout in turn (the whole machine, as a user runs it): per run the real-time
+factor once airborne and over the whole flight, the agents' CPU per agent-tick and the
+simulator's and ground station's shares of the CPU; their medians and after/before ratios.
+Writes ``bench/results_ab_up.json``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import statistics
 import subprocess
@@ -29,6 +37,11 @@ from bench.provenance import ROOT, commit, machine_speed, write_result
 from bench.side_by_side import SPACING_M
 
 OUT = ROOT / "bench" / "results_ab.json"
+OUT_UP = ROOT / "bench" / "results_ab_up.json"
+#: bench/up_lockstep.py's figures of one ``swarm up`` that --up compares (higher is better for
+#: the first two)
+UP_FIGURES = ("rtf", "rtf_whole", "agent_cpu_us_per_agent_tick", "sim_cpu_share",
+              "gcs_cpu_share")  # fmt: skip
 
 
 def _loop_s(tree: Path, scenario: Path, seconds: float, report: Path) -> float:
@@ -43,6 +56,53 @@ def _loop_s(tree: Path, scenario: Path, seconds: float, report: Path) -> float:
         raise RuntimeError(f"swarm simulate failed in {tree}: {done.stderr[-400:]}")
     wall: float = json.loads((report / "metrics.json").read_text())["wall_time_s"]
     return wall
+
+
+def _up_run(tree: Path, n: int, seconds: float) -> dict[str, Any]:
+    """One ``swarm up`` of the N-drone hover grid by checkout ``tree`` (bench/up_lockstep.py
+    ``run_case``, the default layout): its figures."""
+    python = tree / ".venv" / "bin" / "python"
+    code = ("import json, sys; from bench.up_lockstep import run_case; "
+            f"print(json.dumps(run_case({n}, None, 'grid', {seconds!r})))")  # fmt: skip
+    done = subprocess.run([str(python), "-c", code], cwd=tree, capture_output=True, text=True,
+                          timeout=3600, env={**os.environ, "PYTHONPATH": str(tree)})  # fmt: skip
+    if done.returncode != 0:
+        raise RuntimeError(f"swarm up failed in {tree}: {done.stderr[-400:]}")
+    got: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
+    if got.get("flying_at_end") != n:
+        raise RuntimeError(f"swarm up in {tree}: {got.get('flying_at_end')} of {n} flying")
+    return got
+
+
+def compare_up(
+    before: Path, after: Path, sizes: list[int], runs: int, seconds: float
+) -> dict[str, Any]:
+    """The ``--up`` A/B of the module doc."""
+    speed_start = machine_speed()
+    rows = []
+    for n in sizes:
+        runs_of: dict[str, list[dict[str, Any]]] = {"before": [], "after": []}
+        for k in range(runs):
+            for side, tree in (("before", before), ("after", after)):
+                got = _up_run(tree, n, seconds)
+                runs_of[side].append({f: got.get(f) for f in UP_FIGURES})
+                print(f"N = {n} {side} run {k + 1}: " + ", ".join(
+                    f"{f} {got.get(f)}" for f in UP_FIGURES), flush=True)  # fmt: skip
+        row: dict[str, Any] = {"n": n, "seconds": seconds, "runs": runs_of}
+        for f in UP_FIGURES:
+            b = statistics.median(r[f] for r in runs_of["before"])
+            a = statistics.median(r[f] for r in runs_of["after"])
+            row[f] = {"median_before": b, "median_after": a, "after_over_before": round(a / b, 3)}
+        rows.append(row)
+    return {
+        "command": "python -m bench.ab --up",
+        "before": commit(before) or str(before),
+        "after": commit(after) or str(after),
+        "runs": runs,
+        "rows": rows,
+        "machine_speed_start": speed_start,
+        "machine_speed_end": machine_speed(),
+    }
 
 
 def compare(
@@ -101,7 +161,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--after", type=Path, default=ROOT, help="the checkout after (this one)")
     ap.add_argument("--sizes", default="25,100", help="drone counts, comma separated")
     ap.add_argument("--runs", type=int, default=5, help="runs per checkout and size")
-    ap.add_argument("--seconds", type=float, default=20.0, help="simulated seconds per run")
+    ap.add_argument("--seconds", type=float, default=None,
+                    help="simulated seconds per run (20; with --up 25)")  # fmt: skip
+    ap.add_argument(
+        "--up",
+        action="store_true",
+        help="compare swarm up (lockstep, default layout) instead of swarm simulate",
+    )
     args = ap.parse_args(argv)
     for tree in (args.before, args.after):
         if not (tree / ".venv" / "bin" / "python").exists():
@@ -115,7 +181,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bench.ab: --sizes takes drone counts like 25,100, got {args.sizes!r}",
               file=sys.stderr)  # fmt: skip
         return 2
-    result = compare(args.before.resolve(), args.after.resolve(), sizes, args.runs, args.seconds)
+    if args.up:
+        seconds = 25.0 if args.seconds is None else args.seconds
+        result = compare_up(args.before.resolve(), args.after.resolve(), sizes, args.runs, seconds)
+        write_result(OUT_UP, result)
+        for row in result["rows"]:
+            print(f"N = {row['n']}: " + "; ".join(
+                f"{f} {row[f]['median_before']} -> {row[f]['median_after']}"
+                for f in UP_FIGURES))  # fmt: skip
+        print(f"written: {OUT_UP.relative_to(ROOT)}")
+        return 0
+    seconds = 20.0 if args.seconds is None else args.seconds
+    result = compare(args.before.resolve(), args.after.resolve(), sizes, args.runs, seconds)
     write_result(OUT, result)
     for row in result["rows"]:
         print(f"N = {row['n']}: loop {row['median_before_s']} s -> {row['median_after_s']} s "
