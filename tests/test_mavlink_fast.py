@@ -110,6 +110,25 @@ def test_a_datagram_of_several_frames_parses_whole() -> None:
     assert parse(b"") == []
 
 
+def test_a_light_message_has_the_fields_of_pymavlinks_object() -> None:
+    """Every message without text fields read lightly (fast.fields_of): the same values, type
+    name and sender as pymavlink's object of the frame, in a datagram of several kinds."""
+    rng = np.random.default_rng(11)
+    light = frozenset(cls for cls in mavlink.mavlink_map.values() if "char" not in cls.fieldtypes)
+    for cls in sorted(light, key=lambda c: c.id)[:400]:
+        codec = _codec(int(rng.integers(1, 255)), int(rng.integers(0, 256)))
+        others = [pack(_random_message(mavlink.MAVLink_statustext_message, rng), codec)]
+        data = pack(_random_message(cls, rng, bool(rng.random() < 0.5)), codec) + others[0]
+        ours, theirs = parse(data, light), _pymavlink_parse(data)
+        assert ours is not None and len(ours) == len(theirs) == 2
+        for name in theirs[0].fieldnames:
+            a, b = getattr(ours[0], name), getattr(theirs[0], name)
+            assert struct.pack("d", a) == struct.pack("d", b) if isinstance(b, float) else a == b
+        for method in ("get_type", "get_srcSystem", "get_srcComponent"):
+            assert getattr(ours[0], method)() == getattr(theirs[0], method)(), method
+        _same(ours[1], theirs[1])  # a message with text: pymavlink's object still
+
+
 def test_what_pymavlink_must_judge_is_left_to_it() -> None:
     rng = np.random.default_rng(6)
     codec = _codec(4)

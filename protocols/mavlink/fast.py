@@ -227,25 +227,66 @@ def frames(data: bytes, known: Mapping[int, Any] | None = None) -> list[Frame] |
     return out
 
 
-def parse(data: bytes) -> list[Any] | None:
+def parse(data: bytes, light: frozenset[Any] = frozenset()) -> list[Any] | None:
     """The messages of ``data`` (pymavlink's message objects, as its parser gives them) if it
     is only whole, unsigned MAVLink 2 frames of known messages with good checksums; None
-    otherwise (parse it with pymavlink then)."""
+    otherwise (parse it with pymavlink then). A message of a class in ``light`` comes as its
+    :func:`fields_of` instead (the same fields, no pymavlink object)."""
     found = frames(data)
     if found is None:
         return None
     out: list[Any] = []
     for frame in found:
-        msg = message_of(frame, data)
+        msg = fields_of(frame) if frame.cls in light else message_of(frame, data)
         if msg is None:
             return None
         out.append(msg)
     return out
 
 
-def _built(cls: Any, body: bytes) -> Any:
-    """Message class ``cls``'s object of the full payload ``body`` (wire order), None if it
-    does not unpack or pymavlink cannot build it."""
+_LIGHT: dict[Any, Any] = {}
+
+
+def _light_class(cls: Any) -> Any:
+    """A named tuple of message class ``cls``'s fields (declared order) and its sender, with
+    the reading methods of pymavlink's messages that a receiver uses (``get_type``,
+    ``get_srcSystem``, ``get_srcComponent``); made once per class."""
+    made = _LIGHT.get(cls)
+    if made is None:
+        if "char" in cls.fieldtypes:  # pymavlink's object makes text of a char array
+            raise ValueError(f"{cls.msgname} has text fields: not read lightly")
+        base = NamedTuple(  # type: ignore[misc]
+            f"Light{cls.msgname.title()}",
+            [*((name, Any) for name in cls.fieldnames), ("src_system", int),
+             ("src_component", int)],
+        )  # fmt: skip
+        name = cls.msgname
+        made = _LIGHT[cls] = type(
+            base.__name__,
+            (base,),
+            {
+                "__slots__": (),
+                "get_type": lambda self: name,
+                "get_srcSystem": lambda self: self.src_system,
+                "get_srcComponent": lambda self: self.src_component,
+            },
+        )
+    return made
+
+
+def fields_of(f: Frame) -> Any:
+    """The fields of frame ``f`` as its class's light message (:func:`_light_class`): the values
+    pymavlink's object of the frame has (arrays as lists), read the same way; None if the
+    payload does not unpack."""
+    values = _values(f.cls, f.body)
+    if values is None:
+        return None
+    return _light_class(f.cls)(*values, f.sysid, f.compid)
+
+
+def _values(cls: Any, body: bytes) -> list[Any] | None:
+    """The declared-order values of message class ``cls`` in the full payload ``body`` (wire
+    order), as pymavlink's constructor takes them; None if it does not unpack."""
     try:
         t = cls.unpacker.unpack(body)
     except struct.error:
@@ -262,7 +303,15 @@ def _built(cls: Any, body: bytes) -> Any:
             values.append(
                 field if length == 1 or isinstance(field, bytes) else list(t[tip : tip + length])
             )
-    values = [v.rstrip(b"\x00") if isinstance(v, bytes) else v for v in values]
+    return [v.rstrip(b"\x00") if isinstance(v, bytes) else v for v in values]
+
+
+def _built(cls: Any, body: bytes) -> Any:
+    """Message class ``cls``'s object of the full payload ``body`` (wire order), None if it
+    does not unpack or pymavlink cannot build it."""
+    values = _values(cls, body)
+    if values is None:
+        return None
     try:
         return cls(*values)
     except Exception:  # as pymavlink: a message it cannot build is not a message

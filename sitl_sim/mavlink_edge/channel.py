@@ -30,6 +30,8 @@ from protocols.mavlink.fast import fast_receive_ok, pack, parse
 from protocols.mavlink.signing import setup_signing
 
 Address = tuple[str, int]
+#: Messages decoded as their fields alone (protocols/mavlink/fast.py ``fields_of``)
+_LIGHT = frozenset({mavlink.MAVLink_set_attitude_target_message})
 #: Largest datagram the simulator sends (bytes): below the loopback and Ethernet MTUs.
 MAX_DATAGRAM_BYTES = 1200
 _RECV_BYTES = 65535
@@ -76,9 +78,10 @@ def new_codec(sysid: int, compid: int, signing_key: bytes | None) -> Any:
 def decode_datagram(codec: Any, data: bytes) -> Decoded:
     """Parse one datagram with ``codec``; the parser is reset afterwards. A datagram of whole,
     unsigned, valid MAVLink 2 frames to a codec without a key is parsed without pymavlink's
-    byte-by-byte parser (protocols/mavlink/fast.py: the same messages)."""
+    byte-by-byte parser (protocols/mavlink/fast.py: the same messages; a setpoint as its fields
+    alone, every agent's every tick, which the dispatcher reads as it reads the object)."""
     if fast_receive_ok(codec):
-        fast = parse(data)
+        fast = parse(data, _LIGHT)
         if fast is not None:
             return Decoded(fast, 0, 0)
     messages: list[Any] = []
