@@ -71,7 +71,6 @@ from protocols.mavlink.fast import (
     pack,
     pack_payload,
 )
-from protocols.mavlink.frame_batch import frames_of
 from protocols.model.frames import FloatArray, zyx_from_quat_batch
 from protocols.model.geodesy import GeoPoint, ned_of_global_int
 
@@ -246,8 +245,8 @@ class TlogWriter:
         neighbour_ids: Sequence[Sequence[int]],
     ) -> None:
         """:meth:`write_agent_status` of each row (``values`` (n, AGENT_STATUS_VALUES)) in order
-        (layout 1): the same records, their payloads laid out together and framed in one
-        compiled call (protocols/mavlink/frame_batch.py)."""
+        (layout 1): the same records, their payloads laid out together (one array) and written
+        at once (no numba in the ground station: its first call would stall it)."""
         n = len(sysids)
         if n == 0:
             return
@@ -271,24 +270,15 @@ class TlogWriter:
         payload["layout"] = AGENT_STATUS_LAYOUT
         payload["name"] = _STATUS_NAME
         payload["data"] = data
-        codecs = [self.codec(s, AGENT_COMPID) for s in sysids]
-        size = _STATUS.size
-        head = np.array(
-            [[size] * n, [_DEBUG_FLOAT_ARRAY.id] * n, [_DEBUG_FLOAT_ARRAY.crc_extra] * n,
-             [c.seq for c in codecs], [c.srcSystem for c in codecs],
-             [c.srcComponent for c in codecs]], dtype=np.int64,
-        )  # fmt: skip
-        framed, ends = frames_of(payload.view(np.uint8), np.arange(n, dtype=np.int64) * size, *head)
         if self._file is None:
             raise RuntimeError("TlogWriter is not open (use it as a context manager)")
-        stamps = [(t + self.epoch_offset_us) & ~0x3 for t in times]
-        start = 0
-        out = []
-        for stamp, end in zip(stamps, ends, strict=True):
-            out.append(_TS.pack(stamp))
-            out.append(framed[start:end])
-            start = end
-        self._file.write(b"".join(out))
+        payloads, size, offset = payload.tobytes(), _STATUS.size, self.epoch_offset_us
+        self._file.write(b"".join(
+            _TS.pack((t + offset) & ~0x3) + pack_payload(
+                _DEBUG_FLOAT_ARRAY, payloads[r * size : (r + 1) * size],
+                self.codec(sysid, AGENT_COMPID))
+            for r, (t, sysid) in enumerate(zip(times, sysids, strict=True))
+        ))  # fmt: skip
         self.n_records += n
 
     def write_heartbeat(
