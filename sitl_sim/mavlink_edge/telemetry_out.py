@@ -6,8 +6,9 @@ Each link side (the agents' or the ground station's) has per vehicle the message
 payload) and a framing (header, trailing zeros cut, checksum) in Python: at 100 vehicles a
 quarter of the simulator's time, and in lockstep every agent waits for it. Here a message that
 has a row builder (:data:`sitl_sim.mavlink_edge.messages.Rows`: ATTITUDE, LOCAL_POSITION_NED,
-ACTUATOR_OUTPUT_STATUS) is packed for all vehicles at once, once per tick for both sides; any
-other is built one by one as before; then all the side's frames are framed in one compiled call
+ACTUATOR_OUTPUT_STATUS, ATTITUDE_TARGET, GLOBAL_POSITION_INT, unless the dialect builds it its own
+way) is packed for all vehicles at once, once per tick for both sides; any other is built one by
+one as before; then all the side's frames are framed in one compiled call
 (:func:`protocols.mavlink.frame_batch.frame_many`) and queued vehicle by vehicle, in the order,
 with the sequence numbers, that sending them one by one gives. A vehicle whose codec signs sends
 its frames one by one (pymavlink signs them).
