@@ -250,10 +250,9 @@ class TlogWriter:
         n = len(sysids)
         if n == 0:
             return
-        rows = np.full(n, np.nan, dtype=np.float64).repeat(58).reshape(n, 58)
-        rows[:, :AGENT_STATUS_VALUES] = np.asarray(values, dtype=np.float64)[
-            :, :AGENT_STATUS_VALUES
-        ]
+        rows = np.full((n, 58), np.nan)
+        head = AGENT_STATUS_VALUES
+        rows[:, :head] = np.asarray(values, dtype=np.float64)[:, :head]
         for r, ids in enumerate(neighbour_ids):
             if ids:
                 kept = sorted(ids)[:AGENT_NEIGHBOUR_SLOTS]
