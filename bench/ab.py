@@ -98,8 +98,15 @@ def compare_up(
             a = statistics.median(r[f] for r in runs_of["after"])
             row[f] = {"median_before": b, "median_after": a, "after_over_before": round(a / b, 3)}
         rows.append(row)
+    return _result("python -m bench.ab --up", before, after, runs, rows, speed_start)
+
+
+def _result(
+    command: str, before: Path, after: Path, runs: int, rows: list[Any], speed_start: Any
+) -> dict[str, Any]:
+    """An A/B's result file: its rows with both commits and the machine's speed."""
     return {
-        "command": "python -m bench.ab --up",
+        "command": command,
         "before": commit(before) or str(before),
         "after": commit(after) or str(after),
         "runs": runs,
@@ -148,15 +155,7 @@ def compare(
                 "rtf_loop_before": round(seconds / b, 2),
                 "rtf_loop_after": round(seconds / a, 2),
             })  # fmt: skip
-    return {
-        "command": "python -m bench.ab",
-        "before": commit(before) or str(before),
-        "after": commit(after) or str(after),
-        "runs": runs,
-        "rows": rows,
-        "machine_speed_start": speed_start,
-        "machine_speed_end": machine_speed(),
-    }
+    return _result("python -m bench.ab", before, after, runs, rows, speed_start)
 
 
 def main(argv: list[str] | None = None) -> int:

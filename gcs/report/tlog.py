@@ -256,7 +256,7 @@ class TlogWriter:
         for r, ids in enumerate(neighbour_ids):
             if ids:
                 kept = sorted(ids)[:AGENT_NEIGHBOUR_SLOTS]
-                rows[r, AGENT_STATUS_VALUES : AGENT_STATUS_VALUES + len(kept)] = kept
+                rows[r, head : head + len(kept)] = kept
         with np.errstate(over="ignore"):
             data = rows.astype(np.float32)  # (beyond float32: inf, as _as_float32)
         times = [round(t * 1e6) for t in t_s]

@@ -179,15 +179,9 @@ class TelemetryReceiver:
                 if not frame and (text := self._handle(msg)) is not None:
                     texts.append(text)
 
-    def log_agent_status(self, status: AgentStatus) -> None:
-        """Record an agent's status in the tlog (protocols/mavlink/conventions.py "AGENT")."""
-        values = [*status.estimate, len(status.neighbours), int(status.mode), int(status.armed)]
-        self._tlog.write_agent_status(
-            status.t_s, status.drone + 1, np.array(values, dtype=float), status.neighbours
-        )
-
     def log_agent_statuses(self, statuses: Sequence[AgentStatus]) -> None:
-        """:meth:`log_agent_status` of each, in order (the same records, written together)."""
+        """Record agents' statuses in the tlog, in order (protocols/mavlink/conventions.py
+        "AGENT": the estimate, the neighbour count, the mode and armed; the neighbours' ids)."""
         values = np.empty((len(statuses), AGENT_STATUS_VALUES))
         for row, status in zip(values, statuses, strict=True):
             row[:N_ESTIMATE] = status.estimate

@@ -191,7 +191,8 @@ _ACTUATOR_OUTPUT = np.dtype([("t", "<u8"), ("active", "<u4"), ("v", "<f4", (32,)
 def _float32(values: FloatArray) -> npt.NDArray[np.float32] | None:
     """``values`` as struct's ``f`` packs each (C's conversion); None if one is not finite or
     too large for a float32 (struct refuses it: the one-by-one builder raises as before)."""
-    out = values.astype(np.float32)
+    with np.errstate(over="ignore"):
+        out = values.astype(np.float32)
     return out if np.isfinite(out).all() else None
 
 

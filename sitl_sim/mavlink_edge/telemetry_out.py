@@ -103,18 +103,14 @@ class TickTelemetry:
         endpoint = None  # the endpoint they go to (the GCS link's: one for all vehicles)
         for i, framed in order:
             channel = channels[i]
+            if endpoint is not None and (not framed or channel.endpoint is not endpoint):
+                endpoint.queue_frames(data, ends[at:stop], ends[at - 1] if at else 0)
+                at, endpoint = stop, None  # the run so far goes out first
             if not framed:
-                if endpoint is not None:
-                    endpoint.queue_frames(data, ends[at:stop], ends[at - 1] if at else 0)
-                    at, endpoint = stop, None
                 for msg in signed[i]:
                     channel.send(msg)
                 continue
-            if channel.endpoint is not endpoint:
-                if endpoint is not None:
-                    endpoint.queue_frames(data, ends[at:stop], ends[at - 1] if at else 0)
-                    at = stop
-                endpoint = channel.endpoint
+            endpoint = channel.endpoint
             n = counts[i]
             stop += n
             codec = channel.codec
