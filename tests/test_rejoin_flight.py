@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -104,7 +105,12 @@ def test_agents_killed_in_flight_come_back_into_the_formation(tmp_path: Path) ->
     base, gcs_port = free_port_block(5), free_udp_port()
     report = tmp_path / "report"
     retyped: subprocess.Popen[bytes] | None = None
-    with observer() as obs:
+    up_log = tmp_path / "up.log"
+
+    def said() -> str:  # the run's printed output so far, its end
+        return up_log.read_text(errors="replace")[-3000:]
+
+    with observer() as obs, up_log.open("wb") as log_file:
         proc = subprocess.Popen(
             swarm_command(
                 *("up", str(scenario), "--report", str(report), "--no-plots", "--no-recording"),
@@ -113,20 +119,26 @@ def test_agents_killed_in_flight_come_back_into_the_formation(tmp_path: Path) ->
                 *("--base-port", str(base), "--gcs-port", str(gcs_port)),
                 *("--swarm-id", SWARM, "--zenoh-connect", obs.endpoint),
             ),
-            stdout=subprocess.PIPE,
+            stdout=log_file,
             stderr=subprocess.STDOUT,
             env=ENV,
             cwd=ROOT,
         )
         try:
 
+            def until(condition: Callable[[], bool], timeout_s: float) -> bool:
+                """``condition`` within ``timeout_s``, given up at once if the run has ended."""
+                return obs.wait_until(
+                    lambda: condition() or proc.poll() is not None, timeout_s
+                ) and (condition())
+
             def t_now() -> float:
                 return max((s.t_s for s in obs.statuses().values()), default=0.0)
 
             def wait_sim(t_s: float) -> None:
-                assert obs.wait_until(lambda: t_now() >= t_s, WALL_PER_SIM_S * t_s), t_now()
+                assert until(lambda: t_now() >= t_s, WALL_PER_SIM_S * t_s), (t_now(), said())
 
-            flying = obs.wait_until(
+            flying = until(
                 lambda: (
                     len(obs.statuses()) == 5
                     and all(s.mode == AgentMode.FLYING for s in obs.statuses().values())
@@ -134,7 +146,7 @@ def test_agents_killed_in_flight_come_back_into_the_formation(tmp_path: Path) ->
                 ),
                 WALL_PER_SIM_S * 20,
             )
-            assert flying, {d: (s.mode, s.t_s) for d, s in obs.statuses().items()}
+            assert flying, ({d: (s.mode, s.t_s) for d, s in obs.statuses().items()}, said())
             # 1. the restart drill: the vehicle lands meanwhile, the new agent re-arms it
             done = _drill(
                 obs.endpoint, "restart", "--drone", str(RESTARTED), "--gap-s", "8", "--json"
@@ -163,7 +175,7 @@ def test_agents_killed_in_flight_come_back_into_the_formation(tmp_path: Path) ->
                 retyped = subprocess.Popen(
                     argv, stdout=log, stderr=subprocess.STDOUT, env=ENV, cwd=ROOT
                 )
-            out, _ = proc.communicate(timeout=WALL_PER_SIM_S * DURATION_S)
+            proc.wait(timeout=WALL_PER_SIM_S * DURATION_S)
         finally:
             for p in (proc, retyped):
                 if p is not None and p.poll() is None:
@@ -173,8 +185,7 @@ def test_agents_killed_in_flight_come_back_into_the_formation(tmp_path: Path) ->
                     except subprocess.TimeoutExpired:
                         p.kill()
                         p.wait(5)
-    text = out.decode(errors="replace")
-    assert proc.returncode == 0, text[-3000:]
+    assert proc.returncode == 0, said()
     events = read_events(report / "events.jsonl")
     track = read_tlog(report / "flight.tlog")
     for drone, landed in ((RESTARTED, True), (RETYPED, False)):  # 3: landed or not
