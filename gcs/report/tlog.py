@@ -231,10 +231,12 @@ class TlogWriter:
             layout = AGENT_STATUS_LAYOUT
             data += [float(j) for j in sorted(neighbour_ids)[:AGENT_NEIGHBOUR_SLOTS]]
         data += [float("nan")] * (58 - len(data))
-        data = _as_float32(data)
         mav = self.codec(sysid, AGENT_COMPID)
         usec = max(0, round(t_s * 1e6))
-        payload = _STATUS.pack(usec, layout, _STATUS_NAME, *data)  # pymavlink's field order
+        try:  # pymavlink's field order; struct rounds to float32 as numpy does
+            payload = _STATUS.pack(usec, layout, _STATUS_NAME, *data)
+        except OverflowError:  # a value beyond float32's range (or a time beyond 64 bits)
+            payload = _STATUS.pack(usec, layout, _STATUS_NAME, *_as_float32(data))
         self.write_packet(t_s, pack_payload(_DEBUG_FLOAT_ARRAY, payload, mav))
 
     def write_agent_statuses(
