@@ -579,3 +579,74 @@ def test_a_batch_decides_as_its_rows_do_one_by_one() -> None:
                 alone[r].landed,
                 alone[r].handed_over,
             )
+
+
+def _takeoff_rule(
+    state: tuple[np.ndarray, np.ndarray, np.ndarray],
+    rows: list[int],
+    round_: int,
+    committed: list[bool],
+    receiver: np.ndarray,
+    takeoff: np.ndarray | None,
+    timeout: int,
+) -> list[int | None]:
+    """BatchTakeoff.update's rule as numpy wrote it (the reference of the compiled pass):
+    ``state`` (advertised, heard, heard_at) is updated in place."""
+    advertised, heard_tab, heard_at = state
+    r = np.asarray(rows, dtype=np.intp)
+    least = np.full(advertised.shape[0], np.iinfo(np.int64).max, dtype=np.int64)
+    if takeoff is not None and takeoff.shape[0]:
+        says = takeoff >= 0
+        np.minimum.at(least, receiver[says], takeoff[says])
+    heard_now = least[r] != np.iinfo(np.int64).max
+    held, held_at = heard_tab[r], heard_at[r]
+    expired = (held >= 0) & (round_ - held_at > timeout)
+    heard = np.where(heard_now, least[r], np.where(expired, -1, held))
+    heard_tab[r] = heard
+    heard_at[r] = np.where(heard_now, round_, held_at)
+    own = np.where(advertised[r] >= 0, advertised[r], round_)
+    own = np.where(heard >= 0, np.minimum(own, heard), own)
+    advertised[r] = np.where(np.asarray(committed, dtype=bool), own, -1)
+    return [None if t < 0 else t for t in advertised[r].tolist()]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_batch_takeoff_is_the_numpy_rule(seed: int) -> None:
+    """BatchTakeoff.update (one compiled pass) gives the rounds, and keeps the state, of the
+    numpy rule it replaced, over random traffic: rows in any order and skipped, several rounds
+    per receiver (the least wins), messages without a take-off round, ticks with no take-off
+    rounds at all (``takeoff`` None), silences past the timeout, rows landing and flying again."""
+    from drone_agent.core.flight_phase import Arrivals, BatchTakeoff
+
+    rng = np.random.default_rng(seed)
+    k, timeout = 12, 4
+    batch = BatchTakeoff(k, timeout)
+    state = (
+        np.full(k, -1, dtype=np.int64),
+        np.full(k, -1, dtype=np.int64),
+        np.zeros(k, dtype=np.int64),
+    )
+    committed = np.zeros(k, dtype=bool)
+    flew = 0
+    for round_ in range(600):
+        rows = [int(i) for i in rng.permutation(k) if rng.random() < 0.85]
+        n = 0 if 250 <= round_ < 270 else int(rng.integers(0, 3 * k))
+        receiver = rng.integers(0, k, n).astype(np.intp)
+        said = rng.integers(max(0, round_ - 40), round_ + 1, n).astype(np.int64)
+        said[rng.random(n) < 0.5] = -1
+        takeoff = None if rng.random() < 0.1 else said
+        committed |= rng.random(k) < 0.03
+        committed &= rng.random(k) > 0.01
+        arrivals = Arrivals(
+            receiver, np.zeros(n, dtype=np.intp), np.zeros(n, dtype=np.int64),
+            np.zeros(n, dtype=np.int64), takeoff,
+        )  # fmt: skip
+        flags = committed[rows].tolist()
+        want = _takeoff_rule(state, rows, round_, flags, receiver, takeoff, timeout)
+        assert batch.update(rows, round_, flags, arrivals) == want, round_
+        assert batch.advertised.tolist() == state[0].tolist(), round_
+        assert batch.rounds(range(k)) == [
+            None if t < 0 else t for t in np.where(state[0] >= 0, state[0], state[1]).tolist()
+        ], round_
+        flew += sum(t is not None for t in want)
+    assert flew > 1000  # rows did fly, on rounds heard and their own
