@@ -4,9 +4,11 @@ flight command, agent phase and vehicle state, and the landing and take-off sequ
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
+import numpy.typing as npt
 import pytest
 
 from drone_agent.core.agent_core import AgentConfig, AgentOutput, Setpoint
@@ -14,12 +16,15 @@ from drone_agent.core.consensus.scalar import ConsensusParams
 from drone_agent.core.flight_phase import (
     AIRBORNE_ALTITUDE_M,
     REQUESTS,
+    Arrivals,
     BatchFlightPhase,
+    BatchReadiness,
     FlightPhase,
     Readiness,
     Request,
     VehicleArrays,
     VehicleView,
+    _settled_levels,
 )
 from drone_agent.core.thrust_attitude import ThrustLimits
 from protocols.model.frames import G_M_S2
@@ -650,3 +655,138 @@ def test_batch_takeoff_is_the_numpy_rule(seed: int) -> None:
         ], round_
         flew += sum(t is not None for t in want)
     assert flew > 1000  # rows did fly, on rounds heard and their own
+
+
+class _NumpyReadiness(BatchReadiness):
+    """BatchReadiness with its update as numpy wrote it around the compiled flood (the
+    reference of the one-pass update)."""
+
+    def update(
+        self,
+        rows: Sequence[int],
+        round_: int,
+        disagreement: Sequence[float] | npt.NDArray[np.float64],
+        ready_to_fly: Sequence[bool] | npt.NDArray[np.bool_],
+        arrivals: Arrivals,
+        members: frozenset[int] | Sequence[frozenset[int]],
+        committed: Sequence[bool],
+        vehicle_ready: Sequence[bool] | None = None,
+    ) -> npt.NDArray[np.bool_]:
+        """BatchReadiness.update before the one-pass kernel, line for line."""
+        rows_arr = np.asarray(rows, dtype=np.intp)
+        n_rows = rows_arr.shape[0]
+        rows_list = rows_arr.tolist()
+        one_view: frozenset[int] | None = None
+        if isinstance(members, frozenset):
+            one_view, views = members, [members] * n_rows
+        else:
+            views = list(members)
+        # own settling: calm ticks in a row with the same membership view
+        last = self._members
+        if one_view is not None and all(last[r] is one_view for r in rows_list):  # usual
+            same = np.ones(n_rows, dtype=bool)
+        else:
+            same = np.fromiter(
+                (
+                    (m is v or m == v)
+                    for m, v in zip((last[r] for r in rows_list), views, strict=True)
+                ),
+                dtype=bool,
+                count=n_rows,
+            )
+            for r, v in zip(rows_list, views, strict=True):
+                last[r] = v
+        values = np.asarray(disagreement, dtype=float)
+        below = values < self.tolerance
+        if self.plateau:
+            below |= self._stopped_falling(rows_arr, values, same)
+        calm = below & same
+        calm_ticks = np.where(calm, self.calm_ticks[rows_arr] + 1, 0)
+        self.calm_ticks[rows_arr] = calm_ticks
+        fly = np.asarray(ready_to_fly, dtype=bool)
+        flying = np.asarray(committed, dtype=bool)
+        agrees = calm_ticks >= self.ticks
+        if vehicle_ready is not None:
+            agrees &= np.asarray(vehicle_ready, dtype=bool)
+        agrees |= flying
+        # the swarm settled: the newest (round, level) per sender, the first copy of its highest
+        # round
+        receiver, sender = arrivals.receiver, arrivals.sender
+        if sender.shape[0]:
+            top = max(int(sender.max()), int(receiver.max()))
+            if top >= self._m:
+                self._grow(top + 1)
+        if n_rows and int(rows_arr.max()) >= self._m:
+            self._grow(int(rows_arr.max()) + 1)
+        updating = np.zeros(self.k, dtype=bool)
+        updating[rows_arr] = True
+        if one_view is not None:
+            caps = np.full(n_rows, max(len(one_view), 1), dtype=np.int64)
+        else:
+            caps = np.fromiter((max(len(v), 1) for v in views), dtype=np.int64, count=n_rows)
+        level = np.empty(n_rows, dtype=np.int64)
+        if one_view is not None:  # one mask for all rows
+            member = self._member_mask(one_view)[None]
+        else:
+            member = self._member_masks(views)
+        _settled_levels(
+            rows_arr,
+            updating,
+            np.ascontiguousarray(receiver, dtype=np.intp),
+            np.ascontiguousarray(sender, dtype=np.intp),
+            np.ascontiguousarray(arrivals.round, dtype=np.int64),
+            np.ascontiguousarray(arrivals.level, dtype=np.int64),
+            self._round,
+            self._level,
+            int(round_) - 1 - self.timeout,
+            member,
+            np.ascontiguousarray(agrees, dtype=np.bool_),
+            caps,
+            level,
+        )
+        self.level[rows_arr] = level
+        ready = (level >= caps) & (fly | flying)
+        self.ready[rows_arr] = ready
+        return ready
+
+
+@pytest.mark.parametrize("plateau", [False, True])
+def test_batch_readiness_is_the_numpy_rule(plateau: bool) -> None:
+    """BatchReadiness.update (one compiled pass after the calm test) gives the readiness, the
+    levels, the calm counts and the tables of the numpy rule it replaced, over random traffic:
+    rows in any order and skipped, late and duplicated messages, senders beyond the table (it
+    grows), one view for all rows or one per row, views changing, commitments, vehicles not
+    ready, the plateau rule on and off."""
+    config = AgentConfig(  # type: ignore[arg-type]
+        ConsensusParams(heard_timeout_ticks=3), None, LIMITS, settle_ticks=4,
+        settle_tolerance=0.05, settle_plateau=plateau, settle_window_ticks=5,
+    )  # fmt: skip
+    rng = np.random.default_rng(3 + plateau)
+    k = 14
+    batch, reference = BatchReadiness(k, config), _NumpyReadiness(k, config)
+    members = frozenset(range(k))
+    ready_seen = 0
+    for round_ in range(400):
+        if round_ % 41 == 0:
+            members = frozenset(int(j) for j in np.flatnonzero(rng.random(k + 4) < 0.85)) | {0}
+        rows = [int(i) for i in rng.permutation(k) if rng.random() < 0.9]
+        n = int(rng.integers(0, 8 * k))
+        sender = rng.integers(0, k + 4 if round_ > 200 else k, n).astype(np.intp)
+        arrivals = Arrivals(
+            rng.integers(0, k, n).astype(np.intp), sender,
+            (round_ - rng.integers(1, 6, n)).astype(np.int64),
+            rng.integers(0, k + 2, n).astype(np.int64),
+        )  # fmt: skip
+        dis = rng.random(k) * 0.06
+        fly, committed = rng.random(k) < 0.9, rng.random(k) < 0.05
+        vehicle = None if rng.random() < 0.3 else (rng.random(k) < 0.95)[rows].tolist()
+        per_row = 150 <= round_ < 250
+        views = [members - {int(rng.integers(0, k))} for _ in rows] if per_row else members
+        args = (rows, round_, dis[rows].tolist(), fly[rows].tolist(), arrivals, views,
+                committed[rows].tolist(), vehicle)  # fmt: skip
+        got, want = batch.update(*args), reference.update(*args)
+        assert got.tolist() == want.tolist(), round_
+        for name in ("level", "ready", "calm_ticks", "_round", "_level", "_written", "_since"):
+            assert getattr(batch, name).tolist() == getattr(reference, name).tolist(), name
+        ready_seen += int(got.sum())
+    assert ready_seen > 10  # rows did get ready

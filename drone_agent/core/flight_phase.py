@@ -236,6 +236,7 @@ class BatchReadiness:
         self._round = np.zeros((k, 0), dtype=np.int64)  # newest round heard [row, sender]
         self._level = np.zeros((k, 0), dtype=np.int64)  # its level
         self._mask: tuple[frozenset[int] | None, npt.NDArray[np.bool_]] = (None, np.zeros(0, bool))
+        self.update((), 0, (), (), _NO_ARRIVALS, frozenset(), ())  # its compiled pass loaded now
 
     def _grow(self, m: int) -> None:
         pad = max(m, 2 * self._m) - self._m
@@ -317,15 +318,6 @@ class BatchReadiness:
         below = values < self.tolerance
         if self.plateau:
             below |= self._stopped_falling(rows_arr, values, same)
-        calm = below & same
-        calm_ticks = np.where(calm, self.calm_ticks[rows_arr] + 1, 0)
-        self.calm_ticks[rows_arr] = calm_ticks
-        fly = np.asarray(ready_to_fly, dtype=bool)
-        flying = np.asarray(committed, dtype=bool)
-        agrees = calm_ticks >= self.ticks
-        if vehicle_ready is not None:
-            agrees &= np.asarray(vehicle_ready, dtype=bool)
-        agrees |= flying
         # the swarm settled: the newest (round, level) per sender, the first copy of its highest
         # round
         receiver, sender = arrivals.receiver, arrivals.sender
@@ -335,20 +327,23 @@ class BatchReadiness:
                 self._grow(top + 1)
         if n_rows and int(rows_arr.max()) >= self._m:
             self._grow(int(rows_arr.max()) + 1)
-        updating = np.zeros(self.k, dtype=bool)
-        updating[rows_arr] = True
         if one_view is not None:
             caps = np.full(n_rows, max(len(one_view), 1), dtype=np.int64)
+            member = self._member_mask(one_view)[None]  # one mask for all rows
         else:
             caps = np.fromiter((max(len(v), 1) for v in views), dtype=np.int64, count=n_rows)
-        level = np.empty(n_rows, dtype=np.int64)
-        if one_view is not None:  # one mask for all rows
-            member = self._member_mask(one_view)[None]
-        else:
             member = self._member_masks(views)
-        _settled_levels(
+        ready = np.empty(n_rows, dtype=np.bool_)
+        _readiness_rows(
             rows_arr,
-            updating,
+            below & same,
+            np.asarray(ready_to_fly, dtype=np.bool_),
+            np.asarray(committed, dtype=np.bool_),
+            np.ones(n_rows, dtype=np.bool_)
+            if vehicle_ready is None
+            else np.asarray(vehicle_ready, dtype=np.bool_),
+            int(self.ticks),
+            self.calm_ticks,
             np.ascontiguousarray(receiver, dtype=np.intp),
             np.ascontiguousarray(sender, dtype=np.intp),
             np.ascontiguousarray(arrivals.round, dtype=np.int64),
@@ -357,13 +352,11 @@ class BatchReadiness:
             self._level,
             int(round_) - 1 - self.timeout,
             member,
-            np.ascontiguousarray(agrees, dtype=np.bool_),
             caps,
-            level,
+            self.level,
+            self.ready,
+            ready,
         )
-        self.level[rows_arr] = level
-        ready = (level >= caps) & (fly | flying)
-        self.ready[rows_arr] = ready
         return ready
 
     def _stopped_falling(
@@ -470,6 +463,8 @@ class TakeoffClock:
 
 #: No take-off round (:class:`BatchTakeoff`'s arrays).
 _NO_TAKEOFF = -1
+#: no message (a tick's arrivals)
+_NO_ARRIVALS = Arrivals(*(np.zeros(0, dtype=np.int64) for _ in range(4)))
 #: no take-off round heard now (:func:`_takeoff_update`)
 _UNHEARD = int(np.iinfo(np.int64).max)
 
@@ -944,6 +939,53 @@ def warm_up(limits: ThrustLimits) -> None:
         [0], [int(FlightCommand.GROUND)], [False], [False], [None], [0.0],
         VehicleArrays.of([view]), [0.0],
     )  # fmt: skip
+
+
+@jit
+def _readiness_rows(  # type: ignore[no-untyped-def]
+    rows,
+    calm,
+    fly,
+    flying,
+    vehicle_ready,
+    ticks,
+    calm_ticks,
+    receiver,
+    sender,
+    rounds,
+    levels,
+    round_table,
+    level_table,
+    oldest,
+    member,
+    caps,
+    level_out,
+    ready_out,
+    ready,
+):
+    """:meth:`BatchReadiness.update` after its calm test, in one pass (it was two dozen numpy
+    calls around :func:`_settled_levels`): each row's calm ticks in a row (``calm``: calm this
+    tick), whether it agrees (``ticks`` of them and its vehicle ready, or it flies already), the
+    flood's levels (:func:`_settled_levels`) into ``level_out`` by row, and whether it is ready
+    (``ready`` in row order, ``ready_out`` by row): at the cap and its warm-up over or flying."""
+    n = rows.shape[0]
+    agrees = np.empty(n, dtype=np.bool_)
+    for p in range(n):
+        r = rows[p]
+        count = calm_ticks[r] + 1 if calm[p] else 0
+        calm_ticks[r] = count
+        agrees[p] = (count >= ticks and vehicle_ready[p]) or flying[p]
+    updating = np.zeros(round_table.shape[0], dtype=np.bool_)
+    for p in range(n):
+        updating[rows[p]] = True
+    level = np.empty(n, dtype=np.int64)
+    _settled_levels(rows, updating, receiver, sender, rounds, levels, round_table, level_table,
+                    oldest, member, agrees, caps, level)  # fmt: skip
+    for p in range(n):
+        r = rows[p]
+        level_out[r] = level[p]
+        ready[p] = level[p] >= caps[p] and (fly[p] or flying[p])
+        ready_out[r] = ready[p]
 
 
 @jit
