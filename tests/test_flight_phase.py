@@ -659,7 +659,7 @@ def test_batch_takeoff_is_the_numpy_rule(seed: int) -> None:
 
 class _NumpyReadiness(BatchReadiness):
     """BatchReadiness with its update as numpy wrote it around the compiled flood (the
-    reference of the one-pass update)."""
+    reference of the one-pass update; the calm test and the flood's inputs are the class's)."""
 
     def update(
         self,
@@ -672,35 +672,9 @@ class _NumpyReadiness(BatchReadiness):
         committed: Sequence[bool],
         vehicle_ready: Sequence[bool] | None = None,
     ) -> npt.NDArray[np.bool_]:
-        """BatchReadiness.update before the one-pass kernel, line for line."""
+        """BatchReadiness.update before the one-pass kernel."""
         rows_arr = np.asarray(rows, dtype=np.intp)
-        n_rows = rows_arr.shape[0]
-        rows_list = rows_arr.tolist()
-        one_view: frozenset[int] | None = None
-        if isinstance(members, frozenset):
-            one_view, views = members, [members] * n_rows
-        else:
-            views = list(members)
-        # own settling: calm ticks in a row with the same membership view
-        last = self._members
-        if one_view is not None and all(last[r] is one_view for r in rows_list):  # usual
-            same = np.ones(n_rows, dtype=bool)
-        else:
-            same = np.fromiter(
-                (
-                    (m is v or m == v)
-                    for m, v in zip((last[r] for r in rows_list), views, strict=True)
-                ),
-                dtype=bool,
-                count=n_rows,
-            )
-            for r, v in zip(rows_list, views, strict=True):
-                last[r] = v
-        values = np.asarray(disagreement, dtype=float)
-        below = values < self.tolerance
-        if self.plateau:
-            below |= self._stopped_falling(rows_arr, values, same)
-        calm = below & same
+        one_view, views, calm = self._calm(rows_arr, disagreement, members)
         calm_ticks = np.where(calm, self.calm_ticks[rows_arr] + 1, 0)
         self.calm_ticks[rows_arr] = calm_ticks
         fly = np.asarray(ready_to_fly, dtype=bool)
@@ -709,31 +683,15 @@ class _NumpyReadiness(BatchReadiness):
         if vehicle_ready is not None:
             agrees &= np.asarray(vehicle_ready, dtype=bool)
         agrees |= flying
-        # the swarm settled: the newest (round, level) per sender, the first copy of its highest
-        # round
-        receiver, sender = arrivals.receiver, arrivals.sender
-        if sender.shape[0]:
-            top = max(int(sender.max()), int(receiver.max()))
-            if top >= self._m:
-                self._grow(top + 1)
-        if n_rows and int(rows_arr.max()) >= self._m:
-            self._grow(int(rows_arr.max()) + 1)
+        caps, member = self._flood_inputs(rows_arr, arrivals, one_view, views)
         updating = np.zeros(self.k, dtype=bool)
         updating[rows_arr] = True
-        if one_view is not None:
-            caps = np.full(n_rows, max(len(one_view), 1), dtype=np.int64)
-        else:
-            caps = np.fromiter((max(len(v), 1) for v in views), dtype=np.int64, count=n_rows)
-        level = np.empty(n_rows, dtype=np.int64)
-        if one_view is not None:  # one mask for all rows
-            member = self._member_mask(one_view)[None]
-        else:
-            member = self._member_masks(views)
+        level = np.empty(rows_arr.shape[0], dtype=np.int64)
         _settled_levels(
             rows_arr,
             updating,
-            np.ascontiguousarray(receiver, dtype=np.intp),
-            np.ascontiguousarray(sender, dtype=np.intp),
+            np.ascontiguousarray(arrivals.receiver, dtype=np.intp),
+            np.ascontiguousarray(arrivals.sender, dtype=np.intp),
             np.ascontiguousarray(arrivals.round, dtype=np.int64),
             np.ascontiguousarray(arrivals.level, dtype=np.int64),
             self._round,

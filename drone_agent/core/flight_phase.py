@@ -236,7 +236,7 @@ class BatchReadiness:
         self._round = np.zeros((k, 0), dtype=np.int64)  # newest round heard [row, sender]
         self._level = np.zeros((k, 0), dtype=np.int64)  # its level
         self._mask: tuple[frozenset[int] | None, npt.NDArray[np.bool_]] = (None, np.zeros(0, bool))
-        self.update((), 0, (), (), _NO_ARRIVALS, frozenset(), ())  # its compiled pass loaded now
+        self.update((), 0, (), (), NO_ARRIVALS, frozenset(), ())  # its compiled pass loaded now
 
     def _grow(self, m: int) -> None:
         pad = max(m, 2 * self._m) - self._m
@@ -293,13 +293,50 @@ class BatchReadiness:
         :attr:`ready`, and the new levels :attr:`level`, by row)."""
         rows_arr = np.asarray(rows, dtype=np.intp)
         n_rows = rows_arr.shape[0]
-        rows_list = rows_arr.tolist()
+        one_view, views, calm = self._calm(rows_arr, disagreement, members)
+        caps, member = self._flood_inputs(rows_arr, arrivals, one_view, views)
+        ready = np.empty(n_rows, dtype=np.bool_)
+        _readiness_rows(
+            rows_arr,
+            calm,
+            np.asarray(ready_to_fly, dtype=np.bool_),
+            np.asarray(committed, dtype=np.bool_),
+            np.ones(n_rows, dtype=np.bool_)
+            if vehicle_ready is None
+            else np.asarray(vehicle_ready, dtype=np.bool_),
+            int(self.ticks),
+            self.calm_ticks,
+            np.ascontiguousarray(arrivals.receiver, dtype=np.intp),
+            np.ascontiguousarray(arrivals.sender, dtype=np.intp),
+            np.ascontiguousarray(arrivals.round, dtype=np.int64),
+            np.ascontiguousarray(arrivals.level, dtype=np.int64),
+            self._round,
+            self._level,
+            int(round_) - 1 - self.timeout,
+            member,
+            caps,
+            self.level,
+            self.ready,
+            ready,
+        )
+        return ready
+
+    def _calm(
+        self,
+        rows: npt.NDArray[np.intp],
+        disagreement: Sequence[float] | npt.NDArray[np.float64],
+        members: frozenset[int] | Sequence[frozenset[int]],
+    ) -> tuple[frozenset[int] | None, list[frozenset[int]], npt.NDArray[np.bool_]]:
+        """:meth:`update`'s calm test: the one view of all rows (None: one per row), each row's
+        view, and whether each row is calm this tick (below the tolerance, or on its plateau,
+        with the same membership view as at its last update, which is recorded)."""
+        n_rows = rows.shape[0]
+        rows_list = rows.tolist()
         one_view: frozenset[int] | None = None
         if isinstance(members, frozenset):
             one_view, views = members, [members] * n_rows
         else:
             views = list(members)
-        # own settling: calm ticks in a row with the same membership view
         last = self._members
         if one_view is not None and all(last[r] is one_view for r in rows_list):  # usual
             same = np.ones(n_rows, dtype=bool)
@@ -317,47 +354,33 @@ class BatchReadiness:
         values = np.asarray(disagreement, dtype=float)
         below = values < self.tolerance
         if self.plateau:
-            below |= self._stopped_falling(rows_arr, values, same)
-        # the swarm settled: the newest (round, level) per sender, the first copy of its highest
-        # round
+            below |= self._stopped_falling(rows, values, same)
+        return one_view, views, below & same
+
+    def _flood_inputs(
+        self,
+        rows: npt.NDArray[np.intp],
+        arrivals: Arrivals,
+        one_view: frozenset[int] | None,
+        views: list[frozenset[int]],
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+        """The settled-level flood's inputs besides the arrivals: the tables grown to every
+        sender and row (the newest (round, level) per sender is kept, the first copy of its
+        highest round), each row's cap (its view's size, at least 1) and the membership masks
+        (one for all rows, or one per row)."""
         receiver, sender = arrivals.receiver, arrivals.sender
         if sender.shape[0]:
             top = max(int(sender.max()), int(receiver.max()))
             if top >= self._m:
                 self._grow(top + 1)
-        if n_rows and int(rows_arr.max()) >= self._m:
-            self._grow(int(rows_arr.max()) + 1)
+        n_rows = rows.shape[0]
+        if n_rows and int(rows.max()) >= self._m:
+            self._grow(int(rows.max()) + 1)
         if one_view is not None:
             caps = np.full(n_rows, max(len(one_view), 1), dtype=np.int64)
-            member = self._member_mask(one_view)[None]  # one mask for all rows
-        else:
-            caps = np.fromiter((max(len(v), 1) for v in views), dtype=np.int64, count=n_rows)
-            member = self._member_masks(views)
-        ready = np.empty(n_rows, dtype=np.bool_)
-        _readiness_rows(
-            rows_arr,
-            below & same,
-            np.asarray(ready_to_fly, dtype=np.bool_),
-            np.asarray(committed, dtype=np.bool_),
-            np.ones(n_rows, dtype=np.bool_)
-            if vehicle_ready is None
-            else np.asarray(vehicle_ready, dtype=np.bool_),
-            int(self.ticks),
-            self.calm_ticks,
-            np.ascontiguousarray(receiver, dtype=np.intp),
-            np.ascontiguousarray(sender, dtype=np.intp),
-            np.ascontiguousarray(arrivals.round, dtype=np.int64),
-            np.ascontiguousarray(arrivals.level, dtype=np.int64),
-            self._round,
-            self._level,
-            int(round_) - 1 - self.timeout,
-            member,
-            caps,
-            self.level,
-            self.ready,
-            ready,
-        )
-        return ready
+            return caps, self._member_mask(one_view)[None]
+        caps = np.fromiter((max(len(v), 1) for v in views), dtype=np.int64, count=n_rows)
+        return caps, self._member_masks(views)
 
     def _stopped_falling(
         self,
@@ -463,8 +486,11 @@ class TakeoffClock:
 
 #: No take-off round (:class:`BatchTakeoff`'s arrays).
 _NO_TAKEOFF = -1
-#: no message (a tick's arrivals)
-_NO_ARRIVALS = Arrivals(*(np.zeros(0, dtype=np.int64) for _ in range(4)))
+#: No message (a tick's arrivals).
+NO_ARRIVALS = Arrivals(
+    np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp),
+    np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64),
+)  # fmt: skip
 #: no take-off round heard now (:func:`_takeoff_update`)
 _UNHEARD = int(np.iinfo(np.int64).max)
 
@@ -493,8 +519,7 @@ class BatchTakeoff:
         self.advertised = np.full(k, _NO_TAKEOFF, dtype=np.int64)
         self._heard = np.full(k, _NO_TAKEOFF, dtype=np.int64)
         self._heard_at = np.zeros(k, dtype=np.int64)
-        none = np.zeros(0, dtype=np.int64)  # its compiled pass loaded now, not at a first tick
-        _takeoff_update(none, 0, none.astype(np.bool_), none, none, 0, none, none, none, none)
+        self.update((), 0, (), NO_ARRIVALS)  # its compiled pass loaded now, not at a first tick
 
     def reset(self, row: int) -> None:
         """Row ``row`` starts again (a new life of its agent): no round advertised or heard."""

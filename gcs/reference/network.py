@@ -13,7 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from drone_agent.core.flight_phase import Arrivals
+from drone_agent.core.flight_phase import NO_ARRIVALS, Arrivals
 from drone_agent.core.inboxes import Inboxes
 from drone_agent.core.jit_math import jit
 from drone_agent.process.link_faults import LinkFaults, PairRandom
@@ -49,7 +49,7 @@ class InProcessNetwork:
         # (4, len) senders, rounds, levels and take-off rounds (-1: none)), in send order
         self._in_flight: dict[int, list[_Batch]] = defaultdict(list)
         #: the messages that arrived at the last :meth:`receive`, as arrays
-        self.arrivals = _NO_ARRIVALS
+        self.arrivals = NO_ARRIVALS
         self.sent = 0
         self.delivered = 0
         self.lost = 0
@@ -253,7 +253,7 @@ class InProcessNetwork:
         by the agents. :attr:`arrivals` are every drone's."""
         batches = self._in_flight.pop(round_, [])
         if not batches:
-            self.arrivals = _NO_ARRIVALS
+            self.arrivals = NO_ARRIVALS
             return Inboxes([[] for _ in drones], ([], _EMPTY))
         if len(batches) == 1:
             receivers, which, msgs, meta = batches[0]
@@ -306,4 +306,3 @@ _Batch = tuple[
     npt.NDArray[np.intp], npt.NDArray[np.intp], list[ConsensusMessage], npt.NDArray[np.int64]
 ]
 _EMPTY = np.zeros(0, dtype=np.intp)
-_NO_ARRIVALS = Arrivals(_EMPTY, _EMPTY, _EMPTY.astype(np.int64), _EMPTY.astype(np.int64))

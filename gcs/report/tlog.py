@@ -235,7 +235,7 @@ class TlogWriter:
         usec = max(0, round(t_s * 1e6))
         try:  # pymavlink's field order; struct rounds to float32 as numpy does
             payload = _STATUS.pack(usec, layout, _STATUS_NAME, *data)
-        except OverflowError:  # a value beyond float32's range (or a time beyond 64 bits)
+        except OverflowError:  # a value beyond float32's range
             payload = _STATUS.pack(usec, layout, _STATUS_NAME, *_as_float32(data))
         self.write_packet(t_s, pack_payload(_DEBUG_FLOAT_ARRAY, payload, mav))
 
